@@ -1,0 +1,68 @@
+"""AeroPerception message schemas: every message, service and action type, msgpack on the wire.
+
+    from aeroperception.schemas import VehicleState, encode, decode
+
+See README.md in this folder for the wire format and the map from every seed/ROS type to its schema.
+"""
+from ._base import (
+    REGISTRY, Header, Message, NDArray, SchemaError, decode, encode, from_builtins, get_schema,
+    now_ns, schema, schema_id, to_builtins,
+)
+from .geometry import Pose, PoseStamped, Quaternion, Twist, Vector3
+from .sensors import (
+    BatteryState, CameraInfo, Detection2D, Detection2DArray, DiagnosticArray, DiagnosticStatus,
+    Image, Imu, OccupancyGrid, Odometry, PointCloud, VioHealth,
+)
+from .safety import SafetyStatus
+from .vehicle import (
+    Attitude, ControlOutput, LandedState, LocalPosition, TrajectorySetpoint, UAVMode, UAVStatus,
+    VehicleState, VehicleStatus,
+)
+from .planning import (
+    CollisionConstraint, Mission, Trajectory, TrajectoryStatus, Waypoint, load_mission_file,
+    parse_mission,
+)
+from .mission import MissionCommand, MissionStatus, PerceptionHealth, WaypointReached
+from .services import (
+    ArmReply, ArmRequest, EmergencyStopReply, EmergencyStopRequest, Empty, LoadMissionReply,
+    LoadMissionRequest, Reply, SelectPluginReply, SelectPluginRequest, SetModeReply, SetModeRequest,
+)
+from .actions import (
+    ACTIONS, ActionFeedback, ActionResult, ActionSpec, CancelReply, CancelRequest,
+    GoalReply, GoalStatus, GoToPositionFeedback, GoToPositionGoal, GoToPositionResult,
+    LandFeedback, LandGoal, LandResult, ResultRequest, SetTrajectoryFeedback, SetTrajectoryGoal,
+    SetTrajectoryResult, TakeoffFeedback, TakeoffGoal, TakeoffResult,
+)
+
+__all__ = [
+    # machinery
+    "Message", "NDArray", "Header", "SchemaError", "schema", "REGISTRY", "get_schema", "encode",
+    "decode", "to_builtins", "from_builtins", "schema_id", "now_ns",
+    # geometry
+    "Vector3", "Quaternion", "Pose", "Twist", "PoseStamped",
+    # sensors, perception, health
+    "Imu", "Image", "CameraInfo", "PointCloud", "OccupancyGrid", "Detection2D", "Detection2DArray",
+    "BatteryState", "DiagnosticStatus", "DiagnosticArray", "Odometry", "VioHealth",
+    # vehicle
+    "LandedState", "VehicleState", "TrajectorySetpoint", "ControlOutput", "UAVMode", "UAVStatus",
+    "VehicleStatus", "LocalPosition", "Attitude",
+    # planning and mission
+    "Trajectory", "TrajectoryStatus", "CollisionConstraint", "Waypoint", "Mission", "parse_mission",
+    "load_mission_file", "MissionStatus", "MissionCommand", "PerceptionHealth", "WaypointReached",
+    # safety
+    "SafetyStatus",
+    # services
+    "Empty", "Reply", "ArmRequest", "ArmReply", "SetModeRequest", "SetModeReply",
+    "LoadMissionRequest", "LoadMissionReply", "EmergencyStopRequest", "EmergencyStopReply",
+    "SelectPluginRequest", "SelectPluginReply",
+    # actions
+    "TakeoffGoal", "TakeoffResult", "TakeoffFeedback", "LandGoal", "LandResult", "LandFeedback",
+    "SetTrajectoryGoal", "SetTrajectoryResult", "SetTrajectoryFeedback", "GoToPositionGoal",
+    "GoToPositionResult", "GoToPositionFeedback", "GoalStatus", "GoalReply", "CancelRequest",
+    "CancelReply", "ResultRequest", "ActionFeedback", "ActionResult", "ActionSpec", "ACTIONS",
+]
+
+# stack infrastructure (sim clock, live parameters)
+from .system import Clock, ParamDescriptor, ParamList, ParamSet, ParamSetReply  # noqa: E402
+
+__all__ += ["Clock", "ParamDescriptor", "ParamList", "ParamSet", "ParamSetReply"]

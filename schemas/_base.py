@@ -1,0 +1,190 @@
+"""Schema machinery: typed msgspec Structs that are plain MessagePack maps on the wire.
+
+Why msgspec: typed encode/decode of a 20-field state in ~2 us with validation, and `bytes`
+fields decoded as zero-copy memoryviews; the output is an ordinary msgpack map that
+`msgpack.unpackb` (or any other language) reads. No extension types, no pickle.
+
+Every message class is registered under a name and a version; publishers put
+"<name>@<version>" in the Zenoh encoding's schema suffix and MCAP records it.
+Decoding failures of any kind raise one error type, `SchemaError`, naming the field.
+"""
+from __future__ import annotations
+
+import math
+from typing import Any, ClassVar, Iterable, TypeVar
+
+import msgspec
+import numpy as np
+
+__all__ = [
+    "Message", "NDArray", "Header", "SchemaError", "schema", "REGISTRY", "get_schema",
+    "encode", "decode", "to_builtins", "from_builtins", "schema_id", "now_ns",
+]
+
+M = TypeVar("M", bound="Message")
+
+
+class SchemaError(ValueError):
+    """A payload does not decode into its schema or fails validation; the message names the field."""
+
+
+class Message(msgspec.Struct, kw_only=True):
+    """Base of every schema. Subclasses are declared with the @schema decorator.
+
+    Fixed-shape arrays are declared in `__shapes__` ({field: shape}) and checked on decode
+    and on construction; a dimension of -1 means "any".
+    """
+
+    __schema_name__: ClassVar[str] = ""
+    __schema_version__: ClassVar[int] = 1
+    __shapes__: ClassVar[dict[str, tuple[int, ...]]] = {}
+
+    def __post_init__(self) -> None:
+        for field, shape in self.__shapes__.items():
+            arr = getattr(self, field)
+            if arr is None:
+                continue
+            if len(arr.shape) != len(shape) or any(
+                want not in (-1, got) for want, got in zip(shape, arr.shape)
+            ):
+                raise ValueError(f"field `{field}` must have shape {list(shape)}, got {list(arr.shape)}")
+
+
+REGISTRY: dict[str, type[Message]] = {}
+
+
+def schema(name: str, version: int = 1):
+    """Class decorator: give a Message its wire name/version and register it."""
+
+    def wrap(cls: type[M]) -> type[M]:
+        if name in REGISTRY and REGISTRY[name] is not cls:
+            raise RuntimeError(f"schema name {name!r} registered twice")
+        cls.__schema_name__ = name
+        cls.__schema_version__ = version
+        REGISTRY[name] = cls
+        return cls
+
+    return wrap
+
+
+def schema_id(cls: type[Message]) -> str:
+    """The encoding schema suffix: "<name>@<version>"."""
+    return f"{cls.__schema_name__}@{cls.__schema_version__}"
+
+
+def get_schema(name: str) -> type[Message]:
+    """Look a schema up by "Name" or "Name@version"; SchemaError lists close names if unknown."""
+    base, _, ver = name.partition("@")
+    cls = REGISTRY.get(base)
+    if cls is None:
+        close = [n for n in REGISTRY if base.lower() in n.lower()] or sorted(REGISTRY)[:10]
+        raise SchemaError(f"unknown schema {name!r}; known ones include: {', '.join(sorted(close))}")
+    if ver and int(ver) != cls.__schema_version__:
+        raise SchemaError(f"schema {base} is version {cls.__schema_version__}, payload says {ver}")
+    return cls
+
+
+# ---------------------------------------------------------------- arrays
+
+_DTYPES = {
+    "bool", "uint8", "int8", "uint16", "int16", "uint32", "int32", "uint64", "int64",
+    "float16", "float32", "float64",
+}
+
+
+class NDArray(msgspec.Struct):
+    """An n-d array as {dtype, shape, data}: little-endian, C order, data is raw bytes.
+
+    Decoded `data` is a memoryview into the received buffer, so `to_numpy()` is zero-copy.
+    """
+
+    dtype: str
+    shape: list[int]
+    data: memoryview
+
+    def __post_init__(self) -> None:
+        if self.dtype not in _DTYPES:
+            raise ValueError(f"array dtype {self.dtype!r} not one of {sorted(_DTYPES)}")
+        if any((not isinstance(d, int)) or d < 0 for d in self.shape):
+            raise ValueError(f"array shape {self.shape} must be non-negative integers")
+        want = math.prod(self.shape) * np.dtype(self.dtype).itemsize
+        if len(self.data) != want:
+            raise ValueError(
+                f"array data is {len(self.data)} bytes but dtype {self.dtype} x shape {self.shape} needs {want}"
+            )
+
+    @classmethod
+    def from_numpy(cls, arr: Any, dtype: str | None = None) -> "NDArray":
+        a = np.asarray(arr, dtype=dtype)
+        if a.dtype.byteorder == ">":
+            a = a.astype(a.dtype.newbyteorder("<"))
+        a = np.ascontiguousarray(a)
+        # memoryview.cast refuses shapes containing 0 (an empty cloud or grid): use an empty buffer.
+        data = memoryview(a).cast("B") if a.size else memoryview(b"")
+        return cls(dtype=a.dtype.name, shape=list(a.shape), data=data)
+
+    @classmethod
+    def zeros(cls, shape: Iterable[int], dtype: str = "float64") -> "NDArray":
+        return cls.from_numpy(np.zeros(tuple(shape), dtype=dtype))
+
+    def to_numpy(self) -> np.ndarray:
+        """A read-only numpy view of the data (copy it if you need to write)."""
+        return np.frombuffer(self.data, dtype=self.dtype).reshape(self.shape)
+
+    @property
+    def nbytes(self) -> int:
+        return len(self.data)
+
+
+# ---------------------------------------------------------------- header
+
+
+class Header(msgspec.Struct, kw_only=True):
+    """Time the data is about (ns, sim or wall clock) and the frame it is expressed in."""
+
+    stamp_ns: int = 0
+    frame_id: str = ""
+
+
+def now_ns() -> int:
+    import time
+
+    return time.time_ns()
+
+
+# ---------------------------------------------------------------- codec
+
+_encoder = msgspec.msgpack.Encoder()
+_decoders: dict[type, msgspec.msgpack.Decoder] = {}
+
+
+def encode(msg: Message) -> bytes:
+    """Encode a message to plain msgpack bytes."""
+    try:
+        return _encoder.encode(msg)
+    except (TypeError, ValueError, OverflowError) as e:
+        raise SchemaError(f"{type(msg).__name__}: cannot encode: {e}") from None
+
+
+def decode(data: bytes | bytearray | memoryview, cls: type[M]) -> M:
+    """Decode and validate; any failure raises SchemaError naming schema and field."""
+    dec = _decoders.get(cls)
+    if dec is None:
+        dec = _decoders[cls] = msgspec.msgpack.Decoder(cls)
+    try:
+        return dec.decode(data)
+    except (msgspec.DecodeError, msgspec.ValidationError) as e:
+        raise SchemaError(f"{getattr(cls, '__schema_name__', '') or cls.__name__}: {e}") from None
+
+
+def to_builtins(msg: Any) -> Any:
+    """Plain Python (dicts/lists) view, arrays kept as NDArray-shaped dicts with bytes data."""
+    return msgspec.to_builtins(msg, builtin_types=(bytes, bytearray, memoryview))
+
+
+def from_builtins(obj: Any, cls: type[M]) -> M:
+    """Validate plain data (e.g. parsed YAML/JSON from the CLI) into a message."""
+    try:
+        return msgspec.convert(obj, cls, strict=False)
+    except msgspec.ValidationError as e:
+        raise SchemaError(f"{getattr(cls, '__schema_name__', '') or cls.__name__}: {e}") from None

@@ -1,0 +1,104 @@
+"""Mission manager messages: its status, the operator's commands, the perception gate it
+listens to, and the waypoint-reached event.
+
+State and command names are the seed 000 strings (readable in logs and any language); the set of
+commands is closed, so a typo is rejected at decode instead of being silently ignored by the FSM.
+"""
+from __future__ import annotations
+
+import msgspec
+
+from ._base import Header, Message, schema
+from ._checks import check_choice, enum_names
+from .geometry import Vector3
+
+__all__ = ["MissionStatus", "MissionCommand", "PerceptionHealth", "WaypointReached"]
+
+
+@schema("MissionStatus", 1)
+class MissionStatus(Message, kw_only=True):
+    """Where the mission FSM is (mission/status, 2 Hz). `active_waypoint` is 0-based, -1 when
+    no mission runs; `distance_to_goal_m` is None without an active goal."""
+
+    header: Header = msgspec.field(default_factory=Header)
+    mission_id: str = ""
+    state: str = "IDLE"
+    active_waypoint: int = -1
+    total_waypoints: int = 0
+    elapsed_time_s: float = 0.0
+    perception_healthy: bool = False
+    distance_to_goal_m: float | None = None
+    message: str = ""
+
+    STATE_IDLE = "IDLE"
+    STATE_TAKEOFF = "TAKEOFF"
+    STATE_EXECUTING = "EXECUTING"
+    STATE_HOLDING = "HOLDING"
+    STATE_LAND = "LAND"
+    STATES = ("IDLE", "TAKEOFF", "EXECUTING", "HOLDING", "LAND")
+
+
+MISSION_COMMANDS = ("ARM", "DISARM", "TAKEOFF", "LOAD", "START", "HOLD", "LAND", "RTL")
+
+
+@schema("MissionCommand", 1)
+class MissionCommand(Message, kw_only=True):
+    """An operator command to the mission manager (mission/command).
+
+    `command` is one of MissionCommand.COMMANDS (case-insensitive on input, stored upper-case);
+    `mission_json` carries the mission (seed 000 §5.1 JSON) with LOAD and is empty otherwise.
+    """
+
+    header: Header = msgspec.field(default_factory=Header)
+    command: str
+    mission_json: str = ""
+
+    ARM = "ARM"
+    DISARM = "DISARM"
+    TAKEOFF = "TAKEOFF"
+    LOAD = "LOAD"
+    START = "START"
+    HOLD = "HOLD"
+    LAND = "LAND"
+    RTL = "RTL"
+    COMMANDS = MISSION_COMMANDS
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        self.command = self.command.strip().upper()
+        check_choice("command", self.command, MISSION_COMMANDS)
+        if self.command == "LOAD" and not self.mission_json.strip():
+            raise ValueError("field `mission_json` is required with the LOAD command")
+
+
+@schema("PerceptionHealth", 1)
+class PerceptionHealth(Message, kw_only=True):
+    """The perception coordinator's verdict (perception/health, 1 Hz + on change): the single
+    input the mission manager gates EXECUTING on. `overall_healthy` is vio_status == HEALTHY."""
+
+    header: Header = msgspec.field(default_factory=Header)
+    vio_status: int = 0
+    detector_status: int = 0
+    overall_healthy: bool = False
+    message: str = ""
+
+    UNKNOWN = 0
+    INITIALIZING = 1
+    HEALTHY = 2
+    DEGRADED = 3
+    FAILED = 4
+
+    @classmethod
+    def status_name(cls, value: int) -> str:
+        return enum_names(cls).get(value, str(value))
+
+
+@schema("WaypointReached", 1)
+class WaypointReached(Message, kw_only=True):
+    """Event: the vehicle came within the acceptance radius of waypoint `index` (0-based) of
+    `mission_id`; `position_m` is where it was then (ENU)."""
+
+    header: Header = msgspec.field(default_factory=Header)
+    mission_id: str = ""
+    index: int = 0
+    position_m: Vector3 = msgspec.field(default_factory=Vector3)

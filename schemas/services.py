@@ -1,0 +1,129 @@
+"""Request/reply pairs for Zenoh queryables (`<area>/srv/<name>`), the seeds' ROS services.
+
+Every reply subclasses `Reply` (success + message), so a client can report any failure the same
+way without knowing the service. Seed types that meant the same thing are merged:
+ArmVehicle + Arm -> ArmRequest/ArmReply; SetFlightMode -> SetModeRequest/SetModeReply;
+SetController/SetEstimator/SetTrajectoryGenerator -> SelectPluginRequest/SelectPluginReply
+(a `role` field says which plugin slot).
+"""
+from __future__ import annotations
+
+import msgspec
+
+from ._base import Header, Message, schema
+from ._checks import check_choice
+
+__all__ = [
+    "Empty", "Reply", "ArmRequest", "ArmReply", "SetModeRequest", "SetModeReply",
+    "LoadMissionRequest", "LoadMissionReply", "EmergencyStopRequest", "EmergencyStopReply",
+    "SelectPluginRequest", "SelectPluginReply",
+]
+
+
+@schema("Empty", 1)
+class Empty(Message, kw_only=True):
+    """Request of a parameterless queryable (only the header; `{}` decodes too)."""
+
+    header: Header = msgspec.field(default_factory=Header)
+
+
+@schema("Reply", 1)
+class Reply(Message, kw_only=True):
+    """Base of every reply: did it work, and a human-readable why (empty on plain success)."""
+
+    header: Header = msgspec.field(default_factory=Header)
+    success: bool = False
+    message: str = ""
+
+
+@schema("ArmRequest", 1)
+class ArmRequest(Message, kw_only=True):
+    """Arm (True) or disarm (False) the vehicle (fmu/srv/arm). `force` bypasses the
+    autopilot's pre-arm checks / lets disarm happen in the air: for tests and emergencies only."""
+
+    header: Header = msgspec.field(default_factory=Header)
+    arm: bool  # required: an empty request must never arm the vehicle
+    force: bool = False
+
+
+@schema("ArmReply", 1)
+class ArmReply(Reply, kw_only=True):
+    """`armed` is the vehicle's arming state after the request (seed 002 Arm)."""
+
+    armed: bool = False
+
+
+@schema("SetModeRequest", 1)
+class SetModeRequest(Message, kw_only=True):
+    """Switch the autopilot's flight mode (fmu/srv/set_mode); `mode` is a nav_state name as in
+    VehicleStatus ("OFFBOARD", "HOLD", "POSCTL", "LAND", "RTL", "TAKEOFF", "MISSION", ...)."""
+
+    header: Header = msgspec.field(default_factory=Header)
+    mode: str = ""
+
+
+@schema("SetModeReply", 1)
+class SetModeReply(Reply, kw_only=True):
+    """`current_mode` is the mode after the request, whether or not it changed."""
+
+    current_mode: str = ""
+
+
+@schema("LoadMissionRequest", 1)
+class LoadMissionRequest(Message, kw_only=True):
+    """Load a mission (mission/srv/load); seed 000 §5.1 JSON text, see planning.Mission."""
+
+    header: Header = msgspec.field(default_factory=Header)
+    mission_json: str = ""
+
+
+@schema("LoadMissionReply", 1)
+class LoadMissionReply(Reply, kw_only=True):
+    """On failure `message` names the bad field (the seed's error_message)."""
+
+    num_waypoints: int = 0
+    mission_id: str = ""
+
+
+@schema("EmergencyStopRequest", 1)
+class EmergencyStopRequest(Message, kw_only=True):
+    """Stop the motors now (fmu/srv/emergency_stop): the vehicle falls. Ignored unless `confirm`."""
+
+    header: Header = msgspec.field(default_factory=Header)
+    confirm: bool = False
+    reason: str = ""
+
+
+@schema("EmergencyStopReply", 1)
+class EmergencyStopReply(Reply, kw_only=True):
+    """`success` is the seed's `executed`."""
+
+
+PLUGIN_ROLES = ("controller", "estimator", "trajectory_generator")
+
+
+@schema("SelectPluginRequest", 1)
+class SelectPluginRequest(Message, kw_only=True):
+    """Activate plugin `name` in slot `role` (seed 002 SetController / SetEstimator /
+    SetTrajectoryGenerator, which differ only in the slot)."""
+
+    header: Header = msgspec.field(default_factory=Header)
+    role: str = "controller"
+    name: str = ""
+
+    ROLE_CONTROLLER = "controller"
+    ROLE_ESTIMATOR = "estimator"
+    ROLE_TRAJECTORY_GENERATOR = "trajectory_generator"
+    ROLES = PLUGIN_ROLES
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        check_choice("role", self.role, PLUGIN_ROLES)
+
+
+@schema("SelectPluginReply", 1)
+class SelectPluginReply(Reply, kw_only=True):
+    """`active` is the plugin active in the slot after the request (seed's active_controller /
+    active_estimator / active_generator)."""
+
+    active: str = ""

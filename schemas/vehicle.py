@@ -1,0 +1,248 @@
+"""Vehicle state, flight-controller telemetry and setpoints.
+
+VehicleState is the one state message (state/vehicle): seed 000's VehicleStateENU and seed 002's
+State merged. The fmu/out/* types mirror the PX4 topics the seeds subscribe to, already converted
+to ENU/FLU by the fmu service: nothing in here is ever NED/FRD (only fmu and gcs see NED, through
+one conversion module).
+"""
+from __future__ import annotations
+
+import msgspec
+
+from ._base import Header, Message, NDArray, schema
+from ._checks import check_dtype, enum_names
+from .geometry import Pose, Quaternion, Vector3
+from .safety import SafetyStatus
+
+__all__ = [
+    "LandedState", "VehicleState", "TrajectorySetpoint", "ControlOutput", "UAVMode", "UAVStatus",
+    "VehicleStatus", "LocalPosition", "Attitude",
+]
+
+
+class LandedState:
+    """MAVLink MAV_LANDED_STATE values, shared by VehicleState and VehicleStatus."""
+
+    UNDEFINED = 0
+    ON_GROUND = 1
+    IN_AIR = 2
+    TAKEOFF = 3
+    LANDING = 4
+
+    @classmethod
+    def name(cls, value: int) -> str:
+        return enum_names(cls).get(value, str(value))
+
+
+class _LandedStateConstants:
+    # Mixed into the Structs below so `VehicleState.LANDED_STATE_IN_AIR` reads naturally.
+    __slots__ = ()
+    LANDED_STATE_UNDEFINED = LandedState.UNDEFINED
+    LANDED_STATE_ON_GROUND = LandedState.ON_GROUND
+    LANDED_STATE_IN_AIR = LandedState.IN_AIR
+    LANDED_STATE_TAKEOFF = LandedState.TAKEOFF
+    LANDED_STATE_LANDING = LandedState.LANDING
+
+
+@schema("VehicleState", 1)
+class VehicleState(Message, _LandedStateConstants, kw_only=True):
+    """Everything the autonomy needs about the vehicle, at 50 Hz (state/vehicle).
+
+    Position, velocity, acceleration in the world ENU frame (`header.frame_id`, e.g. "map");
+    `orientation` rotates body FLU into world ENU; `angular_velocity_radps` is body FLU.
+    roll/pitch/yaw are derived from `orientation` for convenience (yaw 0 = East, CCW positive).
+    Covariances are 6x6 (x, y, z, roll, pitch, yaw / vx, vy, vz, wx, wy, wz), None when unknown.
+    `connected` is False when the flight-controller link is stale: then treat the rest as old.
+    Battery quantities are None when unknown.
+    """
+
+    header: Header = msgspec.field(default_factory=Header)
+    position_m: Vector3 = msgspec.field(default_factory=Vector3)
+    velocity_mps: Vector3 = msgspec.field(default_factory=Vector3)
+    acceleration_mps2: Vector3 = msgspec.field(default_factory=Vector3)
+    orientation: Quaternion = msgspec.field(default_factory=Quaternion)
+    angular_velocity_radps: Vector3 = msgspec.field(default_factory=Vector3)
+    roll_rad: float = 0.0
+    pitch_rad: float = 0.0
+    yaw_rad: float = 0.0
+    pose_covariance: NDArray | None = None
+    twist_covariance: NDArray | None = None
+    estimator_name: str = ""
+    confidence: float = 0.0
+    flight_mode: str = ""
+    armed: bool = False
+    landed_state: int = LandedState.UNDEFINED
+    battery_remaining: float | None = None
+    battery_voltage_v: float | None = None
+    connected: bool = False
+
+    __shapes__ = {"pose_covariance": (6, 6), "twist_covariance": (6, 6)}
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        check_dtype("pose_covariance", self.pose_covariance, ("float64", "float32"))
+        check_dtype("twist_covariance", self.twist_covariance, ("float64", "float32"))
+
+    @property
+    def pose(self) -> Pose:
+        return Pose(position=self.position_m, orientation=self.orientation)
+
+    @property
+    def landed(self) -> bool:
+        return self.landed_state == LandedState.ON_GROUND
+
+
+@schema("TrajectorySetpoint", 1)
+class TrajectorySetpoint(Message, kw_only=True):
+    """Reference for the flight controller (fmu/in/trajectory_setpoint, 50 Hz), ENU.
+
+    Seed 002 TrajectorySetpoint; replaces px4 TrajectorySetpoint (fmu converts to NED). Only the
+    parts whose `*_valid` flag is set are used; unused values may be anything, NaN included.
+    """
+
+    header: Header = msgspec.field(default_factory=Header)
+    position_valid: bool = False
+    velocity_valid: bool = False
+    acceleration_valid: bool = False
+    jerk_valid: bool = False
+    yaw_valid: bool = False
+    yaw_rate_valid: bool = False
+    position_m: Vector3 = msgspec.field(default_factory=Vector3)
+    velocity_mps: Vector3 = msgspec.field(default_factory=Vector3)
+    acceleration_mps2: Vector3 = msgspec.field(default_factory=Vector3)
+    jerk_mps3: Vector3 = msgspec.field(default_factory=Vector3)
+    yaw_rad: float = 0.0
+    yaw_rate_radps: float = 0.0
+
+
+@schema("ControlOutput", 1)
+class ControlOutput(Message, kw_only=True):
+    """A controller's command to the flight controller; `control_mode` says which fields apply.
+
+    Seed 002 ControlOutput (its two `thrust_normalized` lines are one field here). Position and
+    velocity are ENU; orientation is ENU <- FLU; body rates are FLU.
+    """
+
+    header: Header = msgspec.field(default_factory=Header)
+    control_mode: int = 0
+    CONTROL_MODE_POSITION = 0
+    CONTROL_MODE_VELOCITY = 1
+    CONTROL_MODE_ATTITUDE = 2
+    CONTROL_MODE_BODY_RATE = 3
+
+    position_m: Vector3 = msgspec.field(default_factory=Vector3)
+    yaw_rad: float = 0.0
+    velocity_mps: Vector3 = msgspec.field(default_factory=Vector3)
+    yaw_rate_radps: float = 0.0
+    orientation: Quaternion = msgspec.field(default_factory=Quaternion)
+    body_rates_radps: Vector3 = msgspec.field(default_factory=Vector3)
+    thrust_normalized: float = 0.0  # 0..1
+    controller_name: str = ""
+
+
+@schema("UAVMode", 1)
+class UAVMode(Message, kw_only=True):
+    """High-level operational state and control mode, with what transitions are allowed now."""
+
+    header: Header = msgspec.field(default_factory=Header)
+    state: int = 0
+    STATE_IDLE = 0
+    STATE_ARMED = 1
+    STATE_TAKING_OFF = 2
+    STATE_HOVERING = 3
+    STATE_FLYING = 4
+    STATE_LANDING = 5
+    STATE_LANDED = 6
+    STATE_EMERGENCY = 7
+
+    control_mode: int = 0
+    MODE_MANUAL = 0
+    MODE_POSITION = 1
+    MODE_VELOCITY = 2
+    MODE_TRAJECTORY = 3
+    MODE_OFFBOARD = 4
+
+    submode: str = ""  # e.g. "formation", "inspection", "rth"
+    armed: bool = False
+    can_arm: bool = False
+    can_takeoff: bool = False
+    can_land: bool = False
+
+
+@schema("UAVStatus", 1)
+class UAVStatus(Message, kw_only=True):
+    """Everything about one UAV for monitoring (a GCS dashboard). Seed 002 UAVStatus; battery is a
+    0..1 fraction and link latencies are seconds (SI), unlike the seed's percent and ms."""
+
+    header: Header = msgspec.field(default_factory=Header)
+    uav_id: str = ""
+    uav_name: str = ""
+    current_state: VehicleState = msgspec.field(default_factory=VehicleState)
+    current_mode: UAVMode = msgspec.field(default_factory=UAVMode)
+    active_estimator: str = ""
+    active_controller: str = ""
+    active_trajectory_generator: str = ""
+    safety_status: SafetyStatus = msgspec.field(default_factory=SafetyStatus)
+    battery_remaining: float | None = None
+    cpu_percent: float = 0.0
+    memory_percent: float = 0.0
+    px4_connected: bool = False
+    gcs_connected: bool = False
+    px4_latency_s: float | None = None
+    gcs_latency_s: float | None = None
+    current_mission_id: str = ""
+    mission_progress_percent: float = 0.0
+
+
+@schema("VehicleStatus", 1)
+class VehicleStatus(Message, _LandedStateConstants, kw_only=True):
+    """Flight-controller status (fmu/out/vehicle_status, 5 Hz): mode, arming, landed, failsafe.
+
+    Replaces px4 VehicleStatus. `nav_state` is the autopilot-neutral mode name ("OFFBOARD",
+    "HOLD", "POSCTL", "LAND", "RTL", "TAKEOFF", "MISSION", "MANUAL", ...); `custom_mode` is the
+    raw MAVLink HEARTBEAT value, and for PX4 `px4_main_mode`/`px4_sub_mode` are its decoded parts
+    (custom_mode = main << 16 | sub << 24), 0 otherwise.
+    """
+
+    header: Header = msgspec.field(default_factory=Header)
+    nav_state: str = ""
+    custom_mode: int = 0
+    px4_main_mode: int = 0
+    px4_sub_mode: int = 0
+    armed: bool = False
+    landed_state: int = LandedState.UNDEFINED
+    failsafe: bool = False
+    system_id: int = 1
+    autopilot: str = ""  # "px4", "ardupilot"
+
+    @property
+    def landed(self) -> bool:
+        return self.landed_state == LandedState.ON_GROUND
+
+
+@schema("LocalPosition", 1)
+class LocalPosition(Message, kw_only=True):
+    """Flight controller's local position estimate in ENU (fmu/out/vehicle_local_position, 50 Hz).
+
+    Replaces px4 VehicleLocalPosition. `yaw_rad` is the ENU yaw (0 = East, CCW positive), i.e. PX4's
+    `heading` converted. `distance_bottom_m` is height above ground when a range sensor knows it.
+    """
+
+    header: Header = msgspec.field(default_factory=Header)
+    position_m: Vector3 = msgspec.field(default_factory=Vector3)
+    velocity_mps: Vector3 = msgspec.field(default_factory=Vector3)
+    acceleration_mps2: Vector3 = msgspec.field(default_factory=Vector3)
+    yaw_rad: float = 0.0
+    position_valid: bool = False
+    velocity_valid: bool = False
+    distance_bottom_m: float | None = None
+
+
+@schema("Attitude", 1)
+class Attitude(Message, kw_only=True):
+    """Flight controller's attitude (fmu/out/vehicle_attitude, 50 Hz): `orientation` rotates body
+    FLU into world ENU; `angular_velocity_radps` is body FLU. Replaces px4 VehicleAttitude."""
+
+    header: Header = msgspec.field(default_factory=Header)
+    orientation: Quaternion = msgspec.field(default_factory=Quaternion)
+    angular_velocity_radps: Vector3 = msgspec.field(default_factory=Vector3)

@@ -1,0 +1,388 @@
+"""Node: one service's Zenoh session with typed pub/sub, queryables, liveliness, diagnostics
+and parameters. Services never touch zenoh directly; they use this.
+
+Threading: subscriber callbacks run on Zenoh's threads, queryable handlers on a small worker
+pool, timers in their own threads; every user callback runs holding `node.lock`, so service
+logic is single-threaded like a ROS executor and needs no locking of its own.
+Bad input (undecodable payload, failed validation, a callback that raises) is counted per key,
+logged at most once per key per second, reported in diagnostics, and dropped.
+"""
+from __future__ import annotations
+
+import threading
+import time
+from collections import Counter
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass
+from typing import Any, Callable, TypeVar
+
+import zenoh
+
+from aeroperception.schemas import (
+    DiagnosticStatus, Message, ParamList, ParamSet as ParamSetMsg, ParamSetReply, SchemaError,
+    decode, encode, schema_id,
+)
+from aeroperception.schemas.system import ParamDescriptor
+
+from .clock import Clock
+from .log import Logger
+from .params import Param, ParamError, ParamSet
+from .rate import RateLoop
+from .session import make_config, open_session
+
+M = TypeVar("M", bound=Message)
+R = TypeVar("R", bound=Message)
+
+MSGPACK = "application/msgpack"
+LIVELINESS_ROOT = "aero/alive"
+
+
+class CallError(RuntimeError):
+    """A request/response call failed: no responder, timeout, or an undecodable reply."""
+
+
+def encoding_for(cls: type[Message]) -> zenoh.Encoding:
+    return zenoh.Encoding(MSGPACK).with_schema(schema_id(cls))
+
+
+def schema_of(encoding: zenoh.Encoding | str) -> str:
+    """The "<name>@<version>" suffix of a sample's encoding, or "" if it has none."""
+    s = str(encoding)
+    return s.split(";", 1)[1] if ";" in s else ""
+
+
+@dataclass
+class Health:
+    """What a service says about itself once a second (levels as DiagnosticStatus)."""
+
+    level: int = DiagnosticStatus.OK
+    message: str = "ok"
+    values: dict[str, Any] | None = None
+
+
+class Publisher:
+    """Typed publisher: encodes a message of one schema and puts it with its encoding."""
+
+    def __init__(self, node: "Node", key: str, cls: type[Message], **qos: Any):
+        self.key, self.cls = key, cls
+        self._pub = node.session.declare_publisher(key, encoding=encoding_for(cls), **qos)
+        self.count = 0
+
+    def publish(self, msg: Message) -> None:
+        self._pub.put(encode(msg))
+        self.count += 1
+
+    def undeclare(self) -> None:
+        self._pub.undeclare()
+
+
+class Node:
+    def __init__(self, name: str, *, params: list[Param] | None = None, vehicle: str = "",
+                 zenoh_config: str | None = None, connect: str | None = None,
+                 log_level: str = "info", sim_time: bool = False, mode: str | None = None):
+        self.name = name
+        self.vehicle = vehicle
+        self.log = Logger(name, log_level)
+        self.params = ParamSet.from_declarations(params or [])
+        self.lock = threading.RLock()
+        self.stop_event = threading.Event()
+        self._conf = make_config(zenoh_config, connect, mode=mode)
+        self._sim_time = sim_time
+        self.session: zenoh.Session | None = None
+        self.clock: Clock | None = None
+        self.bad_input: Counter[str] = Counter()
+        self.callback_errors: Counter[str] = Counter()
+        self.params_rejected = 0
+        self._entities: list[Any] = []
+        self._loops: list[RateLoop] = []
+        self._pool = ThreadPoolExecutor(max_workers=4, thread_name_prefix=f"{name}-q")
+        self._health_fn: Callable[[], Health] = lambda: Health()
+        self._diag_pub: Publisher | None = None
+        self._closed = False
+
+    # ------------------------------------------------------------ lifecycle
+
+    def key(self, key: str) -> str:
+        """Apply the vehicle prefix (if any) to a stack key."""
+        return f"{self.vehicle}/{key}" if self.vehicle else key
+
+    def connect(self, max_wait_s: float | None = None) -> bool:
+        """Open the session (retrying until a router answers), then declare the runtime's own
+        entities: liveliness token, diagnostics, parameter endpoints, clock."""
+
+        def waiting(err: Exception, attempt: int) -> None:
+            if attempt == 1 or attempt % 10 == 0:
+                self.log.warn("waiting_for_router", status="STALE", error=str(err).split(" at ")[0])
+
+        self.session = open_session(self._conf, self.stop_event, waiting, max_wait_s)
+        if self.session is None:
+            return False
+        self.clock = Clock(self if self._sim_time else None)
+        token_key = f"{LIVELINESS_ROOT}/{self.vehicle or 'default'}/{self.name}"
+        self._entities.append(self.session.liveliness().declare_token(token_key))
+        self._diag_pub = self.publisher("diagnostics/" + self.name, DiagnosticStatus)
+        base = self.key(f"config/{self.name}")
+        self.subscribe_raw(f"{base}/**", self._on_param_put)
+        self.serve(f"config/{self.name}/@set", ParamSetMsg, ParamSetReply, self._on_param_set)
+        self.serve(f"config/{self.name}/@params", None, ParamList, lambda _req: self.param_list())
+        self.every(1.0, self._publish_diagnostics, name="diagnostics")
+        self.log.info("started", zid=str(self.session.zid()), vehicle=self.vehicle or None)
+        return True
+
+    def close(self) -> None:
+        """Stop loops, undeclare everything and close the session (well within 2 s)."""
+        if self._closed:
+            return
+        self._closed = True
+        self.stop_event.set()
+        for loop in self._loops:
+            loop.stop(0.5)
+        self._pool.shutdown(wait=False, cancel_futures=True)
+        if self.session is not None:
+            for ent in reversed(self._entities):
+                try:
+                    ent.undeclare()
+                except Exception:  # noqa: BLE001 - best effort during shutdown
+                    pass
+            try:
+                self.session.close()
+            except Exception:  # noqa: BLE001
+                pass
+        self.log.info("stopped")
+
+    # ------------------------------------------------------------ pub/sub
+
+    def publisher(self, key: str, cls: type[Message], **qos: Any) -> Publisher:
+        pub = Publisher(self, self.key(key), cls, **qos)
+        self._entities.append(pub)
+        return pub
+
+    def subscribe(self, key: str, cls: type[M], callback: Callable[[M], None]) -> None:
+        """Decode samples on `key` (vehicle prefix applied) as `cls` and call `callback(msg)`."""
+        full = self.key(key)
+        expected = cls.__schema_name__
+
+        def on_sample(sample: zenoh.Sample) -> None:
+            k = str(sample.key_expr)
+            named = schema_of(sample.encoding).partition("@")[0]
+            if named and named != expected:
+                # Another type under a wildcard (diagnostics/agg under diagnostics/*): not ours.
+                self.log.throttled("debug", f"other:{k}", "other_schema_skipped", schema=named)
+                return
+            try:
+                msg = decode(sample.payload.to_bytes(), cls)
+            except SchemaError as e:
+                self.report_bad_input(k, str(e))
+                return
+            self._invoke(k, callback, msg)
+
+        self._entities.append(self.session.declare_subscriber(full, on_sample))
+
+    def subscribe_raw(self, full_key: str, callback: Callable[[zenoh.Sample], None]) -> None:
+        """Raw samples (no decoding), for tools and the runtime's own endpoints. Key used as is."""
+        self._entities.append(
+            self.session.declare_subscriber(full_key, lambda s: self._invoke(str(s.key_expr), callback, s))
+        )
+
+    def _invoke(self, key: str, fn: Callable, *args: Any) -> Any:
+        try:
+            with self.lock:
+                return fn(*args)
+        except Exception as e:  # noqa: BLE001 - a bad message must never take the service down
+            self.callback_errors[key] += 1
+            self.log.throttled("error", f"cb:{key}", "callback_error", error=f"{type(e).__name__}: {e}")
+            return None
+
+    def report_bad_input(self, key: str, error: str) -> None:
+        """Count, log (once per key per second) and drop an input that failed to decode/validate."""
+        self.bad_input[key] += 1
+        self.log.throttled("warn", f"bad:{key}", "invalid_payload_dropped", error=error,
+                           count=self.bad_input[key])
+
+    # ------------------------------------------------------------ request/response
+
+    def serve(self, key: str, req_cls: type[Message] | None, reply_cls: type[Message],
+              handler: Callable[[Any], Message]) -> None:
+        """Queryable: decode the request (None when req_cls is None), reply with handler(req).
+
+        Handlers run on a worker thread holding node.lock; an invalid request gets a reply
+        with success=False naming the problem (if the reply type has those fields).
+        """
+        full = self.key(key)
+
+        def work(query: zenoh.Query) -> None:
+            k = str(query.key_expr)
+            try:
+                req = None
+                if req_cls is not None:
+                    raw = query.payload.to_bytes() if query.payload is not None else b"\x80"
+                    try:
+                        req = decode(raw, req_cls)
+                    except SchemaError as e:
+                        self.report_bad_input(k, str(e))
+                        query.reply(k, encode(_failure(reply_cls, f"invalid request: {e}")),
+                                    encoding=encoding_for(reply_cls))
+                        return
+                reply = self._invoke(k, handler, req)
+                if reply is None:
+                    reply = _failure(reply_cls, "internal error handling the request (see service log)")
+                query.reply(k, encode(reply), encoding=encoding_for(type(reply)))
+            except Exception as e:  # noqa: BLE001
+                self.log.throttled("error", f"q:{k}", "query_failed", error=str(e))
+            finally:
+                query.drop()
+
+        def on_query(query: zenoh.Query) -> None:
+            try:
+                self._pool.submit(work, query)
+            except RuntimeError:  # pool shut down: service is stopping
+                query.drop()
+
+        self._entities.append(self.session.declare_queryable(full, on_query))
+
+    def call(self, key: str, request: Message | None, reply_cls: type[R], timeout_s: float = 2.0,
+             selector_params: str = "") -> R:
+        """Blocking request/response. Raises CallError with a clear reason."""
+        return call(self.session, self.key(key), request, reply_cls, timeout_s, selector_params)
+
+    def call_async(self, key: str, request: Message | None, reply_cls: type[R],
+                   callback: Callable[[R | CallError], None] | None = None,
+                   timeout_s: float = 2.0) -> Future:
+        """Non-blocking call; `callback(reply or CallError)` runs holding node.lock."""
+
+        def work() -> R | CallError:
+            try:
+                res: R | CallError = self.call(key, request, reply_cls, timeout_s)
+            except CallError as e:
+                res = e
+            if callback:
+                self._invoke(key, callback, res)
+            return res
+
+        return self._pool.submit(work)
+
+    # ------------------------------------------------------------ timers
+
+    def every(self, period_s: float, fn: Callable[[], None], name: str = "timer") -> RateLoop:
+        """Run fn every period_s by deadline (own thread, holding node.lock); stats in diagnostics."""
+
+        def body() -> None:
+            with self.lock:
+                fn()
+
+        def on_error(e: BaseException) -> None:
+            self.callback_errors[f"timer:{name}"] += 1
+            self.log.throttled("error", f"timer:{name}", "timer_error", error=f"{type(e).__name__}: {e}")
+
+        loop = RateLoop(1.0 / period_s, body, name=f"{self.name}-{name}", on_error=on_error).start()
+        self._loops.append(loop)
+        return loop
+
+    # ------------------------------------------------------------ diagnostics
+
+    def set_health(self, fn: Callable[[], Health]) -> None:
+        self._health_fn = fn
+
+    def diagnostics(self) -> DiagnosticStatus:
+        health = self._health_fn()
+        values: dict[str, str] = {}
+        for k, v in (health.values or {}).items():
+            values[k] = str(v)
+        values["invalid_msgs"] = str(sum(self.bad_input.values()))
+        for k, n in self.bad_input.most_common(5):
+            values[f"invalid_msgs[{k}]"] = str(n)
+        values["callback_errors"] = str(sum(self.callback_errors.values()))
+        values["params_rejected"] = str(self.params_rejected)
+        for loop in self._loops:
+            short = loop.name.removeprefix(self.name + "-")
+            if short == "diagnostics":
+                continue
+            for k, v in loop.stats.summary().items():
+                values[f"loop[{short}].{k}"] = str(v)
+        level, message = health.level, health.message
+        if level == DiagnosticStatus.OK and (self.bad_input or self.callback_errors):
+            level, message = DiagnosticStatus.WARN, f"{message}; dropped invalid input"
+        return DiagnosticStatus(header=self.header(), level=level, name=self.name, message=message,
+                                hardware_id=self.vehicle or "default", values=values)
+
+    def _publish_diagnostics(self) -> None:
+        if self._diag_pub is not None:
+            self._diag_pub.publish(self.diagnostics())
+
+    def header(self, frame_id: str = ""):
+        from aeroperception.schemas import Header
+
+        return Header(stamp_ns=self.now_ns(), frame_id=frame_id)
+
+    def now_ns(self) -> int:
+        return self.clock.now_ns() if self.clock else time.time_ns()
+
+    # ------------------------------------------------------------ parameters
+
+    def param_list(self) -> ParamList:
+        out = []
+        for n, p in self.params.declared.items():
+            out.append(ParamDescriptor(name=n, value=self.params[n], default=p.default,
+                                       type=p.type.__name__, unit=p.unit, min=p.min, max=p.max,
+                                       choices=list(p.choices) if p.choices else None,
+                                       description=p.description))
+        return ParamList(header=self.header(), service=self.name, params=out)
+
+    def set_param(self, name: str, value: Any) -> ParamSetReply:
+        try:
+            v = self.params.set(name, value)
+        except ParamError as e:
+            self.params_rejected += 1
+            self.log.warn("param_rejected", name=name, value=value, error=str(e))
+            return ParamSetReply(success=False, message=str(e), name=name,
+                                 value=self.params.values.get(name))
+        self.log.info("param_set", name=name, value=v)
+        return ParamSetReply(success=True, message="ok", name=name, value=v)
+
+    def _on_param_put(self, sample: zenoh.Sample) -> None:
+        k = str(sample.key_expr)
+        name = k.rsplit("/", 1)[-1]
+        try:
+            msg = decode(sample.payload.to_bytes(), ParamSetMsg)
+        except SchemaError as e:
+            self.report_bad_input(k, str(e))
+            return
+        self.set_param(msg.name or name, msg.value)
+
+    def _on_param_set(self, req: ParamSetMsg) -> ParamSetReply:
+        return self.set_param(req.name, req.value)
+
+
+def _failure(reply_cls: type[Message], message: str) -> Message:
+    fields = getattr(reply_cls, "__struct_fields__", ())
+    kw: dict[str, Any] = {}
+    if "success" in fields:
+        kw["success"] = False
+    if "message" in fields:
+        kw["message"] = message
+    return reply_cls(**kw)
+
+
+def call(session: zenoh.Session, full_key: str, request: Message | None, reply_cls: type[R],
+         timeout_s: float = 2.0, selector_params: str = "") -> R:
+    """Request/response on a raw session (used by Node.call and the CLI)."""
+    payload = encode(request) if request is not None else None
+    enc = encoding_for(type(request)) if request is not None else None
+    selector = f"{full_key}?{selector_params}" if selector_params else full_key
+    try:
+        replies = session.get(selector, payload=payload, encoding=enc, timeout=timeout_s)
+    except zenoh.ZError as e:
+        raise CallError(f"{full_key}: {e}") from None
+    t0 = time.monotonic()
+    got_any = False
+    for reply in replies:
+        got_any = True
+        if reply.ok is None:
+            raise CallError(f"{full_key}: service replied with an error: {reply.err.payload.to_string()}")
+        try:
+            return decode(reply.ok.payload.to_bytes(), reply_cls)
+        except SchemaError as e:
+            raise CallError(f"{full_key}: bad reply: {e}") from None
+    if not got_any and time.monotonic() - t0 < timeout_s * 0.9:
+        raise CallError(f"{full_key}: no service answers on this key (is it running?)")
+    raise CallError(f"{full_key}: no reply within {timeout_s:.1f} s")

@@ -1,0 +1,147 @@
+"""Declared parameters: one table per service with defaults, units and limits (like PX4 module.yaml).
+
+Values come from the declaration, then a YAML file, then --param overrides, then live updates
+on config/<service>/**. Every new value is validated against its declaration; a bad value is
+rejected with a message that says what is allowed, and the old value stays.
+"""
+from __future__ import annotations
+
+import math
+import threading
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Iterable
+
+import yaml
+
+
+class ParamError(ValueError):
+    """A parameter value or file that does not match the declaration."""
+
+
+@dataclass(frozen=True)
+class Param:
+    """One parameter: name, default (its type is the parameter's type), unit and limits."""
+
+    name: str
+    default: Any
+    unit: str = ""
+    min: float | None = None
+    max: float | None = None
+    choices: tuple[Any, ...] | None = None
+    description: str = ""
+
+    @property
+    def type(self) -> type:
+        return type(self.default)
+
+    def validate(self, value: Any) -> Any:
+        """Coerce `value` (possibly a string from the CLI) to the declared type and check limits."""
+        t = self.type
+        v = value
+        if isinstance(v, str) and t is not str:
+            try:
+                v = yaml.safe_load(v)
+            except yaml.YAMLError:
+                pass
+        if t is bool:
+            if not isinstance(v, bool):
+                raise ParamError(f"{self.name}: expected true/false, got {value!r}")
+        elif t is int:
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or (isinstance(v, float) and not v.is_integer()):
+                raise ParamError(f"{self.name}: expected an integer, got {value!r}")
+            v = int(v)
+        elif t is float:
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise ParamError(f"{self.name}: expected a finite number, got {value!r}")
+            v = float(v)
+        elif t is str:
+            if not isinstance(v, str):
+                raise ParamError(f"{self.name}: expected a string, got {value!r}")
+        if self.min is not None and v < self.min:
+            raise ParamError(f"{self.name}: {v} is below the minimum {self.min} {self.unit}".rstrip())
+        if self.max is not None and v > self.max:
+            raise ParamError(f"{self.name}: {v} is above the maximum {self.max} {self.unit}".rstrip())
+        if self.choices is not None and v not in self.choices:
+            raise ParamError(f"{self.name}: {v!r} is not one of {list(self.choices)}")
+        return v
+
+
+@dataclass
+class ParamSet:
+    """Current values of a service's declared parameters; thread-safe; notifies on change."""
+
+    declared: dict[str, Param]
+    values: dict[str, Any] = field(default_factory=dict)
+    _listeners: list[Callable[[str, Any], None]] = field(default_factory=list)
+    _lock: threading.Lock = field(default_factory=threading.Lock)
+
+    @classmethod
+    def from_declarations(cls, params: Iterable[Param]) -> "ParamSet":
+        declared = {p.name: p for p in params}
+        return cls(declared=declared, values={n: p.default for n, p in declared.items()})
+
+    def __getitem__(self, name: str) -> Any:
+        return self.values[name]
+
+    def __getattr__(self, name: str) -> Any:
+        values = self.__dict__.get("values")
+        if values is not None and name in values:
+            return values[name]
+        raise AttributeError(name)
+
+    def set(self, name: str, value: Any) -> Any:
+        """Validate and apply; raises ParamError (old value kept) when invalid or unknown."""
+        p = self.declared.get(name)
+        if p is None:
+            raise ParamError(f"unknown parameter {name!r}; declared: {', '.join(sorted(self.declared))}")
+        v = p.validate(value)
+        with self._lock:
+            self.values[name] = v
+        for cb in list(self._listeners):
+            cb(name, v)
+        return v
+
+    def update(self, mapping: dict[str, Any]) -> None:
+        """Apply several values atomically: all valid or none applied."""
+        checked = {}
+        for k, v in mapping.items():
+            if k not in self.declared:
+                raise ParamError(f"unknown parameter {k!r}; declared: {', '.join(sorted(self.declared))}")
+            checked[k] = self.declared[k].validate(v)
+        for k, v in checked.items():
+            self.set(k, v)
+
+    def on_change(self, cb: Callable[[str, Any], None]) -> None:
+        self._listeners.append(cb)
+
+    def load_file(self, path: str | Path, service: str) -> None:
+        """YAML file: either {service: {name: value}} for a whole stack or a flat {name: value}."""
+        p = Path(path)
+        try:
+            data = yaml.safe_load(p.read_text()) or {}
+        except OSError as e:
+            raise ParamError(f"{p}: cannot read parameter file: {e.strerror}") from None
+        except yaml.YAMLError as e:
+            raise ParamError(f"{p}: not valid YAML: {e}") from None
+        if not isinstance(data, dict):
+            raise ParamError(f"{p}: expected a mapping of parameter names to values")
+        if service in data and isinstance(data[service], dict):
+            data = data[service]
+        elif any(isinstance(v, dict) for v in data.values()):
+            return  # a stack-wide file without a section for this service
+        try:
+            self.update(data)
+        except ParamError as e:
+            raise ParamError(f"{p}: {e}") from None
+
+
+def parse_overrides(items: Iterable[str]) -> dict[str, str]:
+    """`--param k=v` strings to a dict; the value is validated later against the declaration."""
+    out = {}
+    for item in items:
+        k, sep, v = item.partition("=")
+        if not sep or not k:
+            raise ParamError(f"--param {item!r}: expected NAME=VALUE, e.g. --param max_velocity_mps=1.5")
+        out[k.strip()] = v.strip()
+    return out

@@ -1,0 +1,116 @@
+"""The thin shell every service process shares: parse the common flags, open the Node, start
+the service's logic, wait for SIGINT/SIGTERM, stop cleanly within 2 s.
+
+A service is a subclass of `Service` declaring NAME, PARAMS (and optionally extra CLI flags);
+its module's `main()` is `run(MyService)`. `aero run NAME` and `python -m
+aeroperception.services.NAME` both end up here.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import sys
+import threading
+from typing import ClassVar, Sequence
+
+from .node import Health, Node
+from .params import Param, ParamError, parse_overrides
+from .session import ZenohConfigError
+
+
+class Service:
+    """Base of every service. Subclasses declare the contract and implement start()/stop()."""
+
+    NAME: ClassVar[str] = ""
+    PARAMS: ClassVar[list[Param]] = []
+
+    def __init__(self, node: Node, args: argparse.Namespace):
+        self.node = node
+        self.args = args
+        self.params = node.params
+        self.log = node.log
+
+    @classmethod
+    def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
+        """Service-specific command-line flags (beyond the common ones)."""
+
+    def start(self) -> None:
+        """Declare subscriptions, publishers, queryables and loops."""
+
+    def health(self) -> Health:
+        """Called once a second for diagnostics/<service>."""
+        return Health()
+
+    def stop(self) -> None:
+        """Release resources (files, sockets); called once, before the session closes."""
+
+
+def common_parser(prog: str, description: str = "") -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog=prog, description=description)
+    add_common_arguments(p)
+    return p
+
+
+def add_common_arguments(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("stack")
+    g.add_argument("--connect", default=None, metavar="ENDPOINT",
+                   help="Zenoh router to connect to, e.g. tcp/10.0.0.2:7447 (env AERO_CONNECT)")
+    g.add_argument("--zenoh-config", default=None, metavar="FILE",
+                   help="Zenoh json5 config (env AERO_ZENOH_CONFIG; default ./zenoh.json5)")
+    g.add_argument("--vehicle", default=os.environ.get("AERO_VEHICLE", ""),
+                   help="key prefix so several vehicles share one network (env AERO_VEHICLE)")
+    g.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
+                   help="override a parameter (repeatable)")
+    g.add_argument("--params", default=os.environ.get("AERO_PARAMS"), metavar="FILE",
+                   help="YAML parameter file ({service: {name: value}} or flat)")
+    g.add_argument("--sim-time", action="store_true", default=os.environ.get("AERO_SIM_TIME") == "1",
+                   help="follow sim/clock instead of wall time (env AERO_SIM_TIME=1)")
+    g.add_argument("--log-level", default=os.environ.get("AERO_LOG_LEVEL", "info"),
+                   choices=["debug", "info", "warn", "error"])
+
+
+def run(service_cls: type[Service], argv: Sequence[str] | None = None) -> int:
+    """Run one service in the foreground until SIGINT/SIGTERM. Returns the exit code."""
+    parser = common_parser(f"aero run {service_cls.NAME}", (service_cls.__doc__ or "").strip().split("\n")[0])
+    service_cls.add_arguments(parser)
+    args = parser.parse_args(argv)
+    try:
+        node = Node(service_cls.NAME, params=service_cls.PARAMS, vehicle=args.vehicle,
+                    zenoh_config=args.zenoh_config, connect=args.connect,
+                    log_level=args.log_level, sim_time=args.sim_time)
+        if args.params:
+            node.params.load_file(args.params, service_cls.NAME)
+        node.params.update(parse_overrides(args.param))
+    except (ParamError, ZenohConfigError) as e:
+        print(f"aero run {service_cls.NAME}: {e}", file=sys.stderr)
+        return 2
+
+    def on_signal(signum, _frame) -> None:
+        node.log.info("signal", signal=signal.Signals(signum).name)
+        node.stop_event.set()
+
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, on_signal)
+        signal.signal(signal.SIGTERM, on_signal)
+
+    if not node.connect():
+        node.close()
+        return 0
+    service = service_cls(node, args)
+    node.set_health(service.health)
+    code = 0
+    try:
+        with node.lock:
+            service.start()
+        node.stop_event.wait()
+    except Exception as e:  # noqa: BLE001 - report a start-up failure as one clear line
+        node.log.error("fatal", error=f"{type(e).__name__}: {e}")
+        code = 1
+    finally:
+        try:
+            service.stop()
+        except Exception as e:  # noqa: BLE001
+            node.log.error("stop_failed", error=str(e))
+        node.close()
+    return code

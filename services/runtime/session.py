@@ -1,0 +1,96 @@
+"""Zenoh configuration and session opening, shared by every service and `aero` command.
+
+Precedence: --zenoh-config FILE > $AERO_ZENOH_CONFIG > ./zenoh.json5 > the repository's
+zenoh.json5 > zenoh defaults; then --connect / $AERO_CONNECT replaces connect/endpoints.
+A client opened before its router exists fails at once, so `open_session` retries with
+back-off until connected or told to stop.
+"""
+from __future__ import annotations
+
+import json
+import os
+import threading
+import time
+from pathlib import Path
+
+import zenoh
+
+REPO_CONFIG = Path(__file__).resolve().parents[2] / "zenoh.json5"
+
+
+class ZenohConfigError(RuntimeError):
+    """The Zenoh configuration cannot be read or applied; the message says which part."""
+
+
+def find_config_file(explicit: str | None = None) -> Path | None:
+    for candidate in (explicit, os.environ.get("AERO_ZENOH_CONFIG")):
+        if candidate:
+            p = Path(candidate)
+            if not p.is_file():
+                raise ZenohConfigError(f"Zenoh config file {p} does not exist")
+            return p
+    for p in (Path.cwd() / "zenoh.json5", REPO_CONFIG):
+        if p.is_file():
+            return p
+    return None
+
+
+def _split_endpoints(connect: str | list[str]) -> list[str]:
+    items = connect.split(",") if isinstance(connect, str) else list(connect)
+    out = []
+    for ep in (e.strip() for e in items):
+        if not ep:
+            continue
+        if "/" not in ep:  # "host:port" is the common shorthand
+            ep = f"tcp/{ep}"
+        out.append(ep)
+    return out
+
+
+def make_config(zenoh_config: str | None = None, connect: str | list[str] | None = None,
+                mode: str | None = None, listen: list[str] | None = None) -> zenoh.Config:
+    path = find_config_file(zenoh_config)
+    try:
+        conf = zenoh.Config.from_file(str(path)) if path else zenoh.Config()
+    except zenoh.ZError as e:
+        raise ZenohConfigError(f"{path}: {e}") from None
+    connect = connect or os.environ.get("AERO_CONNECT")
+    try:
+        if connect:
+            conf.insert_json5("connect/endpoints", json.dumps(_split_endpoints(connect)))
+        if mode:
+            conf.insert_json5("mode", json.dumps(mode))
+        if listen is not None:
+            conf.insert_json5("listen/endpoints", json.dumps(listen))
+    except zenoh.ZError as e:
+        raise ZenohConfigError(f"invalid Zenoh setting: {e}") from None
+    return conf
+
+
+def open_session(conf: zenoh.Config, stop: threading.Event | None = None,
+                 on_wait=None, max_wait_s: float | None = None) -> zenoh.Session | None:
+    """Open a session, retrying with back-off (0.1 s .. 2 s) while no router answers.
+
+    Returns None if `stop` is set or `max_wait_s` passes first. `on_wait(error, attempt)` is
+    called before each retry so the caller can log / report STALE.
+    """
+    delay = 0.1
+    t0 = time.monotonic()
+    attempt = 0
+    while True:
+        attempt += 1
+        try:
+            return zenoh.open(conf)
+        except zenoh.ZError as e:
+            if max_wait_s is not None and time.monotonic() - t0 + delay > max_wait_s:
+                if max_wait_s == 0:
+                    raise
+                return None
+            if on_wait:
+                on_wait(e, attempt)
+            if stop is not None:
+                if stop.wait(delay):
+                    return None
+            else:
+                time.sleep(delay)
+            delay = min(delay * 2, 2.0)

@@ -1,0 +1,49 @@
+"""The `aero` command: bring the stack up, run services, inspect and inject keys, benchmark.
+
+Every sub-command module exposes `register(subparsers)`; handlers return an exit code. A
+CliError (or a schema/config error) is printed as one line, exit code 2, never a traceback.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from typing import Sequence
+
+from aeroperception.schemas import SchemaError
+
+from .common import CliError
+
+COMMANDS = ["cmd_up", "cmd_router", "cmd_run", "cmd_topic", "cmd_schema", "cmd_param", "cmd_bench"]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="aero", description="AeroPerception drone autonomy stack")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for name in COMMANDS:
+        importlib.import_module(f"aeroperception.tools.{name}").register(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] == ["run"]:  # `aero run SERVICE ...`: the service parses its own flags
+        from .cmd_run import run_service
+
+        return _guard(lambda: run_service(argv[1:]))
+    args = build_parser().parse_args(argv)
+    return _guard(lambda: args.func(args))
+
+
+def _guard(fn) -> int:
+    try:
+        return int(fn() or 0)
+    except (CliError, SchemaError) as e:
+        print(f"aero: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

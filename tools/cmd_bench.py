@@ -1,0 +1,19 @@
+"""`aero bench pubsub|sim|flight`: benchmarks that print median / p99 and the ratio to the raw
+baseline measured in the same run. Tests check correctness; these report speed."""
+from __future__ import annotations
+
+import argparse
+import importlib
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    bench = sub.add_parser("bench", help="benchmarks (tables of median, p99, ratio to baseline)")
+    bsub = bench.add_subparsers(dest="bench_cmd", required=True)
+    p = bsub.add_parser("pubsub", help="raw zenoh vs typed runtime pub/sub latency (state, image)")
+    p.add_argument("-n", type=int, default=1000, help="round trips for the small message")
+    p.add_argument("--port", type=int, default=17480, help="loopback port of the benchmark router")
+    p.set_defaults(func=lambda a: importlib.import_module("aeroperception.tools.bench_pubsub").run(a.n, a.port))
+    p = bsub.add_parser("sim", help="sensor render times and achieved rates")
+    p.add_argument("-n", type=int, default=50, help="frames per sensor")
+    p.add_argument("--scenario", default="village")
+    p.set_defaults(func=lambda a: importlib.import_module("aeroperception.tools.bench_sim").run(a.n, a.scenario))

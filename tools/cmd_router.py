@@ -1,0 +1,48 @@
+"""`aero router`: the stack's Zenoh router, a Python session in router mode."""
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+
+import zenoh
+
+from aeroperception.services.runtime.session import ZenohConfigError, make_config
+
+from .common import CliError
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("router", help="run the Zenoh router (listening per zenoh.json5)")
+    p.add_argument("--zenoh-config", default=None, metavar="FILE")
+    p.add_argument("--listen", action="append", default=None, metavar="ENDPOINT",
+                   help="listen endpoint, e.g. tcp/0.0.0.0:7447 (repeatable; default from zenoh.json5)")
+    p.set_defaults(func=run)
+
+
+def open_router(zenoh_config: str | None, listen: list[str] | None) -> zenoh.Session:
+    try:
+        conf = make_config(zenoh_config, mode="router", listen=listen)
+        conf.insert_json5("scouting/delay", "0")
+        conf.insert_json5("connect/endpoints", "[]")
+    except (ZenohConfigError, zenoh.ZError) as e:
+        raise CliError(str(e)) from None
+    try:
+        return zenoh.open(conf)
+    except zenoh.ZError as e:
+        raise CliError(f"cannot start the router ({str(e).split(' at ')[0]}): is another router "
+                       "already listening on that port? (`aero node list` to check)") from None
+
+
+def run(args) -> int:
+    router = open_router(args.zenoh_config, args.listen)
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    locators = router.info.routers_zid()  # noqa: F841 - touch the session so errors surface now
+    print(f"aero router: zid {router.zid()} listening on {', '.join(args.listen or ['zenoh.json5 endpoints'])}",
+          file=sys.stderr, flush=True)
+    stop.wait()
+    router.close()
+    return 0

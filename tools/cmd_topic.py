@@ -1,0 +1,320 @@
+"""`aero topic list|echo|hz|pub`, `aero service call`, `aero node list`: inspect and inject
+any key of the stack from a shell, like `ros2 topic` / `ros2 service` / `ros2 node`."""
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import threading
+import time
+from collections import defaultdict
+
+import msgpack
+import zenoh
+
+from aeroperception.schemas import (
+    Header, Message, SchemaError, decode, encode, from_builtins, get_schema, schema_id, to_builtins,
+)
+from aeroperception.services.runtime.node import LIVELINESS_ROOT, CallError, encoding_for, schema_of
+from aeroperception.services.runtime.node import call as rpc_call
+
+from .common import CliError, add_session_arguments, dump, full_key, open_client, parse_data, summarize
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    topic = sub.add_parser("topic", help="list, echo, measure and publish keys")
+    tsub = topic.add_subparsers(dest="topic_cmd", required=True)
+
+    p = tsub.add_parser("list", help="keys seen in a time window, with rate and schema")
+    add_session_arguments(p)
+    p.add_argument("--duration", type=float, default=2.0, help="listening window in seconds")
+    p.add_argument("pattern", nargs="?", default="**", help="key expression (default **)")
+    p.set_defaults(func=topic_list)
+
+    p = tsub.add_parser("echo", help="print decoded messages on a key (YAML, or --json)")
+    add_session_arguments(p)
+    p.add_argument("key")
+    p.add_argument("--json", action="store_true", help="one JSON object per line")
+    p.add_argument("--count", "-n", type=int, default=0, help="stop after N messages")
+    p.add_argument("--timeout", type=float, default=0.0, help="stop after T seconds (0: never)")
+    p.add_argument("--raw", action="store_true", help="show arrays in full")
+    p.set_defaults(func=topic_echo)
+
+    p = tsub.add_parser("hz", help="measure the publishing rate of a key")
+    add_session_arguments(p)
+    p.add_argument("key")
+    p.add_argument("--window", type=float, default=5.0, help="seconds of history per estimate")
+    p.add_argument("--duration", type=float, default=0.0, help="stop after T seconds (0: never)")
+    p.set_defaults(func=topic_hz)
+
+    p = tsub.add_parser("pub", help="publish a message, validated against its schema first")
+    add_session_arguments(p)
+    p.add_argument("key")
+    p.add_argument("data", nargs="?", default="{}", help="message fields as YAML or JSON")
+    p.add_argument("--type", "-t", required=True, dest="type_name", help="schema name (see `aero schema list`)")
+    p.add_argument("--rate", type=float, default=0.0, help="repeat at HZ until Ctrl-C (0: once)")
+    p.add_argument("--count", "-n", type=int, default=0, help="with --rate: stop after N messages")
+    p.set_defaults(func=topic_pub)
+
+    svc = sub.add_parser("service", help="call request/response services (queryables)")
+    ssub = svc.add_subparsers(dest="service_cmd", required=True)
+    p = ssub.add_parser("call", help="send a request and print the reply")
+    add_session_arguments(p)
+    p.add_argument("key")
+    p.add_argument("data", nargs="?", default="", help="request fields as YAML or JSON")
+    p.add_argument("--type", "-t", dest="type_name", default=None,
+                   help="request schema to validate against before sending")
+    p.add_argument("--timeout", type=float, default=5.0)
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=service_call)
+
+    node = sub.add_parser("node", help="services alive on the network")
+    nsub = node.add_subparsers(dest="node_cmd", required=True)
+    p = nsub.add_parser("list", help="alive services (liveliness) with their last health")
+    add_session_arguments(p)
+    p.add_argument("--wait", type=float, default=1.2, help="seconds to collect diagnostics")
+    p.set_defaults(func=node_list)
+
+
+# ---------------------------------------------------------------- decoding
+
+
+def decode_sample(sample: zenoh.Sample) -> tuple[str, object]:
+    """(schema id, plain data) for any sample: typed when its encoding names a known schema."""
+    raw = sample.payload.to_bytes()
+    sid = schema_of(sample.encoding)
+    if sid:
+        try:
+            cls = get_schema(sid)
+        except SchemaError:
+            cls = None
+        if cls is not None:
+            return sid, to_builtins(decode(raw, cls))
+    try:
+        return sid or str(sample.encoding), msgpack.unpackb(raw, raw=False)
+    except Exception:  # noqa: BLE001 - not msgpack: show what it is
+        try:
+            return str(sample.encoding), raw.decode()
+        except UnicodeDecodeError:
+            return str(sample.encoding), f"<{len(raw)} bytes>"
+
+
+# ---------------------------------------------------------------- topic
+
+
+def topic_list(args) -> int:
+    session = open_client(args)
+    stats: dict[str, list] = defaultdict(lambda: [0, 0, ""])  # count, bytes, schema
+    lock = threading.Lock()
+
+    def on_sample(s: zenoh.Sample) -> None:
+        with lock:
+            st = stats[str(s.key_expr)]
+            st[0] += 1
+            st[1] += len(s.payload)
+            st[2] = schema_of(s.encoding) or str(s.encoding)
+
+    sub = session.declare_subscriber(full_key(args, args.pattern), on_sample)
+    time.sleep(args.duration)
+    sub.undeclare()
+    session.close()
+    if not stats:
+        print(f"no data on {args.pattern} within {args.duration:.1f} s (is the stack up?)", file=sys.stderr)
+        return 1
+    width = max(len(k) for k in stats)
+    print(f"{'KEY':<{width}}  {'RATE_HZ':>8}  {'BYTES':>9}  SCHEMA")
+    for k in sorted(stats):
+        n, b, sid = stats[k]
+        print(f"{k:<{width}}  {n / args.duration:8.1f}  {b // max(n, 1):9d}  {sid}")
+    return 0
+
+
+def topic_echo(args) -> int:
+    session = open_client(args)
+    done = threading.Event()
+    count = [0]
+    lock = threading.Lock()
+
+    def on_sample(s: zenoh.Sample) -> None:
+        try:
+            sid, data = decode_sample(s)
+        except SchemaError as e:
+            print(f"# {s.key_expr}: invalid payload: {e}", file=sys.stderr, flush=True)
+            return
+        with lock:
+            if done.is_set():
+                return
+            shown = data if args.raw else summarize(data)
+            if args.json:
+                print(dump({"key": str(s.key_expr), "schema": sid, "data": shown}, True), flush=True)
+            else:
+                print(f"# {s.key_expr} [{sid}]\n" + dump(shown, False), flush=True)
+            count[0] += 1
+            if args.count and count[0] >= args.count:
+                done.set()
+
+    sub = session.declare_subscriber(full_key(args, args.key), on_sample)
+    try:
+        done.wait(args.timeout or None)
+    except KeyboardInterrupt:
+        pass
+    sub.undeclare()
+    session.close()
+    if args.count and count[0] < args.count:
+        print(f"received {count[0]} of {args.count} messages on {args.key} within {args.timeout} s",
+              file=sys.stderr)
+        return 1
+    return 0
+
+
+def topic_hz(args) -> int:
+    session = open_client(args)
+    stamps: list[float] = []
+    lock = threading.Lock()
+
+    def on_sample(_s) -> None:
+        with lock:
+            stamps.append(time.perf_counter())
+
+    sub = session.declare_subscriber(full_key(args, args.key), on_sample)
+    t_end = time.monotonic() + args.duration if args.duration else float("inf")
+    status = 0
+    try:
+        while time.monotonic() < t_end:
+            time.sleep(min(1.0, max(0.0, t_end - time.monotonic())))
+            with lock:
+                now = time.perf_counter()
+                while stamps and stamps[0] < now - args.window:
+                    stamps.pop(0)
+                window = list(stamps)
+            if len(window) < 2:
+                print(f"{args.key}: no messages in the last {args.window:.0f} s", flush=True)
+                status = 1
+                continue
+            gaps = [b - a for a, b in zip(window, window[1:])]
+            rate = (len(window) - 1) / (window[-1] - window[0])
+            print(f"{args.key}: rate {rate:.2f} Hz  min {min(gaps)*1e3:.1f} ms  max {max(gaps)*1e3:.1f} ms"
+                  f"  std {statistics.pstdev(gaps)*1e3:.2f} ms  window {len(window)}", flush=True)
+            status = 0
+    except KeyboardInterrupt:
+        pass
+    sub.undeclare()
+    session.close()
+    return status
+
+
+def build_message(type_name: str, text: str, stamp: bool = True) -> Message:
+    try:
+        cls = get_schema(type_name)
+        data = parse_data(text)
+        if not isinstance(data, dict):
+            raise CliError(f"message data must be a mapping of field names, got {data!r}")
+        msg = from_builtins(data, cls)
+    except SchemaError as e:
+        raise CliError(f"{e}") from None
+    header = getattr(msg, "header", None)
+    if stamp and isinstance(header, Header) and header.stamp_ns == 0:
+        header.stamp_ns = time.time_ns()
+    return msg
+
+
+def topic_pub(args) -> int:
+    msg = build_message(args.type_name, args.data)
+    session = open_client(args)
+    pub = session.declare_publisher(full_key(args, args.key), encoding=encoding_for(type(msg)))
+    sent = 0
+    try:
+        if args.rate <= 0:
+            pub.put(encode(msg))
+            sent = 1
+            time.sleep(0.2)  # let the router forward before the session closes
+        else:
+            period = 1.0 / args.rate
+            nxt = time.perf_counter()
+            while not args.count or sent < args.count:
+                header = getattr(msg, "header", None)
+                if isinstance(header, Header):
+                    header.stamp_ns = time.time_ns()
+                pub.put(encode(msg))
+                sent += 1
+                nxt += period
+                time.sleep(max(0.0, nxt - time.perf_counter()))
+            time.sleep(0.1)
+    except KeyboardInterrupt:
+        pass
+    pub.undeclare()
+    session.close()
+    print(f"published {sent} x {schema_id(type(msg))} on {args.key}", file=sys.stderr)
+    return 0
+
+
+# ---------------------------------------------------------------- service / node
+
+
+def service_call(args) -> int:
+    if args.type_name:
+        request = build_message(args.type_name, args.data or "{}", stamp=False)
+        payload, enc = encode(request), encoding_for(type(request))
+    else:
+        data = parse_data(args.data) if args.data else None
+        payload = msgpack.packb(data) if data is not None else None
+        enc = zenoh.Encoding("application/msgpack") if data is not None else None
+    session = open_client(args)
+    key = full_key(args, args.key)
+    try:
+        replies = list(session.get(key, payload=payload, encoding=enc, timeout=args.timeout))
+    finally:
+        session.close()
+    if not replies:
+        raise CliError(f"{key}: no service answered (is it running? `aero node list`)")
+    status = 0
+    for r in replies:
+        if r.ok is None:
+            print(f"{key}: error reply: {r.err.payload.to_string()}", file=sys.stderr)
+            status = 1
+            continue
+        sid, data = decode_sample(r.ok)
+        print(dump({"key": str(r.ok.key_expr), "schema": sid, "reply": summarize(data)} if args.json
+                   else summarize(data), args.json))
+        if isinstance(data, dict) and data.get("success") is False:
+            status = 1
+    return status
+
+
+def node_list(args) -> int:
+    session = open_client(args)
+    health: dict[str, dict] = {}
+
+    def on_diag(s: zenoh.Sample) -> None:
+        try:
+            _sid, d = decode_sample(s)
+        except SchemaError:
+            return
+        if isinstance(d, dict):
+            health[str(d.get("name", ""))] = d
+
+    sub = session.declare_subscriber("**/diagnostics/*", on_diag)
+    sub2 = session.declare_subscriber("diagnostics/*", on_diag)
+    alive = sorted(str(r.ok.key_expr) for r in session.liveliness().get(f"{LIVELINESS_ROOT}/**", timeout=2.0)
+                   if r.ok is not None)
+    time.sleep(args.wait)
+    sub.undeclare()
+    sub2.undeclare()
+    session.close()
+    if not alive:
+        print("no services alive", file=sys.stderr)
+        return 1
+    levels = {0: "OK", 1: "WARN", 2: "ERROR", 3: "STALE"}
+    print(f"{'VEHICLE':<10} {'SERVICE':<14} {'HEALTH':<6} MESSAGE")
+    for k in alive:
+        vehicle, name = k.split("/")[-2:]
+        d = health.get(name, {})
+        print(f"{vehicle:<10} {name:<14} {levels.get(d.get('level'), '-'):<6} {d.get('message', '')}")
+    return 0
+
+
+def call_or_fail(session, key, request, reply_cls, timeout_s=5.0):
+    try:
+        return rpc_call(session, key, request, reply_cls, timeout_s)
+    except CallError as e:
+        raise CliError(str(e)) from None

@@ -1,0 +1,212 @@
+"""`aero up`: the router plus a profile's services as supervised child processes.
+
+The supervisor process is the Zenoh router itself (a session in router mode), so one command
+brings the stack up. Each service runs as `python -m aeroperception.services.<name>`, its JSON
+log goes to <log-dir>/<name>.log, a crashed service is restarted with back-off (1 s doubling to
+30 s), and Ctrl-C / SIGTERM stops every child (SIGTERM, then SIGKILL after 3 s).
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+
+import yaml
+import zenoh
+
+from aeroperception.services.runtime.node import LIVELINESS_ROOT
+
+from .cmd_router import open_router
+from .cmd_topic import decode_sample
+from .common import CliError
+
+LEVELS = {0: "OK", 1: "WARN", 2: "ERROR", 3: "STALE"}
+
+
+def load_profiles() -> dict[str, list[str]]:
+    text = resources.files("aeroperception.tools").joinpath("profiles.yaml").read_text()
+    return yaml.safe_load(text)["profiles"]
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("up", help="start the router and a profile's services, supervise them")
+    p.add_argument("--profile", default="sim", help="profile from tools/profiles.yaml (default sim)")
+    p.add_argument("--only", default="", help="comma-separated services to run from the profile")
+    p.add_argument("--except", dest="exclude", default="", help="comma-separated services to skip")
+    p.add_argument("--listen", default="tcp/127.0.0.1:7447",
+                   help="router endpoint (use tcp/0.0.0.0:7447 to accept other machines)")
+    p.add_argument("--log-dir", default=None, help="service logs (default ~/.aero/logs/<time>)")
+    p.add_argument("--scenario", default=None, help="sim: scenario world (open_field, village, slope_forest)")
+    p.add_argument("--speed", type=float, default=None, help="sim: run faster than real time (services follow sim/clock)")
+    p.add_argument("--seed", type=int, default=None, help="sim: random seed (wind, noise)")
+    p.add_argument("--fcu-url", default=None, help="fmu: MAVLink URL of the flight controller")
+    p.add_argument("--arg", action="append", default=[], metavar="SERVICE:FLAG",
+                   help="extra flag for one service, e.g. --arg planner:--param=kp=1.0")
+    p.add_argument("--status-interval", type=float, default=2.0, help="seconds between status tables")
+    p.set_defaults(func=run)
+
+
+@dataclass
+class Child:
+    name: str
+    argv: list[str]
+    log_path: Path
+    proc: subprocess.Popen | None = None
+    started_at: float = 0.0
+    restarts: int = 0
+    backoff_s: float = 1.0
+    next_start: float = 0.0
+    last_exit: int | None = None
+    alive: bool = False
+    health: dict = field(default_factory=dict)
+
+    def start(self, env: dict[str, str]) -> None:
+        log = open(self.log_path, "ab")
+        self.proc = subprocess.Popen(self.argv, stdout=log, stderr=subprocess.STDOUT, env=env,
+                                     start_new_session=True)
+        log.close()
+        self.started_at = time.monotonic()
+
+    def status(self) -> str:
+        if self.proc is None or self.proc.poll() is not None:
+            return "restarting" if self.restarts or self.last_exit is not None else "starting"
+        return "alive" if self.alive else "starting"
+
+
+def select_services(args) -> list[str]:
+    profiles = load_profiles()
+    if args.profile not in profiles:
+        raise CliError(f"unknown profile {args.profile!r}; profiles: {', '.join(profiles)}")
+    names = list(profiles[args.profile])
+    if args.only:
+        only = [s.strip() for s in args.only.split(",") if s.strip()]
+        unknown = [s for s in only if s not in names]
+        if unknown:
+            raise CliError(f"--only {','.join(unknown)}: not in profile {args.profile} ({', '.join(names)})")
+        names = [n for n in names if n in only]
+    excl = {s.strip() for s in args.exclude.split(",") if s.strip()}
+    return [n for n in names if n not in excl]
+
+
+def service_argv(name: str, args, endpoint: str) -> list[str]:
+    argv = [sys.executable, "-m", f"aeroperception.services.{name}", "--connect", endpoint]
+    if args.speed is not None and args.speed != 1.0:
+        argv.append("--sim-time")
+    if name == "sim":
+        for flag, val in (("--scenario", args.scenario), ("--speed", args.speed), ("--seed", args.seed)):
+            if val is not None:
+                argv += [flag, str(val)]
+    if name == "fmu" and args.fcu_url:
+        argv += ["--fcu-url", args.fcu_url]
+    for item in args.arg:
+        svc, sep, flag = item.partition(":")
+        if not sep:
+            raise CliError(f"--arg {item!r}: expected SERVICE:FLAG, e.g. planner:--param=kp=1.0")
+        if svc == name:
+            argv.append(flag)
+    return argv
+
+
+def run(args) -> int:
+    names = select_services(args)
+    log_dir = Path(args.log_dir or Path.home() / ".aero" / "logs" / time.strftime("%Y%m%d-%H%M%S"))
+    log_dir.mkdir(parents=True, exist_ok=True)
+    router = open_router(None, [args.listen])
+    endpoint = args.listen.replace("0.0.0.0", "127.0.0.1")
+    env = dict(os.environ, AERO_CONNECT=endpoint, PYTHONUNBUFFERED="1")
+    children = {n: Child(n, service_argv(n, args, endpoint), log_dir / f"{n}.log") for n in names}
+    lock = threading.Lock()
+
+    def on_token(s: zenoh.Sample) -> None:
+        name = str(s.key_expr).rsplit("/", 1)[-1]
+        with lock:
+            if name in children:
+                children[name].alive = s.kind == zenoh.SampleKind.PUT
+
+    def on_diag(s: zenoh.Sample) -> None:
+        try:
+            _sid, d = decode_sample(s)
+        except Exception:  # noqa: BLE001 - a bad diagnostics payload must not stop supervision
+            return
+        if isinstance(d, dict):
+            with lock:
+                c = children.get(str(d.get("name")))
+                if c:
+                    c.health = d
+
+    subs = [router.liveliness().declare_subscriber(f"{LIVELINESS_ROOT}/**", on_token, history=True),
+            router.declare_subscriber("diagnostics/*", on_diag),
+            router.declare_subscriber("*/diagnostics/*", on_diag)]
+
+    stop = threading.Event()
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    print(f"aero up: profile {args.profile} ({', '.join(names) or 'no services'}), router on {args.listen}, "
+          f"logs in {log_dir}", flush=True)
+    for c in children.values():
+        c.start(env)
+
+    tty = sys.stdout.isatty()
+    last_table = ""
+    next_table = 0.0
+    while not stop.wait(0.2):
+        now = time.monotonic()
+        with lock:
+            for c in children.values():
+                code = c.proc.poll() if c.proc else 0
+                if c.proc is not None and code is not None:
+                    c.last_exit, c.proc, c.alive = code, None, False
+                    if now - c.started_at > 30:
+                        c.backoff_s = 1.0
+                    c.next_start = now + c.backoff_s
+                    print(f"aero up: {c.name} exited with code {code}; restarting in {c.backoff_s:.0f} s "
+                          f"(log: {c.log_path})", flush=True)
+                    c.backoff_s = min(c.backoff_s * 2, 30.0)
+                if c.proc is None and now >= c.next_start:
+                    c.restarts += 1
+                    c.start(env)
+            table = format_table(children.values())
+        if now >= next_table and (tty or table != last_table):
+            if tty:
+                sys.stdout.write("\x1b[2J\x1b[H")
+            print(table, flush=True)
+            last_table = table
+            next_table = now + args.status_interval
+    print("aero up: stopping", flush=True)
+    shutdown(children.values())
+    for s in subs:
+        s.undeclare()
+    router.close()
+    return 0
+
+
+def format_table(children) -> str:
+    rows = [f"{'SERVICE':<13} {'STATE':<10} {'HEALTH':<6} {'RESTARTS':>8}  MESSAGE"]
+    for c in children:
+        lvl = LEVELS.get(c.health.get("level"), "-") if c.alive else "-"
+        msg = c.health.get("message", "") if c.alive else (f"exit {c.last_exit}" if c.last_exit is not None else "")
+        rows.append(f"{c.name:<13} {c.status():<10} {lvl:<6} {c.restarts:>8}  {msg[:60]}")
+    return "\n".join(rows)
+
+
+def shutdown(children) -> None:
+    procs = [c.proc for c in children if c.proc is not None and c.proc.poll() is None]
+    for p in procs:
+        try:
+            p.send_signal(signal.SIGTERM)
+        except ProcessLookupError:
+            pass
+    deadline = time.monotonic() + 3.0
+    for p in procs:
+        try:
+            p.wait(max(0.0, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait(1.0)

@@ -1,0 +1,91 @@
+"""Shared pieces of the `aero` commands: one error type printed as one line, the client
+session, and YAML/JSON helpers for showing and entering messages."""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from typing import Any
+
+import yaml
+import zenoh
+
+from aeroperception.schemas import NDArray, SchemaError, to_builtins
+from aeroperception.services.runtime.session import ZenohConfigError, make_config, open_session
+
+
+class CliError(Exception):
+    """A user-facing failure: printed as `aero: <message>` with exit code 2, no traceback."""
+
+
+def add_session_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--connect", default=None, metavar="ENDPOINT",
+                   help="router endpoint, e.g. tcp/10.0.0.2:7447 (env AERO_CONNECT)")
+    p.add_argument("--zenoh-config", default=None, metavar="FILE", help="Zenoh json5 config")
+    p.add_argument("--vehicle", default=os.environ.get("AERO_VEHICLE", ""),
+                   help="vehicle key prefix (env AERO_VEHICLE)")
+
+
+def open_client(args: argparse.Namespace, wait_s: float = 3.0) -> zenoh.Session:
+    try:
+        conf = make_config(args.zenoh_config, args.connect)
+    except ZenohConfigError as e:
+        raise CliError(str(e)) from None
+    session = open_session(conf, max_wait_s=wait_s)
+    if session is None:
+        where = conf.get_json("connect/endpoints")
+        raise CliError(f"no Zenoh router reachable at {where}: start the stack with `aero up` "
+                       "(or `aero router`), or point --connect at a running router")
+    return session
+
+
+def full_key(args: argparse.Namespace, key: str) -> str:
+    key = key.strip("/")
+    return f"{args.vehicle}/{key}" if getattr(args, "vehicle", "") and not key.startswith(args.vehicle + "/") else key
+
+
+def parse_data(text: str) -> Any:
+    """YAML or JSON (JSON is YAML) from the command line."""
+    try:
+        return yaml.safe_load(text) if text.strip() else {}
+    except yaml.YAMLError as e:
+        raise CliError(f"cannot parse {text!r} as YAML/JSON: {str(e).splitlines()[0]}") from None
+
+
+def summarize(obj: Any) -> Any:
+    """Plain data for display: arrays become a one-line summary instead of raw bytes."""
+    if isinstance(obj, NDArray):
+        obj = to_builtins(obj)
+    if isinstance(obj, dict):
+        if set(obj) == {"dtype", "shape", "data"}:
+            return _summarize_array(obj)
+        return {k: summarize(v) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [summarize(v) for v in obj]
+    if isinstance(obj, (bytes, bytearray, memoryview)):
+        return f"<{len(obj)} bytes>"
+    return obj
+
+
+def _summarize_array(d: dict) -> Any:
+    import numpy as np
+
+    try:
+        a = np.frombuffer(bytes(d["data"]), dtype=d["dtype"]).reshape(d["shape"])
+    except (TypeError, ValueError):
+        return f"<array {d['dtype']} {d['shape']} (inconsistent)>"
+    if a.size <= 36:
+        return a.tolist()
+    if a.size and np.issubdtype(a.dtype, np.number):
+        return f"<array {a.dtype} {list(a.shape)} min={a.min():.4g} max={a.max():.4g} mean={a.mean():.4g}>"
+    return f"<array {a.dtype} {list(a.shape)}>"
+
+
+def dump(obj: Any, as_json: bool) -> str:
+    if as_json:
+        return json.dumps(obj, default=str)
+    return yaml.safe_dump(obj, sort_keys=False, default_flow_style=None, width=120).rstrip() + "\n---"
+
+
+__all__ = ["CliError", "SchemaError", "add_session_arguments", "open_client", "full_key",
+           "parse_data", "summarize", "dump"]
