@@ -41,13 +41,16 @@ def pong(endpoint: str, path: str, kind: str) -> None:
         s = open_session(make_config(connect=endpoint), max_wait_s=5)
         pub = s.declare_publisher(PONG)
         s.declare_subscriber(PING, lambda smp: pub.put(smp.payload))
+        close = s.close
     else:
-        node = Node("bench_pong", connect=endpoint)
+        node = Node("bench_pong", connect=endpoint, log_level="warn")
         node.connect(max_wait_s=5)
         pub = node.publisher(PONG, cls)
         node.subscribe(PING, cls, pub.publish)
+        close = node.close
     print("ready", flush=True)
     sys.stdin.readline()  # parent closes stdin to stop us
+    close()
 
 
 # ---------------------------------------------------------------- ping (this process)
@@ -70,7 +73,7 @@ def measure(endpoint: str, path: str, kind: str, n: int) -> np.ndarray:
             send = lambda: pub.put(payload)  # noqa: E731
             close = s.close
         else:
-            node = Node("bench_ping", connect=endpoint)
+            node = Node("bench_ping", connect=endpoint, log_level="warn")
             node.connect(max_wait_s=5)
             tpub = node.publisher(PING, cls)
             node.subscribe(PONG, cls, lambda _m: got.set())
@@ -90,7 +93,11 @@ def measure(endpoint: str, path: str, kind: str, n: int) -> np.ndarray:
         return np.array(out)
     finally:
         child.stdin.close()
-        child.wait(5)
+        try:
+            child.wait(5)
+        except subprocess.TimeoutExpired:
+            child.kill()
+            child.wait()
 
 
 def run(n: int = 1000, port: int = 17480) -> int:
