@@ -68,6 +68,7 @@ IMAGE_ENCODINGS: dict[str, tuple[str, int]] = {
 class Image(Message, kw_only=True):
     """A raw image: `data` is (height, width, channels), or (height, width) for one channel.
 
+    Encodings: mono8, mono16, rgb8, bgr8, rgba8, bgra8, 16UC1, 32FC1 (Image.ENCODINGS).
     Replaces sensor_msgs/Image. Width, height, step and the data's shape/dtype are checked against
     `encoding` on decode, so `to_numpy()` always gives the advertised picture (zero-copy view).
     `step` (bytes per row) is kept for ROS parity; 0 on construction means "compute it".

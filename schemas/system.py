@@ -11,10 +11,11 @@ from typing import Any
 import msgspec
 
 from ._base import Header, Message, schema
+from .services import Reply
 
 
 @schema("Clock")
-class Clock(Message):
+class Clock(Message, kw_only=True):
     """sim/clock: the simulation time services follow in sim (header.stamp_ns is the time)."""
 
     header: Header = msgspec.field(default_factory=Header)
@@ -22,17 +23,18 @@ class Clock(Message):
 
 
 @schema("ParamSet")
-class ParamSet(Message):
+class ParamSet(Message, kw_only=True):
     """A new value for one parameter; `name` may be empty when the key names the parameter."""
 
+    header: Header = msgspec.field(default_factory=Header)
     name: str = ""
     value: bool | int | float | str | None = None
 
 
 @schema("ParamSetReply")
-class ParamSetReply(Message):
-    success: bool = False
-    message: str = ""
+class ParamSetReply(Reply, kw_only=True):
+    """Whether the service accepted the value; `value` is the one in force afterwards."""
+
     name: str = ""
     value: bool | int | float | str | None = None
 
@@ -52,7 +54,7 @@ class ParamDescriptor(msgspec.Struct, kw_only=True):
 
 
 @schema("ParamList")
-class ParamList(Message):
+class ParamList(Message, kw_only=True):
     header: Header = msgspec.field(default_factory=Header)
     service: str = ""
     params: list[ParamDescriptor] = msgspec.field(default_factory=list)

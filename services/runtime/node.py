@@ -184,8 +184,10 @@ class Node:
             self.session.declare_subscriber(full_key, lambda s: self._invoke(str(s.key_expr), callback, s))
         )
 
-    def _invoke(self, key: str, fn: Callable, *args: Any) -> Any:
+    def _invoke(self, key: str, fn: Callable, *args: Any, locked: bool = True) -> Any:
         try:
+            if not locked:
+                return fn(*args)
             with self.lock:
                 return fn(*args)
         except Exception as e:  # noqa: BLE001 - a bad message must never take the service down
@@ -202,11 +204,12 @@ class Node:
     # ------------------------------------------------------------ request/response
 
     def serve(self, key: str, req_cls: type[Message] | None, reply_cls: type[Message],
-              handler: Callable[[Any], Message]) -> None:
+              handler: Callable[[Any], Message], locked: bool = True) -> None:
         """Queryable: decode the request (None when req_cls is None), reply with handler(req).
 
-        Handlers run on a worker thread holding node.lock; an invalid request gets a reply
-        with success=False naming the problem (if the reply type has those fields).
+        Handlers run on a worker thread holding node.lock (unless locked=False, for handlers
+        that wait on something, e.g. a flight controller's ACK, and do their own locking);
+        an invalid request gets a reply with success=False naming the problem.
         """
         full = self.key(key)
 
@@ -223,7 +226,7 @@ class Node:
                         query.reply(k, encode(_failure(reply_cls, f"invalid request: {e}")),
                                     encoding=encoding_for(reply_cls))
                         return
-                reply = self._invoke(k, handler, req)
+                reply = self._invoke(k, handler, req, locked=locked)
                 if reply is None:
                     reply = _failure(reply_cls, "internal error handling the request (see service log)")
                 query.reply(k, encode(reply), encoding=encoding_for(type(reply)))

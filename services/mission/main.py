@@ -1,0 +1,212 @@
+"""Process shell: wires MissionManager to Zenoh (inputs, fmu calls, actions, status)."""
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from aeroperception.schemas import (
+    ArmReply, ArmRequest, DiagnosticStatus, GoToPositionFeedback, GoToPositionGoal,
+    GoToPositionResult, Header, LandFeedback, LandGoal, LandResult, LoadMissionReply,
+    LoadMissionRequest, MissionCommand, PerceptionHealth, Pose, PoseStamped, Quaternion, Reply,
+    SchemaError, SetModeReply, SetModeRequest, TakeoffFeedback, TakeoffGoal, TakeoffResult,
+    VehicleState, Vector3, WaypointReached, parse_mission,
+)
+from aeroperception.services.runtime import ActionServer, CallError, GoalHandle, Health, Service, run
+
+from . import contract
+from .fsm import Config, GoalOut, MissionManager, State
+
+HOLD_FRAME = "hold"
+
+
+class ZenohBridge:
+    """fmu/srv/* calls without blocking the service: results come back under node.lock."""
+
+    def __init__(self, svc: "MissionService"):
+        self.svc = svc
+
+    def _call(self, key, req, reply_cls, done) -> None:
+        def cb(res) -> None:
+            if isinstance(res, CallError):
+                done(False, str(res))
+            else:
+                done(res.success, res.message)
+        self.svc.node.call_async(key, req, reply_cls, cb, timeout_s=self.svc.params.bridge_timeout_s)
+
+    def arm(self, arm, done) -> None:
+        self._call("fmu/srv/arm", ArmRequest(arm=arm), ArmReply, done)
+
+    def set_mode(self, mode, done) -> None:
+        self._call("fmu/srv/set_mode", SetModeRequest(mode=mode), SetModeReply, done)
+
+
+class MissionService(Service):
+    """Mission manager: 5-state FSM, mission loading, takeoff/land/goto actions."""
+
+    NAME = contract.NAME
+    PARAMS = contract.PARAMS
+
+    def start(self) -> None:
+        p = self.params
+        cfg = Config(takeoff_altitude_m=p.takeoff_altitude_m, altitude_tolerance_m=p.altitude_tolerance_m,
+                     require_perception=p.require_perception, perception_recovery_s=p.perception_recovery_s,
+                     land_on_complete=p.land_on_complete)
+        self.mgr = MissionManager(ZenohBridge(self), self._publish_goal, cfg, log=self.log.info)
+        self.params.on_change(lambda n, v: setattr(cfg, n, v) if hasattr(cfg, n) else None)
+        self.mgr.on_waypoint_reached = self._on_reached
+        node = self.node
+        self.pub_status = node.publisher("mission/status", contract.OUTPUTS["mission/status"])
+        self.pub_goal = node.publisher("mission/active_goal", PoseStamped)
+        self.pub_reached = node.publisher("mission/waypoint_reached", WaypointReached)
+        node.subscribe("state/vehicle", VehicleState, lambda m: self.mgr.on_vehicle(m, time.monotonic()))
+        node.subscribe("perception/health", PerceptionHealth,
+                       lambda m: self.mgr.on_perception(m.overall_healthy, time.monotonic()))
+        node.subscribe("mission/command", MissionCommand, self._on_command)
+        node.serve("mission/srv/command", MissionCommand, Reply, self._on_command)
+        node.serve("mission/srv/load", LoadMissionRequest, LoadMissionReply, self._on_load)
+        self.actions: list[tuple[str, GoalHandle]] = []
+        self.servers = {
+            "takeoff": ActionServer(node, "mission/action/takeoff", TakeoffGoal, TakeoffResult,
+                                    self._takeoff_goal, self._cancel_to_hold),
+            "land": ActionServer(node, "mission/action/land", LandGoal, LandResult,
+                                 self._land_goal, self._cancel_to_hold),
+            "goto": ActionServer(node, "mission/action/goto", GoToPositionGoal, GoToPositionResult,
+                                 self._goto_goal, self._cancel_to_hold),
+        }
+        self.last_goal: PoseStamped | None = None
+        node.every(1.0 / p.status_rate_hz, self._tick, name="status")
+
+    # ------------------------------------------------------------ inputs
+
+    def _on_command(self, msg: MissionCommand) -> Reply:
+        if msg.command == MissionCommand.LOAD:
+            r = self._on_load(LoadMissionRequest(mission_json=msg.mission_json))
+            return Reply(success=r.success, message=r.message)
+        ok, message = self.mgr.command(msg.command)
+        self.log.info("command", command=msg.command, accepted=ok, message=message)
+        return Reply(success=ok, message=message)
+
+    def _on_load(self, req: LoadMissionRequest) -> LoadMissionReply:
+        try:
+            mission = parse_mission(req.mission_json)
+        except SchemaError as e:
+            self.log.warn("mission_rejected", error=str(e))
+            return LoadMissionReply(success=False, message=f"invalid mission: {e}")
+        ok, message = self.mgr.load(mission)
+        return LoadMissionReply(success=ok, message=message, num_waypoints=len(mission.waypoints) if ok else 0)
+
+    # ------------------------------------------------------------ outputs
+
+    def _publish_goal(self, goal: GoalOut) -> None:
+        if goal.position_m is None:
+            msg = PoseStamped(header=self.node.header(HOLD_FRAME))
+        else:
+            yaw = goal.yaw_rad if goal.yaw_rad is not None else (self.mgr.vehicle.yaw_rad if self.mgr.vehicle else 0.0)
+            msg = PoseStamped(header=self.node.header("map"),
+                              pose=Pose(position=Vector3.from_array(goal.position_m),
+                                        orientation=Quaternion.from_yaw(yaw)))
+        self.last_goal = msg
+        self.pub_goal.publish(msg)
+
+    def _on_reached(self, index: int, pos: np.ndarray) -> None:
+        self.pub_reached.publish(WaypointReached(header=self.node.header("map"), index=index,
+                                                 mission_id=self.mgr.mission.mission_id,
+                                                 position_m=Vector3.from_array(pos)))
+
+    def _tick(self) -> None:
+        now = time.monotonic()
+        self.mgr.tick(now)
+        st = self.mgr.status()
+        st.header = self.node.header()
+        self.pub_status.publish(st)
+        if self.last_goal is not None:  # latch for late joiners (planner restart)
+            self.pub_goal.publish(self.last_goal)
+        self._update_actions()
+
+    # ------------------------------------------------------------ actions
+
+    def _altitude(self) -> float:
+        return self.mgr.vehicle.position_m.z if self.mgr.vehicle else 0.0
+
+    def _takeoff_goal(self, h: GoalHandle) -> str | None:
+        def done(ok: bool, message: str) -> None:
+            if not ok and h.active:
+                h.abort(TakeoffResult(success=False, message=message, final_altitude_m=self._altitude()))
+        ok, message = self.mgr.takeoff(h.goal.target_altitude_m, done)
+        if not ok:
+            return message
+        self.actions.append(("takeoff", h))
+        return None
+
+    def _land_goal(self, h: GoalHandle) -> str | None:
+        ok, message = self.mgr.command("LAND")
+        if not ok:
+            return message
+        self.actions.append(("land", h))
+        return None
+
+    def _goto_goal(self, h: GoalHandle) -> str | None:
+        g: GoToPositionGoal = h.goal
+        yaw = g.yaw_rad if g.yaw_rad is not None and math.isfinite(g.yaw_rad) else None
+        ok, message = self.mgr.goto(g.position_m.to_array(), yaw)
+        if not ok:
+            return message
+        self.actions.append(("goto", h))
+        return None
+
+    def _cancel_to_hold(self, h: GoalHandle) -> bool:
+        return self.mgr.state in (State.TAKEOFF, State.EXECUTING, State.LAND)
+
+    def _update_actions(self) -> None:
+        s = self.mgr.state
+        pos = self.mgr.vehicle.position_m if self.mgr.vehicle else Vector3()
+        for kind, h in list(self.actions):
+            if not h.active:
+                self.actions.remove((kind, h))
+                continue
+            if h.cancel_requested:
+                if s in (State.TAKEOFF, State.EXECUTING, State.LAND):
+                    self.mgr.command("HOLD")
+                cls = {"takeoff": TakeoffResult, "land": LandResult, "goto": GoToPositionResult}[kind]
+                h.canceled(cls(success=False, message=f"cancelled; now {self.mgr.state.value}"))
+                continue
+            if kind == "takeoff":
+                target = h.goal.target_altitude_m
+                if s == State.TAKEOFF:
+                    h.feedback(TakeoffFeedback(current_altitude_m=pos.z,
+                                               progress_percent=max(0.0, min(100.0, 100 * pos.z / target))))
+                elif s in (State.HOLDING, State.EXECUTING) and abs(pos.z - target) < 1.0:
+                    h.succeed(TakeoffResult(success=True, message="altitude reached", final_altitude_m=pos.z))
+                elif s in (State.IDLE, State.LAND):
+                    h.abort(TakeoffResult(success=False, message=self.mgr.message, final_altitude_m=pos.z))
+            elif kind == "land":
+                if s == State.LAND:
+                    h.feedback(LandFeedback(altitude_agl_m=pos.z))
+                elif s == State.IDLE:
+                    h.succeed(LandResult(success=True, message="landed", final_position_m=pos))
+                else:
+                    h.abort(LandResult(success=False, message=self.mgr.message, final_position_m=pos))
+            elif kind == "goto":
+                if s == State.EXECUTING and self.mgr.goto_target is not None:
+                    d = self.mgr.distance_to_goal_m() or 0.0
+                    h.feedback(GoToPositionFeedback(distance_remaining_m=d,
+                                                    eta_s=d / max(0.1, float(np.linalg.norm(
+                                                        self.mgr.vehicle.velocity_mps.to_array())))))
+                elif s == State.HOLDING and self.mgr.goto_target is None:
+                    h.succeed(GoToPositionResult(success=True, message="reached", final_position_m=pos))
+                else:
+                    h.abort(GoToPositionResult(success=False, message=self.mgr.message, final_position_m=pos))
+
+    def health(self) -> Health:
+        v = self.mgr.vehicle
+        level = DiagnosticStatus.OK if v is not None and v.connected else DiagnosticStatus.WARN
+        return Health(level, f"{self.mgr.state.value}: {self.mgr.message}",
+                      {"state": self.mgr.state.value, "waypoint": self.mgr.wp_index,
+                       "perception_healthy": self.mgr.perception_healthy,
+                       "vehicle": "connected" if v is not None and v.connected else "no state"})
+
+
+def main(argv=None) -> int:
+    return run(MissionService, argv)

@@ -1,0 +1,25 @@
+"""Contract of the planner: keys in/out (ENU) and parameters."""
+from aeroperception.schemas import (
+    PoseStamped, TrajectorySetpoint, TrajectoryStatus, VehicleState, WaypointReached,
+)
+from aeroperception.services.runtime import Param
+
+NAME = "planner"
+INPUTS = {
+    "state/vehicle": VehicleState,
+    # The goal to fly to. header.frame_id == "hold" means: stop and hold where you are.
+    "mission/active_goal": PoseStamped,
+}
+OUTPUTS = {
+    "fmu/in/trajectory_setpoint": TrajectorySetpoint,   # 50 Hz, always
+    "planner/status": TrajectoryStatus,                  # 10 Hz
+    "planner/waypoint_reached": WaypointReached,         # event; index = n-th goal received
+}
+HOLD_FRAME = "hold"
+PARAMS = [
+    Param("max_velocity_mps", 2.0, "m/s", 0.1, 15.0, description="speed cap of the velocity command"),
+    Param("kp", 0.8, "1/s", 0.05, 5.0, description="proportional gain on position error"),
+    Param("acceptance_radius_m", 0.5, "m", 0.05, 10.0, description="goal counts as reached inside this"),
+    Param("rate_hz", 50.0, "Hz", 10.0, 200.0, description="setpoint rate"),
+    Param("state_timeout_s", 0.5, "s", 0.05, 5.0, description="older vehicle state -> hold, status ERROR"),
+]

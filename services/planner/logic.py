@@ -1,0 +1,76 @@
+"""Planner logic, free of Zenoh: state + goal in, setpoint out (ENU, SI)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from aeroperception.schemas import TrajectorySetpoint, TrajectoryStatus, Vector3
+
+
+@dataclass
+class Goal:
+    position_m: np.ndarray
+    yaw_rad: float | None
+    index: int = 0
+
+
+@dataclass
+class StepResult:
+    setpoint: TrajectorySetpoint
+    distance_m: float | None
+    reached: bool
+
+
+class WaypointPlanner:
+    """P-controller to the current goal; holds position (zero velocity) without one.
+
+    `reached` fires once per goal, the cycle the vehicle enters the acceptance radius.
+    """
+
+    def __init__(self, max_velocity_mps: float = 2.0, kp: float = 0.8, acceptance_radius_m: float = 0.5):
+        self.max_velocity_mps = max_velocity_mps
+        self.kp = kp
+        self.acceptance_radius_m = acceptance_radius_m
+        self.goal: Goal | None = None
+        self.hold_position_m: np.ndarray | None = None
+        self.hold_yaw_rad: float = 0.0
+        self._reached_sent = False
+        self.status = TrajectoryStatus.STATUS_IDLE
+
+    def set_goal(self, goal: Goal | None) -> None:
+        same = (goal is not None and self.goal is not None and goal.index == self.goal.index
+                and np.allclose(goal.position_m, self.goal.position_m))
+        if not same:
+            self._reached_sent = False
+        self.goal = goal
+        if goal is None:
+            self.hold_position_m = None  # captured from the next state
+
+    def step(self, position_m: np.ndarray, yaw_rad: float) -> StepResult:
+        if self.goal is None:
+            if self.hold_position_m is None:
+                self.hold_position_m, self.hold_yaw_rad = position_m.copy(), yaw_rad
+            self.status = TrajectoryStatus.STATUS_PAUSED
+            return StepResult(hold_setpoint(self.hold_position_m, self.hold_yaw_rad), None, False)
+        error = self.goal.position_m - position_m
+        distance = float(np.linalg.norm(error))
+        reached = distance < self.acceptance_radius_m and not self._reached_sent
+        if reached:
+            self._reached_sent = True
+        speed = min(self.max_velocity_mps, distance * self.kp)
+        velocity = error / distance * speed if distance > 1e-6 else np.zeros(3)
+        yaw = self.goal.yaw_rad if self.goal.yaw_rad is not None else yaw_rad
+        self.status = TrajectoryStatus.STATUS_COMPLETED if self._reached_sent else TrajectoryStatus.STATUS_EXECUTING
+        sp = TrajectorySetpoint(velocity_valid=True, yaw_valid=True,
+                                position_m=Vector3.from_array(self.goal.position_m),
+                                velocity_mps=Vector3.from_array(velocity), yaw_rad=yaw)
+        return StepResult(sp, distance, reached)
+
+
+def hold_setpoint(position_m: np.ndarray, yaw_rad: float) -> TrajectorySetpoint:
+    """Hold here: position target with zero velocity feed-forward."""
+    return TrajectorySetpoint(position_valid=True, velocity_valid=True, yaw_valid=True,
+                              position_m=Vector3.from_array(position_m), velocity_mps=Vector3(),
+                              yaw_rad=yaw_rad)
+
