@@ -36,7 +36,8 @@ class PlannerService(Service):
         self.pub_reached = self.node.publisher("planner/waypoint_reached", WaypointReached)
         self.node.subscribe("state/vehicle", VehicleState, self._on_state)
         self.node.subscribe("mission/active_goal", PoseStamped, self._on_goal)
-        self.loop = self.node.every(1.0 / p.rate_hz, self._cycle, name="setpoint")
+        self.last_pub_s = 0.0
+        self.loop = self.node.every(1.0 / p.rate_hz, self._tick, name="setpoint")
         self.node.every(0.1, self._publish_status, name="status")
 
     def _on_param(self, name, value) -> None:
@@ -47,6 +48,12 @@ class PlannerService(Service):
 
     def _on_state(self, msg: VehicleState) -> None:
         self.state, self.state_rx_s = msg, time.monotonic()
+        self._cycle()  # event-driven: a fresh state goes out as a setpoint at once (hot path)
+
+    def _tick(self) -> None:
+        """The 50 Hz deadline loop: guarantees the rate when state arrives slower or late."""
+        if time.monotonic() - self.last_pub_s > 0.75 * self.loop.period_s:
+            self._cycle()
 
     def _on_goal(self, msg: PoseStamped) -> None:
         self.goal_msg = msg
@@ -68,6 +75,7 @@ class PlannerService(Service):
         res = self.planner.step(st.position_m.to_array(), st.yaw_rad)
         res.setpoint.header = Header(stamp_ns=st.header.stamp_ns, frame_id="map")
         self.pub_sp.publish(res.setpoint)
+        self.last_pub_s = time.monotonic()
         self.last_distance = res.distance_m
         if res.reached and self.planner.goal is not None:
             g = self.planner.goal

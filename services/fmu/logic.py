@@ -1,0 +1,229 @@
+"""fmu logic, free of Zenoh and sockets: MAVLink messages in, ENU schemas out, and back.
+
+Every NED/FRD <-> ENU/FLU conversion goes through services/mavlink/frames; mode names through
+services/mavlink/px4 (PX4 or ArduPilot maps chosen from the heartbeat's autopilot field).
+"""
+from __future__ import annotations
+
+import math
+import threading
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from pymavlink.dialects.v20 import common as mavlink
+
+from aeroperception.schemas import (
+    Attitude, BatteryState, Header, Imu, LandedState, LocalPosition, Odometry, Quaternion,
+    TrajectorySetpoint, Vector3, VehicleState, VehicleStatus,
+)
+from aeroperception.services.mavlink import frames
+from aeroperception.services.mavlink.px4 import Autopilot
+
+# SET_POSITION_TARGET_LOCAL_NED type_mask bits (1 = ignore)
+IGNORE_POS = 0b0000_0000_0111
+IGNORE_VEL = 0b0000_0011_1000
+IGNORE_ACC = 0b0001_1100_0000
+IGNORE_YAW = 0b0100_0000_0000
+IGNORE_YAW_RATE = 0b1000_0000_0000
+
+MAV_LANDED = {
+    mavlink.MAV_LANDED_STATE_UNDEFINED: LandedState.UNDEFINED,
+    mavlink.MAV_LANDED_STATE_ON_GROUND: LandedState.ON_GROUND,
+    mavlink.MAV_LANDED_STATE_IN_AIR: LandedState.IN_AIR,
+    mavlink.MAV_LANDED_STATE_TAKEOFF: LandedState.TAKEOFF,
+    mavlink.MAV_LANDED_STATE_LANDING: LandedState.LANDING,
+}
+
+
+def v3(a) -> Vector3:
+    return Vector3(x=float(a[0]), y=float(a[1]), z=float(a[2]))
+
+
+def quat(q) -> Quaternion:
+    return Quaternion(w=float(q[0]), x=float(q[1]), y=float(q[2]), z=float(q[3]))
+
+
+@dataclass
+class Telemetry:
+    """Latest flight-controller state, assembled from MAVLink, in ENU/FLU."""
+
+    autopilot: Autopilot = field(default_factory=lambda: Autopilot.for_heartbeat(mavlink.MAV_AUTOPILOT_PX4))
+    position_m: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    velocity_mps: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    q_enu_flu: np.ndarray = field(default_factory=lambda: np.array([1.0, 0, 0, 0]))
+    rates_flu_radps: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    yaw_rad: float = 0.0
+    have_position: bool = False
+    armed: bool = False
+    custom_mode: int = 0
+    base_mode: int = 0
+    flight_mode: str = ""
+    system_status: int = 0
+    landed_state: int = LandedState.UNDEFINED
+    battery_remaining: float | None = None
+    battery_voltage_v: float | None = None
+    battery_current_a: float | None = None
+    last_rx_s: float = 0.0
+    last_heartbeat_s: float = 0.0
+    system_id: int = 1
+
+    def on_heartbeat(self, m) -> VehicleStatus:
+        if m.autopilot != self.autopilot.mav_autopilot:
+            self.autopilot = Autopilot.for_heartbeat(m.autopilot)
+        self.armed = bool(m.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
+        self.base_mode, self.custom_mode = m.base_mode, m.custom_mode
+        self.flight_mode = self.autopilot.mode_name(m.custom_mode)
+        self.system_status = m.system_status
+        self.last_heartbeat_s = time.monotonic()
+        return self.vehicle_status()
+
+    def vehicle_status(self) -> VehicleStatus:
+        return VehicleStatus(nav_state=self.flight_mode, custom_mode=self.custom_mode, armed=self.armed,
+                             landed_state=self.landed_state,
+                             failsafe=self.system_status in (mavlink.MAV_STATE_CRITICAL, mavlink.MAV_STATE_EMERGENCY),
+                             system_id=self.system_id, autopilot=self.autopilot.name)
+
+    def on_local_position(self, m, stamp_ns: int) -> LocalPosition:
+        self.position_m = frames.ned_to_enu(np.array([m.x, m.y, m.z]))
+        self.velocity_mps = frames.ned_to_enu(np.array([m.vx, m.vy, m.vz]))
+        self.have_position = True
+        return LocalPosition(header=Header(stamp_ns=stamp_ns, frame_id="map"), position_m=v3(self.position_m),
+                             velocity_mps=v3(self.velocity_mps), yaw_rad=self.yaw_rad,
+                             position_valid=True, velocity_valid=True)
+
+    def on_attitude_quaternion(self, m, stamp_ns: int) -> Attitude:
+        self.q_enu_flu = frames.q_ned_frd_to_enu_flu(np.array([m.q1, m.q2, m.q3, m.q4]))
+        self.rates_flu_radps = frames.frd_to_flu(np.array([m.rollspeed, m.pitchspeed, m.yawspeed]))
+        self.yaw_rad = frames.yaw_from_q(self.q_enu_flu)
+        return Attitude(header=Header(stamp_ns=stamp_ns, frame_id="map"), orientation=quat(self.q_enu_flu),
+                        angular_velocity_radps=v3(self.rates_flu_radps))
+
+    def on_extended_sys_state(self, m) -> None:
+        self.landed_state = MAV_LANDED.get(m.landed_state, LandedState.UNDEFINED)
+
+    def on_sys_status(self, m) -> None:
+        if m.battery_remaining >= 0:
+            self.battery_remaining = m.battery_remaining / 100.0
+        if m.voltage_battery not in (0, 0xFFFF):
+            self.battery_voltage_v = m.voltage_battery / 1000.0
+        if m.current_battery >= 0:
+            self.battery_current_a = m.current_battery / 100.0
+
+    def on_battery_status(self, m, stamp_ns: int) -> BatteryState:
+        if m.battery_remaining >= 0:
+            self.battery_remaining = m.battery_remaining / 100.0
+        cells = [v for v in m.voltages if v != 0xFFFF]
+        if cells:
+            self.battery_voltage_v = sum(cells) / 1000.0
+        if m.current_battery >= 0:
+            self.battery_current_a = m.current_battery / 100.0
+        return self.battery(stamp_ns, temperature_c=None if m.temperature == 0x7FFF else m.temperature / 100.0,
+                            cell_count=len(cells))
+
+    def battery(self, stamp_ns: int, **extra) -> BatteryState:
+        kw = {k: v for k, v in dict(voltage_v=self.battery_voltage_v, current_a=self.battery_current_a,
+                                    remaining=self.battery_remaining, **extra).items() if v is not None}
+        return BatteryState(header=Header(stamp_ns=stamp_ns), **kw)
+
+    def vehicle_state(self, stamp_ns: int, connected: bool) -> VehicleState:
+        roll, pitch, _ = frames.euler_from_q(self.q_enu_flu)
+        return VehicleState(
+            header=Header(stamp_ns=stamp_ns, frame_id="map"),
+            position_m=v3(self.position_m), velocity_mps=v3(self.velocity_mps),
+            orientation=quat(self.q_enu_flu), angular_velocity_radps=v3(self.rates_flu_radps),
+            roll_rad=roll, pitch_rad=pitch, yaw_rad=self.yaw_rad,
+            estimator_name=f"{self.autopilot.name}-ekf", confidence=1.0 if connected else 0.0,
+            flight_mode=self.flight_mode, armed=self.armed, landed_state=self.landed_state,
+            battery_remaining=self.battery_remaining, battery_voltage_v=self.battery_voltage_v,
+            connected=connected)
+
+
+def highres_imu_to_imu(m, stamp_ns: int) -> Imu:
+    """HIGHRES_IMU (FRD body) -> Imu (FLU body), specific force incl. gravity as the FC reports it."""
+    return Imu(header=Header(stamp_ns=stamp_ns, frame_id="base_link"),
+               angular_velocity_radps=v3(frames.frd_to_flu(np.array([m.xgyro, m.ygyro, m.zgyro]))),
+               linear_acceleration_mps2=v3(frames.frd_to_flu(np.array([m.xacc, m.yacc, m.zacc]))))
+
+
+def setpoint_target(sp: TrajectorySetpoint) -> dict:
+    """TrajectorySetpoint (ENU) -> SET_POSITION_TARGET_LOCAL_NED fields (NED), type_mask honoured."""
+    mask = IGNORE_ACC
+    pos = vel = np.zeros(3)
+    if sp.position_valid:
+        pos = frames.enu_to_ned(sp.position_m.to_array())
+    else:
+        mask |= IGNORE_POS
+    if sp.velocity_valid:
+        vel = frames.enu_to_ned(sp.velocity_mps.to_array())
+    else:
+        mask |= IGNORE_VEL
+    yaw = yaw_rate = 0.0
+    if sp.yaw_valid and math.isfinite(sp.yaw_rad):
+        yaw = frames.yaw_enu_to_ned(sp.yaw_rad)
+    else:
+        mask |= IGNORE_YAW
+    if sp.yaw_rate_valid and math.isfinite(sp.yaw_rate_radps):
+        yaw_rate = -sp.yaw_rate_radps  # ENU counter-clockwise -> NED clockwise
+    else:
+        mask |= IGNORE_YAW_RATE
+    return dict(coordinate_frame=mavlink.MAV_FRAME_LOCAL_NED, type_mask=mask,
+                x=float(pos[0]), y=float(pos[1]), z=float(pos[2]),
+                vx=float(vel[0]), vy=float(vel[1]), vz=float(vel[2]),
+                afx=0.0, afy=0.0, afz=0.0, yaw=float(yaw), yaw_rate=float(yaw_rate))
+
+
+def hold_target(position_enu_m: np.ndarray, yaw_enu_rad: float) -> dict:
+    """Hold here: position + zero velocity, as a TrajectorySetpoint would say it."""
+    sp = TrajectorySetpoint(position_valid=True, velocity_valid=True, yaw_valid=True,
+                            position_m=v3(position_enu_m), velocity_mps=Vector3(), yaw_rad=yaw_enu_rad)
+    return setpoint_target(sp)
+
+
+def odometry_fields(odom: Odometry, time_usec: int) -> dict:
+    """Odometry (ENU pose, FLU twist) -> MAVLink ODOMETRY (NED / FRD), estimator VISION."""
+    p = frames.enu_to_ned(odom.pose.position.to_array())
+    o = odom.pose.orientation
+    q = frames.q_enu_flu_to_ned_frd(np.array([o.w, o.x, o.y, o.z]))
+    v_body = frames.flu_to_frd(odom.twist.linear.to_array())
+    w_body = frames.flu_to_frd(odom.twist.angular.to_array())
+    pose_cov = frames.cov6_enu_flu_to_ned_frd(odom.pose_covariance.to_numpy()) if odom.pose_covariance is not None else None
+    twist_cov = frames.cov6_flu_to_frd(odom.twist_covariance.to_numpy()) if odom.twist_covariance is not None else None
+
+    def urt(c):
+        if c is None:
+            return [float("nan")] + [0.0] * 20
+        return [float(c[i, j]) for i in range(6) for j in range(i, 6)]
+
+    return dict(time_usec=time_usec, frame_id=mavlink.MAV_FRAME_LOCAL_NED, child_frame_id=mavlink.MAV_FRAME_BODY_FRD,
+                x=float(p[0]), y=float(p[1]), z=float(p[2]), q=[float(x) for x in q],
+                vx=float(v_body[0]), vy=float(v_body[1]), vz=float(v_body[2]),
+                rollspeed=float(w_body[0]), pitchspeed=float(w_body[1]), yawspeed=float(w_body[2]),
+                pose_covariance=urt(pose_cov), velocity_covariance=urt(twist_cov), reset_counter=0,
+                estimator_type=mavlink.MAV_ESTIMATOR_TYPE_VISION, quality=100)
+
+
+class CommandWaiter:
+    """Matches COMMAND_ACKs to the command a queryable is waiting for (one waiter per command id)."""
+
+    def __init__(self):
+        self._lock = threading.Lock()
+        self._waiting: dict[int, tuple[threading.Event, list]] = {}
+
+    def expect(self, command: int) -> tuple[threading.Event, list]:
+        ev, box = threading.Event(), []
+        with self._lock:
+            self._waiting[command] = (ev, box)
+        return ev, box
+
+    def on_ack(self, m) -> None:
+        with self._lock:
+            entry = self._waiting.pop(m.command, None)
+        if entry:
+            entry[1].append(m.result)
+            entry[0].set()
+
+
+def ack_name(result: int) -> str:
+    enum = mavlink.enums["MAV_RESULT"]
+    return enum[result].name.removeprefix("MAV_RESULT_") if result in enum else str(result)

@@ -1,0 +1,263 @@
+"""Process shell of fmu: a pymavlink link thread, the offboard stream, the fmu/srv/* queryables."""
+from __future__ import annotations
+
+import math
+import threading
+import time
+
+import numpy as np
+from pymavlink import mavutil
+from pymavlink.dialects.v20 import common as mavlink
+
+from aeroperception.schemas import (
+    ArmReply, ArmRequest, Attitude, BatteryState, DiagnosticStatus, EmergencyStopReply,
+    EmergencyStopRequest, Imu, LocalPosition, Odometry, SetModeReply, SetModeRequest,
+    TrajectorySetpoint, VehicleState, VehicleStatus,
+)
+from aeroperception.services.runtime import Health, Service, run
+
+from . import contract
+from .logic import CommandWaiter, Telemetry, ack_name, highres_imu_to_imu, hold_target, odometry_fields, setpoint_target
+
+FORCE_MAGIC = 21196  # COMPONENT_ARM_DISARM param2: force (PX4 and ArduPilot)
+STREAMS_HZ = {  # what we ask the FC for (SET_MESSAGE_INTERVAL); PX4 onboard links honour it
+    mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 50,
+    mavlink.MAVLINK_MSG_ID_ATTITUDE_QUATERNION: 50,
+    mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 5,
+    mavlink.MAVLINK_MSG_ID_SYS_STATUS: 1,
+    mavlink.MAVLINK_MSG_ID_BATTERY_STATUS: 1,
+    mavlink.MAVLINK_MSG_ID_HIGHRES_IMU: 100,
+}
+
+
+class FmuService(Service):
+    """MAVLink bridge to the flight controller (PX4, ArduPilot or the built-in sim)."""
+
+    NAME = contract.NAME
+    PARAMS = contract.PARAMS
+
+    @classmethod
+    def add_arguments(cls, parser) -> None:
+        parser.add_argument("--fcu-url", default=contract.DEFAULT_FCU_URL,
+                            help="pymavlink URL of the flight controller: udpin:127.0.0.1:14540 (PX4 SITL, "
+                                 "the built-in sim), udpin:0.0.0.0:14540, serial /dev/ttyACM0,921600, tcp:HOST:5760")
+
+    def start(self) -> None:
+        p = self.params
+        self.tm = Telemetry()
+        self.acks = CommandWaiter()
+        self.send_lock = threading.Lock()
+        self.counters = {"rx": 0, "bad_packets": 0, "setpoints_sent": 0, "holds_sent": 0, "vio_injected": 0,
+                         "vio_stale_dropped": 0}
+        self.planner_sp: TrajectorySetpoint | None = None
+        self.planner_sp_rx_s = 0.0
+        self.last_target_sent_s = 0.0
+        self.hold: tuple[np.ndarray, float] | None = None
+        self.streams_requested = False
+        self.conn = mavutil.mavlink_connection(self.args.fcu_url, source_system=p.source_system,
+                                               source_component=p.source_component, autoreconnect=True)
+        node = self.node
+        pub = node.publisher
+        self.pubs = {k: pub(k, cls) for k, cls in contract.OUTPUTS.items()
+                     if k != "sensors/imu" or p.publish_imu}
+        self.pubs["state/vehicle"] = pub("state/vehicle", VehicleState, express=True)
+        node.subscribe("fmu/in/trajectory_setpoint", TrajectorySetpoint, self._on_setpoint)
+        node.subscribe("state/visual_odometry", Odometry, self._on_vio)
+        node.serve("fmu/srv/arm", ArmRequest, ArmReply, self._srv_arm, locked=False)
+        node.serve("fmu/srv/set_mode", SetModeRequest, SetModeReply, self._srv_set_mode, locked=False)
+        node.serve("fmu/srv/emergency_stop", EmergencyStopRequest, EmergencyStopReply, self._srv_estop, locked=False)
+        self.stream_loop = node.every(1.0 / p.offboard_rate_hz, self._offboard_tick, name="offboard")
+        node.every(1.0, self._heartbeat_tick, name="heartbeat")
+        self.reader = threading.Thread(target=self._read_loop, name="fmu-mavlink", daemon=True)
+        self.reader.start()
+        self.log.info("fcu_link", url=self.args.fcu_url)
+
+    def stop(self) -> None:
+        self.node.stop_event.set()
+        self.reader.join(1.0)
+        self.conn.close()
+
+    # ------------------------------------------------------------ MAVLink in
+
+    def _read_loop(self) -> None:
+        while not self.node.stop_event.is_set():
+            try:
+                m = self.conn.recv_match(blocking=True, timeout=0.1)
+            except (OSError, ValueError) as e:  # socket hiccup: report, keep going
+                self.log.throttled("warn", "link", "mavlink_read_error", error=str(e))
+                time.sleep(0.05)
+                continue
+            if m is None:
+                continue
+            self.node._invoke("mavlink", self._on_mavlink, m)
+
+    def _on_mavlink(self, m) -> None:
+        t = m.get_type()
+        if t == "BAD_DATA":
+            self.counters["bad_packets"] += 1
+            self.node.report_bad_input("mavlink", f"bad MAVLink data ({len(m.data)} bytes)")
+            return
+        if m.get_srcComponent() != mavlink.MAV_COMP_ID_AUTOPILOT1 and t != "COMMAND_ACK":
+            return  # other components (cameras, gimbals, GCS) on the same link
+        self.counters["rx"] += 1
+        self.tm.last_rx_s = time.monotonic()
+        stamp = self.node.now_ns()
+        if t == "HEARTBEAT":
+            if m.type == mavlink.MAV_TYPE_GCS:
+                return
+            self.tm.system_id = m.get_srcSystem()
+            self.pubs["fmu/out/vehicle_status"].publish(self.tm.on_heartbeat(m))
+            if not self.streams_requested:
+                self._request_streams()
+        elif t == "LOCAL_POSITION_NED":
+            self.pubs["fmu/out/vehicle_local_position"].publish(self.tm.on_local_position(m, stamp))
+            self.pubs["state/vehicle"].publish(self.tm.vehicle_state(stamp, connected=True))
+        elif t == "ATTITUDE_QUATERNION":
+            self.pubs["fmu/out/vehicle_attitude"].publish(self.tm.on_attitude_quaternion(m, stamp))
+        elif t == "EXTENDED_SYS_STATE":
+            self.tm.on_extended_sys_state(m)
+        elif t == "SYS_STATUS":
+            self.tm.on_sys_status(m)
+        elif t == "BATTERY_STATUS":
+            self.pubs["fmu/out/battery_status"].publish(self.tm.on_battery_status(m, stamp))
+        elif t == "HIGHRES_IMU":
+            imu = highres_imu_to_imu(m, stamp)
+            self.pubs["fmu/out/sensor_combined"].publish(imu)
+            if "sensors/imu" in self.pubs:
+                self.pubs["sensors/imu"].publish(imu)
+        elif t == "COMMAND_ACK":
+            self.acks.on_ack(m)
+        elif t == "TIMESYNC" and m.tc1 == 0:  # PX4 asks the companion; answer so vision fusion works
+            self._send(lambda mav: mav.timesync_send(time.time_ns(), m.ts1))
+
+    def _request_streams(self) -> None:
+        self.streams_requested = True
+        for msg_id, hz in STREAMS_HZ.items():
+            self._command_nowait(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, msg_id, 1e6 / hz)
+
+    # ------------------------------------------------------------ MAVLink out
+
+    def _send(self, fn) -> None:
+        with self.send_lock:
+            try:
+                fn(self.conn.mav)
+            except OSError as e:
+                self.log.throttled("warn", "send", "mavlink_send_error", error=str(e))
+
+    def _command_nowait(self, command: int, *params: float) -> None:
+        p = list(params) + [0.0] * (7 - len(params))
+        self._send(lambda mav: mav.command_long_send(self.tm.system_id, 1, command, 0, *p))
+
+    def link_fresh(self) -> bool:
+        return time.monotonic() - self.tm.last_rx_s < self.params.link_timeout_s
+
+    def _on_setpoint(self, sp: TrajectorySetpoint) -> None:
+        self.planner_sp, self.planner_sp_rx_s = sp, time.monotonic()
+        self.hold = None
+        self._send_target(setpoint_target(sp))  # forward at once: the hot path
+        self.counters["setpoints_sent"] += 1
+
+    def _send_target(self, f: dict) -> None:
+        boot_ms = int(time.monotonic() * 1e3) & 0xFFFFFFFF
+        self._send(lambda mav: mav.set_position_target_local_ned_send(
+            boot_ms, self.tm.system_id, 1, f["coordinate_frame"], f["type_mask"], f["x"], f["y"], f["z"],
+            f["vx"], f["vy"], f["vz"], f["afx"], f["afy"], f["afz"], f["yaw"], f["yaw_rate"]))
+        self.last_target_sent_s = time.monotonic()
+
+    def _offboard_tick(self) -> None:
+        """Keep the stream at 50 Hz; when the planner is silent (> setpoint_timeout_s) hold position."""
+        if not self.tm.have_position or not self.link_fresh():
+            return
+        now = time.monotonic()
+        if now - self.planner_sp_rx_s <= self.params.setpoint_timeout_s:
+            if now - self.last_target_sent_s > 0.75 * self.stream_loop.period_s:
+                self._send_target(setpoint_target(self.planner_sp))
+                self.counters["setpoints_sent"] += 1
+            return
+        if self.hold is None:  # planner went silent: freeze here, never replay its last motion
+            self.hold = (self.tm.position_m.copy(), self.tm.yaw_rad)
+            if self.planner_sp is not None:
+                self.log.warn("planner_silent_holding", position_m=self.hold[0].round(2).tolist())
+        self._send_target(hold_target(*self.hold))
+        self.counters["holds_sent"] += 1
+
+    def _heartbeat_tick(self) -> None:
+        self._send(lambda mav: mav.heartbeat_send(mavlink.MAV_TYPE_ONBOARD_CONTROLLER, mavlink.MAV_AUTOPILOT_INVALID, 0, 0,
+                                                  mavlink.MAV_STATE_ACTIVE))
+        if not self.link_fresh():  # stale: say so on state/vehicle rather than going quiet
+            self.pubs["state/vehicle"].publish(self.tm.vehicle_state(self.node.now_ns(), connected=False))
+
+    def _on_vio(self, odom: Odometry) -> None:
+        age_s = (self.node.now_ns() - odom.header.stamp_ns) / 1e9
+        if age_s > self.params.vio_timeout_s:
+            self.counters["vio_stale_dropped"] += 1
+            self.log.throttled("warn", "vio", "vio_stale_not_injected", age_s=round(age_s, 3))
+            return
+        f = odometry_fields(odom, odom.header.stamp_ns // 1000)
+        self._send(lambda mav: mav.odometry_send(**f))
+        self.counters["vio_injected"] += 1
+
+    # ------------------------------------------------------------ queryables
+
+    def _command(self, command: int, params: list[float], confirm, timeout_s: float) -> tuple[bool, str]:
+        """COMMAND_LONG, wait for its ACK, then for `confirm()` (heartbeat state) within timeout."""
+        if not self.link_fresh():
+            return False, f"no link to the flight controller ({self.args.fcu_url})"
+        deadline = time.monotonic() + timeout_s
+        ev, box = self.acks.expect(command)
+        p = params + [0.0] * (7 - len(params))
+        self._send(lambda mav: mav.command_long_send(self.tm.system_id, 1, command, 0, *p))
+        if not ev.wait(max(0.0, deadline - time.monotonic())):
+            return False, f"no COMMAND_ACK within {timeout_s:.1f} s"
+        if box[0] != mavlink.MAV_RESULT_ACCEPTED:
+            return False, f"flight controller answered {ack_name(box[0])}"
+        while time.monotonic() < deadline:
+            if confirm():
+                return True, "confirmed by heartbeat"
+            time.sleep(0.02)
+        return False, "accepted but not confirmed by the heartbeat in time"
+
+    def _srv_arm(self, req: ArmRequest) -> ArmReply:
+        ok, msg = self._command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM,
+                                [1.0 if req.arm else 0.0, FORCE_MAGIC if req.force else 0.0],
+                                lambda: self.tm.armed == req.arm, self.params.command_timeout_s)
+        self.log.info("arm", arm=req.arm, force=req.force, success=ok, message=msg)
+        return ArmReply(success=ok, message=msg, armed=self.tm.armed)
+
+    def _srv_set_mode(self, req: SetModeRequest) -> SetModeReply:
+        mode = req.mode.upper()
+        try:
+            base, main_mode, sub_mode = self.tm.autopilot.set_mode_params(mode)
+        except KeyError:
+            return SetModeReply(success=False, current_mode=self.tm.flight_mode,
+                                message=f"unknown mode {req.mode!r} for {self.tm.autopilot.name}; "
+                                        f"known: {', '.join(self.tm.autopilot.mode_names())}")
+        if self.tm.flight_mode == mode:
+            return SetModeReply(success=True, message="already in mode", current_mode=mode)
+        ok, msg = self._command(mavlink.MAV_CMD_DO_SET_MODE, [base, main_mode, sub_mode],
+                                lambda: self.tm.flight_mode == mode, self.params.command_timeout_s)
+        self.log.info("set_mode", mode=mode, success=ok, message=msg)
+        return SetModeReply(success=ok, message=msg, current_mode=self.tm.flight_mode)
+
+    def _srv_estop(self, req: EmergencyStopRequest) -> EmergencyStopReply:
+        if not req.confirm:
+            return EmergencyStopReply(success=False, message="refused: set confirm=true to terminate the flight")
+        self.log.error("emergency_stop", reason=req.reason)
+        ok, msg = self._command(mavlink.MAV_CMD_DO_FLIGHTTERMINATION, [1.0], lambda: not self.tm.armed,
+                                self.params.command_timeout_s)
+        return EmergencyStopReply(success=ok, message=msg)
+
+    # ------------------------------------------------------------ health
+
+    def health(self) -> Health:
+        values = dict(self.counters, mode=self.tm.flight_mode, armed=self.tm.armed, autopilot=self.tm.autopilot.name,
+                      planner="streaming" if self.hold is None and self.planner_sp is not None else "holding")
+        if not self.link_fresh():
+            age = time.monotonic() - self.tm.last_rx_s if self.tm.last_rx_s else math.inf
+            return Health(DiagnosticStatus.ERROR, f"flight controller link stale ({age:.1f} s) on {self.args.fcu_url}", values)
+        return Health(DiagnosticStatus.OK, f"{self.tm.autopilot.name} {self.tm.flight_mode} "
+                                           f"{'armed' if self.tm.armed else 'disarmed'}", values)
+
+
+def main(argv=None) -> int:
+    return run(FmuService, argv)
