@@ -123,7 +123,7 @@ class Telemetry:
 
     def battery(self, stamp_ns: int, **extra) -> BatteryState:
         kw = {k: v for k, v in dict(voltage_v=self.battery_voltage_v, current_a=self.battery_current_a,
-                                    remaining=self.battery_remaining, **extra).items() if v is not None}
+                                    remaining_fraction=self.battery_remaining, **extra).items() if v is not None}
         return BatteryState(header=Header(stamp_ns=stamp_ns), **kw)
 
     def vehicle_state(self, stamp_ns: int, connected: bool) -> VehicleState:

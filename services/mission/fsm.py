@@ -174,8 +174,8 @@ class MissionManager:
         if self.goto_target is not None:
             self.publish_goal(self.goto_target)
             return
-        if self.wp_index < 0:
-            self.wp_index = 0
+        if self.wp_index < 0 or self.wp_index >= len(self.mission.waypoints):
+            self.wp_index = 0  # not started yet, or completed: (re)start from the first waypoint
         self._publish_waypoint()
 
     def _enter_land(self, prev: State, event: Event) -> None:

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import fields
 
 import numpy as np
 
@@ -50,9 +51,7 @@ class MissionService(Service):
 
     def start(self) -> None:
         p = self.params
-        cfg = Config(takeoff_altitude_m=p.takeoff_altitude_m, altitude_tolerance_m=p.altitude_tolerance_m,
-                     require_perception=p.require_perception, perception_recovery_s=p.perception_recovery_s,
-                     land_on_complete=p.land_on_complete)
+        cfg = Config(**{f.name: p[f.name] for f in fields(Config)})  # every FSM setting is a parameter
         self.mgr = MissionManager(ZenohBridge(self), self._publish_goal, cfg, log=self.log.info)
         self.params.on_change(lambda n, v: setattr(cfg, n, v) if hasattr(cfg, n) else None)
         self.mgr.on_waypoint_reached = self._on_reached

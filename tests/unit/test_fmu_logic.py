@@ -1,0 +1,389 @@
+"""fmu logic (services/fmu/logic.py): MAVLink messages in -> ENU/FLU schemas out, setpoints and
+vision odometry ENU/FLU -> NED/FRD MAVLink fields back, and COMMAND_ACK matching.
+
+Messages are real pymavlink message objects; outgoing field dicts are packed into real
+MAVLink messages, so a wrong field name or type fails here rather than on the wire.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from pymavlink.dialects.v20 import common as mavlink
+
+from aeroperception.schemas import (
+    BatteryState, Imu, LandedState, LocalPosition, NDArray, Odometry, Pose, Quaternion,
+    TrajectorySetpoint, Twist, Vector3, VehicleStatus,
+)
+from aeroperception.services.fmu.logic import (
+    IGNORE_ACC, IGNORE_POS, IGNORE_VEL, IGNORE_YAW, IGNORE_YAW_RATE, CommandWaiter, Telemetry,
+    ack_name, highres_imu_to_imu, hold_target, odometry_fields, setpoint_target,
+)
+
+MAV = mavlink.MAVLink(None, srcSystem=255, srcComponent=190)
+ARMED = mavlink.MAV_MODE_FLAG_SAFETY_ARMED | mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+DISARMED = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+PX4_OFFBOARD = 6 << 16
+PX4_HOLD = (4 << 16) | (3 << 24)
+PX4_LAND = 0x06040000
+
+
+def packs(msg) -> None:
+    """The message encodes as MAVLink v2 and decodes back to the same type."""
+    buf = msg.pack(MAV)
+    back = mavlink.MAVLink(None).decode(bytearray(buf))
+    assert back.get_type() == msg.get_type()
+
+
+def setpoint_msg(fields: dict):
+    return mavlink.MAVLink_set_position_target_local_ned_message(
+        time_boot_ms=0, target_system=1, target_component=1, **fields)
+
+
+def vec(v: Vector3) -> list[float]:
+    return v.to_array().tolist()
+
+
+# ================================================================ setpoints (ENU -> NED)
+
+def test_velocity_only_setpoint_ignores_position_acceleration_and_yaw_rate():
+    sp = TrajectorySetpoint(velocity_valid=True, yaw_valid=True,
+                            position_m=Vector3(x=99.0, y=99.0, z=99.0),  # feed-forward, not used
+                            velocity_mps=Vector3(x=1.0, y=2.0, z=3.0), yaw_rad=0.0)
+    f = setpoint_target(sp)
+    mask = f["type_mask"]
+    assert mask & IGNORE_POS == IGNORE_POS
+    assert mask & IGNORE_VEL == 0
+    assert mask & IGNORE_ACC == IGNORE_ACC
+    assert mask & IGNORE_YAW == 0
+    assert mask & IGNORE_YAW_RATE == IGNORE_YAW_RATE
+    assert mask == IGNORE_POS | IGNORE_ACC | IGNORE_YAW_RATE
+    assert f["coordinate_frame"] == mavlink.MAV_FRAME_LOCAL_NED
+    packs(setpoint_msg(f))
+
+
+def test_setpoint_velocity_enu_1_2_3_is_ned_2_1_minus_3():
+    # East 1, North 2, Up 3  ->  North 2, East 1, Down -3
+    sp = TrajectorySetpoint(velocity_valid=True, velocity_mps=Vector3(x=1.0, y=2.0, z=3.0))
+    f = setpoint_target(sp)
+    assert (f["vx"], f["vy"], f["vz"]) == (2.0, 1.0, -3.0)
+
+
+@pytest.mark.parametrize(("yaw_enu", "yaw_ned"), [
+    (0.0, math.pi / 2),            # facing East
+    (math.pi / 2, 0.0),            # facing North
+    (math.pi, -math.pi / 2),       # facing West (= +3pi/2, wrapped)
+    (-math.pi / 2, -math.pi),      # facing South (pi wraps to -pi)
+    (math.pi / 4, math.pi / 4),    # North-East is the fixed point
+])
+def test_setpoint_yaw_enu_to_ned(yaw_enu, yaw_ned):
+    f = setpoint_target(TrajectorySetpoint(yaw_valid=True, yaw_rad=yaw_enu))
+    assert math.cos(f["yaw"]) == pytest.approx(math.cos(yaw_ned), abs=1e-12)
+    assert math.sin(f["yaw"]) == pytest.approx(math.sin(yaw_ned), abs=1e-12)
+    assert -math.pi <= f["yaw"] <= math.pi
+
+
+def test_hold_sets_position_and_zero_velocity():
+    f = hold_target(np.array([1.0, 2.0, 3.0]), 0.0)   # ENU: 1 m East, 2 m North, 3 m up
+    assert f["type_mask"] == IGNORE_ACC | IGNORE_YAW_RATE  # position, velocity and yaw all used
+    assert (f["x"], f["y"], f["z"]) == (2.0, 1.0, -3.0)
+    assert (f["vx"], f["vy"], f["vz"]) == (0.0, 0.0, 0.0)
+    assert f["yaw"] == pytest.approx(math.pi / 2)
+    packs(setpoint_msg(f))
+
+
+@pytest.mark.parametrize("sp", [
+    TrajectorySetpoint(velocity_valid=True, yaw_valid=False, yaw_rad=1.0),
+    TrajectorySetpoint(velocity_valid=True, yaw_valid=True, yaw_rad=float("nan")),
+], ids=["yaw-not-valid", "yaw-nan"])
+def test_invalid_yaw_sets_the_ignore_yaw_bit(sp):
+    f = setpoint_target(sp)
+    assert f["type_mask"] & IGNORE_YAW
+    assert math.isfinite(f["yaw"])                     # never put NaN on the wire
+
+
+def test_yaw_rate_is_negated_and_used_when_valid():
+    f = setpoint_target(TrajectorySetpoint(velocity_valid=True, yaw_rate_valid=True, yaw_rate_radps=0.5))
+    assert f["type_mask"] & IGNORE_YAW_RATE == 0
+    assert f["yaw_rate"] == -0.5                       # CCW (ENU, about Up) = CW-negative about Down
+
+
+def test_nothing_valid_ignores_everything_but_sends_finite_numbers():
+    f = setpoint_target(TrajectorySetpoint(position_m=Vector3(x=float("nan"))))
+    assert f["type_mask"] == IGNORE_POS | IGNORE_VEL | IGNORE_ACC | IGNORE_YAW | IGNORE_YAW_RATE
+    assert all(math.isfinite(f[k]) for k in ("x", "y", "z", "vx", "vy", "vz", "yaw", "yaw_rate"))
+
+
+# ================================================================ telemetry (NED -> ENU)
+
+def test_local_position_ned_becomes_enu_position_and_velocity():
+    tm = Telemetry()
+    m = mavlink.MAVLink_local_position_ned_message(time_boot_ms=1000, x=1.0, y=2.0, z=-3.0,
+                                                   vx=0.5, vy=-1.0, vz=0.25)
+    lp = tm.on_local_position(m, stamp_ns=123)
+    assert isinstance(lp, LocalPosition)
+    assert vec(lp.position_m) == [2.0, 1.0, 3.0]
+    assert vec(lp.velocity_mps) == [-1.0, 0.5, -0.25]
+    assert lp.position_valid and lp.velocity_valid
+    assert lp.header.stamp_ns == 123 and lp.header.frame_id == "map"
+    assert tm.have_position
+    np.testing.assert_allclose(tm.position_m, [2.0, 1.0, 3.0])
+
+
+@pytest.mark.parametrize(("custom_mode", "name"), [
+    (PX4_OFFBOARD, "OFFBOARD"), (PX4_HOLD, "HOLD"), (PX4_LAND, "LAND"),
+    ((4 << 16) | (5 << 24), "RTL"), ((4 << 16) | (2 << 24), "TAKEOFF"), (3 << 16, "POSCTL"),
+])
+@pytest.mark.parametrize("armed", [True, False])
+def test_px4_heartbeat_decodes_mode_name_and_armed_flag(custom_mode, name, armed):
+    tm = Telemetry()
+    hb = mavlink.MAVLink_heartbeat_message(
+        type=mavlink.MAV_TYPE_QUADROTOR, autopilot=mavlink.MAV_AUTOPILOT_PX4,
+        base_mode=ARMED if armed else DISARMED, custom_mode=custom_mode,
+        system_status=mavlink.MAV_STATE_ACTIVE, mavlink_version=3)
+    st = tm.on_heartbeat(hb)
+    assert isinstance(st, VehicleStatus)
+    assert (st.nav_state, st.armed, st.custom_mode, st.autopilot) == (name, armed, custom_mode, "px4")
+    assert not st.failsafe
+    vs = tm.vehicle_state(1, connected=True)
+    assert (vs.flight_mode, vs.armed) == (name, armed)
+
+
+def test_land_custom_mode_value():
+    assert PX4_LAND == (4 << 16) | (6 << 24)
+
+
+def test_critical_system_status_is_a_failsafe():
+    tm = Telemetry()
+    hb = mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_PX4, ARMED,
+                                           PX4_HOLD, mavlink.MAV_STATE_CRITICAL, 3)
+    assert tm.on_heartbeat(hb).failsafe
+
+
+def test_ardupilot_heartbeat_switches_the_mode_map():
+    tm = Telemetry()
+    hb = mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA,
+                                           ARMED, 4, mavlink.MAV_STATE_ACTIVE, 3)  # 4 = GUIDED
+    st = tm.on_heartbeat(hb)
+    assert (st.autopilot, st.nav_state) == ("ardupilot", "OFFBOARD")
+    assert tm.vehicle_state(1, True).estimator_name == "ardupilot-ekf"
+
+
+@pytest.mark.parametrize(("mav", "ours"), [
+    (mavlink.MAV_LANDED_STATE_UNDEFINED, LandedState.UNDEFINED),
+    (mavlink.MAV_LANDED_STATE_ON_GROUND, LandedState.ON_GROUND),
+    (mavlink.MAV_LANDED_STATE_IN_AIR, LandedState.IN_AIR),
+    (mavlink.MAV_LANDED_STATE_TAKEOFF, LandedState.TAKEOFF),
+    (mavlink.MAV_LANDED_STATE_LANDING, LandedState.LANDING),
+    (77, LandedState.UNDEFINED),
+])
+def test_extended_sys_state_landed_state_mapping(mav, ours):
+    tm = Telemetry()
+    tm.on_extended_sys_state(mavlink.MAVLink_extended_sys_state_message(vtol_state=0, landed_state=mav))
+    assert tm.landed_state == ours
+    assert tm.vehicle_state(1, True).landed_state == ours
+    assert tm.vehicle_status().landed_state == ours
+
+
+def sys_status(voltage_mv, current_ca, remaining_pct):
+    return mavlink.MAVLink_sys_status_message(0, 0, 0, 0, voltage_mv, current_ca, remaining_pct, 0, 0, 0, 0, 0, 0)
+
+
+def test_sys_status_battery_fraction_voltage_and_current():
+    tm = Telemetry()
+    tm.on_sys_status(sys_status(12_600, 150, 76))
+    assert tm.battery_remaining == pytest.approx(0.76)
+    assert tm.battery_voltage_v == pytest.approx(12.6)
+    assert tm.battery_current_a == pytest.approx(1.5)
+    vs = tm.vehicle_state(1, True)
+    assert vs.battery_remaining == pytest.approx(0.76) and vs.battery_voltage_v == pytest.approx(12.6)
+
+
+def test_sys_status_unknown_battery_values_stay_none():
+    tm = Telemetry()
+    tm.on_sys_status(sys_status(0xFFFF, -1, -1))
+    assert (tm.battery_remaining, tm.battery_voltage_v, tm.battery_current_a) == (None, None, None)
+    vs = tm.vehicle_state(1, True)
+    assert vs.battery_remaining is None and vs.battery_voltage_v is None
+
+
+def test_battery_status_sums_valid_cells_and_reports_the_fraction():
+    tm = Telemetry()
+    cells = [4200, 4150, 4100] + [0xFFFF] * 7
+    m = mavlink.MAVLink_battery_status_message(id=0, battery_function=0, type=0, temperature=2550,
+                                               voltages=cells, current_battery=1200, current_consumed=-1,
+                                               energy_consumed=-1, battery_remaining=64)
+    b = tm.on_battery_status(m, stamp_ns=5)
+    assert isinstance(b, BatteryState)
+    assert b.voltage_v == pytest.approx(12.45)
+    assert b.current_a == pytest.approx(12.0)
+    assert b.remaining_fraction == pytest.approx(0.64)
+    assert b.temperature_c == pytest.approx(25.5)
+    assert b.cell_count == 3
+
+
+def test_battery_status_with_unknown_temperature_and_remaining():
+    tm = Telemetry()
+    m = mavlink.MAVLink_battery_status_message(0, 0, 0, 0x7FFF, [11_100] + [0xFFFF] * 9, -1, -1, -1, -1)
+    b = tm.on_battery_status(m, stamp_ns=5)
+    assert b.temperature_c is None and b.remaining_fraction is None and b.current_a is None
+    assert b.voltage_v == pytest.approx(11.1)
+
+
+def test_attitude_heading_north_level_is_enu_yaw_pi_over_2():
+    tm = Telemetry()
+    m = mavlink.MAVLink_attitude_quaternion_message(time_boot_ms=0, q1=1.0, q2=0.0, q3=0.0, q4=0.0,
+                                                    rollspeed=0.1, pitchspeed=0.2, yawspeed=0.3)
+    att = tm.on_attitude_quaternion(m, stamp_ns=9)
+    assert tm.yaw_rad == pytest.approx(math.pi / 2)
+    assert vec(att.angular_velocity_radps) == pytest.approx([0.1, -0.2, -0.3])
+    q = att.orientation
+    np.testing.assert_allclose([q.w, q.x, q.y, q.z], [math.sqrt(0.5), 0, 0, math.sqrt(0.5)], atol=1e-12)
+    vs = tm.vehicle_state(10, connected=True)
+    assert vs.yaw_rad == pytest.approx(math.pi / 2)
+    assert vs.roll_rad == pytest.approx(0.0, abs=1e-12) and vs.pitch_rad == pytest.approx(0.0, abs=1e-12)
+    # the local position message carries the same yaw afterwards
+    lp = tm.on_local_position(mavlink.MAVLink_local_position_ned_message(0, 0, 0, 0, 0, 0, 0), 11)
+    assert lp.yaw_rad == pytest.approx(math.pi / 2)
+
+
+def test_vehicle_state_reports_a_stale_link_with_zero_confidence():
+    tm = Telemetry()
+    assert tm.vehicle_state(1, connected=False).confidence == 0.0
+    assert tm.vehicle_state(1, connected=True).confidence == 1.0
+    assert not tm.vehicle_state(1, connected=False).connected
+
+
+# ================================================================ IMU (FRD -> FLU)
+
+def test_highres_imu_level_vehicle_specific_force_is_plus_g_up_in_flu():
+    m = mavlink.MAVLink_highres_imu_message(
+        time_usec=1, xacc=0.0, yacc=0.0, zacc=-9.81, xgyro=0.1, ygyro=0.2, zgyro=0.3,
+        xmag=0, ymag=0, zmag=0, abs_pressure=0, diff_pressure=0, pressure_alt=0, temperature=20,
+        fields_updated=0x3F)
+    imu = highres_imu_to_imu(m, stamp_ns=42)
+    assert isinstance(imu, Imu)
+    assert vec(imu.linear_acceleration_mps2) == pytest.approx([0.0, 0.0, 9.81])
+    assert vec(imu.angular_velocity_radps) == pytest.approx([0.1, -0.2, -0.3])
+    assert imu.header.stamp_ns == 42 and imu.header.frame_id == "base_link"
+
+
+def test_highres_imu_right_side_acceleration_becomes_minus_y_in_flu():
+    m = mavlink.MAVLink_highres_imu_message(1, 1.0, 2.0, -9.81, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0)
+    imu = highres_imu_to_imu(m, stamp_ns=0)
+    assert vec(imu.linear_acceleration_mps2) == pytest.approx([1.0, -2.0, 9.81])
+
+
+# ================================================================ vision odometry (ENU/FLU -> NED/FRD)
+
+IU = np.triu_indices(6)
+
+
+def urt_to_cov(urt) -> np.ndarray:
+    c = np.zeros((6, 6))
+    c[IU] = urt
+    return c + np.triu(c, 1).T
+
+
+def vio_odometry(pose_cov=None, twist_cov=None) -> Odometry:
+    return Odometry(
+        pose=Pose(position=Vector3(x=1.0, y=2.0, z=3.0), orientation=Quaternion.from_yaw(0.0)),  # facing East
+        twist=Twist(linear=Vector3(x=1.0, y=0.5, z=0.2), angular=Vector3(x=0.01, y=0.02, z=0.03)),
+        pose_covariance=None if pose_cov is None else NDArray.from_numpy(pose_cov),
+        twist_covariance=None if twist_cov is None else NDArray.from_numpy(twist_cov))
+
+
+def test_odometry_fields_are_ned_frd_with_vision_estimator():
+    f = odometry_fields(vio_odometry(), time_usec=1_000_000)
+    assert (f["x"], f["y"], f["z"]) == (2.0, 1.0, -3.0)
+    # FLU forward/left/up body velocity -> FRD forward/right/down
+    assert (f["vx"], f["vy"], f["vz"]) == (1.0, -0.5, -0.2)
+    assert (f["rollspeed"], f["pitchspeed"], f["yawspeed"]) == (0.01, -0.02, -0.03)
+    w, x, y, z = f["q"]                                # facing East = NED heading +90 deg
+    assert 2 * math.atan2(z, w) == pytest.approx(math.pi / 2) and abs(x) < 1e-12 and abs(y) < 1e-12
+    assert f["estimator_type"] == mavlink.MAV_ESTIMATOR_TYPE_VISION
+    assert f["frame_id"] == mavlink.MAV_FRAME_LOCAL_NED
+    assert f["child_frame_id"] == mavlink.MAV_FRAME_BODY_FRD
+    packs(mavlink.MAVLink_odometry_message(**f))
+
+
+def test_odometry_without_covariance_says_unknown_with_a_leading_nan():
+    f = odometry_fields(vio_odometry(), time_usec=0)
+    for key in ("pose_covariance", "velocity_covariance"):
+        assert len(f[key]) == 21 and math.isnan(f[key][0])
+
+
+def test_odometry_covariance_is_a_valid_21_element_ned_frd_triangle():
+    pose = np.diag([1.0, 2.0, 3.0, 0.1, 0.2, 0.3])
+    pose[0, 1] = pose[1, 0] = 0.5    # x_E, y_N
+    pose[0, 2] = pose[2, 0] = 0.25   # x_E, z_Up
+    pose[3, 4] = pose[4, 3] = 0.05   # roll, pitch (FLU)
+    twist = np.diag([0.4, 0.5, 0.6, 0.01, 0.02, 0.03])
+    twist[0, 1] = twist[1, 0] = 0.1  # forward, left
+    f = odometry_fields(vio_odometry(pose, twist), time_usec=0)
+
+    for key in ("pose_covariance", "velocity_covariance"):
+        assert len(f[key]) == 21 and all(math.isfinite(v) for v in f[key])
+    p_ned = urt_to_cov(f["pose_covariance"])
+    # hand-worked: N/E swap the variances, x-y coupling survives, E-Up becomes E-Down (sign flips)
+    assert np.diag(p_ned).tolist() == pytest.approx([2.0, 1.0, 3.0, 0.1, 0.2, 0.3])
+    assert p_ned[0, 1] == pytest.approx(0.5)        # N,E
+    assert p_ned[1, 2] == pytest.approx(-0.25)      # E,Down
+    assert p_ned[0, 2] == pytest.approx(0.0)
+    assert p_ned[3, 4] == pytest.approx(-0.05)      # roll, pitch (FRD: pitch sign flips)
+    t_frd = urt_to_cov(f["velocity_covariance"])
+    assert np.diag(t_frd).tolist() == pytest.approx([0.4, 0.5, 0.6, 0.01, 0.02, 0.03])
+    assert t_frd[0, 1] == pytest.approx(-0.1)       # forward, right
+    for c in (p_ned, t_frd):
+        assert np.linalg.eigvalsh(c).min() > 0
+    packs(mavlink.MAVLink_odometry_message(**f))
+
+
+# ================================================================ COMMAND_ACK matching
+
+def ack(command, result):
+    return mavlink.MAVLink_command_ack_message(command=command, result=result)
+
+
+def test_command_waiter_matches_the_ack_by_command_id():
+    w = CommandWaiter()
+    arm_ev, arm_box = w.expect(mavlink.MAV_CMD_COMPONENT_ARM_DISARM)
+    mode_ev, mode_box = w.expect(mavlink.MAV_CMD_DO_SET_MODE)
+
+    w.on_ack(ack(mavlink.MAV_CMD_NAV_TAKEOFF, mavlink.MAV_RESULT_ACCEPTED))  # nobody waits for it
+    assert not arm_ev.is_set() and not mode_ev.is_set()
+
+    w.on_ack(ack(mavlink.MAV_CMD_DO_SET_MODE, mavlink.MAV_RESULT_DENIED))
+    assert mode_ev.is_set() and mode_box == [mavlink.MAV_RESULT_DENIED]
+    assert not arm_ev.is_set() and arm_box == []
+
+    w.on_ack(ack(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, mavlink.MAV_RESULT_ACCEPTED))
+    assert arm_ev.wait(0) and arm_box == [mavlink.MAV_RESULT_ACCEPTED]
+
+
+def test_command_waiter_takes_one_ack_per_wait():
+    w = CommandWaiter()
+    ev, box = w.expect(mavlink.MAV_CMD_COMPONENT_ARM_DISARM)
+    w.on_ack(ack(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, mavlink.MAV_RESULT_ACCEPTED))
+    w.on_ack(ack(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, mavlink.MAV_RESULT_FAILED))  # late duplicate
+    assert box == [mavlink.MAV_RESULT_ACCEPTED]
+    ev2, box2 = w.expect(mavlink.MAV_CMD_COMPONENT_ARM_DISARM)
+    assert not ev2.is_set()
+
+
+def test_command_waiter_a_new_wait_replaces_the_old_one():
+    w = CommandWaiter()
+    old_ev, _ = w.expect(mavlink.MAV_CMD_DO_SET_MODE)
+    new_ev, new_box = w.expect(mavlink.MAV_CMD_DO_SET_MODE)
+    w.on_ack(ack(mavlink.MAV_CMD_DO_SET_MODE, mavlink.MAV_RESULT_ACCEPTED))
+    assert new_ev.is_set() and new_box == [mavlink.MAV_RESULT_ACCEPTED]
+    assert not old_ev.is_set()
+
+
+@pytest.mark.parametrize(("result", "name"), [
+    (mavlink.MAV_RESULT_ACCEPTED, "ACCEPTED"), (mavlink.MAV_RESULT_DENIED, "DENIED"),
+    (mavlink.MAV_RESULT_TEMPORARILY_REJECTED, "TEMPORARILY_REJECTED"), (250, "250"),
+])
+def test_ack_names(result, name):
+    assert ack_name(result) == name

@@ -1,0 +1,133 @@
+"""WaypointPlanner (services/planner/logic.py): seed 000 §5.2's P-controller on position error,
+velocity = direction * min(max_velocity, kp * distance), one `reached` per goal, hold without one."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from aeroperception.schemas import TrajectoryStatus
+from aeroperception.services.planner.logic import Goal, WaypointPlanner, hold_setpoint
+
+
+def vel(result) -> np.ndarray:
+    return result.setpoint.velocity_mps.to_array()
+
+
+@pytest.mark.parametrize("offset", [(0.5, 0.0, 0.0), (0.0, -1.0, 0.0), (1.0, 1.0, 0.5), (-0.3, 0.4, -1.2),
+                                    (1.5, -0.8, 0.1)])
+def test_velocity_points_at_the_goal_with_magnitude_min_of_cap_and_kp_distance(offset):
+    planner = WaypointPlanner(max_velocity_mps=2.0, kp=0.8, acceptance_radius_m=0.1)
+    here = np.array([3.0, -2.0, 5.0])
+    goal = here + np.array(offset)
+    planner.set_goal(Goal(goal, 0.3))
+    res = planner.step(here, 0.0)
+
+    d = float(np.linalg.norm(offset))
+    v = vel(res)
+    assert res.distance_m == pytest.approx(d)
+    assert np.linalg.norm(v) == pytest.approx(min(2.0, 0.8 * d))
+    np.testing.assert_allclose(v / np.linalg.norm(v), np.array(offset) / d, atol=1e-12)
+    sp = res.setpoint
+    assert sp.velocity_valid and not sp.position_valid    # velocity is the command
+    np.testing.assert_allclose(sp.position_m.to_array(), goal)  # position is feed-forward only
+    assert sp.yaw_valid and sp.yaw_rad == pytest.approx(0.3)
+
+
+def test_speed_is_capped_at_two_metres_per_second_far_away():
+    planner = WaypointPlanner()
+    planner.set_goal(Goal(np.array([100.0, 50.0, 10.0]), None))
+    res = planner.step(np.zeros(3), 0.7)
+    assert np.linalg.norm(vel(res)) == pytest.approx(2.0)
+    assert res.setpoint.yaw_rad == pytest.approx(0.7)      # no goal yaw: keep the current one
+    assert planner.status == TrajectoryStatus.STATUS_EXECUTING
+
+
+def test_speed_ramps_down_near_the_goal():
+    planner = WaypointPlanner()
+    planner.set_goal(Goal(np.array([1.0, 0.0, 0.0]), None))
+    speeds = [np.linalg.norm(vel(planner.step(np.array([x, 0.0, 0.0]), 0.0))) for x in (-5, -1, 0, 0.5, 0.9)]
+    assert speeds == pytest.approx([2.0, 1.6, 0.8, 0.4, 0.08])
+
+
+def test_reached_fires_once_per_goal_inside_the_acceptance_radius():
+    planner = WaypointPlanner(acceptance_radius_m=0.5)
+    planner.set_goal(Goal(np.array([10.0, 0.0, 5.0]), 0.0, index=1))
+    xs = [8.0, 9.0, 9.49, 9.6, 9.8, 10.0, 9.7]
+    fired = [planner.step(np.array([x, 0.0, 5.0]), 0.0).reached for x in xs]
+    assert fired == [False, False, False, True, False, False, False]
+    assert planner.status == TrajectoryStatus.STATUS_COMPLETED
+
+
+def test_the_same_goal_sent_again_does_not_fire_reached_again():
+    planner = WaypointPlanner()
+    goal = np.array([1.0, 2.0, 3.0])
+    planner.set_goal(Goal(goal, 0.0, index=4))
+    assert planner.step(goal, 0.0).reached
+    planner.set_goal(Goal(goal.copy(), 0.0, index=4))     # republished, unchanged
+    assert not planner.step(goal, 0.0).reached
+
+
+def test_a_new_goal_resets_reached():
+    planner = WaypointPlanner()
+    a, b = np.array([0.0, 0.0, 5.0]), np.array([10.0, 0.0, 5.0])
+    planner.set_goal(Goal(a, 0.0, index=0))
+    assert planner.step(a, 0.0).reached
+    planner.set_goal(Goal(b, 0.0, index=1))
+    assert planner.status == TrajectoryStatus.STATUS_COMPLETED  # until the next step
+    res = planner.step(a, 0.0)
+    assert not res.reached and planner.status == TrajectoryStatus.STATUS_EXECUTING
+    assert planner.step(b + 0.1, 0.0).reached
+
+
+def test_same_position_with_a_new_index_is_a_new_goal():
+    # the last survey waypoint is the first one again: it must fire again
+    planner = WaypointPlanner()
+    p = np.array([0.0, 0.0, 5.0])
+    planner.set_goal(Goal(p, 0.0, index=0))
+    assert planner.step(p, 0.0).reached
+    planner.set_goal(Goal(p.copy(), 0.0, index=3))
+    assert planner.step(p, 0.0).reached
+
+
+def test_holding_without_a_goal_is_a_position_setpoint_at_the_captured_point_with_zero_velocity():
+    planner = WaypointPlanner()
+    captured = np.array([2.0, -1.0, 4.0])
+    first = planner.step(captured, 0.25)
+    later = planner.step(captured + np.array([0.4, 0.3, -0.2]), 1.0)  # drifted: still the same target
+    for res in (first, later):
+        sp = res.setpoint
+        assert sp.position_valid and sp.velocity_valid and sp.yaw_valid
+        np.testing.assert_allclose(sp.position_m.to_array(), captured)
+        np.testing.assert_array_equal(sp.velocity_mps.to_array(), np.zeros(3))
+        assert sp.yaw_rad == pytest.approx(0.25)
+        assert res.distance_m is None and not res.reached
+    assert planner.status == TrajectoryStatus.STATUS_PAUSED
+
+
+def test_clearing_the_goal_captures_a_new_hold_point():
+    planner = WaypointPlanner()
+    planner.step(np.zeros(3), 0.0)                          # hold at the origin
+    planner.set_goal(Goal(np.array([5.0, 0.0, 0.0]), None))
+    planner.step(np.array([2.0, 0.0, 0.0]), 0.0)
+    planner.set_goal(None)
+    res = planner.step(np.array([2.5, 0.0, 0.0]), math.pi / 2)
+    np.testing.assert_allclose(res.setpoint.position_m.to_array(), [2.5, 0.0, 0.0])
+    assert res.setpoint.yaw_rad == pytest.approx(math.pi / 2)
+
+
+def test_at_the_goal_exactly_the_velocity_is_zero_not_nan():
+    planner = WaypointPlanner()
+    p = np.array([1.0, 1.0, 1.0])
+    planner.set_goal(Goal(p, None))
+    v = vel(planner.step(p.copy(), 0.0))
+    assert np.all(np.isfinite(v)) and np.linalg.norm(v) == 0.0
+
+
+def test_hold_setpoint_helper():
+    sp = hold_setpoint(np.array([1.0, 2.0, 3.0]), -0.5)
+    assert sp.position_valid and sp.velocity_valid and sp.yaw_valid
+    assert not sp.acceleration_valid and not sp.yaw_rate_valid
+    np.testing.assert_allclose(sp.position_m.to_array(), [1.0, 2.0, 3.0])
+    assert sp.velocity_mps.to_array().tolist() == [0.0, 0.0, 0.0] and sp.yaw_rad == -0.5
