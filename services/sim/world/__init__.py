@@ -1,0 +1,1 @@
+"""Scenario worlds for the simulator: YAML scenario model and the raycasting scene."""

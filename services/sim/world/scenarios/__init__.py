@@ -1,0 +1,1 @@
+"""Shipped scenario files (YAML); a package so the wheel includes them as package data."""

@@ -1,0 +1,109 @@
+"""`aero bench sim`: how fast the simulated sensors render on this machine.
+
+Renders every sensor of a scenario's rig over N poses along an orbit and prints, per sensor, the
+median / p99 wall time, the median CPU time (the cost on an idle core: wall time also counts
+time the OS gave to other processes), the highest rate it could sustain alone and its rated rate.
+The last line sums rate x CPU cost over the default rig: the share of one core the sensors need.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+
+@dataclass
+class _Row:
+    name: str
+    rated_hz: float
+    wall_ms: np.ndarray
+    cpu_ms: np.ndarray
+    in_rig: bool = True
+
+    @property
+    def max_hz(self) -> float:
+        return 1000.0 / float(np.median(self.wall_ms))
+
+
+def _time(fn: Callable[[int], object], n: int) -> tuple[np.ndarray, np.ndarray]:
+    fn(0)   # warm-up (first-touch allocations, caches)
+    wall, cpu = [], []
+    for i in range(n):
+        w0, c0 = time.perf_counter(), time.process_time()
+        fn(i)
+        wall.append(time.perf_counter() - w0)
+        cpu.append(time.process_time() - c0)
+    return np.array(wall) * 1e3, np.array(cpu) * 1e3
+
+
+def run(n_frames: int = 50, scenario: str = "village") -> int:
+    from aeroperception.services.sim.sensors.camera import StereoCamera
+    from aeroperception.services.sim.sensors.imu import ImuModel
+    from aeroperception.services.sim.sensors.lidar import Lidar
+    from aeroperception.services.sim.sensors.synthetic import orbit_truth
+    from aeroperception.services.sim.sensors.truth_boxes import project_targets
+    from aeroperception.services.sim.world.scenario import load_scenario
+    from aeroperception.services.sim.world.scene import Scene, texture_bank
+
+    scn = load_scenario(scenario)
+    rig = scn.sensors
+    t0 = time.perf_counter()
+    texture_bank()
+    t1 = time.perf_counter()
+    scene = Scene(scn)
+    t2 = time.perf_counter()
+    (x, y, z), _ = scn.start_pose()
+    # Orbit ahead of the start point so views sweep across the scene.
+    poses = [orbit_truth(int(i * 50e6), center_enu_m=(x + 15.0, y, z + 3.0), radius_m=8.0, period_s=10.0)
+             for i in range(n_frames)]
+    cam = StereoCamera(scene, rig.camera)
+    lidar = Lidar(scene, rig.lidar, seed=scn.seed)
+    dense = Lidar(scene, rig.lidar.dense_150k(), seed=scn.seed)
+    imu = ImuModel(rig.imu, seed=scn.seed)
+    imu_truths = [orbit_truth(int(i * 5e6)) for i in range(max(n_frames, 200))]
+
+    c = rig.camera
+    res = f"{c.width}x{c.height} {c.encoding}"
+    rows = [
+        _Row(f"camera left  {res}", c.rate_hz,
+             *_time(lambda i: cam.left.render(poses[i]), n_frames), in_rig=False),
+    ]
+    if cam.right is not None:
+        rows.append(_Row(f"camera right {res}", c.rate_hz,
+                         *_time(lambda i: cam.right.render(poses[i]), n_frames), in_rig=False))
+        rows.append(_Row("stereo pair (left+right)", c.rate_hz, *_time(lambda i: cam.render(poses[i]), n_frames)))
+    else:
+        rows[0].in_rig = True
+    rows += [
+        _Row(f"lidar {rig.lidar.beams}x{rig.lidar.azimuth_steps} ({lidar.num_rays} rays)", rig.lidar.rate_hz,
+             *_time(lambda i: lidar.scan(poses[i]), n_frames)),
+        _Row(f"lidar 150k mode ({dense.num_rays} rays)", rig.lidar.rate_hz,
+             *_time(lambda i: dense.scan(poses[i]), n_frames), in_rig=False),
+        _Row("imu sample", rig.imu.rate_hz, *_time(lambda i: imu.sample(imu_truths[i]), len(imu_truths))),
+        _Row("truth boxes (left camera)", c.rate_hz, *_time(lambda i: project_targets(cam.left, poses[i]), n_frames)),
+    ]
+    exact_wall, exact_cpu = _time(lambda i: cam.left.render(poses[i], exact=True), max(5, n_frames // 5))
+    rows.append(_Row("  (reference: left, every pixel cast)", c.rate_hz, exact_wall, exact_cpu, in_rig=False))
+
+    print(f"sim sensor benchmark: scenario {scenario}, {n_frames} frames, "
+          f"textures {1e3 * (t1 - t0):.0f} ms, scene build {1e3 * (t2 - t1):.0f} ms "
+          f"({len(scene.triangles)} triangles, {scene.num_planes} planes)")
+    head = f"{'sensor':44s} {'wall med':>9s} {'wall p99':>9s} {'cpu med':>9s} {'max Hz':>8s} {'rated':>7s}  ok"
+    print(head)
+    print("-" * len(head))
+    load = 0.0
+    for r in rows:
+        cpu = float(np.median(r.cpu_ms))
+        ok = "yes" if r.max_hz >= r.rated_hz else "NO"
+        print(f"{r.name:44s} {np.median(r.wall_ms):8.2f}ms {np.percentile(r.wall_ms, 99):8.2f}ms "
+              f"{cpu:8.2f}ms {r.max_hz:8.1f} {r.rated_hz:6.0f}Hz  {ok}")
+        if r.in_rig:
+            load += r.rated_hz * cpu / 1000.0
+    print(f"default rig at rated rates (stereo + lidar + imu + truth boxes): {100 * load:.0f}% of one core")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(run())
