@@ -4,10 +4,13 @@ The supervisor process is the Zenoh router itself (a session in router mode), so
 brings the stack up. Each service runs as `python -m aeroperception.services.<name>`, its JSON
 log goes to <log-dir>/<name>.log, a crashed service is restarted with back-off (1 s doubling to
 30 s), and Ctrl-C / SIGTERM stops every child (SIGTERM, then SIGKILL after 3 s).
+<log-dir>/pids.json maps each running service to its process id (rewritten on every start and
+exit), so scripts and tests can find a service's process without searching by name.
 """
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import signal
 import subprocess
@@ -80,6 +83,14 @@ class Child:
         return "alive" if self.alive else "starting"
 
 
+def write_pids(path: Path, children) -> None:
+    """{service: pid} of the running children, replaced atomically so readers never see half a file."""
+    pids = {c.name: c.proc.pid for c in children if c.proc is not None}
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(json.dumps(pids, indent=1) + "\n")
+    os.replace(tmp, path)
+
+
 def select_services(args) -> list[str]:
     profiles = load_profiles()
     if args.profile not in profiles:
@@ -150,8 +161,10 @@ def run(args) -> int:
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     print(f"aero up: profile {args.profile} ({', '.join(names) or 'no services'}), router on {args.listen}, "
           f"logs in {log_dir}", flush=True)
+    pids_path = log_dir / "pids.json"
     for c in children.values():
         c.start(env)
+    write_pids(pids_path, children.values())
 
     tty = sys.stdout.isatty()
     last_table = ""
@@ -159,6 +172,7 @@ def run(args) -> int:
     while not stop.wait(0.2):
         now = time.monotonic()
         with lock:
+            changed = False
             for c in children.values():
                 code = c.proc.poll() if c.proc else 0
                 if c.proc is not None and code is not None:
@@ -169,9 +183,13 @@ def run(args) -> int:
                     print(f"aero up: {c.name} exited with code {code}; restarting in {c.backoff_s:.0f} s "
                           f"(log: {c.log_path})", flush=True)
                     c.backoff_s = min(c.backoff_s * 2, 30.0)
+                    changed = True
                 if c.proc is None and now >= c.next_start:
                     c.restarts += 1
                     c.start(env)
+                    changed = True
+            if changed:
+                write_pids(pids_path, children.values())
             table = format_table(children.values())
         if now >= next_table and (tty or table != last_table):
             if tty:
@@ -181,6 +199,7 @@ def run(args) -> int:
             next_table = now + args.status_interval
     print("aero up: stopping", flush=True)
     shutdown(children.values())
+    pids_path.unlink(missing_ok=True)
     for s in subs:
         s.undeclare()
     router.close()

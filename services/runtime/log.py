@@ -19,7 +19,9 @@ class Logger:
         self.service = service
         self.threshold = LEVELS.get(level, 20)
         self.stream = stream or sys.stderr
-        self._lock = threading.Lock()
+        # Re-entrant: code that logs from a signal handler runs on the main thread, possibly while
+        # that thread is inside log() already; a plain Lock would deadlock it.
+        self._lock = threading.RLock()
         self._last_by_key: dict[str, float] = {}
 
     def log(self, level: str, event: str, **fields: Any) -> None:
@@ -32,8 +34,8 @@ class Logger:
             try:
                 self.stream.write(line + "\n")
                 self.stream.flush()
-            except (ValueError, OSError):
-                pass  # stderr closed during shutdown: nothing useful left to do
+            except (ValueError, OSError, RuntimeError):
+                pass  # stderr closed during shutdown (or re-entered): nothing useful left to do
 
     def debug(self, event: str, **f: Any) -> None:
         self.log("debug", event, **f)

@@ -86,8 +86,12 @@ def run(service_cls: type[Service], argv: Sequence[str] | None = None) -> int:
         print(f"aero run {service_cls.NAME}: {e}", file=sys.stderr)
         return 2
 
+    received: list[str] = []
+
     def on_signal(signum, _frame) -> None:
-        node.log.info("signal", signal=signal.Signals(signum).name)
+        # Only set the flag: logging here could re-enter the logger (and stderr's buffer) that
+        # the main thread may be in the middle of using, which deadlocks or raises.
+        received.append(signal.Signals(signum).name)
         node.stop_event.set()
 
     if threading.current_thread() is threading.main_thread():
@@ -104,6 +108,8 @@ def run(service_cls: type[Service], argv: Sequence[str] | None = None) -> int:
         with node.lock:
             service.start()
         node.stop_event.wait()
+        if received:
+            node.log.info("signal", signal=received[0])
     except Exception as e:  # noqa: BLE001 - report a start-up failure as one clear line
         node.log.error("fatal", error=f"{type(e).__name__}: {e}")
         code = 1

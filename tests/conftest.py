@@ -1,0 +1,88 @@
+"""Shared pytest fixtures: real Zenoh routers, real runtime Nodes, and a real `aero up` stack.
+Plain helpers live in aerotest.py (`from aerotest import wait_until, ...`; tests/ is on the
+pytest pythonpath).
+
+Fixtures:
+    zenoh_router    an in-process Zenoh router on tcp/127.0.0.1:<free port>; yields the endpoint
+    make_node       factory: make_node(name, **Node kwargs) -> a connected runtime Node on that
+                    router; all closed at teardown
+    stack           factory: stack(services=["diagnostics"], extra_args=[], profile="sim",
+                    timeout_s=20) starts `aero up --profile P --only ... --listen
+                    tcp/127.0.0.1:<free> --log-dir <tmp>`, waits for every service's liveliness
+                    token aero/alive/default/<name>, and returns an aerotest.Stack:
+                      .endpoint .session (client) .log_dir .proc (the `aero up` Popen) .services
+                      .service_log(name) .up_output() .pids() .alive(name) .aero(*args) .stop()
+                    A start-up failure raises StackStartError carrying aero up's output and
+                    every service log. Teardown: SIGINT to `aero up`, bounded wait, then kill.
+    stack_module    the same factory, module-scoped (one stack shared by a test module)
+"""
+from __future__ import annotations
+
+from typing import Any
+
+import pytest
+
+# Re-exported for convenience; import them from aerotest in test modules.
+from aerotest import (  # noqa: F401
+    Stack, StackFactory, StackStartError, aero, free_port, wait_for_message, wait_until, zenoh_client,
+)
+from aeroperception.tools.cmd_router import open_router
+
+
+# ---------------------------------------------------------------- router / nodes
+
+
+@pytest.fixture
+def zenoh_router():
+    """An in-process Zenoh router on a free loopback port; yields "tcp/127.0.0.1:<port>"."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    router = open_router(None, [endpoint])
+    try:
+        yield endpoint
+    finally:
+        router.close()
+
+
+@pytest.fixture
+def make_node(zenoh_router):
+    """Factory of connected runtime Nodes on `zenoh_router`; all closed at teardown."""
+    from aeroperception.services.runtime import Node
+
+    nodes: list[Node] = []
+
+    def make(name: str, **kw: Any) -> Node:
+        kw.setdefault("connect", zenoh_router)
+        node = Node(name, **kw)
+        nodes.append(node)
+        assert node.connect(max_wait_s=5.0), f"node {name} could not connect to {zenoh_router}"
+        return node
+
+    yield make
+    for n in reversed(nodes):
+        n.close()
+
+
+# ---------------------------------------------------------------- aero up
+
+
+@pytest.fixture
+def stack(tmp_path):
+    """Factory: `stack(services=["diagnostics"], extra_args=[...], profile="sim")` starts
+    `aero up --profile P --only ... --listen tcp/127.0.0.1:<free> --log-dir <tmp>` and returns a
+    Stack once every service's liveliness token exists. Stopped (SIGINT, bounded) at teardown."""
+    factory = StackFactory(lambda: tmp_path)
+    try:
+        yield factory
+    finally:
+        factory.close()
+
+
+@pytest.fixture(scope="module")
+def stack_module(tmp_path_factory):
+    """Like `stack`, but the stacks live for the whole test module."""
+    base = tmp_path_factory.mktemp("stack")
+    factory = StackFactory(lambda: base)
+    try:
+        yield factory
+    finally:
+        factory.close()
