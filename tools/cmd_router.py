@@ -2,13 +2,12 @@
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
-import threading
 
 import zenoh
 
 from aeroperception.services.runtime.session import ZenohConfigError, make_config
+from aeroperception.services.runtime.signals import ShutdownFlag
 
 from .common import CliError
 
@@ -37,9 +36,7 @@ def open_router(zenoh_config: str | None, listen: list[str] | None) -> zenoh.Ses
 
 def run(args) -> int:
     router = open_router(args.zenoh_config, args.listen)
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    stop = ShutdownFlag().install().event
     locators = router.info.routers_zid()  # noqa: F841 - touch the session so errors surface now
     print(f"aero router: zid {router.zid()} listening on {', '.join(args.listen or ['zenoh.json5 endpoints'])}",
           file=sys.stderr, flush=True)

@@ -26,6 +26,8 @@ import zenoh
 
 from aeroperception.services.runtime.node import LIVELINESS_ROOT
 
+from aeroperception.services.runtime.signals import ShutdownFlag
+
 from .cmd_router import open_router
 from .cmd_topic import decode_sample
 from .common import CliError
@@ -156,9 +158,7 @@ def run(args) -> int:
             router.declare_subscriber("diagnostics/*", on_diag),
             router.declare_subscriber("*/diagnostics/*", on_diag)]
 
-    stop = threading.Event()
-    signal.signal(signal.SIGINT, lambda *_: stop.set())
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    stop = ShutdownFlag().install().event
     print(f"aero up: profile {args.profile} ({', '.join(names) or 'no services'}), router on {args.listen}, "
           f"logs in {log_dir}", flush=True)
     pids_path = log_dir / "pids.json"

@@ -170,7 +170,7 @@ class FmuService(Service):
             return
         now = time.monotonic()
         if now - self.planner_sp_rx_s <= self.params.setpoint_timeout_s:
-            if now - self.last_target_sent_s > 0.75 * self.stream_loop.period_s:
+            if now - self.last_target_sent_s > 1.25 * self.stream_loop.period_s:
                 self._send_target(setpoint_target(self.planner_sp))
                 self.counters["setpoints_sent"] += 1
             return

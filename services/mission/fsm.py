@@ -114,6 +114,7 @@ class MissionManager:
         self.mission: Mission | None = None
         self.wp_index = -1
         self.start_requested = False
+        self.takeoff_pending = False            # arming for a takeoff is in flight
         self.goto_target: GoalOut | None = None
         self.takeoff_altitude_m: float | None = None
         self.vehicle: VehicleState | None = None
@@ -140,7 +141,7 @@ class MissionManager:
         prev, self.state = self.state, nxt
         self.transitions.append((prev, event, nxt))
         self.message = reason or f"{event.value.lower()}"
-        self.log("transition", frm=prev.value, event=event.value, to=nxt.value, reason=reason)
+        self.log("transition", frm=prev.value, trigger=event.value, to=nxt.value, reason=reason)
         getattr(self, f"_enter_{nxt.value.lower()}")(prev, event)
         return True
 
@@ -224,7 +225,7 @@ class MissionManager:
         if cmd == "START":
             if self.mission is None:
                 return self._refuse(done, "no mission loaded; LOAD one first")
-            if self.state == State.TAKEOFF:
+            if self.state == State.TAKEOFF or self.takeoff_pending:
                 self.start_requested = True
                 done(True, "mission starts when takeoff completes")
                 return True, "mission starts when takeoff completes"
@@ -252,9 +253,12 @@ class MissionManager:
         if self.vehicle is None or not self.vehicle.connected:
             return self._refuse(done, "no vehicle state (is fmu connected to the flight controller?)")
         self.takeoff_altitude_m = altitude_m
+        self.takeoff_pending = True
 
         def armed(ok: bool, message: str) -> None:
+            self.takeoff_pending = False
             if not ok:
+                self.start_requested = False
                 done(False, f"arming failed: {message}")
                 self.message = f"arming failed: {message}"
                 return

@@ -9,14 +9,13 @@ from __future__ import annotations
 
 import argparse
 import os
-import signal
 import sys
-import threading
 from typing import ClassVar, Sequence
 
 from .node import Health, Node
 from .params import Param, ParamError, parse_overrides
 from .session import ZenohConfigError
+from .signals import ShutdownFlag
 
 
 class Service:
@@ -86,17 +85,9 @@ def run(service_cls: type[Service], argv: Sequence[str] | None = None) -> int:
         print(f"aero run {service_cls.NAME}: {e}", file=sys.stderr)
         return 2
 
-    received: list[str] = []
-
-    def on_signal(signum, _frame) -> None:
-        # Only set the flag: logging here could re-enter the logger (and stderr's buffer) that
-        # the main thread may be in the middle of using, which deadlocks or raises.
-        received.append(signal.Signals(signum).name)
-        node.stop_event.set()
-
-    if threading.current_thread() is threading.main_thread():
-        signal.signal(signal.SIGINT, on_signal)
-        signal.signal(signal.SIGTERM, on_signal)
+    # The handler only records the signal (see signals.py): logging or Event.set() in a
+    # handler can deadlock against the main thread.
+    shutdown = ShutdownFlag(node.stop_event).install()
 
     if not node.connect():
         node.close()
@@ -108,8 +99,8 @@ def run(service_cls: type[Service], argv: Sequence[str] | None = None) -> int:
         with node.lock:
             service.start()
         node.stop_event.wait()
-        if received:
-            node.log.info("signal", signal=received[0])
+        if shutdown.signal_name:
+            node.log.info("signal", signal=shutdown.signal_name)
     except Exception as e:  # noqa: BLE001 - report a start-up failure as one clear line
         node.log.error("fatal", error=f"{type(e).__name__}: {e}")
         code = 1

@@ -1,0 +1,259 @@
+"""Process shell of the simulator: the PX4-like vehicle on MAVLink, the scenario's sensors on
+sensors/**, ground truth on sim/truth/** and the clock on sim/clock.
+
+Timing: the vehicle runner owns sim time. Each physics step reports its truth here; the IMU is
+sampled at its rate in that callback, and camera / LiDAR frames are *requested* there with the
+exact truth of their stamp, then rendered on their own threads (Open3D releases the GIL). A
+renderer that cannot keep up skips frames and reports the achieved rate (WARN), never delays
+the physics.
+"""
+from __future__ import annotations
+
+import threading
+import time
+from collections import deque
+
+import numpy as np
+
+from aeroperception.schemas import (
+    CameraInfo, Clock, DiagnosticStatus, Detection2D, Detection2DArray, Header, Image, Imu, NDArray,
+    PointCloud, Pose, Quaternion, Vector3, VehicleState,
+)
+from aeroperception.services.runtime import Health, Param, Service, run
+
+from .sensors.rig import build_sensors
+from .sensors.truth_boxes import project_targets
+from .truth import VehicleTruth
+from .vehicle import PARAMS as VEHICLE_PARAMS
+from .vehicle import PX4_SITL_BIND, PX4_SITL_TARGET, MavlinkEndpoint, SimVehicle, SimVehicleRunner, parse_address
+from .world.scenario import ScenarioError, load_scenario
+
+NAME = "sim"
+OUTPUTS = {
+    "sim/clock": Clock,                                  # 100 Hz (sim time)
+    "sim/truth/state": VehicleState,                     # 100 Hz: pose, velocity, acceleration (ENU)
+    "sim/truth/boxes": Detection2DArray,                 # with each left image: projected targets
+    "sim/truth/lidar_labels": PointCloud,                # with each scan: per-point labels
+    "sensors/imu": Imu,                                  # 200 Hz, FLU
+    "sensors/camera/left/image": Image,                  # 20 Hz
+    "sensors/camera/right/image": Image,
+    "sensors/camera/left/info": CameraInfo,              # 1 Hz + queryable (latched)
+    "sensors/camera/right/info": CameraInfo,
+    "sensors/camera/down/image": Image,                  # optional
+    "sensors/lidar/points": PointCloud,                  # 10 Hz, sensor frame
+}
+SHELL_PARAMS = [
+    Param("truth_rate_hz", 100.0, "Hz", 1.0, 250.0, description="sim/truth/state and sim/clock rate"),
+]
+PARAMS = [*VEHICLE_PARAMS, *SHELL_PARAMS]
+
+
+def _v3(a) -> Vector3:
+    return Vector3(x=float(a[0]), y=float(a[1]), z=float(a[2]))
+
+
+def _quat(q) -> Quaternion:
+    return Quaternion(w=float(q[0]), x=float(q[1]), y=float(q[2]), z=float(q[3]))
+
+
+def camera_info_msg(info, stamp_ns: int) -> CameraInfo:
+    r = np.array(info.r_body_camera).reshape(3, 3)
+    from .sensors.frames import rot_to_quat
+
+    return CameraInfo(header=Header(stamp_ns=stamp_ns, frame_id=info.frame_id), width=info.width,
+                      height=info.height, distortion_model=info.distortion_model,
+                      K=NDArray.from_numpy(np.array(info.k, float).reshape(3, 3)),
+                      D=NDArray.from_numpy(np.array(info.d, float)),
+                      P=NDArray.from_numpy(np.array(info.p, float).reshape(3, 4)),
+                      T_body_camera=Pose(position=_v3(info.t_body_camera_m), orientation=_quat(rot_to_quat(r))))
+
+
+class RenderWorker:
+    """One sensor on its own thread: takes the newest request (truth at a stamp), renders it,
+    publishes it. A request arriving while busy replaces the pending one (frame skipped)."""
+
+    def __init__(self, name: str, render, stop: threading.Event):
+        self.name, self.render, self.stop = name, render, stop
+        self.cv = threading.Condition()
+        self.pending: VehicleTruth | None = None
+        self.requested = self.rendered = self.skipped = 0
+        self.render_ms: deque[float] = deque(maxlen=100)
+        self.done_wall: deque[float] = deque(maxlen=50)
+        self.thread = threading.Thread(target=self._run, name=f"sim-{name}", daemon=True)
+        self.thread.start()
+
+    def request(self, truth: VehicleTruth) -> None:
+        with self.cv:
+            if self.pending is not None:
+                self.skipped += 1
+            self.pending = truth
+            self.requested += 1
+            self.cv.notify()
+
+    def _run(self) -> None:
+        while not self.stop.is_set():
+            with self.cv:
+                if self.pending is None:
+                    self.cv.wait(0.2)
+                    continue
+                truth, self.pending = self.pending, None
+            t0 = time.perf_counter()
+            try:
+                self.render(truth)
+            except Exception as e:  # noqa: BLE001 - keep the sensor alive, report
+                self.error = f"{type(e).__name__}: {e}"
+            self.render_ms.append((time.perf_counter() - t0) * 1e3)
+            self.done_wall.append(time.monotonic())
+            self.rendered += 1
+
+    def achieved_hz(self, speed: float) -> float:
+        """Frames per sim second over the recent window."""
+        if len(self.done_wall) < 2:
+            return 0.0
+        span = self.done_wall[-1] - self.done_wall[0]
+        return (len(self.done_wall) - 1) / span / max(speed, 1e-9) if span > 0 else 0.0
+
+
+class SimService(Service):
+    """Built-in simulator: PX4-like vehicle over MAVLink + scenario sensors + ground truth."""
+
+    NAME = NAME
+    PARAMS = PARAMS
+
+    @classmethod
+    def add_arguments(cls, parser) -> None:
+        parser.add_argument("--scenario", default="open_field", help="open_field, village, slope_forest or a YAML path")
+        parser.add_argument("--speed", type=float, default=1.0, help="sim seconds per wall second")
+        parser.add_argument("--seed", type=int, default=None, help="seed (default: the scenario's)")
+        parser.add_argument("--sensors", default="all", choices=["all", "imu", "none"],
+                            help="which scenario sensors to render (none: vehicle and truth only)")
+        parser.add_argument("--target", default="%s:%d" % PX4_SITL_TARGET, help="MAVLink goes to HOST:PORT (fmu)")
+        parser.add_argument("--bind", default="%s:%d" % PX4_SITL_BIND, help="MAVLink sent from HOST:PORT")
+
+    def start(self) -> None:
+        a = self.args
+        try:
+            self.scenario = load_scenario(a.scenario)
+        except ScenarioError as e:
+            raise RuntimeError(str(e)) from None
+        seed = a.seed if a.seed is not None else self.scenario.seed
+        self.speed = a.speed if a.speed > 0 else 1.0
+        self.vehicle = SimVehicle(self.node.params, seed=seed)
+        self.endpoint = MavlinkEndpoint(target=parse_address(a.target), bind=parse_address(a.bind))
+        self.stop_event = threading.Event()
+        pub = self.node.publisher
+        self.pubs = {k: pub(k, cls, express=k in ("sensors/imu", "sim/clock")) for k, cls in OUTPUTS.items()}
+        self.sensors = build_sensors(self.scenario) if a.sensors != "none" else None
+        self.workers: list[RenderWorker] = []
+        self.next_ns: dict[str, int] = {}
+        self.periods_ns: dict[str, int] = {"truth": int(1e9 / self.params.truth_rate_hz)}
+        if self.sensors is not None:
+            self.periods_ns["imu"] = int(1e9 / self.scenario.sensors.imu.rate_hz)
+            if a.sensors == "all" and self.sensors.stereo is not None:
+                self.periods_ns["camera"] = int(1e9 / self.sensors.stereo.infos()[0].rate_hz)
+                self.workers.append(RenderWorker("camera", self._render_camera, self.stop_event))
+                for info in self.sensors.stereo.infos():
+                    side = "left" if "left" in info.frame_id else "right"
+                    key = f"sensors/camera/{side}/info"
+                    self.node.serve(key, None, CameraInfo, lambda _r, i=info: camera_info_msg(i, self.runner.now_ns()))
+                self.node.every(1.0, self._publish_infos, name="camera_info")
+            if a.sensors == "all" and self.sensors.lidar is not None:
+                self.periods_ns["lidar"] = int(1e9 / self.sensors.lidar.info().rate_hz)
+                self.workers.append(RenderWorker("lidar", self._render_lidar, self.stop_event))
+        self.runner = SimVehicleRunner(self.vehicle, self.endpoint, speed=self.speed, on_truth=self._on_truth)
+        self.runner.start()
+        self.log.info("sim_started", scenario=self.scenario.name, seed=seed, speed=self.speed,
+                      mavlink_target=a.target, sensors=a.sensors)
+
+    def stop(self) -> None:
+        self.stop_event.set()
+        self.runner.stop()
+
+    # ------------------------------------------------------------ physics-step callback
+
+    def _due(self, what: str, now_ns: int) -> bool:
+        nxt = self.next_ns.get(what, 0)
+        if now_ns < nxt:
+            return False
+        self.next_ns[what] = max(nxt + self.periods_ns[what], now_ns)
+        return True
+
+    def _on_truth(self, t: VehicleTruth) -> None:
+        now = t.stamp_ns
+        if self._due("truth", now):
+            self.pubs["sim/clock"].publish(Clock(header=Header(stamp_ns=now), speed_factor=self.speed))
+            self.pubs["sim/truth/state"].publish(VehicleState(
+                header=Header(stamp_ns=now, frame_id="map"), position_m=_v3(t.position_enu_m),
+                velocity_mps=_v3(t.velocity_enu_mps), acceleration_mps2=_v3(t.accel_enu_mps2),
+                orientation=_quat(t.q_enu_flu), angular_velocity_radps=_v3(t.angular_velocity_flu_radps),
+                estimator_name="truth", confidence=1.0, armed=self.vehicle.commander.armed,
+                flight_mode=self.vehicle.commander.mode, connected=True))
+        if "imu" in self.periods_ns and self._due("imu", now):
+            s = self.sensors.imu.sample(t)
+            self.pubs["sensors/imu"].publish(Imu(header=Header(stamp_ns=now, frame_id="base_link"),
+                                                 angular_velocity_radps=_v3(s.angular_velocity_flu_radps),
+                                                 linear_acceleration_mps2=_v3(s.linear_acceleration_flu_mps2)))
+        for w in self.workers:
+            if self._due(w.name, now):
+                w.request(t)
+
+    # ------------------------------------------------------------ renderers (own threads)
+
+    def _render_camera(self, t: VehicleTruth) -> None:
+        left, right = self.sensors.stereo.render(t)
+        encoding = "mono8" if left.ndim == 2 else "rgb8"
+        header = Header(stamp_ns=t.stamp_ns, frame_id="camera_left_optical")
+        self.pubs["sensors/camera/left/image"].publish(Image.from_numpy(left, encoding, header))
+        if right is not None:
+            self.pubs["sensors/camera/right/image"].publish(
+                Image.from_numpy(right, encoding, Header(stamp_ns=t.stamp_ns, frame_id="camera_right_optical")))
+        if self.scenario.targets:
+            boxes = project_targets(self.sensors.stereo.left, t)
+            dets = [Detection2D(center_x_px=(b.bbox_xyxy_px[0] + b.bbox_xyxy_px[2]) / 2,
+                                center_y_px=(b.bbox_xyxy_px[1] + b.bbox_xyxy_px[3]) / 2,
+                                size_x_px=b.bbox_xyxy_px[2] - b.bbox_xyxy_px[0],
+                                size_y_px=b.bbox_xyxy_px[3] - b.bbox_xyxy_px[1],
+                                class_id=b.class_id, class_name=b.class_name, score=b.visible_fraction)
+                    for b in boxes]
+            self.pubs["sim/truth/boxes"].publish(Detection2DArray(header=header, detections=dets,
+                                                                  image_width=left.shape[1], image_height=left.shape[0]))
+
+    def _render_lidar(self, t: VehicleTruth) -> None:
+        scan = self.sensors.lidar.scan(t, stamp_ns=t.stamp_ns)
+        header = Header(stamp_ns=t.stamp_ns, frame_id=scan.frame_id)
+        points = NDArray.from_numpy(scan.points_m.astype(np.float32, copy=False))
+        self.pubs["sensors/lidar/points"].publish(PointCloud(header=header, points=points))
+        self.pubs["sim/truth/lidar_labels"].publish(PointCloud(header=header, points=points,
+                                                               labels=NDArray.from_numpy(scan.labels)))
+
+    def _publish_infos(self) -> None:
+        for info in self.sensors.stereo.infos():
+            side = "left" if "left" in info.frame_id else "right"
+            self.pubs[f"sensors/camera/{side}/info"].publish(camera_info_msg(info, self.runner.now_ns()))
+
+    # ------------------------------------------------------------ health
+
+    def health(self) -> Health:
+        d = self.runner.diagnostics()
+        values = {k: d[k] for k in ("sim_time_s", "realtime_factor", "mode", "armed", "landed_state", "failsafe",
+                                    "battery_remaining", "overruns") if k in d}
+        values.update({k: v for k, v in d.items() if k.startswith(("rx", "tx", "vision", "setpoint", "bad"))})
+        level, msgs = DiagnosticStatus.OK, []
+        for w in self.workers:
+            rated = 1e9 / self.periods_ns[w.name]
+            hz = w.achieved_hz(self.speed)
+            values[f"{w.name}_rate_hz"] = round(hz, 1)
+            values[f"{w.name}_skipped"] = w.skipped
+            if w.render_ms:
+                values[f"{w.name}_render_p50_ms"] = round(float(np.median(w.render_ms)), 1)
+            if w.rendered > 5 and hz < 0.9 * rated:
+                level = DiagnosticStatus.WARN
+                msgs.append(f"{w.name} {hz:.1f}/{rated:.0f} Hz")
+        if self.runner.overruns:
+            msgs.append(f"physics behind real time ({self.runner.overruns} re-anchors)")
+        return Health(level, f"{self.scenario.name} x{self.speed:g} {d['mode']}" + (f"; {', '.join(msgs)}" if msgs else ""),
+                      values)
+
+
+def main(argv=None) -> int:
+    return run(SimService, argv)
