@@ -17,3 +17,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-n", type=int, default=50, help="frames per sensor")
     p.add_argument("--scenario", default="village")
     p.set_defaults(func=lambda a: importlib.import_module("aeroperception.tools.bench_sim").run(a.n, a.scenario))
+    p = bsub.add_parser("flight", help="hot path state -> planner -> fmu -> MAVLink, with the sim profile running")
+    p.add_argument("--duration", type=float, default=20.0, help="seconds of hover to measure")
+    p.add_argument("--sensors", default="none", choices=["none", "imu", "all"], help="sim sensor load while measuring")
+    p.set_defaults(func=lambda a: importlib.import_module("aeroperception.tools.bench_flight").run(a.duration, a.sensors))

@@ -1,0 +1,162 @@
+"""`aero bench flight`: the hot path, state -> planner -> fmu -> SET_POSITION_TARGET_LOCAL_NED.
+
+The whole sim profile runs (`aero up` as a child, its MAVLink re-routed through a tap in this
+process). The tap timestamps each LOCAL_POSITION_NED on its way from the vehicle to fmu and the
+first SET_POSITION_TARGET_LOCAL_NED that fmu sends back: that interval covers MAVLink decode,
+ENU conversion, state/vehicle over Zenoh, the planner, the setpoint over Zenoh and the MAVLink
+encode. Baseline, same run: two raw Zenoh one-way hops (the minimum the process split costs).
+Also reported: the planner's 50 Hz deadline-loop period error and the setpoint gaps on the wire.
+"""
+from __future__ import annotations
+
+import json
+import os
+import select
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+
+import numpy as np
+
+from aeroperception.schemas import DiagnosticStatus, MissionCommand, Reply, SchemaError, decode
+from aeroperception.services.runtime.node import CallError, call
+from aeroperception.services.runtime.session import make_config, open_session
+
+from .bench_pubsub import measure
+
+LOCAL_POSITION_NED, SET_POSITION_TARGET_LOCAL_NED = 32, 84
+
+
+def _free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _msgid(pkt: bytes) -> int | None:
+    if len(pkt) >= 10 and pkt[0] == 0xFD:
+        return pkt[7] | pkt[8] << 8 | pkt[9] << 16
+    if len(pkt) >= 6 and pkt[0] == 0xFE:
+        return pkt[5]
+    return None
+
+
+class Tap:
+    """UDP relay sim <-> fmu that timestamps the hot path."""
+
+    def __init__(self, from_sim_port: int, fmu_port: int):
+        self.a = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.a.bind(("127.0.0.1", from_sim_port))
+        self.b = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.b.bind(("127.0.0.1", 0))
+        self.fmu = ("127.0.0.1", fmu_port)
+        self.sim_addr = None
+        self.pending: float | None = None
+        self.latency_ms: list[float] = []
+        self.setpoint_t: list[float] = []
+        self.recording = False
+        self.stop = threading.Event()
+        threading.Thread(target=self._run, daemon=True).start()
+
+    def _run(self) -> None:
+        while not self.stop.is_set():
+            ready, _, _ = select.select([self.a, self.b], [], [], 0.1)
+            for s in ready:
+                pkt, addr = s.recvfrom(65535)
+                now = time.perf_counter()
+                if s is self.a:
+                    self.sim_addr = addr
+                    if _msgid(pkt) == LOCAL_POSITION_NED:
+                        self.pending = now
+                    self.b.sendto(pkt, self.fmu)
+                else:
+                    if _msgid(pkt) == SET_POSITION_TARGET_LOCAL_NED and self.recording:
+                        self.setpoint_t.append(now)
+                        if self.pending is not None:
+                            self.latency_ms.append((now - self.pending) * 1e3)
+                            self.pending = None
+                    if self.sim_addr:
+                        self.a.sendto(pkt, self.sim_addr)
+
+
+def run(duration_s: float = 20.0, sensors: str = "none") -> int:
+    router_port, sim_tx, fmu_rx, sim_bind = _free_port(), _free_port(), _free_port(), _free_port()
+    tap = Tap(sim_tx, fmu_rx)
+    endpoint = f"tcp/127.0.0.1:{router_port}"
+    log_dir = tempfile.mkdtemp(prefix="aero-bench-flight-")
+    up = subprocess.Popen([sys.executable, "-m", "aeroperception.tools.cli", "up", "--listen", endpoint,
+                           "--log-dir", log_dir, "--fcu-url", f"udpin:127.0.0.1:{fmu_rx}",
+                           "--arg", f"sim:--target=127.0.0.1:{sim_tx}", "--arg", f"sim:--bind=127.0.0.1:{sim_bind}",
+                           "--arg", f"sim:--sensors={sensors}"],
+                          stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    session = None
+    try:
+        session = open_session(make_config(connect=endpoint), max_wait_s=10)
+        planner_diag: list[DiagnosticStatus] = []
+
+        def on_diag(s) -> None:
+            try:
+                planner_diag.append(decode(s.payload.to_bytes(), DiagnosticStatus))
+            except SchemaError:
+                pass
+
+        session.declare_subscriber("diagnostics/planner", on_diag)
+        deadline = time.monotonic() + 30
+        while True:  # wait for fmu to have the vehicle, then take off and hover
+            try:
+                r = call(session, "mission/srv/command", MissionCommand(command="TAKEOFF"), Reply, 5.0)
+                if r.success:
+                    break
+            except CallError:
+                pass
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"stack did not come up (logs: {log_dir})")
+            time.sleep(1.0)
+        time.sleep(8.0)  # climb, settle into OFFBOARD hover
+        tap.latency_ms.clear()
+        tap.recording = True
+        time.sleep(duration_s)
+        tap.recording = False
+        lat = np.array(tap.latency_ms)
+        gaps = np.diff(np.array(tap.setpoint_t)) * 1e3
+        diag = planner_diag[-1].values if planner_diag else {}
+        try:
+            call(session, "mission/srv/command", MissionCommand(command="LAND"), Reply, 5.0)
+        except CallError:
+            pass
+    finally:
+        if session is not None:
+            session.close()
+        up.terminate()
+        try:
+            up.wait(10)
+        except subprocess.TimeoutExpired:
+            up.kill()
+        tap.stop.set()
+    router = make_config(mode="router", listen=[f"tcp/127.0.0.1:{_free_port()}"])
+    router.insert_json5("scouting/delay", "0")
+    router.insert_json5("connect/endpoints", "[]")
+    import zenoh
+
+    r = zenoh.open(router)
+    try:
+        raw = measure(json.loads(router.get_json("listen/endpoints"))[0], "raw", "state", 500)
+    finally:
+        r.close()
+    base = 2 * float(np.median(raw))
+    print(f"hot path LOCAL_POSITION_NED in -> SET_POSITION_TARGET_LOCAL_NED out, whole sim profile "
+          f"(sensors={sensors}), {duration_s:.0f} s hover, {os.cpu_count()} cores")
+    print(f"{'metric':<44} {'n':>6} {'median_ms':>10} {'p99_ms':>8} {'x_base':>7}")
+    print(f"{'hot path latency':<44} {len(lat):>6} {np.median(lat):>10.3f} {np.percentile(lat, 99):>8.3f} "
+          f"{np.median(lat) / base:>7.2f}")
+    print(f"{'baseline: 2 raw zenoh one-way hops':<44} {len(raw):>6} {base:>10.3f} {2 * np.percentile(raw, 99):>8.3f} "
+          f"{1.0:>7.2f}")
+    print(f"{'setpoint gap on the wire (50 Hz = 20 ms)':<44} {len(gaps):>6} {np.median(gaps):>10.3f} "
+          f"{np.percentile(gaps, 99):>8.3f} {'':>7}")
+    print(f"{'planner deadline-loop period error':<44} {diag.get('loop[setpoint].ticks', '-'):>6} "
+          f"{float(diag.get('loop[setpoint].period_error_p50_ms', 'nan')):>10.3f} "
+          f"{float(diag.get('loop[setpoint].period_error_p99_ms', 'nan')):>8.3f} {'':>7}")
+    return 0
