@@ -1,0 +1,41 @@
+#!/usr/bin/env bash
+# Install AeroPerception on a fresh Debian/Ubuntu machine: the system libraries the wheels load
+# at import time (apt, when root or with sudo), then the package itself in editable mode.
+#   deploy/install.sh              -> extras sim,tools   (what `aero up` needs)
+#   deploy/install.sh sim,perception,tools,test          (what .ci/run uses)
+set -euo pipefail
+cd "$(dirname "${BASH_SOURCE[0]}")/.."
+EXTRAS=${1:-sim,tools}
+PY=${PYTHON:-python3}
+stamp() { echo "[install] $*"; }
+
+# ---- system libraries the Python wheels load at import time
+#   open3d: libusb-1.0-0, libudev1, libgl1/libegl1 (GLVND), libx11-6, libgomp1
+#   opencv (headless, and the GUI build MAVProxy pulls in): libgl1, libglib2.0-0
+APT_PACKAGES=(libusb-1.0-0 libudev1 libgl1 libegl1 libx11-6 libgomp1 libglib2.0-0)
+if command -v apt-get >/dev/null 2>&1; then
+    SUDO=""
+    if [ "$(id -u)" != 0 ]; then
+        if command -v sudo >/dev/null 2>&1; then SUDO="sudo -n"; else SUDO="skip"; fi
+    fi
+    if [ "$SUDO" = skip ]; then
+        stamp "not root and no sudo: skipping apt-get (needs: ${APT_PACKAGES[*]})"
+    else
+        stamp "apt-get install ${APT_PACKAGES[*]}"
+        export DEBIAN_FRONTEND=noninteractive
+        $SUDO apt-get update -qq
+        $SUDO apt-get install -y -qq --no-install-recommends "${APT_PACKAGES[@]}" >/dev/null
+    fi
+else
+    stamp "no apt-get: assuming ${APT_PACKAGES[*]} are present"
+fi
+
+# ---- Python packages (Debian's own python3 refuses pip without this; harmless elsewhere)
+export PIP_BREAK_SYSTEM_PACKAGES=1 PIP_DISABLE_PIP_VERSION_CHECK=1 PIP_NO_INPUT=1
+stamp "pip install -e .[$EXTRAS]"
+"$PY" -m pip install -q -e ".[$EXTRAS]"
+CHECK="import aeroperception.tools.cli, zenoh, msgspec, pymavlink"
+case ",$EXTRAS," in *,sim,*) CHECK="$CHECK, open3d, cv2" ;; esac
+case ",$EXTRAS," in *,perception,*) CHECK="$CHECK, onnxruntime, gtsam" ;; esac
+"$PY" -c "$CHECK; print('install: imports ok')"
+
