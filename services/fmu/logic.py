@@ -36,14 +36,6 @@ MAV_LANDED = {
 }
 
 
-def v3(a) -> Vector3:
-    return Vector3(x=float(a[0]), y=float(a[1]), z=float(a[2]))
-
-
-def quat(q) -> Quaternion:
-    return Quaternion(w=float(q[0]), x=float(q[1]), y=float(q[2]), z=float(q[3]))
-
-
 @dataclass
 class Telemetry:
     """Latest flight-controller state, assembled from MAVLink, in ENU/FLU."""
@@ -88,16 +80,16 @@ class Telemetry:
         self.position_m = frames.ned_to_enu(np.array([m.x, m.y, m.z]))
         self.velocity_mps = frames.ned_to_enu(np.array([m.vx, m.vy, m.vz]))
         self.have_position = True
-        return LocalPosition(header=Header(stamp_ns=stamp_ns, frame_id="map"), position_m=v3(self.position_m),
-                             velocity_mps=v3(self.velocity_mps), yaw_rad=self.yaw_rad,
+        return LocalPosition(header=Header(stamp_ns=stamp_ns, frame_id="map"), position_m=Vector3.from_array(self.position_m),
+                             velocity_mps=Vector3.from_array(self.velocity_mps), yaw_rad=self.yaw_rad,
                              position_valid=True, velocity_valid=True)
 
     def on_attitude_quaternion(self, m, stamp_ns: int) -> Attitude:
         self.q_enu_flu = frames.q_ned_frd_to_enu_flu(np.array([m.q1, m.q2, m.q3, m.q4]))
         self.rates_flu_radps = frames.frd_to_flu(np.array([m.rollspeed, m.pitchspeed, m.yawspeed]))
         self.yaw_rad = frames.yaw_from_q(self.q_enu_flu)
-        return Attitude(header=Header(stamp_ns=stamp_ns, frame_id="map"), orientation=quat(self.q_enu_flu),
-                        angular_velocity_radps=v3(self.rates_flu_radps))
+        return Attitude(header=Header(stamp_ns=stamp_ns, frame_id="map"), orientation=Quaternion.from_array(self.q_enu_flu),
+                        angular_velocity_radps=Vector3.from_array(self.rates_flu_radps))
 
     def on_extended_sys_state(self, m) -> None:
         self.landed_state = MAV_LANDED.get(m.landed_state, LandedState.UNDEFINED)
@@ -130,8 +122,8 @@ class Telemetry:
         roll, pitch, _ = frames.euler_from_q(self.q_enu_flu)
         return VehicleState(
             header=Header(stamp_ns=stamp_ns, frame_id="map"),
-            position_m=v3(self.position_m), velocity_mps=v3(self.velocity_mps),
-            orientation=quat(self.q_enu_flu), angular_velocity_radps=v3(self.rates_flu_radps),
+            position_m=Vector3.from_array(self.position_m), velocity_mps=Vector3.from_array(self.velocity_mps),
+            orientation=Quaternion.from_array(self.q_enu_flu), angular_velocity_radps=Vector3.from_array(self.rates_flu_radps),
             roll_rad=roll, pitch_rad=pitch, yaw_rad=self.yaw_rad,
             estimator_name=f"{self.autopilot.name}-ekf", confidence=1.0 if connected else 0.0,
             flight_mode=self.flight_mode, armed=self.armed, landed_state=self.landed_state,
@@ -142,8 +134,8 @@ class Telemetry:
 def highres_imu_to_imu(m, stamp_ns: int) -> Imu:
     """HIGHRES_IMU (FRD body) -> Imu (FLU body), specific force incl. gravity as the FC reports it."""
     return Imu(header=Header(stamp_ns=stamp_ns, frame_id="base_link"),
-               angular_velocity_radps=v3(frames.frd_to_flu(np.array([m.xgyro, m.ygyro, m.zgyro]))),
-               linear_acceleration_mps2=v3(frames.frd_to_flu(np.array([m.xacc, m.yacc, m.zacc]))))
+               angular_velocity_radps=Vector3.from_array(frames.frd_to_flu(np.array([m.xgyro, m.ygyro, m.zgyro]))),
+               linear_acceleration_mps2=Vector3.from_array(frames.frd_to_flu(np.array([m.xacc, m.yacc, m.zacc]))))
 
 
 def setpoint_target(sp: TrajectorySetpoint) -> dict:
@@ -176,7 +168,7 @@ def setpoint_target(sp: TrajectorySetpoint) -> dict:
 def hold_target(position_enu_m: np.ndarray, yaw_enu_rad: float) -> dict:
     """Hold here: position + zero velocity, as a TrajectorySetpoint would say it."""
     sp = TrajectorySetpoint(position_valid=True, velocity_valid=True, yaw_valid=True,
-                            position_m=v3(position_enu_m), velocity_mps=Vector3(), yaw_rad=yaw_enu_rad)
+                            position_m=Vector3.from_array(position_enu_m), velocity_mps=Vector3(), yaw_rad=yaw_enu_rad)
     return setpoint_target(sp)
 
 

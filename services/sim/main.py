@@ -20,6 +20,7 @@ from aeroperception.schemas import (
     PointCloud, Pose, Quaternion, Vector3, VehicleState,
 )
 from aeroperception.services.runtime import Health, Param, Service, run
+from aeroperception.services.runtime.rotations import quat_from_rotmat
 
 from .sensors.rig import build_sensors
 from .sensors.truth_boxes import project_targets
@@ -48,24 +49,14 @@ SHELL_PARAMS = [
 PARAMS = [*VEHICLE_PARAMS, *SHELL_PARAMS]
 
 
-def _v3(a) -> Vector3:
-    return Vector3(x=float(a[0]), y=float(a[1]), z=float(a[2]))
-
-
-def _quat(q) -> Quaternion:
-    return Quaternion(w=float(q[0]), x=float(q[1]), y=float(q[2]), z=float(q[3]))
-
-
 def camera_info_msg(info, stamp_ns: int) -> CameraInfo:
     r = np.array(info.r_body_camera).reshape(3, 3)
-    from .sensors.frames import rot_to_quat
-
     return CameraInfo(header=Header(stamp_ns=stamp_ns, frame_id=info.frame_id), width=info.width,
                       height=info.height, distortion_model=info.distortion_model,
                       K=NDArray.from_numpy(np.array(info.k, float).reshape(3, 3)),
                       D=NDArray.from_numpy(np.array(info.d, float)),
                       P=NDArray.from_numpy(np.array(info.p, float).reshape(3, 4)),
-                      T_body_camera=Pose(position=_v3(info.t_body_camera_m), orientation=_quat(rot_to_quat(r))))
+                      T_body_camera=Pose(position=Vector3.from_array(info.t_body_camera_m), orientation=Quaternion.from_array(quat_from_rotmat(r))))
 
 
 class RenderWorker:
@@ -76,7 +67,8 @@ class RenderWorker:
         self.name, self.render, self.stop = name, render, stop
         self.cv = threading.Condition()
         self.pending: VehicleTruth | None = None
-        self.requested = self.rendered = self.skipped = 0
+        self.requested = self.rendered = self.skipped = self.errors = 0
+        self.error, self.error_wall = "", 0.0
         self.render_ms: deque[float] = deque(maxlen=100)
         self.done_wall: deque[float] = deque(maxlen=50)
         self.thread = threading.Thread(target=self._run, name=f"sim-{name}", daemon=True)
@@ -100,8 +92,10 @@ class RenderWorker:
             t0 = time.perf_counter()
             try:
                 self.render(truth)
-            except Exception as e:  # noqa: BLE001 - keep the sensor alive, report
-                self.error = f"{type(e).__name__}: {e}"
+            except Exception as e:  # noqa: BLE001 - keep the sensor alive, report (not a frame)
+                self.errors += 1
+                self.error, self.error_wall = f"{type(e).__name__}: {e}", time.monotonic()
+                continue
             self.render_ms.append((time.perf_counter() - t0) * 1e3)
             self.done_wall.append(time.monotonic())
             self.rendered += 1
@@ -110,8 +104,12 @@ class RenderWorker:
         """Frames per sim second over the recent window."""
         if len(self.done_wall) < 2:
             return 0.0
-        span = self.done_wall[-1] - self.done_wall[0]
-        return (len(self.done_wall) - 1) / span / max(speed, 1e-9) if span > 0 else 0.0
+        first, last, n = self.done_wall[0], self.done_wall[-1], len(self.done_wall) - 1
+        span = last - first
+        # A renderer that stopped delivering must not keep reporting its old rate.
+        if time.monotonic() - last > 2.0 * span / n:
+            span = time.monotonic() - first
+        return n / span / max(speed, 1e-9) if span > 0 else 0.0
 
 
 class SimService(Service):
@@ -166,8 +164,9 @@ class SimService(Service):
                       mavlink_target=a.target, sensors=a.sensors)
 
     def stop(self) -> None:
-        self.stop_event.set()
-        self.runner.stop()
+        if hasattr(self, "runner"):   # start() may have failed (bad --scenario) before it existed
+            self.stop_event.set()
+            self.runner.stop()
 
     # ------------------------------------------------------------ physics-step callback
 
@@ -183,16 +182,16 @@ class SimService(Service):
         if self._due("truth", now):
             self.pubs["sim/clock"].publish(Clock(header=Header(stamp_ns=now), speed_factor=self.speed))
             self.pubs["sim/truth/state"].publish(VehicleState(
-                header=Header(stamp_ns=now, frame_id="map"), position_m=_v3(t.position_enu_m),
-                velocity_mps=_v3(t.velocity_enu_mps), acceleration_mps2=_v3(t.accel_enu_mps2),
-                orientation=_quat(t.q_enu_flu), angular_velocity_radps=_v3(t.angular_velocity_flu_radps),
+                header=Header(stamp_ns=now, frame_id="map"), position_m=Vector3.from_array(t.position_enu_m),
+                velocity_mps=Vector3.from_array(t.velocity_enu_mps), acceleration_mps2=Vector3.from_array(t.accel_enu_mps2),
+                orientation=Quaternion.from_array(t.q_enu_flu), angular_velocity_radps=Vector3.from_array(t.angular_velocity_flu_radps),
                 estimator_name="truth", confidence=1.0, armed=self.vehicle.commander.armed,
                 flight_mode=self.vehicle.commander.mode, connected=True))
         if "imu" in self.periods_ns and self._due("imu", now):
             s = self.sensors.imu.sample(t)
             self.pubs["sensors/imu"].publish(Imu(header=Header(stamp_ns=now, frame_id="base_link"),
-                                                 angular_velocity_radps=_v3(s.angular_velocity_flu_radps),
-                                                 linear_acceleration_mps2=_v3(s.linear_acceleration_flu_mps2)))
+                                                 angular_velocity_radps=Vector3.from_array(s.angular_velocity_flu_radps),
+                                                 linear_acceleration_mps2=Vector3.from_array(s.linear_acceleration_flu_mps2)))
         for w in self.workers:
             if self._due(w.name, now):
                 w.request(t)
@@ -244,11 +243,16 @@ class SimService(Service):
             hz = w.achieved_hz(self.speed)
             values[f"{w.name}_rate_hz"] = round(hz, 1)
             values[f"{w.name}_skipped"] = w.skipped
+            values[f"{w.name}_frames"] = w.rendered
             if w.render_ms:
                 values[f"{w.name}_render_p50_ms"] = round(float(np.median(w.render_ms)), 1)
             if w.rendered > 5 and hz < 0.9 * rated:
                 level = DiagnosticStatus.WARN
                 msgs.append(f"{w.name} {hz:.1f}/{rated:.0f} Hz")
+            values[f"{w.name}_errors"] = w.errors
+            if w.errors and time.monotonic() - w.error_wall < 5.0:
+                level = DiagnosticStatus.WARN
+                msgs.append(f"{w.name} render failed x{w.errors} ({w.error[:80]})")
         if self.runner.overruns:
             msgs.append(f"physics behind real time ({self.runner.overruns} re-anchors)")
         return Health(level, f"{self.scenario.name} x{self.speed:g} {d['mode']}" + (f"; {', '.join(msgs)}" if msgs else ""),

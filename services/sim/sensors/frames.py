@@ -8,40 +8,16 @@ from __future__ import annotations
 
 import numpy as np
 
+from aeroperception.services.runtime.rotations import quat_from_rotmat, quat_to_rotmat
+
 # Optical frame axes expressed in the body (FLU) frame for a camera looking straight forward:
 # optical x (right) = -body y, optical y (down) = -body z, optical z (forward) = +body x.
 R_FLU_OPTICAL_FORWARD = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 
 
-def quat_to_rot(q_wxyz) -> np.ndarray:
-    """3x3 rotation matrix of a (w, x, y, z) quaternion (normalised here, so slightly
-    denormalised integrator output is fine)."""
-    w, x, y, z = np.asarray(q_wxyz, dtype=float) / np.linalg.norm(q_wxyz)
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ])
-
-
-def rot_to_quat(r: np.ndarray) -> np.ndarray:
-    """(w, x, y, z) quaternion of a rotation matrix, w >= 0."""
-    r = np.asarray(r, dtype=float)
-    tr = np.trace(r)
-    if tr > 0:
-        s = 2.0 * np.sqrt(tr + 1.0)
-        q = [0.25 * s, (r[2, 1] - r[1, 2]) / s, (r[0, 2] - r[2, 0]) / s, (r[1, 0] - r[0, 1]) / s]
-    else:
-        i = int(np.argmax(np.diag(r)))
-        j, k = (i + 1) % 3, (i + 2) % 3
-        s = 2.0 * np.sqrt(1.0 + r[i, i] - r[j, j] - r[k, k])
-        q = [0.0] * 4
-        q[0] = (r[k, j] - r[j, k]) / s
-        q[1 + i] = 0.25 * s
-        q[1 + j] = (r[j, i] + r[i, j]) / s
-        q[1 + k] = (r[k, i] + r[i, k]) / s
-    q = np.array(q)
-    return q if q[0] >= 0 else -q
+# One home for quaternion maths: these are the runtime's, under the names the sensor code uses.
+quat_to_rot = quat_to_rotmat
+rot_to_quat = quat_from_rotmat
 
 
 def rot_x(angle_rad: float) -> np.ndarray:
