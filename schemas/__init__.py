@@ -22,6 +22,7 @@ from .planning import (
     CollisionConstraint, Mission, Trajectory, TrajectoryStatus, Waypoint, load_mission_file,
     parse_mission,
 )
+from .gcs import GcsLink, Joystick
 from .mission import MissionCommand, MissionStatus, PerceptionHealth, WaypointReached
 from .services import (
     ArmReply, ArmRequest, EmergencyStopReply, EmergencyStopRequest, Empty, LoadMissionReply,
@@ -49,6 +50,8 @@ __all__ = [
     # planning and mission
     "Trajectory", "TrajectoryStatus", "CollisionConstraint", "Waypoint", "Mission", "parse_mission",
     "load_mission_file", "MissionStatus", "MissionCommand", "PerceptionHealth", "WaypointReached",
+    # ground station link
+    "GcsLink", "Joystick",
     # safety
     "SafetyStatus",
     # services

@@ -4,6 +4,7 @@ from __future__ import annotations
 import math
 import threading
 import time
+from collections import deque
 
 import numpy as np
 from pymavlink import mavutil
@@ -54,6 +55,7 @@ class FmuService(Service):
         self.last_target_sent_s = 0.0
         self.hold: tuple[np.ndarray, float] | None = None
         self.streams_requested = False
+        self.statustexts: deque[tuple[float, int, str]] = deque(maxlen=16)  # (rx time, severity, text)
         self.conn = mavutil.mavlink_connection(self.args.fcu_url, source_system=p.source_system,
                                                source_component=p.source_component, autoreconnect=True)
         node = self.node
@@ -127,6 +129,9 @@ class FmuService(Service):
                 self.pubs["sensors/imu"].publish(imu)
         elif t == "COMMAND_ACK":
             self.acks.on_ack(m)
+        elif t == "STATUSTEXT":  # the FC says why it refused a command (PX4: "Arming denied: ...")
+            self.statustexts.append((time.monotonic(), m.severity, str(m.text)))
+            self.log.info("fc_statustext", severity=m.severity, text=str(m.text))
         elif t == "TIMESYNC" and m.tc1 == 0:  # PX4 asks the companion; answer so vision fusion works
             self._send(lambda mav: mav.timesync_send(time.time_ns(), m.ts1))
 
@@ -203,19 +208,31 @@ class FmuService(Service):
         """COMMAND_LONG, wait for its ACK, then for `confirm()` (heartbeat state) within timeout."""
         if not self.link_fresh():
             return False, f"no link to the flight controller ({self.args.fcu_url})"
-        deadline = time.monotonic() + timeout_s
+        sent_s = time.monotonic()
+        deadline = sent_s + timeout_s
         ev, box = self.acks.expect(command)
         p = params + [0.0] * (7 - len(params))
         self._send(lambda mav: mav.command_long_send(self.tm.system_id, 1, command, 0, *p))
         if not ev.wait(max(0.0, deadline - time.monotonic())):
             return False, f"no COMMAND_ACK within {timeout_s:.1f} s"
         if box[0] != mavlink.MAV_RESULT_ACCEPTED:
-            return False, f"flight controller answered {ack_name(box[0])}"
+            reason = self._refusal_reason(sent_s)
+            return False, f"flight controller answered {ack_name(box[0])}" + (f": {reason}" if reason else "")
         while time.monotonic() < deadline:
             if confirm():
                 return True, "confirmed by heartbeat"
             time.sleep(0.02)
         return False, "accepted but not confirmed by the heartbeat in time"
+
+    def _refusal_reason(self, since_s: float, wait_s: float = 0.3) -> str:
+        """The warning STATUSTEXT the FC sent with a refusal (before or just after the ACK), or ''."""
+        end = time.monotonic() + wait_s
+        while True:
+            texts = [text for t, sev, text in list(self.statustexts)
+                     if t >= since_s and sev <= mavlink.MAV_SEVERITY_WARNING]
+            if texts or time.monotonic() >= end:
+                return texts[-1] if texts else ""
+            time.sleep(0.02)
 
     def _srv_arm(self, req: ArmRequest) -> ArmReply:
         ok, msg = self._command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM,
@@ -232,8 +249,8 @@ class FmuService(Service):
             return SetModeReply(success=False, current_mode=self.tm.flight_mode,
                                 message=f"unknown mode {req.mode!r} for {self.tm.autopilot.name}; "
                                         f"known: {', '.join(self.tm.autopilot.mode_names())}")
-        if self.tm.flight_mode == mode:
-            return SetModeReply(success=True, message="already in mode", current_mode=mode)
+        # Always ask the FC: the mode we last heard (1 Hz heartbeat) may be stale, e.g. right after
+        # a failsafe switched OFFBOARD to HOLD; the FC acks a request for its current mode at once.
         ok, msg = self._command(mavlink.MAV_CMD_DO_SET_MODE, [base, main_mode, sub_mode],
                                 lambda: self.tm.flight_mode == mode, self.params.command_timeout_s)
         self.log.info("set_mode", mode=mode, success=ok, message=msg)

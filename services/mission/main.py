@@ -2,13 +2,14 @@
 from __future__ import annotations
 
 import math
+import threading
 import time
 from dataclasses import fields
 
 import numpy as np
 
 from aeroperception.schemas import (
-    ArmReply, ArmRequest, DiagnosticStatus, GoToPositionFeedback, GoToPositionGoal,
+    ArmReply, GcsLink, ArmRequest, DiagnosticStatus, GoToPositionFeedback, GoToPositionGoal,
     GoToPositionResult, Header, LandFeedback, LandGoal, LandResult, LoadMissionReply,
     LoadMissionRequest, MissionCommand, PerceptionHealth, Pose, PoseStamped, Quaternion, Reply,
     SchemaError, SetModeReply, SetModeRequest, TakeoffFeedback, TakeoffGoal, TakeoffResult,
@@ -63,7 +64,17 @@ class MissionService(Service):
         node.subscribe("perception/health", PerceptionHealth,
                        lambda m: self.mgr.on_perception(m.overall_healthy, time.monotonic()))
         node.subscribe("mission/command", MissionCommand, self._on_command)
-        node.serve("mission/srv/command", MissionCommand, Reply, self._on_command)
+        gcs_up = {"last": None}
+
+        def on_gcs_link(m: GcsLink) -> None:
+            # gcs/link repeats at 1 Hz; only a change of a link once seen is an event (a stack
+            # flying without any ground station is not "link lost").
+            was, gcs_up["last"] = gcs_up["last"], m.connected
+            if was is not None and was != m.connected:
+                self.mgr.on_link(m.connected)
+
+        node.subscribe("gcs/link", GcsLink, on_gcs_link)
+        node.serve("mission/srv/command", MissionCommand, Reply, self._srv_command, locked=False)
         node.serve("mission/srv/load", LoadMissionRequest, LoadMissionReply, self._on_load)
         self.actions: list[tuple[str, GoalHandle]] = []
         self.servers = {
@@ -85,6 +96,27 @@ class MissionService(Service):
             return Reply(success=r.success, message=r.message)
         ok, message = self.mgr.command(msg.command)
         self.log.info("command", command=msg.command, accepted=ok, message=message)
+        return Reply(success=ok, message=message)
+
+    def _srv_command(self, msg: MissionCommand) -> Reply:
+        """mission/srv/command: like mission/command, but the reply is the outcome. Commands that
+        need the flight controller (ARM, DISARM, TAKEOFF's arming) are answered when fmu has
+        answered, so a refused arm is a refused TAKEOFF, not "taking off"."""
+        if msg.command == MissionCommand.LOAD:
+            with self.node.lock:
+                return self._on_command(msg)
+        outcome: list[tuple[bool, str]] = []
+        answered = threading.Event()
+
+        def on_result(ok: bool, message: str) -> None:
+            outcome.append((ok, message))
+            answered.set()
+
+        with self.node.lock:
+            ok, message = self.mgr.command(msg.command, on_result)
+            self.log.info("command", command=msg.command, accepted=ok, message=message)
+        if ok and answered.wait(self.params.bridge_timeout_s + 1.0):
+            ok, message = outcome[0]
         return Reply(success=ok, message=message)
 
     def _on_load(self, req: LoadMissionRequest) -> LoadMissionReply:
@@ -178,7 +210,7 @@ class MissionService(Service):
                                                progress_percent=max(0.0, min(100.0, 100 * pos.z / target))))
                 elif s in (State.HOLDING, State.EXECUTING) and abs(pos.z - target) < 1.0:
                     h.succeed(TakeoffResult(success=True, message="altitude reached", final_altitude_m=pos.z))
-                elif s in (State.IDLE, State.LAND):
+                elif s in (State.IDLE, State.LAND) and not self.mgr.takeoff_pending:  # not while arming
                     h.abort(TakeoffResult(success=False, message=self.mgr.message, final_altitude_m=pos.z))
             elif kind == "land":
                 if s == State.LAND:

@@ -102,6 +102,16 @@ def _mission():
                    waypoint_acceptance_radius_m=0.75)
 
 
+def _gcs_samples():
+    from aeroperception.schemas import GcsLink, Joystick
+
+    return {
+        "GcsLink": lambda: GcsLink(header=H, connected=True, address="127.0.0.1:14550", system_id=255,
+                                   last_heartbeat_age_s=0.4, packets_received=12, packets_invalid=1),
+        "Joystick": lambda: Joystick(header=H, x=0.5, y=-0.25, z=0.6, r=0.1, buttons=3, source_system=255),
+    }
+
+
 def _system_samples():
     # schemas/system.py (sim clock, live parameters) is owned by the runtime; sampled here so the
     # generic guarantees cover it too.
@@ -239,6 +249,7 @@ SAMPLES = {
         "abc123", TakeoffResult(success=True, message="ok", final_altitude_m=5.0), GoalStatus.SUCCEEDED,
         action="takeoff", header=H),
     **_system_samples(),
+    **_gcs_samples(),
 }
 
 # Registered schemas that do not (yet) carry a header; everything else must. (schemas/system.py's

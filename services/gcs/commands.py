@@ -1,0 +1,202 @@
+"""COMMAND_LONG / COMMAND_INT handling (no Zenoh): every command gets one final COMMAND_ACK with
+the real outcome; commands that wait on the stack get MAV_RESULT_IN_PROGRESS first if they take
+longer than `progress_after_s` (MAVSDK wants an answer within 0.5 s); a retransmission of a
+command still running is answered IN_PROGRESS, not executed twice.
+
+The stack is reached through `ops` (see Ops): arm, set_mode, mission_command, takeoff, goto,
+mission_start; each takes a done(ok, message) callback that may run later.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable, Protocol
+
+from pymavlink.dialects.v20 import common as M
+
+from aeroperception.services.mavlink import frames, px4
+
+from .missions import Home
+
+Done = Callable[[bool, str], None]
+FORCE_MAGIC = 21196
+
+
+class Ops(Protocol):
+    def arm(self, arm: bool, force: bool, done: Done) -> None: ...
+    def set_mode(self, mode: str, done: Done) -> None: ...
+    def mission_command(self, command: str, done: Done) -> None: ...
+    def mission_start(self, done: Done) -> None: ...
+    def takeoff(self, altitude_m: float | None, done: Done) -> None: ...
+    def goto(self, enu: tuple[float, float, float], yaw_rad: float | None, done: Done) -> None: ...
+
+
+@dataclass
+class Pending:
+    command: int
+    peer: tuple[int, int]
+    started_s: float
+    progress_sent: bool = False
+
+
+@dataclass
+class Command:
+    """COMMAND_LONG and COMMAND_INT normalised: params 1-7 (x/y in degrees for COMMAND_INT)."""
+
+    command: int
+    params: tuple[float, ...]
+    peer: tuple[int, int]
+    frame: int = M.MAV_FRAME_GLOBAL
+
+    @classmethod
+    def from_msg(cls, msg) -> "Command":
+        peer = (msg.get_srcSystem(), msg.get_srcComponent())
+        if msg.get_type() == "COMMAND_INT":
+            x = msg.x / 1e7 if msg.frame not in (M.MAV_FRAME_LOCAL_NED, M.MAV_FRAME_LOCAL_ENU) else msg.x / 1e4
+            y = msg.y / 1e7 if msg.frame not in (M.MAV_FRAME_LOCAL_NED, M.MAV_FRAME_LOCAL_ENU) else msg.y / 1e4
+            if msg.x == 0 and msg.y == 0:
+                x = y = math.nan
+            return cls(msg.command, (msg.param1, msg.param2, msg.param3, msg.param4, x, y, msg.z), peer, msg.frame)
+        return cls(msg.command, (msg.param1, msg.param2, msg.param3, msg.param4, msg.param5, msg.param6,
+                                 msg.param7), peer)
+
+
+class CommandHandler:
+    def __init__(self, send: Callable, ops: Ops, home: Home, *,
+                 position_enu: Callable[[], tuple[float, float, float]],
+                 request_message: Callable[[int, float], int],
+                 set_interval: Callable[[int, float], bool],
+                 set_current: Callable[[int], bool],
+                 progress_after_s: float = 0.3):
+        self.send = send
+        self.ops = ops
+        self.home = home
+        self.position_enu = position_enu
+        self.request_message = request_message
+        self.set_interval = set_interval
+        self.set_current = set_current
+        self.progress_after_s = progress_after_s
+        self.pending: dict[tuple[int, tuple[int, int]], Pending] = {}
+        self.results: dict[str, int] = {}
+
+    def ack(self, command: int, result: int, peer: tuple[int, int], progress: int = 0) -> None:
+        name = M.enums["MAV_RESULT"][result].name if result in M.enums["MAV_RESULT"] else str(result)
+        self.results[name] = self.results.get(name, 0) + 1
+        self.send(M.MAVLink_command_ack_message(command, result, progress, 0, peer[0], peer[1]))
+
+    # ------------------------------------------------------------ entry point
+
+    def handle(self, msg, now_s: float) -> None:
+        c = Command.from_msg(msg)
+        key = (c.command, c.peer)
+        if key in self.pending:
+            # A retransmission while the first one runs: say so instead of running it twice.
+            self.ack(c.command, M.MAV_RESULT_IN_PROGRESS, c.peer)
+            self.pending[key].progress_sent = True
+            return
+        try:
+            self._dispatch(c, now_s)
+        except Exception as e:  # noqa: BLE001 - one bad command must not kill the link
+            self.pending.pop(key, None)
+            self.ack(c.command, M.MAV_RESULT_FAILED, c.peer)
+            raise e
+
+    def _async(self, c: Command, now_s: float, start: Callable[[Done], None]) -> None:
+        key = (c.command, c.peer)
+        self.pending[key] = Pending(c.command, c.peer, now_s)
+
+        def done(ok: bool, message: str = "") -> None:
+            if self.pending.pop(key, None) is None:
+                return
+            self.ack(c.command, M.MAV_RESULT_ACCEPTED if ok else M.MAV_RESULT_DENIED, c.peer)
+
+        start(done)
+
+    def _dispatch(self, c: Command, now_s: float) -> None:
+        p = c.params
+        cmd = c.command
+        if cmd == M.MAV_CMD_COMPONENT_ARM_DISARM:
+            if p[0] not in (0.0, 1.0):
+                self.ack(cmd, M.MAV_RESULT_DENIED, c.peer)
+                return
+            self._async(c, now_s, lambda d: self.ops.arm(p[0] == 1.0, p[1] == FORCE_MAGIC, d))
+        elif cmd == M.MAV_CMD_DO_SET_MODE:
+            mode = mode_from_set_mode(_int(p[0]), _int(p[1]), _int(p[2]))
+            if mode is None:
+                self.ack(cmd, M.MAV_RESULT_DENIED, c.peer)
+                return
+            self._async(c, now_s, lambda d: self.ops.set_mode(mode, d))
+        elif cmd == M.MAV_CMD_MISSION_START:
+            self._async(c, now_s, self.ops.mission_start)
+        elif cmd == M.MAV_CMD_NAV_TAKEOFF:
+            alt = p[6] - self.home.alt_m if math.isfinite(p[6]) else None
+            if alt is not None and alt <= 0.2:
+                alt = None  # PX4: an altitude at or below home means "the default"
+            self._async(c, now_s, lambda d: self.ops.takeoff(alt, d))
+        elif cmd == M.MAV_CMD_NAV_LAND:
+            self._async(c, now_s, lambda d: self.ops.mission_command("LAND", d))
+        elif cmd == M.MAV_CMD_NAV_RETURN_TO_LAUNCH:
+            self._async(c, now_s, lambda d: self.ops.mission_command("RTL", d))
+        elif cmd == M.MAV_CMD_DO_REPOSITION:
+            cur = self.position_enu()
+            lat, lon, alt = p[4], p[5], p[6]
+            if math.isfinite(lat) and math.isfinite(lon):
+                rel = (alt - self.home.alt_m) if math.isfinite(alt) else cur[2]
+                if c.frame in (M.MAV_FRAME_GLOBAL_RELATIVE_ALT, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT):
+                    rel = alt if math.isfinite(alt) else cur[2]
+                target = self.home.to_enu(lat, lon, rel)
+            else:
+                target = (cur[0], cur[1], (alt - self.home.alt_m) if math.isfinite(alt) else cur[2])
+            yaw = float(frames.yaw_ned_to_enu(math.radians(p[3]))) if math.isfinite(p[3]) else None
+            self._async(c, now_s, lambda d: self.ops.goto(target, yaw, d))
+        elif cmd == M.MAV_CMD_REQUEST_PROTOCOL_VERSION:
+            self.ack(cmd, M.MAV_RESULT_ACCEPTED, c.peer)
+        elif cmd == M.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
+            self.ack(cmd, M.MAV_RESULT_ACCEPTED, c.peer)
+            self.request_message(M.MAVLINK_MSG_ID_AUTOPILOT_VERSION, 0)
+        elif cmd == M.MAV_CMD_REQUEST_MESSAGE:
+            if not math.isfinite(p[0]):
+                self.ack(cmd, M.MAV_RESULT_DENIED, c.peer)
+                return
+            result = self.request_message(int(p[0]), p[1])
+            self.ack(cmd, result, c.peer)
+        elif cmd == M.MAV_CMD_SET_MESSAGE_INTERVAL:
+            ok = math.isfinite(p[0]) and math.isfinite(p[1]) and self.set_interval(int(p[0]), p[1])
+            self.ack(cmd, M.MAV_RESULT_ACCEPTED if ok else M.MAV_RESULT_DENIED, c.peer)
+        elif cmd == M.MAV_CMD_GET_HOME_POSITION:
+            self.ack(cmd, M.MAV_RESULT_ACCEPTED, c.peer)
+            self.request_message(M.MAVLINK_MSG_ID_HOME_POSITION, 0)
+        elif cmd == M.MAV_CMD_DO_SET_MISSION_CURRENT:
+            ok = math.isfinite(p[0]) and self.set_current(int(p[0]))
+            self.ack(cmd, M.MAV_RESULT_ACCEPTED if ok else M.MAV_RESULT_DENIED, c.peer)
+        else:
+            self.ack(cmd, M.MAV_RESULT_UNSUPPORTED, c.peer)
+
+    # ------------------------------------------------------------ timers
+
+    def tick(self, now_s: float, timeout_s: float = 10.0) -> None:
+        for key, pend in list(self.pending.items()):
+            if now_s - pend.started_s > timeout_s:
+                self.pending.pop(key)
+                self.ack(pend.command, M.MAV_RESULT_FAILED, pend.peer)
+            elif not pend.progress_sent and now_s - pend.started_s >= self.progress_after_s:
+                pend.progress_sent = True
+                self.ack(pend.command, M.MAV_RESULT_IN_PROGRESS, pend.peer)
+
+
+def _int(v: float, default: int = 0) -> int:
+    """A float parameter as an integer; NaN/inf ("unused" in MAVLink) -> default."""
+    return int(v) if math.isfinite(v) else default
+
+
+def mode_from_set_mode(base_mode: int, custom_main: int, custom_sub: int) -> str | None:
+    """DO_SET_MODE / SET_MODE (PX4 main + sub) -> our mode name, None if PX4 has no such mode."""
+    if not base_mode & M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
+        return None
+    name = px4.decode(px4.pack(custom_main, custom_sub))
+    return None if name.startswith("PX4(") else name
+
+
+def mode_from_custom_mode(base_mode: int, custom_mode: int) -> str | None:
+    main, sub = px4.unpack(custom_mode)
+    return mode_from_set_mode(base_mode, main, sub)

@@ -1,0 +1,56 @@
+"""Contract of gcs: keys in/out, calls, ports and parameters."""
+from aeroperception.schemas import (
+    ArmReply, ArmRequest, BatteryState, GcsLink, Joystick, LoadMissionReply, LoadMissionRequest,
+    MissionCommand, MissionStatus, ParamList, ParamSet, ParamSetReply, Reply, SetModeReply,
+    SetModeRequest, VehicleState, WaypointReached,
+)
+from aeroperception.services.runtime import Param
+
+NAME = "gcs"
+INPUTS = {
+    "state/vehicle": VehicleState,                  # pose (ENU), mode, armed, landed, battery
+    "fmu/out/battery_status": BatteryState,         # real battery for SYS_STATUS / BATTERY_STATUS
+    "mission/status": MissionStatus,                # MISSION_CURRENT
+    "mission/waypoint_reached": WaypointReached,    # MISSION_ITEM_REACHED
+}
+OUTPUTS = {
+    "gcs/link": GcsLink,                            # on change + 1 Hz: ground station heartbeat up/down
+    "gcs/joystick": Joystick,                       # MANUAL_CONTROL, as received
+}
+CALLS = {
+    "mission/srv/load": (LoadMissionRequest, LoadMissionReply),
+    "mission/srv/command": (MissionCommand, Reply),
+    "fmu/srv/arm": (ArmRequest, ArmReply),
+    "fmu/srv/set_mode": (SetModeRequest, SetModeReply),
+    "config/<service>/@params": (None, ParamList),
+    "config/<service>/@set": (ParamSet, ParamSetReply),
+}
+ACTIONS = ["mission/action/takeoff", "mission/action/land", "mission/action/goto"]
+
+# Seed 001 §5.1 / §14: bind 14551, send to the ground station at 14550 (learnt from its first packet).
+DEFAULT_LOCAL_PORT = 14551
+DEFAULT_REMOTE_PORT = 14550
+# Seed 001 §15: default home (Tanashi, Tokyo), altitude 10 m AMSL.
+DEFAULT_HOME_LAT_DEG = 35.736805
+DEFAULT_HOME_LON_DEG = 139.539676
+DEFAULT_HOME_ALT_M = 10.0
+
+PARAMS = [
+    Param("gcs_ip", "127.0.0.1", description="ground station address until it sends its first packet"),
+    Param("remote_port", DEFAULT_REMOTE_PORT, "", 1, 65535, description="ground station UDP port (initial)"),
+    Param("local_port", DEFAULT_LOCAL_PORT, "", 0, 65535, description="UDP port we bind (0 = any)"),
+    Param("bind_ip", "0.0.0.0", description="address we bind"),
+    Param("system_id", 1, "", 1, 255, description="our MAVLink system id"),
+    Param("component_id", 1, "", 1, 255, description="our MAVLink component id (1 = autopilot)"),
+    Param("telemetry_period_s", 0.9, "s", 0.05, 10.0, description="default period of the telemetry set (seed: 900 ms)"),
+    Param("home_lat_deg", DEFAULT_HOME_LAT_DEG, "deg", -90.0, 90.0, description="home latitude (local ENU origin)"),
+    Param("home_lon_deg", DEFAULT_HOME_LON_DEG, "deg", -180.0, 180.0, description="home longitude"),
+    Param("home_alt_m", DEFAULT_HOME_ALT_M, "m", -500.0, 9000.0, description="home altitude AMSL"),
+    Param("gcs_timeout_s", 3.5, "s", 0.5, 60.0, description="no GCS heartbeat this long -> gcs/link down"),
+    Param("mission_item_timeout_s", 0.25, "s", 0.05, 5.0, description="re-request a mission item after this"),
+    Param("mission_retries", 5, "", 1, 50, description="re-requests of one item before giving up"),
+    Param("max_mission_items", 500, "", 1, 10000, description="MISSION_COUNT above this is refused"),
+    Param("param_services", "planner,mission,fmu,gcs", description="services whose parameters are exposed"),
+    Param("param_refresh_s", 5.0, "s", 0.5, 120.0, description="re-read config/<service>/@params this often"),
+    Param("call_timeout_s", 3.0, "s", 0.2, 20.0, description="timeout of calls into the stack"),
+]

@@ -1,0 +1,386 @@
+"""Process shell: the UDP MAVLink link on one side, the stack (Zenoh) on the other.
+
+Threads: the UDP receive thread hands every parsed message to `_on_mav` under node.lock; a 20 Hz
+timer sends due telemetry and drives the mission/command timers; calls into the stack are
+asynchronous (node.call_async), their replies come back under node.lock. So the logic objects
+(MissionProtocol, CommandHandler, ParamTable, TelemetryState) are only touched under one lock.
+"""
+from __future__ import annotations
+
+import math
+import time
+
+from pymavlink.dialects.v20 import common as M
+
+from aeroperception.schemas import (
+    ArmReply, ArmRequest, BatteryState, DiagnosticStatus, GcsLink, GoalReply, GoToPositionGoal,
+    Joystick, LoadMissionReply, LoadMissionRequest, MissionCommand, MissionStatus, ParamList, ParamSet,
+    ParamSetReply, Reply, SetModeReply, SetModeRequest, TakeoffGoal, Vector3, VehicleState, WaypointReached,
+)
+from aeroperception.services.runtime import CallError, Health, Service, run
+
+from . import contract
+from .commands import CommandHandler, mode_from_custom_mode
+from .link import UdpLink
+from .missions import Home, MissionConversionError, MissionProtocol, convert_items
+from .params import ParamTable, decode_param_id, decode_value
+from .telemetry import Scheduler, TelemetryState
+
+FTP_OPCODE_NAK = 129
+FTP_ERR_FILE_NOT_FOUND = 10
+
+
+def ftp_nak(msg) -> M.MAVLink_file_transfer_protocol_message:
+    """Answer any MAVFTP request with NAK (FileNotFound): MAVProxy / QGC then fall back to the
+    plain parameter and mission protocols at once instead of waiting for a timeout."""
+    req = bytes(msg.payload)
+    seq = int.from_bytes(req[0:2], "little") if len(req) >= 2 else 0
+    session = req[2] if len(req) > 2 else 0
+    opcode = req[3] if len(req) > 3 else 0
+    payload = bytearray(251)
+    payload[0:2] = ((seq + 1) & 0xFFFF).to_bytes(2, "little")
+    payload[2] = session
+    payload[3] = FTP_OPCODE_NAK
+    payload[4] = 1              # size of data
+    payload[5] = opcode         # req_opcode
+    payload[12] = FTP_ERR_FILE_NOT_FOUND
+    return M.MAVLink_file_transfer_protocol_message(0, msg.get_srcSystem(), msg.get_srcComponent(), list(payload))
+
+
+class GcsService(Service):
+    """MAVLink endpoint for ground stations: presents the stack as one PX4 autopilot (seed 001)."""
+
+    NAME = contract.NAME
+    PARAMS = contract.PARAMS
+
+    @classmethod
+    def add_arguments(cls, parser) -> None:
+        g = parser.add_argument_group("gcs")
+        g.add_argument("--local-port", type=int, default=None, help="UDP port to bind (default 14551)")
+        g.add_argument("--remote-port", type=int, default=None, help="ground station port (default 14550)")
+        g.add_argument("--gcs-ip", default=None, help="ground station address until it talks (default 127.0.0.1)")
+        g.add_argument("--bind-ip", default=None, help="address to bind (default 0.0.0.0)")
+
+    def start(self) -> None:
+        p = self.params
+        for flag, name in (("local_port", "local_port"), ("remote_port", "remote_port"),
+                           ("gcs_ip", "gcs_ip"), ("bind_ip", "bind_ip")):
+            v = getattr(self.args, flag, None)
+            if v is not None:
+                p.set(name, v)
+        node = self.node
+        self.home = Home(p.home_lat_deg, p.home_lon_deg, p.home_alt_m)
+        self.link = UdpLink(p.bind_ip, p.local_port, p.gcs_ip, p.remote_port, p.system_id, p.component_id)
+        self.tel = TelemetryState(self.home)
+        self.sched = Scheduler(p.telemetry_period_s, self.tel.build)
+        self.table = ParamTable(p.param_services.split(","))
+        self.missions = MissionProtocol(self.link.send, self._load, p.mission_item_timeout_s,
+                                        p.mission_retries, p.max_mission_items, log=self.log.warn)
+        self.cmds = CommandHandler(self.link.send, self, self.home, position_enu=self._position,
+                                   request_message=self._request_message,
+                                   set_interval=self.sched.set_interval, set_current=self._set_current)
+        self.wp_seqs: list[int] = []
+        self.loads = 0
+        self.gcs_last_hb: float | None = None
+        self.gcs_sysid = 0
+        self.gcs_connected = False
+        self.ignored: dict[str, int] = {}
+        self.pub_link = node.publisher("gcs/link", GcsLink)
+        self.pub_joy = node.publisher("gcs/joystick", Joystick)
+        node.subscribe("state/vehicle", VehicleState, self._on_vehicle)
+        node.subscribe("fmu/out/battery_status", BatteryState, lambda m: setattr(self.tel, "battery", m))
+        node.subscribe("mission/status", MissionStatus, self._on_mission_status)
+        node.subscribe("mission/waypoint_reached", WaypointReached, self._on_reached)
+        self._refresh_params()
+        node.every(0.05, self._tick, name="link")
+        node.every(p.param_refresh_s, self._refresh_params, name="params")
+        node.every(1.0, self._publish_link, name="gcs_link")
+        self.link.start(self._on_mav_locked)
+        self.log.info("gcs_link", bind=f"{self.link.local_address[0]}:{self.link.local_address[1]}",
+                      remote=f"{p.gcs_ip}:{p.remote_port}")
+
+    def stop(self) -> None:
+        link = getattr(self, "link", None)
+        if link is not None:
+            link.close()
+
+    # ------------------------------------------------------------ stack inputs
+
+    def _on_vehicle(self, msg: VehicleState) -> None:
+        self.tel.vehicle = msg
+
+    def _on_mission_status(self, msg: MissionStatus) -> None:
+        self.tel.mission = msg
+        self.tel.mission_total = len(self.missions.items)
+        if 0 <= msg.active_waypoint < len(self.wp_seqs):
+            self.tel.mission_seq = self.wp_seqs[msg.active_waypoint]
+            self.missions.current = self.tel.mission_seq
+
+    def _on_reached(self, msg: WaypointReached) -> None:
+        if 0 <= msg.index < len(self.wp_seqs):
+            self.link.send(M.MAVLink_mission_item_reached_message(self.wp_seqs[msg.index]))
+
+    def _position(self) -> tuple[float, float, float]:
+        v = self.tel.vehicle
+        return (v.position_m.x, v.position_m.y, v.position_m.z) if v else (0.0, 0.0, 0.0)
+
+    # ------------------------------------------------------------ timers
+
+    def _tick(self) -> None:
+        now = time.monotonic()
+        for msg in self.sched.due(now):
+            self.link.send(msg)
+        self.missions.tick(now)
+        self.cmds.tick(now, timeout_s=self.params.call_timeout_s + 2.0)
+        if self.gcs_connected and self.gcs_last_hb is not None and now - self.gcs_last_hb > self.params.gcs_timeout_s:
+            self.gcs_connected = False
+            self.log.warn("gcs_link_lost", timeout_s=self.params.gcs_timeout_s)
+            self._publish_link()
+
+    def _publish_link(self) -> None:
+        age = time.monotonic() - self.gcs_last_hb if self.gcs_last_hb is not None else None
+        addr = f"{self.link.remote[0]}:{self.link.remote[1]}" if self.link.learnt else ""
+        self.pub_link.publish(GcsLink(header=self.node.header(), connected=self.gcs_connected, address=addr,
+                                      system_id=self.gcs_sysid, last_heartbeat_age_s=age,
+                                      packets_received=self.link.parser.received,
+                                      packets_invalid=self.link.parser.invalid_total))
+
+    # ------------------------------------------------------------ MAVLink in
+
+    def _on_mav_locked(self, msg) -> None:
+        self.node._invoke(f"mavlink:{msg.get_type()}", self._on_mav, msg)
+
+    def _on_mav(self, msg) -> None:
+        t = msg.get_type()
+        now = time.monotonic()
+        target_sys = getattr(msg, "target_system", None)
+        if target_sys not in (None, 0, self.params.system_id) and t != "FILE_TRANSFER_PROTOCOL":
+            self.ignored["other_target"] = self.ignored.get("other_target", 0) + 1
+            return
+        if t == "HEARTBEAT":
+            if msg.get_srcSystem() != self.params.system_id:
+                self.gcs_last_hb = now
+                self.gcs_sysid = msg.get_srcSystem()
+                if not self.gcs_connected:
+                    self.gcs_connected = True
+                    self.log.info("gcs_link_up", system_id=self.gcs_sysid,
+                                  address=f"{self.link.remote[0]}:{self.link.remote[1]}")
+                    self._publish_link()
+        elif self.missions.handle(msg, now):
+            pass
+        elif t in ("COMMAND_LONG", "COMMAND_INT"):
+            self.cmds.handle(msg, now)
+        elif t == "PARAM_REQUEST_LIST":
+            for i, e in enumerate(self.table.entries):
+                self.link.send(self.table.value_msg(i, e))
+        elif t == "PARAM_REQUEST_READ":
+            found = self.table.lookup(decode_param_id(msg.param_id), msg.param_index)
+            if found is not None:
+                self.link.send(self.table.value_msg(*found))
+            else:
+                self.ignored["unknown_param"] = self.ignored.get("unknown_param", 0) + 1
+        elif t == "PARAM_SET":
+            self._param_set(msg)
+        elif t == "MISSION_SET_CURRENT":
+            if self._set_current(msg.seq):
+                self.link.send(self.tel.mission_current())
+        elif t == "SET_MODE":
+            mode = mode_from_custom_mode(msg.base_mode, msg.custom_mode)
+            if mode is None:
+                self.cmds.ack(M.MAVLINK_MSG_ID_SET_MODE, M.MAV_RESULT_DENIED, (msg.get_srcSystem(), msg.get_srcComponent()))
+            else:
+                peer = (msg.get_srcSystem(), msg.get_srcComponent())
+                self.set_mode(mode, lambda ok, _m: self.cmds.ack(
+                    M.MAVLINK_MSG_ID_SET_MODE, M.MAV_RESULT_ACCEPTED if ok else M.MAV_RESULT_DENIED, peer))
+        elif t == "MANUAL_CONTROL":
+            self.pub_joy.publish(Joystick(header=self.node.header(), x=msg.x / 1000.0, y=msg.y / 1000.0,
+                                          z=msg.z / 1000.0, r=msg.r / 1000.0, buttons=msg.buttons,
+                                          source_system=msg.get_srcSystem()))
+        elif t == "FILE_TRANSFER_PROTOCOL":
+            self.link.send(ftp_nak(msg))
+        elif t == "TIMESYNC":
+            if msg.tc1 == 0:
+                self.link.send(M.MAVLink_timesync_message(time.monotonic_ns(), msg.ts1))
+        else:
+            self.ignored[t] = self.ignored.get(t, 0) + 1
+
+    # ------------------------------------------------------------ parameters
+
+    def _refresh_params(self) -> None:
+        for svc in self.table.services:
+            if svc == self.NAME:
+                self.table.update_service(svc, self.node.param_list().params)
+                continue
+
+            def done(res, svc=svc) -> None:
+                if isinstance(res, CallError):
+                    return  # service not running: keep what we had
+                self.table.update_service(svc, res.params)
+
+            self.node.call_async(f"config/{svc}/@params", None, ParamList, done, timeout_s=2.0)
+
+    def _param_set(self, msg) -> None:
+        name = decode_param_id(msg.param_id)
+        found = self.table.lookup(name)
+        if found is None:
+            self.ignored["unknown_param"] = self.ignored.get("unknown_param", 0) + 1
+            return
+        index, entry = found
+        try:
+            value = decode_value(msg.param_value, msg.param_type, entry.ptype)
+        except Exception:  # noqa: BLE001 - an undecodable value: echo the current one
+            self.link.send(self.table.value_msg(index, entry))
+            return
+
+        def apply(reply: ParamSetReply) -> None:
+            if reply.success and reply.value is not None:
+                entry.value = reply.value
+            elif not reply.success:
+                self.log.warn("param_set_rejected", param=entry.mav_name, value=value, error=reply.message)
+            self.link.send(self.table.value_msg(index, entry))  # always echoed: the value in force
+
+        if entry.service == self.NAME:
+            apply(self.node.set_param(entry.name, value))
+            return
+
+        def done(res) -> None:
+            if isinstance(res, CallError):
+                res = ParamSetReply(success=False, message=str(res))
+            apply(res)
+
+        self.node.call_async(f"config/{entry.service}/@set", ParamSet(name=entry.name, value=value),
+                             ParamSetReply, done, timeout_s=self.params.call_timeout_s)
+
+    # ------------------------------------------------------------ missions
+
+    def _load(self, items, done) -> None:
+        default_alt = 3.0
+        for e in self.table.by_service.get("mission", []):
+            if e.name == "takeoff_altitude_m":
+                default_alt = float(e.value)
+        self.loads += 1
+        try:
+            mission, seqs = convert_items(items, self.home, mission_id=f"gcs-{self.loads}",
+                                          default_takeoff_m=default_alt)
+        except MissionConversionError as e:
+            done(False, str(e), e.result)
+            return
+
+        def loaded(res) -> None:
+            if isinstance(res, CallError):
+                done(False, str(res), M.MAV_MISSION_ERROR)
+                return
+            if res.success:
+                self.wp_seqs = seqs
+                self.tel.mission_total = len(items)
+                self.tel.mission_seq = 0
+            done(res.success, res.message, M.MAV_MISSION_DENIED)
+
+        self.node.call_async("mission/srv/load", LoadMissionRequest(mission_json=mission.to_json()),
+                             LoadMissionReply, loaded, timeout_s=self.params.call_timeout_s)
+
+    def _set_current(self, seq: int) -> bool:
+        ok = self.missions.set_current(seq)
+        if ok:
+            self.tel.mission_seq = seq
+        return ok
+
+    def _request_message(self, msg_id: int, param2: float) -> int:
+        msg = self.tel.build(msg_id)
+        if msg is None:
+            return M.MAV_RESULT_UNSUPPORTED
+        self.link.send(msg)
+        return M.MAV_RESULT_ACCEPTED
+
+    # ------------------------------------------------------------ ops (commands -> stack)
+
+    def _reply_cb(self, done):
+        def cb(res) -> None:
+            if isinstance(res, CallError):
+                done(False, str(res))
+            else:
+                done(res.success, res.message)
+        return cb
+
+    def arm(self, arm: bool, force: bool, done) -> None:
+        self.node.call_async("fmu/srv/arm", ArmRequest(arm=arm, force=force), ArmReply,
+                             self._reply_cb(done), timeout_s=self.params.call_timeout_s)
+
+    def mission_command(self, command: str, done) -> None:
+        self.node.call_async("mission/srv/command", MissionCommand(command=command), Reply,
+                             self._reply_cb(done), timeout_s=self.params.call_timeout_s)
+
+    def set_mode(self, mode: str, done) -> None:
+        if mode == "MISSION":
+            self.mission_start(done)
+        elif mode == "TAKEOFF":
+            self.takeoff(None, done)
+        elif mode in ("HOLD", "LAND", "RTL"):
+            # Through the mission manager (so it stops pushing goals); on the ground it refuses,
+            # then the flight controller decides.
+            def after(ok: bool, message: str) -> None:
+                if ok:
+                    done(True, message)
+                else:
+                    self._fmu_set_mode(mode, done)
+            self.mission_command(mode, after)
+        else:
+            self._fmu_set_mode(mode, done)
+
+    def _fmu_set_mode(self, mode: str, done) -> None:
+        self.node.call_async("fmu/srv/set_mode", SetModeRequest(mode=mode), SetModeReply,
+                             self._reply_cb(done), timeout_s=self.params.call_timeout_s)
+
+    def mission_start(self, done) -> None:
+        st = self.tel.mission
+        if st is not None and st.state == MissionStatus.STATE_IDLE:
+            # On the ground: take off first; the mission manager starts the mission once up.
+            def after_takeoff(ok: bool, message: str) -> None:
+                if not ok:
+                    done(False, message)
+                else:
+                    self.mission_command("START", done)
+            self.mission_command("TAKEOFF", after_takeoff)
+        else:
+            self.mission_command("START", done)
+
+    def takeoff(self, altitude_m: float | None, done) -> None:
+        if altitude_m is None:
+            self.mission_command("TAKEOFF", done)
+            return
+        self.node.call_async("mission/action/takeoff/goal", TakeoffGoal(target_altitude_m=altitude_m), GoalReply,
+                             self._reply_cb(done), timeout_s=self.params.call_timeout_s)
+
+    def goto(self, enu, yaw_rad, done) -> None:
+        goal = GoToPositionGoal(position_m=Vector3(x=enu[0], y=enu[1], z=enu[2]), yaw_rad=yaw_rad)
+        self.node.call_async("mission/action/goto/goal", goal, GoalReply, self._reply_cb(done),
+                             timeout_s=self.params.call_timeout_s)
+
+    # ------------------------------------------------------------ diagnostics
+
+    def health(self) -> Health:
+        inv = self.link.parser.invalid_total
+        values = {
+            "gcs_connected": self.gcs_connected, "gcs_address": f"{self.link.remote[0]}:{self.link.remote[1]}",
+            "bind": f"{self.link.local_address[0]}:{self.link.local_address[1]}",
+            "mavlink_rx": self.link.parser.received, "mavlink_tx": self.link.sent,
+            "mavlink_invalid": inv, "params_exposed": len(self.table), "mission_items": len(self.missions.items),
+            "uploads_accepted": self.missions.uploads_accepted, "uploads_rejected": self.missions.uploads_rejected,
+        }
+        for k, n in self.link.parser.invalid.items():
+            values[f"mavlink_invalid[{k}]"] = n
+        for k, n in self.missions.errors.items():
+            values[f"mission_protocol[{k}]"] = n
+        for k, n in self.cmds.results.items():
+            values[f"command_ack[{k}]"] = n
+        level, message = DiagnosticStatus.OK, "ground station connected" if self.gcs_connected else "no ground station"
+        if self.tel.vehicle is None:
+            level, message = DiagnosticStatus.WARN, f"{message}; no state/vehicle"
+        if inv or self.missions.errors:
+            level = max(level, DiagnosticStatus.WARN)
+            message += f"; {inv + sum(self.missions.errors.values())} invalid MAVLink inputs dropped"
+        return Health(level, message, values)
+
+
+def main(argv=None) -> int:
+    return run(GcsService, argv)

@@ -1,0 +1,414 @@
+"""MAVLink mission items <-> the stack's Mission (ENU about home), and the mission protocol state
+machine (upload, download, clear, set current) for mission_type 0, without Zenoh.
+
+Conversion. The local ENU frame's origin is home (lat, lon, alt AMSL); the projection is PX4's
+(services/mavlink/geo.py) and every NED<->ENU step goes through services/mavlink/frames.py.
+Accepted items: NAV_WAYPOINT, NAV_TAKEOFF, NAV_LAND, NAV_RETURN_TO_LAUNCH, DO_CHANGE_SPEED in
+frames GLOBAL[_INT] (AMSL), GLOBAL_RELATIVE_ALT[_INT], LOCAL_NED, LOCAL_ENU. A takeoff item sets
+the mission's takeoff altitude; LAND adds its position (when it has one) and ends the mission;
+RTL flies back above home. Yaw (param4, NED heading deg, NaN = keep) becomes ENU yaw_deg.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Callable
+
+from pymavlink.dialects.v20 import common as mavlink
+
+from aeroperception.schemas import Mission, Waypoint
+from aeroperception.services.mavlink import frames
+from aeroperception.services.mavlink.geo import MapProjection
+
+M = mavlink
+GLOBAL_FRAMES = {M.MAV_FRAME_GLOBAL, M.MAV_FRAME_GLOBAL_INT}
+RELATIVE_FRAMES = {M.MAV_FRAME_GLOBAL_RELATIVE_ALT, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT}
+LOCAL_FRAMES = {M.MAV_FRAME_LOCAL_NED, M.MAV_FRAME_LOCAL_ENU}
+NAV_POSITION = {M.MAV_CMD_NAV_WAYPOINT, M.MAV_CMD_NAV_TAKEOFF, M.MAV_CMD_NAV_LAND}
+SUPPORTED_COMMANDS = {M.MAV_CMD_NAV_WAYPOINT, M.MAV_CMD_NAV_TAKEOFF, M.MAV_CMD_NAV_LAND,
+                      M.MAV_CMD_NAV_RETURN_TO_LAUNCH, M.MAV_CMD_DO_CHANGE_SPEED}
+
+
+class MissionConversionError(ValueError):
+    """An item we cannot fly, with the MAV_MISSION_RESULT to answer and a readable reason."""
+
+    def __init__(self, result: int, message: str):
+        super().__init__(message)
+        self.result = result
+
+
+@dataclass(frozen=True)
+class Home:
+    lat_deg: float
+    lon_deg: float
+    alt_m: float  # AMSL
+
+    @property
+    def projection(self) -> MapProjection:
+        return MapProjection(self.lat_deg, self.lon_deg)
+
+    def to_enu(self, lat_deg: float, lon_deg: float, alt_rel_m: float) -> tuple[float, float, float]:
+        """Geodetic (altitude above home) -> ENU metres about home."""
+        north, east = self.projection.project(lat_deg, lon_deg)
+        x, y, z = frames.ned_to_enu([north, east, -alt_rel_m])
+        return float(x), float(y), float(z)
+
+    def to_geodetic(self, x: float, y: float, z: float) -> tuple[float, float, float]:
+        """ENU metres about home -> (lat_deg, lon_deg, altitude above home)."""
+        north, east, down = frames.enu_to_ned([x, y, z])
+        lat, lon = self.projection.reproject(float(north), float(east))
+        return lat, lon, -float(down)
+
+
+@dataclass
+class Item:
+    """One mission item, frame and command as MAVLink has them; x/y are degrees in global frames
+    and metres in local ones (MISSION_ITEM_INT's 1e7 / 1e4 scaling removed)."""
+
+    seq: int
+    frame: int
+    command: int
+    current: int = 0
+    autocontinue: int = 1
+    param1: float = 0.0
+    param2: float = 0.0
+    param3: float = 0.0
+    param4: float = 0.0
+    x: float = 0.0
+    y: float = 0.0
+    z: float = 0.0
+
+    @classmethod
+    def from_msg(cls, msg) -> "Item":
+        """MISSION_ITEM_INT or legacy MISSION_ITEM -> Item."""
+        x, y = float(msg.x), float(msg.y)
+        if msg.get_type() == "MISSION_ITEM_INT":
+            scale = 1e4 if msg.frame in LOCAL_FRAMES or msg.frame == M.MAV_FRAME_LOCAL_OFFSET_NED else 1e7
+            x, y = x / scale, y / scale
+        return cls(seq=msg.seq, frame=msg.frame, command=msg.command, current=msg.current,
+                   autocontinue=msg.autocontinue, param1=msg.param1, param2=msg.param2,
+                   param3=msg.param3, param4=msg.param4, x=x, y=y, z=float(msg.z))
+
+    def to_msg_int(self, target_system: int, target_component: int, mission_type: int = 0):
+        scale = 1e4 if self.frame in LOCAL_FRAMES else 1e7
+        return M.MAVLink_mission_item_int_message(
+            target_system, target_component, self.seq, self.frame, self.command, self.current,
+            self.autocontinue, self.param1, self.param2, self.param3, self.param4,
+            _int32(self.x * scale), _int32(self.y * scale), self.z, mission_type)
+
+    def to_msg_legacy(self, target_system: int, target_component: int, mission_type: int = 0):
+        return M.MAVLink_mission_item_message(
+            target_system, target_component, self.seq, self.frame, self.command, self.current,
+            self.autocontinue, self.param1, self.param2, self.param3, self.param4,
+            self.x, self.y, self.z, mission_type)
+
+
+def _int32(v: float) -> int:
+    return max(-2**31, min(2**31 - 1, int(round(v))))
+
+
+def _has_position(item: Item) -> bool:
+    if item.frame in LOCAL_FRAMES:
+        return True
+    return math.isfinite(item.x) and math.isfinite(item.y) and not (item.x == 0.0 and item.y == 0.0)
+
+
+def item_to_enu(item: Item, home: Home) -> tuple[float, float, float]:
+    """The position of a NAV item in ENU about home."""
+    if not all(math.isfinite(v) for v in (item.x, item.y, item.z)):
+        raise MissionConversionError(M.MAV_MISSION_INVALID_PARAM5_X, f"item {item.seq}: non-finite position")
+    if item.frame in RELATIVE_FRAMES:
+        return home.to_enu(item.x, item.y, item.z)
+    if item.frame in GLOBAL_FRAMES:
+        return home.to_enu(item.x, item.y, item.z - home.alt_m)
+    if item.frame == M.MAV_FRAME_LOCAL_NED:
+        x, y, z = frames.ned_to_enu([item.x, item.y, item.z])
+        return float(x), float(y), float(z)
+    if item.frame == M.MAV_FRAME_LOCAL_ENU:
+        return item.x, item.y, item.z
+    raise MissionConversionError(M.MAV_MISSION_UNSUPPORTED_FRAME,
+                                 f"item {item.seq}: frame {item.frame} not supported")
+
+
+def items_to_mission(items: list[Item], home: Home, mission_id: str = "gcs",
+                     default_takeoff_m: float = 3.0, acceptance_radius_m: float = 0.5) -> Mission:
+    """MAVLink items -> Mission (raises MissionConversionError naming the item)."""
+    return convert_items(items, home, mission_id, default_takeoff_m, acceptance_radius_m)[0]
+
+
+def convert_items(items: list[Item], home: Home, mission_id: str = "gcs", default_takeoff_m: float = 3.0,
+                  acceptance_radius_m: float = 0.5) -> tuple[Mission, list[int]]:
+    """MAVLink items -> (Mission, the item seq each mission waypoint came from)."""
+    waypoints: list[Waypoint] = []
+    seqs: list[int] = []
+    takeoff_alt = None
+    radius = None
+    last_z = default_takeoff_m
+    last_yaw = 0.0
+    for it in items:
+        if it.command not in SUPPORTED_COMMANDS:
+            raise MissionConversionError(M.MAV_MISSION_UNSUPPORTED, f"item {it.seq}: command {it.command} not supported")
+        if it.command == M.MAV_CMD_DO_CHANGE_SPEED:
+            continue  # accepted; the planner's speed limit is a parameter (PLN_MAX_VELOCITY)
+        if it.command == M.MAV_CMD_NAV_RETURN_TO_LAUNCH:
+            waypoints.append(Waypoint(x=0.0, y=0.0, z=max(last_z, 1.0), yaw_deg=last_yaw))
+            seqs.append(it.seq)
+            break
+        if it.frame not in RELATIVE_FRAMES | GLOBAL_FRAMES | LOCAL_FRAMES:
+            raise MissionConversionError(M.MAV_MISSION_UNSUPPORTED_FRAME,
+                                         f"item {it.seq}: frame {it.frame} not supported")
+        if math.isfinite(it.param4):
+            last_yaw = math.degrees(frames.yaw_ned_to_enu(math.radians(it.param4)))
+        if it.command == M.MAV_CMD_NAV_TAKEOFF:
+            x, y, z = item_to_enu(it, home)
+            if z <= 0:
+                raise MissionConversionError(M.MAV_MISSION_INVALID_PARAM7, f"item {it.seq}: takeoff altitude {z:.1f} m <= 0")
+            takeoff_alt = z
+            last_z = z
+            continue
+        if it.command == M.MAV_CMD_NAV_LAND:
+            if _has_position(it):
+                x, y, _ = item_to_enu(it, home)
+                waypoints.append(Waypoint(x=x, y=y, z=last_z, yaw_deg=last_yaw))
+                seqs.append(it.seq)
+            break  # the mission manager lands after the last waypoint
+        x, y, z = item_to_enu(it, home)
+        if it.param2 > 0 and radius is None:
+            radius = float(it.param2)
+        waypoints.append(Waypoint(x=x, y=y, z=z, yaw_deg=last_yaw))
+        seqs.append(it.seq)
+        last_z = z
+    if not waypoints:
+        raise MissionConversionError(M.MAV_MISSION_ERROR, "mission has no waypoint")
+    mission = Mission(mission_id=mission_id, takeoff_altitude_m=takeoff_alt or default_takeoff_m,
+                      waypoints=waypoints, waypoint_acceptance_radius_m=radius or acceptance_radius_m)
+    return mission, seqs
+
+
+def mission_to_items(mission: Mission, home: Home) -> list[Item]:
+    """Mission -> items (NAV_TAKEOFF above home, NAV_WAYPOINT per waypoint, global-relative)."""
+    items = [Item(seq=0, frame=M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, command=M.MAV_CMD_NAV_TAKEOFF,
+                  param4=math.nan, x=home.lat_deg, y=home.lon_deg, z=mission.takeoff_altitude_m)]
+    for wp in mission.waypoints:
+        lat, lon, alt = home.to_geodetic(wp.x, wp.y, wp.z)
+        yaw_ned = math.degrees(frames.yaw_enu_to_ned(math.radians(wp.yaw_deg)))
+        items.append(Item(seq=len(items), frame=M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+                          command=M.MAV_CMD_NAV_WAYPOINT, param2=mission.waypoint_acceptance_radius_m,
+                          param4=yaw_ned, x=lat, y=lon, z=alt))
+    return items
+
+
+# ---------------------------------------------------------------------------------------------
+# Protocol
+
+
+@dataclass
+class Transfer:
+    direction: str              # "upload" (GCS -> us) or "download" (us -> GCS)
+    peer: tuple[int, int]       # (system, component) of the ground station
+    count: int
+    mission_type: int = 0
+    items: list[Item | None] = field(default_factory=list)
+    expected: int = 0
+    last_send_s: float = 0.0
+    retries: int = 0
+    use_int: bool = True        # upload: MISSION_REQUEST_INT vs legacy MISSION_REQUEST
+
+
+LoadFn = Callable[[list[Item], Callable[[bool, str, int], None]], None]
+
+
+class MissionProtocol:
+    """The mission micro-service (mission_type 0; fence/rally answered as empty).
+
+    send(msg): transmit one MAVLink message object.
+    load(items, done): hand a complete upload to the stack; done(ok, message, mav_result) may be
+        called later (from another thread, under the same lock as the rest of the service).
+    """
+
+    def __init__(self, send: Callable, load: LoadFn, item_timeout_s: float = 0.25, retries: int = 5,
+                 max_items: int = 500, log: Callable[..., None] | None = None):
+        self.send = send
+        self.load = load
+        self.item_timeout_s = item_timeout_s
+        self.retries = retries
+        self.max_items = max_items
+        self.log = log or (lambda *a, **k: None)
+        self.items: list[Item] = []          # the accepted mission, as uploaded
+        self.current = 0
+        self.transfer: Transfer | None = None
+        self.loading = False
+        self.errors: dict[str, int] = {}
+        self.uploads_accepted = 0
+        self.uploads_rejected = 0
+
+    def _err(self, what: str) -> None:
+        self.errors[what] = self.errors.get(what, 0) + 1
+
+    def _ack(self, peer, result: int, mission_type: int = 0) -> None:
+        self.send(M.MAVLink_mission_ack_message(peer[0], peer[1], result, mission_type))
+
+    # ------------------------------------------------------------ upload (GCS -> us)
+
+    def on_count(self, msg, now_s: float) -> None:
+        peer = (msg.get_srcSystem(), msg.get_srcComponent())
+        mtype = getattr(msg, "mission_type", 0)
+        if self.loading:
+            self._err("busy")
+            self._ack(peer, M.MAV_MISSION_DENIED, mtype)
+            return
+        if mtype != M.MAV_MISSION_TYPE_MISSION:
+            # No fences or rally points here: an empty list is fine, anything else is unsupported.
+            self._ack(peer, M.MAV_MISSION_ACCEPTED if msg.count == 0 else M.MAV_MISSION_UNSUPPORTED, mtype)
+            return
+        if msg.count > self.max_items:
+            self._err("count_too_large")
+            self.transfer = None
+            self._ack(peer, M.MAV_MISSION_NO_SPACE, mtype)
+            return
+        if msg.count == 0:
+            self.transfer = None
+            self.clear(peer)
+            return
+        self.transfer = Transfer("upload", peer, msg.count, mtype, [None] * msg.count, 0)
+        self._request(now_s)
+
+    def _request(self, now_s: float) -> None:
+        t = self.transfer
+        assert t is not None
+        if t.use_int:
+            self.send(M.MAVLink_mission_request_int_message(t.peer[0], t.peer[1], t.expected, t.mission_type))
+        else:
+            self.send(M.MAVLink_mission_request_message(t.peer[0], t.peer[1], t.expected, t.mission_type))
+        t.last_send_s = now_s
+
+    def on_item(self, msg, now_s: float) -> None:
+        t = self.transfer
+        if t is None or t.direction != "upload":
+            self._err("item_without_upload")
+            return
+        if getattr(msg, "mission_type", 0) != t.mission_type:
+            self._err("item_wrong_type")
+            return
+        if msg.seq != t.expected:
+            # Out of order (or a duplicate): ask again for the one we need (seed §11: only the
+            # expected seq is accepted).
+            self._err("item_out_of_order")
+            if msg.seq > t.expected:
+                self._request(now_s)
+            return
+        if msg.get_type() == "MISSION_ITEM":
+            t.use_int = False
+        t.items[t.expected] = Item.from_msg(msg)
+        t.expected += 1
+        t.retries = 0
+        if t.expected < t.count:
+            self._request(now_s)
+            return
+        items = [it for it in t.items if it is not None]
+        self.transfer = None
+        self.loading = True
+        peer, mtype = t.peer, t.mission_type
+
+        def done(ok: bool, message: str, result: int = M.MAV_MISSION_ERROR) -> None:
+            self.loading = False
+            if ok:
+                self.items = items
+                self.current = 0
+                self.uploads_accepted += 1
+                self._ack(peer, M.MAV_MISSION_ACCEPTED, mtype)
+            else:
+                self.uploads_rejected += 1
+                self.log("mission_rejected", message=message)
+                self._ack(peer, result if result != M.MAV_MISSION_ACCEPTED else M.MAV_MISSION_ERROR, mtype)
+
+        self.load(items, done)
+
+    # ------------------------------------------------------------ download (us -> GCS)
+
+    def on_request_list(self, msg, now_s: float) -> None:
+        peer = (msg.get_srcSystem(), msg.get_srcComponent())
+        mtype = getattr(msg, "mission_type", 0)
+        if mtype != M.MAV_MISSION_TYPE_MISSION:
+            self.send(M.MAVLink_mission_count_message(peer[0], peer[1], 0, mtype))
+            return
+        n = len(self.items)
+        self.send(M.MAVLink_mission_count_message(peer[0], peer[1], n, mtype))
+        self.transfer = Transfer("download", peer, n, mtype, list(self.items), 0, now_s) if n else None
+
+    def on_request(self, msg, now_s: float) -> None:
+        peer = (msg.get_srcSystem(), msg.get_srcComponent())
+        mtype = getattr(msg, "mission_type", 0)
+        if mtype != M.MAV_MISSION_TYPE_MISSION or not 0 <= msg.seq < len(self.items):
+            self._err("request_out_of_range")
+            self._ack(peer, M.MAV_MISSION_INVALID_SEQUENCE, mtype)
+            return
+        it = self.items[msg.seq]
+        it.current = 1 if msg.seq == self.current else 0
+        if msg.get_type() == "MISSION_REQUEST_INT":
+            self.send(it.to_msg_int(peer[0], peer[1], mtype))
+        else:
+            self.send(it.to_msg_legacy(peer[0], peer[1], mtype))
+        if self.transfer is not None and self.transfer.direction == "download":
+            self.transfer.last_send_s = now_s
+
+    def on_ack(self, msg, now_s: float) -> None:
+        if self.transfer is not None and self.transfer.direction == "download":
+            self.transfer = None
+        elif self.transfer is not None and self.transfer.direction == "upload" and msg.type != M.MAV_MISSION_ACCEPTED:
+            self.transfer = None  # the ground station cancelled its upload
+
+    # ------------------------------------------------------------ clear / current
+
+    def clear(self, peer, mission_type: int = 0) -> None:
+        self.items = []
+        self.current = 0
+        self._ack(peer, M.MAV_MISSION_ACCEPTED, mission_type)
+
+    def on_clear_all(self, msg, now_s: float) -> None:
+        peer = (msg.get_srcSystem(), msg.get_srcComponent())
+        mtype = getattr(msg, "mission_type", 0)
+        if mtype not in (M.MAV_MISSION_TYPE_MISSION, M.MAV_MISSION_TYPE_ALL):
+            self._ack(peer, M.MAV_MISSION_ACCEPTED, mtype)
+            return
+        self.transfer = None
+        self.clear(peer, mtype)
+
+    def set_current(self, seq: int) -> bool:
+        if not 0 <= seq < len(self.items):
+            self._err("set_current_out_of_range")
+            return False
+        self.current = seq
+        return True
+
+    # ------------------------------------------------------------ timers
+
+    def tick(self, now_s: float) -> None:
+        t = self.transfer
+        if t is None:
+            return
+        if t.direction == "upload":
+            if now_s - t.last_send_s < self.item_timeout_s:
+                return
+            if t.retries >= self.retries:
+                self._err("upload_timeout")
+                self.transfer = None
+                self._ack(t.peer, M.MAV_MISSION_OPERATION_CANCELLED, t.mission_type)
+                return
+            t.retries += 1
+            self._request(now_s)
+        elif now_s - t.last_send_s > max(5.0, self.item_timeout_s * self.retries * 4):
+            self.transfer = None  # the ground station stopped asking; forget the download
+
+    def handle(self, msg, now_s: float) -> bool:
+        """Dispatch one mission-protocol message; False if it is not one."""
+        fn = {
+            "MISSION_COUNT": self.on_count, "MISSION_ITEM_INT": self.on_item, "MISSION_ITEM": self.on_item,
+            "MISSION_REQUEST_LIST": self.on_request_list, "MISSION_REQUEST_INT": self.on_request,
+            "MISSION_REQUEST": self.on_request, "MISSION_ACK": self.on_ack,
+            "MISSION_CLEAR_ALL": self.on_clear_all,
+        }.get(msg.get_type())
+        if fn is None:
+            return False
+        fn(msg, now_s)
+        return True

@@ -1,0 +1,209 @@
+"""Telemetry to the ground station from the stack's state (no Zenoh): message builders and the
+per-message interval scheduler (SET_MESSAGE_INTERVAL / REQUEST_MESSAGE).
+
+Everything arrives ENU/FLU (state/vehicle) and leaves NED/FRD through services/mavlink/frames.py;
+geodetic positions are the local position projected about home (services/mavlink/geo.py).
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+from pymavlink.dialects.v20 import common as M
+
+from aeroperception.schemas import BatteryState, LandedState, MissionStatus, VehicleState
+from aeroperception.services.mavlink import frames, px4
+
+from .missions import Home
+
+CAPABILITIES = (M.MAV_PROTOCOL_CAPABILITY_MISSION_INT | M.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
+                | M.MAV_PROTOCOL_CAPABILITY_MAVLINK2 | M.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
+                | M.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED)
+FLIGHT_SW_VERSION = (1 << 24) | (15 << 16) | (0 << 8) | 255   # reported as PX4 v1.15.0 (official)
+SENSORS = (M.MAV_SYS_STATUS_SENSOR_3D_GYRO | M.MAV_SYS_STATUS_SENSOR_3D_ACCEL | M.MAV_SYS_STATUS_SENSOR_3D_MAG
+           | M.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE | M.MAV_SYS_STATUS_SENSOR_GPS
+           | M.MAV_SYS_STATUS_SENSOR_BATTERY)
+
+ID = {name: getattr(M, f"MAVLINK_MSG_ID_{name}") for name in (
+    "HEARTBEAT", "SYS_STATUS", "LOCAL_POSITION_NED", "ATTITUDE", "GLOBAL_POSITION_INT", "GPS_RAW_INT",
+    "HOME_POSITION", "EXTENDED_SYS_STATE", "MISSION_CURRENT", "BATTERY_STATUS", "AUTOPILOT_VERSION",
+    "ATTITUDE_QUATERNION",
+)}
+# The default set, sent every telemetry period (seed 001 §9: 900 ms).
+DEFAULT_STREAM = ["HEARTBEAT", "SYS_STATUS", "LOCAL_POSITION_NED", "ATTITUDE", "GLOBAL_POSITION_INT",
+                  "GPS_RAW_INT", "HOME_POSITION", "EXTENDED_SYS_STATE", "MISSION_CURRENT", "BATTERY_STATUS"]
+
+
+@dataclass
+class TelemetryState:
+    """The latest of everything telemetry is made from."""
+
+    home: Home
+    vehicle: VehicleState | None = None
+    battery: BatteryState | None = None
+    mission: MissionStatus | None = None
+    mission_seq: int = 0            # MISSION_CURRENT.seq (item index)
+    mission_total: int = 0
+    boot_s: float = field(default_factory=time.monotonic)
+
+    def boot_ms(self) -> int:
+        return int((time.monotonic() - self.boot_s) * 1000) & 0xFFFFFFFF
+
+    # ------------------------------------------------------------ builders
+
+    def heartbeat(self):
+        v = self.vehicle
+        armed = bool(v and v.armed)
+        base = M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | M.MAV_MODE_FLAG_STABILIZE_ENABLED
+        mode = (v.flight_mode if v else "") or "HOLD"
+        try:
+            custom = px4.encode(mode)
+        except KeyError:
+            custom = px4.encode("HOLD")
+        main, _ = px4.unpack(custom)
+        if main in (px4.PX4_MAIN["AUTO"], px4.PX4_MAIN["OFFBOARD"], px4.PX4_MAIN["POSCTL"]):
+            base |= M.MAV_MODE_FLAG_GUIDED_ENABLED
+        if main == px4.PX4_MAIN["AUTO"]:
+            base |= M.MAV_MODE_FLAG_AUTO_ENABLED
+        if armed:
+            base |= M.MAV_MODE_FLAG_SAFETY_ARMED
+        status = M.MAV_STATE_ACTIVE if armed else M.MAV_STATE_STANDBY
+        if v is None or not v.connected:
+            status = M.MAV_STATE_UNINIT if v is None else M.MAV_STATE_CRITICAL
+        return M.MAVLink_heartbeat_message(M.MAV_TYPE_QUADROTOR, M.MAV_AUTOPILOT_PX4, base, custom, status, 3)
+
+    def _battery(self) -> tuple[float | None, float | None, float | None]:
+        b, v = self.battery, self.vehicle
+        volt = b.voltage_v if b is not None else (v.battery_voltage_v if v else None)
+        cur = b.current_a if b is not None else None
+        rem = b.remaining_fraction if b is not None else (v.battery_remaining if v else None)
+        return volt, cur, rem
+
+    def sys_status(self):
+        volt, cur, rem = self._battery()
+        healthy = SENSORS if self.vehicle is not None and self.vehicle.connected else 0
+        return M.MAVLink_sys_status_message(
+            SENSORS, SENSORS, healthy, 500,
+            int(volt * 1000) if volt else 0xFFFF, int(cur * 100) if cur is not None else -1,
+            int(round(rem * 100)) if rem is not None else -1, 0, 0, 0, 0, 0, 0)
+
+    def battery_status(self):
+        volt, cur, rem = self._battery()
+        cells = [0xFFFF] * 10
+        if volt:
+            cells[0] = min(0xFFFE, int(volt * 1000))
+        temp = self.battery.temperature_c if self.battery is not None and self.battery.temperature_c is not None else None
+        return M.MAVLink_battery_status_message(
+            0, M.MAV_BATTERY_FUNCTION_ALL, M.MAV_BATTERY_TYPE_LIPO,
+            int(temp * 100) if temp is not None else 0x7FFF, cells,
+            int(cur * 100) if cur is not None else -1, -1, -1,
+            int(round(rem * 100)) if rem is not None else -1)
+
+    def local_position_ned(self):
+        v = self.vehicle or VehicleState()
+        p = frames.enu_to_ned(v.position_m.to_array())
+        vel = frames.enu_to_ned(v.velocity_mps.to_array())
+        return M.MAVLink_local_position_ned_message(self.boot_ms(), *map(float, p), *map(float, vel))
+
+    def attitude(self):
+        v = self.vehicle or VehicleState()
+        q = frames.q_enu_flu_to_ned_frd(v.orientation.to_array() if hasattr(v.orientation, "to_array")
+                                        else [v.orientation.w, v.orientation.x, v.orientation.y, v.orientation.z])
+        roll, pitch, yaw = (float(a) for a in frames.quat_to_euler(q))
+        rates = frames.flu_to_frd(v.angular_velocity_radps.to_array())
+        return M.MAVLink_attitude_message(self.boot_ms(), roll, pitch, yaw, *map(float, rates))
+
+    def _geo(self):
+        v = self.vehicle or VehicleState()
+        lat, lon, rel = self.home.to_geodetic(v.position_m.x, v.position_m.y, v.position_m.z)
+        return v, lat, lon, rel
+
+    def global_position_int(self):
+        v, lat, lon, rel = self._geo()
+        vel = frames.enu_to_ned(v.velocity_mps.to_array())
+        hdg = math.degrees(frames.yaw_enu_to_ned(v.yaw_rad)) % 360.0
+        return M.MAVLink_global_position_int_message(
+            self.boot_ms(), int(round(lat * 1e7)), int(round(lon * 1e7)),
+            int(round((self.home.alt_m + rel) * 1000)), int(round(rel * 1000)),
+            *(int(round(c * 100)) for c in vel), int(round(hdg * 100)) % 36000)
+
+    def gps_raw_int(self):
+        v, lat, lon, rel = self._geo()
+        speed = math.hypot(v.velocity_mps.x, v.velocity_mps.y)
+        cog = math.degrees(math.atan2(v.velocity_mps.x, v.velocity_mps.y)) % 360.0 if speed > 0.1 else 0.0
+        return M.MAVLink_gps_raw_int_message(
+            int(time.time() * 1e6), M.GPS_FIX_TYPE_RTK_FIXED, int(round(lat * 1e7)), int(round(lon * 1e7)),
+            int(round((self.home.alt_m + rel) * 1000)), 50, 80, int(speed * 100), int(cog * 100) % 36000, 16)
+
+    def home_position(self):
+        h = self.home
+        return M.MAVLink_home_position_message(
+            int(round(h.lat_deg * 1e7)), int(round(h.lon_deg * 1e7)), int(round(h.alt_m * 1000)),
+            0.0, 0.0, 0.0, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0)
+
+    def extended_sys_state(self):
+        landed = self.vehicle.landed_state if self.vehicle else LandedState.UNDEFINED
+        return M.MAVLink_extended_sys_state_message(M.MAV_VTOL_STATE_UNDEFINED, landed)
+
+    def mission_current(self):
+        st = self.mission
+        state = M.MISSION_STATE_NO_MISSION if self.mission_total == 0 else M.MISSION_STATE_NOT_STARTED
+        if st is not None and self.mission_total:
+            if st.state == "EXECUTING":
+                state = M.MISSION_STATE_ACTIVE
+            elif st.state == "HOLDING" and st.active_waypoint >= 0:
+                state = M.MISSION_STATE_PAUSED
+        return M.MAVLink_mission_current_message(self.mission_seq, self.mission_total, state, 0)
+
+    def autopilot_version(self):
+        return M.MAVLink_autopilot_version_message(
+            CAPABILITIES, FLIGHT_SW_VERSION, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0, 0x4145524F)
+
+    def build(self, msg_id: int):
+        """The message with this id, or None if we cannot produce it."""
+        fn = {
+            ID["HEARTBEAT"]: self.heartbeat, ID["SYS_STATUS"]: self.sys_status,
+            ID["LOCAL_POSITION_NED"]: self.local_position_ned, ID["ATTITUDE"]: self.attitude,
+            ID["GLOBAL_POSITION_INT"]: self.global_position_int, ID["GPS_RAW_INT"]: self.gps_raw_int,
+            ID["HOME_POSITION"]: self.home_position, ID["EXTENDED_SYS_STATE"]: self.extended_sys_state,
+            ID["MISSION_CURRENT"]: self.mission_current, ID["BATTERY_STATUS"]: self.battery_status,
+            ID["AUTOPILOT_VERSION"]: self.autopilot_version,
+        }.get(msg_id)
+        return fn() if fn else None
+
+
+class Scheduler:
+    """Per-message periods: the default set at `default_period_s`, changed by SET_MESSAGE_INTERVAL."""
+
+    def __init__(self, default_period_s: float, build: Callable[[int], object]):
+        self.default_period_s = default_period_s
+        self.build = build
+        self.periods: dict[int, float] = {ID[n]: default_period_s for n in DEFAULT_STREAM}
+        self.last: dict[int, float] = {}
+
+    def set_interval(self, msg_id: int, interval_us: float) -> bool:
+        """MAV_CMD_SET_MESSAGE_INTERVAL semantics: -1 disable, 0 default, >0 microseconds."""
+        if self.build(msg_id) is None:
+            return False
+        if interval_us < 0:
+            self.periods.pop(msg_id, None)
+        elif interval_us == 0:
+            if any(ID[n] == msg_id for n in DEFAULT_STREAM):
+                self.periods[msg_id] = self.default_period_s
+            else:
+                self.periods.pop(msg_id, None)
+        else:
+            self.periods[msg_id] = max(0.01, interval_us / 1e6)
+        return True
+
+    def due(self, now_s: float) -> list:
+        out = []
+        for mid, period in list(self.periods.items()):
+            if now_s - self.last.get(mid, -1e9) >= period - 1e-3:
+                msg = self.build(mid)
+                if msg is not None:
+                    out.append(msg)
+                self.last[mid] = now_s
+        return out

@@ -1,0 +1,436 @@
+"""gcs logic without Zenoh: mission protocol with pymavlink message objects, item conversion,
+parameter names and values, commands, telemetry encoding, garbage on the link."""
+from __future__ import annotations
+
+import math
+import socket
+import struct
+
+import pytest
+from pymavlink.dialects.v20 import common as M
+
+from aeroperception.schemas import Mission, Quaternion, Vector3, VehicleState, Waypoint
+from aeroperception.services.gcs.commands import CommandHandler, mode_from_set_mode
+from aeroperception.services.gcs.link import Parser, UdpLink, make_mav
+from aeroperception.services.gcs.main import ftp_nak
+from aeroperception.services.gcs.missions import (
+    Home, Item, MissionConversionError, MissionProtocol, convert_items, items_to_mission, mission_to_items,
+)
+from aeroperception.services.gcs.params import (
+    ParamTable, decode_value, encode_value, mavlink_name,
+)
+from aeroperception.services.gcs.telemetry import CAPABILITIES, Scheduler, TelemetryState
+from aeroperception.services.mavlink import px4
+from aeroperception.schemas.system import ParamDescriptor
+
+HOME = Home(35.736805, 139.539676, 10.0)
+GCS = make_mav(255, 190)
+
+
+def from_gcs(msg):
+    """A message as the ground station would send it (packed and parsed, so src ids are set)."""
+    data = msg.pack(GCS)
+    out = Parser().feed(data)
+    assert len(out) == 1
+    return out[0]
+
+
+def item_int(seq, lat, lon, alt, cmd=M.MAV_CMD_NAV_WAYPOINT, frame=M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, **kw):
+    return from_gcs(M.MAVLink_mission_item_int_message(
+        1, 1, seq, frame, cmd, 0, 1, kw.get("p1", 0.0), kw.get("p2", 0.0), 0.0, kw.get("p4", math.nan),
+        int(round(lat * 1e7)), int(round(lon * 1e7)), alt, 0))
+
+
+class Loader:
+    def __init__(self, accept=True, sync=True):
+        self.accept, self.sync, self.calls, self.pending = accept, sync, [], None
+
+    def __call__(self, items, done):
+        self.calls.append(items)
+        if self.sync:
+            mission, _ = convert_items(items, HOME) if self.accept else (None, None)
+            done(self.accept, "ok" if self.accept else "rejected", M.MAV_MISSION_DENIED)
+        else:
+            self.pending = done
+
+
+def proto(loader=None, **kw):
+    sent = []
+    p = MissionProtocol(sent.append, loader or Loader(), **kw)
+    return p, sent
+
+
+def square(n=4, alt=5.0):
+    out = []
+    for i in range(n):
+        north, east = (0, 10, 10, 0)[i % 4], (0, 0, 10, 10)[i % 4]
+        lat, lon = HOME.projection.reproject(north, east)
+        out.append((lat, lon, alt))
+    return out
+
+
+def upload(p, sent, points, now=0.0):
+    p.handle(from_gcs(M.MAVLink_mission_count_message(1, 1, len(points), 0)), now)
+    for i, (lat, lon, alt) in enumerate(points):
+        req = sent[-1]
+        assert req.get_type() == "MISSION_REQUEST_INT" and req.seq == i
+        p.handle(item_int(i, lat, lon, alt), now)
+    return sent[-1]
+
+
+# ---------------------------------------------------------------- conversion
+
+
+def test_global_relative_to_enu_about_home_and_back():
+    lat, lon = HOME.projection.reproject(20.0, -5.0)   # 20 m north, 5 m west
+    x, y, z = HOME.to_enu(lat, lon, 7.0)
+    assert (x, y, z) == pytest.approx((-5.0, 20.0, 7.0), abs=1e-3)
+    back = HOME.to_geodetic(x, y, z)
+    assert back == pytest.approx((lat, lon, 7.0), abs=1e-9)
+
+
+def test_items_to_mission_takeoff_waypoints_land_and_yaw():
+    pts = square()
+    items = [Item(seq=0, frame=M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, command=M.MAV_CMD_NAV_TAKEOFF,
+                  x=HOME.lat_deg, y=HOME.lon_deg, z=4.0, param4=math.nan)]
+    for i, (lat, lon, alt) in enumerate(pts):
+        items.append(Item(seq=i + 1, frame=M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, command=M.MAV_CMD_NAV_WAYPOINT,
+                          x=lat, y=lon, z=alt, param4=90.0 if i == 1 else math.nan))
+    items.append(Item(seq=5, frame=M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, command=M.MAV_CMD_DO_CHANGE_SPEED, param2=3.0))
+    items.append(Item(seq=6, frame=M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, command=M.MAV_CMD_NAV_LAND))
+    mission, seqs = convert_items(items, HOME)
+    assert mission.takeoff_altitude_m == pytest.approx(4.0, abs=1e-3)
+    assert len(mission.waypoints) == 4 and seqs == [1, 2, 3, 4]
+    w = mission.waypoints[1]
+    assert (w.x, w.y, w.z) == pytest.approx((0.0, 10.0, 5.0), abs=1e-3)   # 10 m north = ENU y
+    assert w.yaw_deg == pytest.approx(0.0, abs=1e-6)                     # NED heading 90 (East) = ENU yaw 0
+    assert mission.waypoints[2].x == pytest.approx(10.0, abs=1e-3)
+
+
+def test_local_and_absolute_frames():
+    ned = Item(seq=0, frame=M.MAV_FRAME_LOCAL_NED, command=M.MAV_CMD_NAV_WAYPOINT, x=3.0, y=4.0, z=-6.0)
+    amsl = Item(seq=1, frame=M.MAV_FRAME_GLOBAL_INT, command=M.MAV_CMD_NAV_WAYPOINT,
+                x=HOME.lat_deg, y=HOME.lon_deg, z=HOME.alt_m + 2.5)
+    m = items_to_mission([ned, amsl], HOME)
+    assert (m.waypoints[0].x, m.waypoints[0].y, m.waypoints[0].z) == pytest.approx((4.0, 3.0, 6.0))
+    assert m.waypoints[1].z == pytest.approx(2.5, abs=1e-6)
+
+
+def test_unsupported_items_are_refused_with_a_reason():
+    with pytest.raises(MissionConversionError) as e:
+        items_to_mission([Item(seq=0, frame=3, command=M.MAV_CMD_NAV_LOITER_UNLIM)], HOME)
+    assert e.value.result == M.MAV_MISSION_UNSUPPORTED
+    with pytest.raises(MissionConversionError) as e:
+        items_to_mission([Item(seq=0, frame=M.MAV_FRAME_BODY_FRD, command=M.MAV_CMD_NAV_WAYPOINT)], HOME)
+    assert e.value.result == M.MAV_MISSION_UNSUPPORTED_FRAME
+
+
+def test_mission_to_items_round_trip():
+    mission = Mission(takeoff_altitude_m=4.0, waypoints=[Waypoint(x=5.0, y=-3.0, z=6.0, yaw_deg=45.0)])
+    items = mission_to_items(mission, HOME)
+    assert [it.command for it in items] == [M.MAV_CMD_NAV_TAKEOFF, M.MAV_CMD_NAV_WAYPOINT]
+    back = items_to_mission(items, HOME)
+    w = back.waypoints[0]
+    assert (w.x, w.y, w.z, w.yaw_deg) == pytest.approx((5.0, -3.0, 6.0, 45.0), abs=1e-3)
+    assert back.takeoff_altitude_m == pytest.approx(4.0)
+
+
+# ---------------------------------------------------------------- protocol
+
+
+def test_upload_requests_each_item_then_acks_and_download_returns_it():
+    loader = Loader()
+    p, sent = proto(loader)
+    ack = upload(p, sent, square())
+    assert ack.get_type() == "MISSION_ACK" and ack.type == M.MAV_MISSION_ACCEPTED
+    assert len(loader.calls) == 1 and len(p.items) == 4
+    sent.clear()
+    p.handle(from_gcs(M.MAVLink_mission_request_list_message(1, 1, 0)), 1.0)
+    assert sent[-1].get_type() == "MISSION_COUNT" and sent[-1].count == 4
+    for i in range(4):
+        p.handle(from_gcs(M.MAVLink_mission_request_int_message(1, 1, i, 0)), 1.0)
+        it = sent[-1]
+        assert it.get_type() == "MISSION_ITEM_INT" and it.seq == i
+        assert it.x == int(round(square()[i][0] * 1e7)) and it.z == pytest.approx(5.0)
+    p.handle(from_gcs(M.MAVLink_mission_ack_message(1, 1, 0, 0)), 1.0)
+    assert p.transfer is None
+
+
+def test_rejected_upload_keeps_previous_mission():
+    p, sent = proto(Loader(accept=True))
+    upload(p, sent, square())
+    p.load = Loader(accept=False)
+    ack = upload(p, sent, square(2))
+    assert ack.type == M.MAV_MISSION_DENIED
+    assert len(p.items) == 4
+
+
+def test_ack_waits_for_asynchronous_load():
+    loader = Loader(sync=False)
+    p, sent = proto(loader)
+    upload(p, sent, square(1))
+    assert sent[-1].get_type() == "MISSION_ITEM_INT" or sent[-1].get_type() == "MISSION_REQUEST_INT"
+    assert loader.pending is not None and p.loading
+    p.handle(from_gcs(M.MAVLink_mission_count_message(1, 1, 1, 0)), 0.0)   # busy meanwhile
+    assert sent[-1].type == M.MAV_MISSION_DENIED
+    loader.pending(True, "ok", 0)
+    assert sent[-1].get_type() == "MISSION_ACK" and sent[-1].type == M.MAV_MISSION_ACCEPTED
+
+
+def test_rerequest_on_timeout_then_give_up():
+    p, sent = proto(item_timeout_s=0.1, retries=2)
+    p.handle(from_gcs(M.MAVLink_mission_count_message(1, 1, 2, 0)), 0.0)
+    assert len(sent) == 1
+    p.tick(0.05)
+    assert len(sent) == 1
+    p.tick(0.15)
+    assert len(sent) == 2 and sent[-1].seq == 0
+    p.tick(0.30)
+    p.tick(0.45)
+    assert sent[-1].get_type() == "MISSION_ACK" and sent[-1].type == M.MAV_MISSION_OPERATION_CANCELLED
+    assert p.transfer is None and p.errors["upload_timeout"] == 1
+
+
+def test_out_of_order_items_and_absurd_count_are_counted_not_fatal():
+    p, sent = proto(max_items=100)
+    p.handle(from_gcs(M.MAVLink_mission_count_message(1, 1, 60000, 0)), 0.0)
+    assert sent[-1].type == M.MAV_MISSION_NO_SPACE
+    p.handle(from_gcs(M.MAVLink_mission_count_message(1, 1, 3, 0)), 0.0)
+    lat, lon, alt = square()[0]
+    p.handle(item_int(2, lat, lon, alt), 0.0)            # ahead: re-request seq 0
+    assert sent[-1].get_type() == "MISSION_REQUEST_INT" and sent[-1].seq == 0
+    p.handle(item_int(0, lat, lon, alt), 0.0)
+    p.handle(item_int(0, lat, lon, alt), 0.0)            # duplicate: ignored
+    assert sent[-1].seq == 1
+    p.handle(item_int(7, lat, lon, alt), 0.0)
+    assert p.errors["item_out_of_order"] == 3
+    p.handle(from_gcs(M.MAVLink_mission_request_int_message(1, 1, 99, 0)), 0.0)
+    assert sent[-1].type == M.MAV_MISSION_INVALID_SEQUENCE
+
+
+def test_legacy_mission_item_and_request_accepted():
+    p, sent = proto()
+    p.handle(from_gcs(M.MAVLink_mission_count_message(1, 1, 1, 0)), 0.0)
+    lat, lon, alt = square()[1]
+    p.handle(from_gcs(M.MAVLink_mission_item_message(1, 1, 0, M.MAV_FRAME_GLOBAL_RELATIVE_ALT,
+                                                     M.MAV_CMD_NAV_WAYPOINT, 0, 1, 0, 0, 0, 0, lat, lon, alt, 0)), 0.0)
+    assert sent[-1].type == M.MAV_MISSION_ACCEPTED
+    p.handle(from_gcs(M.MAVLink_mission_request_message(1, 1, 0, 0)), 0.0)
+    assert sent[-1].get_type() == "MISSION_ITEM" and sent[-1].x == pytest.approx(lat)
+
+
+def test_clear_all_and_fence_rally_are_empty():
+    p, sent = proto()
+    upload(p, sent, square())
+    p.handle(from_gcs(M.MAVLink_mission_request_list_message(1, 1, M.MAV_MISSION_TYPE_FENCE)), 0.0)
+    assert sent[-1].count == 0 and sent[-1].mission_type == M.MAV_MISSION_TYPE_FENCE
+    p.handle(from_gcs(M.MAVLink_mission_clear_all_message(1, 1, 0)), 0.0)
+    assert sent[-1].type == M.MAV_MISSION_ACCEPTED and p.items == []
+
+
+# ---------------------------------------------------------------- parameters
+
+
+def test_param_names_fit_16_chars_are_stable_and_unique():
+    assert mavlink_name("planner", "max_velocity_mps") == "PLN_MAX_VELOCITY"
+    assert mavlink_name("planner", "kp") == "PLN_KP"
+    assert mavlink_name("mission", "takeoff_altitude_m").startswith("MIS_TAKEO")
+    t = ParamTable(["planner", "mission"])
+    t.update_service("planner", [ParamDescriptor(name=n, value=1.0, type="float") for n in
+                                 ("max_velocity_mps", "max_velocity_mps2", "acceptance_radius_m", "kp")]
+                     + [ParamDescriptor(name="mode", value="x", type="str"),
+                        ParamDescriptor(name="count", value=3, type="int"),
+                        ParamDescriptor(name="enabled", value=True, type="bool")])
+    names = [e.mav_name for e in t.entries]
+    assert all(len(n) <= 16 for n in names) and len(set(names)) == len(names) == 6   # string not exposed
+    idx, e = t.lookup("PLN_KP")
+    assert t.lookup(index=idx)[1] is e and t.lookup("NOPE") is None and t.lookup(index=99) is None
+    msg = t.value_msg(idx, e)
+    assert msg.param_count == 6 and msg.param_index == idx
+
+
+def test_param_values_bytewise():
+    assert decode_value(encode_value(7, M.MAV_PARAM_TYPE_INT32), M.MAV_PARAM_TYPE_INT32, M.MAV_PARAM_TYPE_INT32) == 7
+    assert decode_value(encode_value(True, M.MAV_PARAM_TYPE_UINT8), M.MAV_PARAM_TYPE_UINT8, M.MAV_PARAM_TYPE_UINT8) is True
+    assert struct.pack("<f", encode_value(-3, M.MAV_PARAM_TYPE_INT32)) == struct.pack("<i", -3)
+    assert decode_value(2.5, M.MAV_PARAM_TYPE_REAL32, M.MAV_PARAM_TYPE_REAL32) == 2.5
+    assert decode_value(5.0, M.MAV_PARAM_TYPE_REAL32, M.MAV_PARAM_TYPE_INT32) == 5   # cast-encoded
+
+
+# ---------------------------------------------------------------- commands
+
+
+class FakeOps:
+    def __init__(self):
+        self.calls, self.dones = [], []
+
+    def _rec(self, *a):
+        self.calls.append(a[:-1])
+        self.dones.append(a[-1])
+
+    def arm(self, arm, force, done): self._rec("arm", arm, force, done)
+    def set_mode(self, mode, done): self._rec("set_mode", mode, done)
+    def mission_command(self, c, done): self._rec("mission", c, done)
+    def mission_start(self, done): self._rec("start", done)
+    def takeoff(self, alt, done): self._rec("takeoff", alt, done)
+    def goto(self, enu, yaw, done): self._rec("goto", enu, yaw, done)
+
+
+def handler():
+    sent, ops = [], FakeOps()
+    h = CommandHandler(sent.append, ops, HOME, position_enu=lambda: (1.0, 2.0, 3.0),
+                       request_message=lambda mid, p2: M.MAV_RESULT_ACCEPTED if mid == 148 else M.MAV_RESULT_UNSUPPORTED,
+                       set_interval=lambda mid, us: True, set_current=lambda s: s < 3)
+    return h, sent, ops
+
+
+def cmd_long(cmd, *p):
+    p = list(p) + [0.0] * (7 - len(p))
+    return from_gcs(M.MAVLink_command_long_message(1, 1, cmd, 0, *p))
+
+
+def test_arm_acks_real_outcome_progress_and_no_double_execution():
+    h, sent, ops = handler()
+    h.handle(cmd_long(M.MAV_CMD_COMPONENT_ARM_DISARM, 1.0), 0.0)
+    assert ops.calls == [("arm", True, False)] and sent == []
+    h.tick(0.35)
+    assert sent[-1].result == M.MAV_RESULT_IN_PROGRESS
+    h.handle(cmd_long(M.MAV_CMD_COMPONENT_ARM_DISARM, 1.0), 0.4)      # retransmission
+    assert len(ops.calls) == 1 and sent[-1].result == M.MAV_RESULT_IN_PROGRESS
+    ops.dones[0](False, "pre-arm check failed")
+    assert sent[-1].result == M.MAV_RESULT_DENIED and sent[-1].target_system == 255
+    h.handle(cmd_long(M.MAV_CMD_COMPONENT_ARM_DISARM, 1.0, math.nan), 0.9)      # MAVSDK leaves param2 NaN
+    assert ops.calls[-1] == ("arm", True, False)
+    ops.dones[-1](True, "ok")
+    h.handle(cmd_long(M.MAV_CMD_COMPONENT_ARM_DISARM, 0.0, 21196.0), 1.0)
+    assert ops.calls[-1] == ("arm", False, True)
+    ops.dones[-1](True, "ok")
+    assert sent[-1].result == M.MAV_RESULT_ACCEPTED
+
+
+def test_command_table():
+    h, sent, ops = handler()
+    h.handle(cmd_long(M.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, math.nan, math.nan, math.nan, HOME.alt_m + 5.0), 0.0)
+    assert ops.calls[-1] == ("takeoff", pytest.approx(5.0))
+    h.handle(cmd_long(M.MAV_CMD_NAV_LAND), 0.0)
+    assert ops.calls[-1] == ("mission", "LAND")
+    h.handle(cmd_long(M.MAV_CMD_NAV_RETURN_TO_LAUNCH), 0.0)
+    assert ops.calls[-1] == ("mission", "RTL")
+    h.handle(cmd_long(M.MAV_CMD_MISSION_START), 0.0)
+    assert ops.calls[-1] == ("start",)
+    base = M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+    h.handle(cmd_long(M.MAV_CMD_DO_SET_MODE, base, 4, 3), 0.0)
+    assert ops.calls[-1] == ("set_mode", "HOLD")
+    lat, lon = HOME.projection.reproject(10.0, 0.0)
+    h.handle(from_gcs(M.MAVLink_command_int_message(1, 1, M.MAV_FRAME_GLOBAL, M.MAV_CMD_DO_REPOSITION, 0, 0,
+                                                    -1, 0, 0, math.nan, int(lat * 1e7), int(lon * 1e7),
+                                                    HOME.alt_m + 4.0)), 0.0)
+    kind, enu, yaw = ops.calls[-1]
+    assert kind == "goto" and enu == pytest.approx((0.0, 10.0, 4.0), abs=0.02) and yaw is None
+    for c in (M.MAV_CMD_REQUEST_PROTOCOL_VERSION, M.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES):
+        h.handle(cmd_long(c, 1.0), 0.0)
+        assert sent[-1].command == c and sent[-1].result == M.MAV_RESULT_ACCEPTED
+    h.handle(cmd_long(M.MAV_CMD_REQUEST_MESSAGE, 148), 0.0)
+    assert sent[-1].result == M.MAV_RESULT_ACCEPTED
+    h.handle(cmd_long(M.MAV_CMD_REQUEST_MESSAGE, 9999), 0.0)
+    assert sent[-1].result == M.MAV_RESULT_UNSUPPORTED
+    for done in ops.dones:
+        done(True, "ok")
+    h.handle(cmd_long(M.MAV_CMD_DO_SET_MODE, base, 99, 0), 0.0)
+    assert sent[-1].result == M.MAV_RESULT_DENIED
+    h.handle(cmd_long(M.MAV_CMD_DO_FLIGHTTERMINATION, 1), 0.0)
+    assert sent[-1].result == M.MAV_RESULT_UNSUPPORTED
+    assert mode_from_set_mode(base, 6, 0) == "OFFBOARD"
+
+
+# ---------------------------------------------------------------- telemetry
+
+
+def test_telemetry_is_ned_and_geodetic_about_home():
+    st = VehicleState(position_m=Vector3(x=10.0, y=20.0, z=5.0), velocity_mps=Vector3(x=1.0, y=0.0, z=0.5),
+                      orientation=Quaternion.from_yaw(0.0), yaw_rad=0.0, armed=True, flight_mode="OFFBOARD",
+                      landed_state=2, battery_voltage_v=15.2, battery_remaining=0.8, connected=True)
+    tel = TelemetryState(HOME, vehicle=st)
+    lp = tel.local_position_ned()
+    assert (lp.x, lp.y, lp.z, lp.vx, lp.vz) == pytest.approx((20.0, 10.0, -5.0, 0.0, -0.5))
+    att = tel.attitude()
+    assert att.yaw == pytest.approx(math.pi / 2) and att.roll == pytest.approx(0.0, abs=1e-9)
+    gp = tel.global_position_int()
+    north, east = HOME.projection.project(gp.lat / 1e7, gp.lon / 1e7)
+    assert (north, east) == pytest.approx((20.0, 10.0), abs=0.02)
+    assert gp.relative_alt == 5000 and gp.alt == 15000 and gp.hdg == 9000
+    hb = tel.heartbeat()
+    assert hb.autopilot == M.MAV_AUTOPILOT_PX4 and hb.type == M.MAV_TYPE_QUADROTOR
+    assert hb.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED and px4.decode(hb.custom_mode) == "OFFBOARD"
+    ss = tel.sys_status()
+    assert ss.voltage_battery == 15200 and ss.battery_remaining == 80
+    assert tel.extended_sys_state().landed_state == 2
+    assert tel.autopilot_version().capabilities == CAPABILITIES
+    assert CAPABILITIES & M.MAV_PROTOCOL_CAPABILITY_MISSION_INT and CAPABILITIES & M.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
+    hp = tel.home_position()
+    assert hp.latitude == int(round(HOME.lat_deg * 1e7))
+
+
+def test_scheduler_intervals():
+    tel = TelemetryState(HOME)
+    s = Scheduler(0.9, tel.build)
+    first = {m.get_type() for m in s.due(0.0)}
+    assert {"HEARTBEAT", "SYS_STATUS", "GLOBAL_POSITION_INT", "HOME_POSITION"} <= first
+    assert s.due(0.5) == []
+    assert s.set_interval(M.MAVLINK_MSG_ID_ATTITUDE, 100_000)
+    assert [m.get_type() for m in s.due(0.6)] == ["ATTITUDE"]
+    assert s.set_interval(M.MAVLINK_MSG_ID_ATTITUDE, -1)
+    assert "ATTITUDE" not in {m.get_type() for m in s.due(5.0)}
+    assert not s.set_interval(9999, 1000)
+
+
+# ---------------------------------------------------------------- link
+
+
+def test_garbage_bad_crc_and_unknown_ids_are_counted():
+    p = Parser()
+    good = M.MAVLink_heartbeat_message(6, 8, 0, 0, 0, 3).pack(GCS)
+    bad = bytearray(good)
+    bad[-1] ^= 0xFF
+    assert p.feed(b"\x00\xff garbage \xfd\x01") == []
+    assert p.feed(bytes(bad)) == []
+    assert p.feed(bytes(range(256))) == []
+    assert p.feed(bytes(good[:7])) == []           # truncated frame
+    unknown = bytearray(good)
+    unknown[7:10] = (60000).to_bytes(3, "little")  # a message id nobody defines
+    assert p.feed(bytes(unknown)) == []
+    invalid = p.invalid_total
+    assert invalid >= 4
+    msgs = p.feed(good)
+    assert [m.get_type() for m in msgs] == ["HEARTBEAT"] and p.invalid_total == invalid
+    for chunk in (b"", b"\xfd", b"\xfe" * 300, bytes(1000)):
+        p.feed(chunk)   # never raises
+
+
+def test_udp_link_learns_the_ground_station_address():
+    link = UdpLink("127.0.0.1", 0, "127.0.0.1", 9, 1, 1)
+    gcs = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    gcs.bind(("127.0.0.1", 0))
+    gcs.settimeout(2.0)
+    try:
+        got = []
+        link.start(got.append)
+        gcs.sendto(M.MAVLink_heartbeat_message(6, 8, 0, 0, 0, 3).pack(GCS), link.local_address)
+        import time
+        deadline = time.monotonic() + 2.0
+        while not got and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert got and link.remote == gcs.getsockname()
+        link.send(TelemetryState(HOME).heartbeat())
+        data, _ = gcs.recvfrom(1000)
+        (hb,) = Parser().feed(data)
+        assert hb.get_type() == "HEARTBEAT" and hb.get_srcSystem() == 1 and hb.get_srcComponent() == 1
+    finally:
+        link.close()
+        gcs.close()
+
+
+def test_ftp_is_nakked():
+    req = from_gcs(M.MAVLink_file_transfer_protocol_message(0, 1, 1, [7, 0, 0, 4] + [0] * 247))
+    nak = ftp_nak(req)
+    assert nak.payload[3] == 129 and nak.payload[5] == 4 and nak.payload[0] == 8 and nak.target_system == 255
