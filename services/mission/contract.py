@@ -1,7 +1,8 @@
 """Contract of the mission service: keys in/out and parameters."""
 from aeroperception.schemas import (
-    ArmReply, ArmRequest, LoadMissionReply, LoadMissionRequest, MissionCommand, MissionStatus,
-    PerceptionHealth, PoseStamped, Reply, SetModeReply, SetModeRequest, VehicleState, WaypointReached,
+    ArmReply, ArmRequest, Empty, GetMissionReply, LoadMissionReply, LoadMissionRequest, MissionCommand,
+    MissionStatus, PerceptionHealth, PoseStamped, Reply, SetModeReply, SetModeRequest, VehicleState,
+    WaypointReached,
 )
 from aeroperception.services.runtime import Param
 
@@ -19,6 +20,7 @@ OUTPUTS = {
 SERVICES = {                                # queryables served: request -> reply
     "mission/srv/load": (LoadMissionRequest, LoadMissionReply),
     "mission/srv/command": (MissionCommand, Reply),
+    "mission/srv/get": (Empty, GetMissionReply),    # the loaded mission (gcs serves it to downloads)
 }
 ACTIONS = ["takeoff", "land", "goto"]       # mission/action/<name>/{goal,cancel,feedback,result}
 CALLS = {                                   # queryables used (served by fmu)

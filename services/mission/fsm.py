@@ -101,6 +101,7 @@ class GoalOut:
 
     position_m: np.ndarray | None
     yaw_rad: float | None = None
+    acceptance_radius_m: float | None = None  # goto goals carry their own; None: the mission's
 
 
 class MissionManager:
@@ -162,9 +163,11 @@ class MissionManager:
     def _enter_holding(self, prev: State, event: Event) -> None:
         self.hold_since_s = self.now_s
         self.hold_reason = {E.PERCEPTION_LOST: "perception", E.LINK_LOST: "link"}.get(event, "")
-        if event == E.GOTO_DONE:
-            self.goto_target = None
-        self.publish_goal(GoalOut(None))
+        target, self.goto_target = (self.goto_target, None) if event == E.GOTO_DONE else (None, self.goto_target)
+        if target is not None:  # hold at the commanded point, not where the radius was entered
+            self.publish_goal(GoalOut(target.position_m, target.yaw_rad))
+        else:
+            self.publish_goal(GoalOut(None))
         if prev == State.LAND:  # landing aborted: take control back from AUTO.LAND
             self.bridge.set_mode("OFFBOARD", self._bridge_done("OFFBOARD"))
         elif event == E.ALTITUDE_REACHED and self.start_requested:
@@ -273,10 +276,11 @@ class MissionManager:
             self.bridge.arm(True, armed)
         return True, "taking off"
 
-    def goto(self, position_m: np.ndarray, yaw_rad: float | None) -> tuple[bool, str]:
+    def goto(self, position_m: np.ndarray, yaw_rad: float | None,
+             acceptance_radius_m: float | None = None) -> tuple[bool, str]:
         if self.state not in (State.HOLDING, State.EXECUTING):
             return False, f"GOTO needs the vehicle in the air (HOLDING/EXECUTING), now {self.state.value}"
-        self.goto_target = GoalOut(np.asarray(position_m, float), yaw_rad)
+        self.goto_target = GoalOut(np.asarray(position_m, float), yaw_rad, acceptance_radius_m)
         if self.state == State.EXECUTING:
             self.publish_goal(self.goto_target)
         else:
@@ -351,7 +355,8 @@ class MissionManager:
 
     def _progress(self, pos: np.ndarray) -> None:
         if self.goto_target is not None:
-            if np.linalg.norm(self.goto_target.position_m - pos) < self.acceptance_radius_m():
+            radius = self.goto_target.acceptance_radius_m or self.acceptance_radius_m()
+            if np.linalg.norm(self.goto_target.position_m - pos) < radius:
                 self.fire(E.GOTO_DONE, "goto reached")
             return
         if self.mission is None or self.wp_index >= len(self.mission.waypoints):

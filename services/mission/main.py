@@ -9,7 +9,8 @@ from dataclasses import fields
 import numpy as np
 
 from aeroperception.schemas import (
-    ArmReply, GcsLink, ArmRequest, DiagnosticStatus, GoToPositionFeedback, GoToPositionGoal,
+    ArmReply, GcsLink, ArmRequest, DiagnosticStatus, Empty, GetMissionReply, GoToPositionFeedback,
+    GoToPositionGoal,
     GoToPositionResult, Header, LandFeedback, LandGoal, LandResult, LoadMissionReply,
     LoadMissionRequest, MissionCommand, PerceptionHealth, Pose, PoseStamped, Quaternion, Reply,
     SchemaError, SetModeReply, SetModeRequest, TakeoffFeedback, TakeoffGoal, TakeoffResult,
@@ -76,6 +77,7 @@ class MissionService(Service):
         node.subscribe("gcs/link", GcsLink, on_gcs_link)
         node.serve("mission/srv/command", MissionCommand, Reply, self._srv_command, locked=False)
         node.serve("mission/srv/load", LoadMissionRequest, LoadMissionReply, self._on_load)
+        node.serve("mission/srv/get", Empty, GetMissionReply, self._on_get)
         self.actions: list[tuple[str, GoalHandle]] = []
         self.servers = {
             "takeoff": ActionServer(node, "mission/action/takeoff", TakeoffGoal, TakeoffResult,
@@ -127,6 +129,13 @@ class MissionService(Service):
             return LoadMissionReply(success=False, message=f"invalid mission: {e}")
         ok, message = self.mgr.load(mission)
         return LoadMissionReply(success=ok, message=message, num_waypoints=len(mission.waypoints) if ok else 0)
+
+    def _on_get(self, _req: Empty) -> GetMissionReply:
+        m = self.mgr.mission
+        if m is None:
+            return GetMissionReply(success=False, message="no mission loaded")
+        return GetMissionReply(success=True, mission_id=m.mission_id, num_waypoints=len(m.waypoints),
+                               mission_json=m.to_json())
 
     # ------------------------------------------------------------ outputs
 
@@ -181,7 +190,7 @@ class MissionService(Service):
     def _goto_goal(self, h: GoalHandle) -> str | None:
         g: GoToPositionGoal = h.goal
         yaw = g.yaw_rad if g.yaw_rad is not None and math.isfinite(g.yaw_rad) else None
-        ok, message = self.mgr.goto(g.position_m.to_array(), yaw)
+        ok, message = self.mgr.goto(g.position_m.to_array(), yaw, g.acceptance_radius_m)
         if not ok:
             return message
         self.actions.append(("goto", h))

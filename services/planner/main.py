@@ -56,6 +56,8 @@ class PlannerService(Service):
             self._cycle()
 
     def _on_goal(self, msg: PoseStamped) -> None:
+        if msg == self.goal_msg:
+            return  # mission re-publishes its latest goal at 2 Hz for late joiners: already applied
         self.goal_msg = msg
         if msg.header.frame_id == contract.HOLD_FRAME:
             self.planner.set_goal(None)

@@ -179,7 +179,7 @@ def test_every_table_transition_reaches_its_target_with_entry_side_effects(src, 
         assert rig.bridge.calls == [("set_mode", "OFFBOARD")]
     elif dst == State.HOLDING:
         assert len(rig.goals) == 1
-        assert_hold(rig.goals[0])
+        assert_hold(rig.goals[0])  # (a finished goto holds at its target: see the goto tests)
         # leaving AUTO.LAND needs OFFBOARD back; otherwise we are already in OFFBOARD
         expected = [("set_mode", "OFFBOARD")] if src == State.LAND else []
         assert rig.bridge.calls == expected
@@ -585,7 +585,7 @@ def test_goto_from_holding_executes_then_holds_when_reached():
     assert rig.mgr.state == State.HOLDING
     assert rig.mgr.transitions[-1] == (State.EXECUTING, Event.GOTO_DONE, State.HOLDING)
     assert rig.mgr.goto_target is None
-    assert_hold(rig.goals[-1])
+    assert_goal(rig.goals[-1], [3.0, 4.0, 6.0], yaw=0.5)  # holds at the target, not 0.5 m short
     assert rig.mgr.reached_events == []               # no mission waypoint was flown
 
 
@@ -671,3 +671,12 @@ def test_status_reports_progress():
     assert (st.mission_id, st.state, st.active_waypoint, st.total_waypoints) == ("survey_01", "EXECUTING", 1, 4)
     assert st.distance_to_goal_m == pytest.approx(6.0)
     assert st.elapsed_time_s > 0
+
+
+def test_goto_uses_the_goals_own_acceptance_radius():
+    rig = Rig()
+    rig.to_holding()
+    ok, _ = rig.mgr.goto(np.array([3.0, 4.0, 6.0]), None, acceptance_radius_m=2.0)
+    assert ok and rig.mgr.state == State.EXECUTING
+    rig.feed(flying(2.0, 3.0, 5.5))                   # 1.5 m away: inside 2.0, outside the mission's 0.5
+    assert rig.mgr.state == State.HOLDING
