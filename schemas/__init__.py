@@ -25,7 +25,7 @@ from .planning import (
 from .gcs import GcsLink, Joystick
 from .mission import MissionCommand, MissionStatus, PerceptionHealth, WaypointReached
 from .services import (
-    ArmReply, ArmRequest, EmergencyStopReply, EmergencyStopRequest, Empty, LoadMissionReply,
+    ArmReply, ArmRequest, EmergencyStopReply, EmergencyStopRequest, Empty, GetMissionReply, LoadMissionReply,
     LoadMissionRequest, Reply, SelectPluginReply, SelectPluginRequest, SetModeReply, SetModeRequest,
 )
 from .actions import (
@@ -56,7 +56,7 @@ __all__ = [
     "SafetyStatus",
     # services
     "Empty", "Reply", "ArmRequest", "ArmReply", "SetModeRequest", "SetModeReply",
-    "LoadMissionRequest", "LoadMissionReply", "EmergencyStopRequest", "EmergencyStopReply",
+    "LoadMissionRequest", "LoadMissionReply", "GetMissionReply", "EmergencyStopRequest", "EmergencyStopReply",
     "SelectPluginRequest", "SelectPluginReply",
     # actions
     "TakeoffGoal", "TakeoffResult", "TakeoffFeedback", "LandGoal", "LandResult", "LandFeedback",

@@ -15,7 +15,7 @@ from ._checks import check_choice
 
 __all__ = [
     "Empty", "Reply", "ArmRequest", "ArmReply", "SetModeRequest", "SetModeReply",
-    "LoadMissionRequest", "LoadMissionReply", "EmergencyStopRequest", "EmergencyStopReply",
+    "LoadMissionRequest", "LoadMissionReply", "GetMissionReply", "EmergencyStopRequest", "EmergencyStopReply",
     "SelectPluginRequest", "SelectPluginReply",
 ]
 
@@ -83,6 +83,16 @@ class LoadMissionReply(Reply, kw_only=True):
 
     num_waypoints: int = 0
     mission_id: str = ""
+
+
+@schema("GetMissionReply", 1)
+class GetMissionReply(Reply, kw_only=True):
+    """The loaded mission (mission/srv/get, request Empty): seed 000 §5.1 JSON text, as loaded.
+    success False (and empty fields) when no mission is loaded."""
+
+    mission_id: str = ""
+    num_waypoints: int = 0
+    mission_json: str = ""
 
 
 @schema("EmergencyStopRequest", 1)

@@ -57,6 +57,7 @@ class Tap:
         self.pending: float | None = None
         self.latency_ms: list[float] = []
         self.setpoint_t: list[float] = []
+        self.lpn_t: list[float] = []
         self.recording = False
         self.stop = threading.Event()
         threading.Thread(target=self._run, daemon=True).start()
@@ -71,6 +72,8 @@ class Tap:
                     self.sim_addr = addr
                     if _msgid(pkt) == LOCAL_POSITION_NED:
                         self.pending = now
+                        if self.recording:
+                            self.lpn_t.append(now)
                     self.b.sendto(pkt, self.fmu)
                 else:
                     if _msgid(pkt) == SET_POSITION_TARGET_LOCAL_NED and self.recording:
@@ -80,6 +83,27 @@ class Tap:
                             self.pending = None
                     if self.sim_addr:
                         self.a.sendto(pkt, self.sim_addr)
+
+
+def breakdown(tap: Tap, seen: dict[str, list[float]]) -> dict[str, np.ndarray]:
+    """Split each hot-path sample at the state/vehicle and setpoint arrivals seen here."""
+    ins = np.array(tap.lpn_t)
+    state, sp, out = np.array(seen["state"]), np.array(seen["setpoint"]), np.array(tap.setpoint_t)
+    a, b, c = [], [], []
+    for t0 in ins:
+        i = np.searchsorted(state, t0)
+        if i >= len(state):
+            break
+        j = np.searchsorted(sp, state[i])
+        k = np.searchsorted(out, sp[j]) if j < len(sp) else len(out)
+        if k >= len(out) or out[k] - t0 > 0.015:
+            continue
+        a.append(state[i] - t0)
+        b.append(sp[j] - state[i])
+        c.append(out[k] - sp[j])
+    ms = lambda v: np.array(v) * 1e3  # noqa: E731
+    return {"LOCAL_POSITION_NED -> state/vehicle seen": ms(a), "state/vehicle -> setpoint seen": ms(b),
+            "setpoint seen -> SET_POSITION_TARGET sent": ms(c)}
 
 
 def run(duration_s: float = 20.0, sensors: str = "none") -> int:
@@ -104,6 +128,12 @@ def run(duration_s: float = 20.0, sensors: str = "none") -> int:
                 pass
 
         session.declare_subscriber("diagnostics/planner", on_diag)
+        # Breakdown: when this process sees the state and the setpoint (same router, so each
+        # stamp is one Zenoh hop after the service published it).
+        seen: dict[str, list[float]] = {"state": [], "setpoint": []}
+        session.declare_subscriber("state/vehicle", lambda _s: tap.recording and seen["state"].append(time.perf_counter()))
+        session.declare_subscriber("fmu/in/trajectory_setpoint",
+                                   lambda _s: tap.recording and seen["setpoint"].append(time.perf_counter()))
         deadline = time.monotonic() + 30
         while True:  # wait for fmu to have the vehicle, then take off and hover
             try:
@@ -121,6 +151,7 @@ def run(duration_s: float = 20.0, sensors: str = "none") -> int:
         time.sleep(duration_s)
         tap.recording = False
         lat = np.array(tap.latency_ms)
+        stages = breakdown(tap, seen)
         gaps = np.diff(np.array(tap.setpoint_t)) * 1e3
         diag = planner_diag[-1].values if planner_diag else {}
         try:
@@ -154,6 +185,9 @@ def run(duration_s: float = 20.0, sensors: str = "none") -> int:
           f"{np.median(lat) / base:>7.2f}")
     print(f"{'baseline: 2 raw zenoh one-way hops':<44} {len(raw):>6} {base:>10.3f} {2 * np.percentile(raw, 99):>8.3f} "
           f"{1.0:>7.2f}")
+    for name, arr in stages.items():
+        if len(arr):
+            print(f"{'  ' + name:<44} {len(arr):>6} {np.median(arr):>10.3f} {np.percentile(arr, 99):>8.3f} {'':>7}")
     print(f"{'setpoint gap on the wire (50 Hz = 20 ms)':<44} {len(gaps):>6} {np.median(gaps):>10.3f} "
           f"{np.percentile(gaps, 99):>8.3f} {'':>7}")
     print(f"{'planner deadline-loop period error':<44} {diag.get('loop[setpoint].ticks', '-'):>6} "

@@ -112,8 +112,9 @@ class FmuService(Service):
             if not self.streams_requested:
                 self._request_streams()
         elif t == "LOCAL_POSITION_NED":
-            self.pubs["fmu/out/vehicle_local_position"].publish(self.tm.on_local_position(m, stamp))
-            self.pubs["state/vehicle"].publish(self.tm.vehicle_state(stamp, connected=True))
+            local = self.tm.on_local_position(m, stamp)
+            self.pubs["state/vehicle"].publish(self.tm.vehicle_state(stamp, connected=True))  # hot path first
+            self.pubs["fmu/out/vehicle_local_position"].publish(local)
         elif t == "ATTITUDE_QUATERNION":
             self.pubs["fmu/out/vehicle_attitude"].publish(self.tm.on_attitude_quaternion(m, stamp))
         elif t == "EXTENDED_SYS_STATE":

@@ -4,7 +4,7 @@ longer than `progress_after_s` (MAVSDK wants an answer within 0.5 s); a retransm
 command still running is answered IN_PROGRESS, not executed twice.
 
 The stack is reached through `ops` (see Ops): arm, set_mode, mission_command, takeoff, goto,
-mission_start; each takes a done(ok, message) callback that may run later.
+mission_start, change_speed; each takes a done(ok, message) callback that may run later.
 """
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ from pymavlink.dialects.v20 import common as M
 
 from aeroperception.services.mavlink import frames, px4
 
-from .missions import Home
+from .missions import SPEED_DEFAULT, Home, change_speed_value
 
 Done = Callable[[bool, str], None]
 FORCE_MAGIC = 21196
@@ -29,6 +29,7 @@ class Ops(Protocol):
     def mission_start(self, done: Done) -> None: ...
     def takeoff(self, altitude_m: float | None, done: Done) -> None: ...
     def goto(self, enu: tuple[float, float, float], yaw_rad: float | None, done: Done) -> None: ...
+    def change_speed(self, speed_mps: float | None, done: Done) -> None: ...   # None = the default
 
 
 @dataclass
@@ -149,6 +150,21 @@ class CommandHandler:
                 target = (cur[0], cur[1], (alt - self.home.alt_m) if math.isfinite(alt) else cur[2])
             yaw = float(frames.yaw_ned_to_enu(math.radians(p[3]))) if math.isfinite(p[3]) else None
             self._async(c, now_s, lambda d: self.ops.goto(target, yaw, d))
+        elif cmd == M.MAV_CMD_DO_CHANGE_SPEED:
+            # The planner's live speed limit (PLN_MAX_VELOCITY); see missions.change_speed_value.
+            if math.isfinite(p[0]) and int(p[0]) in (2, 3) and int(p[0]) == p[0]:
+                self.ack(cmd, M.MAV_RESULT_UNSUPPORTED, c.peer)   # no separate climb/descent limit
+                return
+            try:
+                speed = change_speed_value(p[0], p[1])
+            except ValueError:
+                self.ack(cmd, M.MAV_RESULT_DENIED, c.peer)
+                return
+            if speed is None:
+                self.ack(cmd, M.MAV_RESULT_ACCEPTED, c.peer)      # -1: no change
+                return
+            target = None if speed == SPEED_DEFAULT else speed
+            self._async(c, now_s, lambda d: self.ops.change_speed(target, d))
         elif cmd == M.MAV_CMD_REQUEST_PROTOCOL_VERSION:
             self.ack(cmd, M.MAV_RESULT_ACCEPTED, c.peer)
         elif cmd == M.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:

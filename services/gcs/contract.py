@@ -1,8 +1,8 @@
 """Contract of gcs: keys in/out, calls, ports and parameters."""
 from aeroperception.schemas import (
-    ArmReply, ArmRequest, BatteryState, GcsLink, Joystick, LoadMissionReply, LoadMissionRequest,
-    MissionCommand, MissionStatus, ParamList, ParamSet, ParamSetReply, Reply, SetModeReply,
-    SetModeRequest, VehicleState, WaypointReached,
+    ArmReply, ArmRequest, BatteryState, Empty, GcsLink, GetMissionReply, Joystick, LoadMissionReply,
+    LoadMissionRequest, MissionCommand, MissionStatus, ParamList, ParamSet, ParamSetReply, Reply,
+    SetModeReply, SetModeRequest, VehicleState, WaypointReached,
 )
 from aeroperception.services.runtime import Param
 
@@ -19,6 +19,7 @@ OUTPUTS = {
 }
 CALLS = {
     "mission/srv/load": (LoadMissionRequest, LoadMissionReply),
+    "mission/srv/get": (Empty, GetMissionReply),    # a mission loaded without us, for downloads
     "mission/srv/command": (MissionCommand, Reply),
     "fmu/srv/arm": (ArmRequest, ArmReply),
     "fmu/srv/set_mode": (SetModeRequest, SetModeReply),

@@ -13,19 +13,24 @@ import time
 from pymavlink.dialects.v20 import common as M
 
 from aeroperception.schemas import (
-    ArmReply, ArmRequest, BatteryState, DiagnosticStatus, GcsLink, GoalReply, GoToPositionGoal,
-    Joystick, LoadMissionReply, LoadMissionRequest, MissionCommand, MissionStatus, ParamList, ParamSet,
-    ParamSetReply, Reply, SetModeReply, SetModeRequest, TakeoffGoal, Vector3, VehicleState, WaypointReached,
+    ArmReply, ArmRequest, BatteryState, DiagnosticStatus, Empty, GcsLink, GetMissionReply, GoalReply,
+    GoToPositionGoal, Joystick, LoadMissionReply, LoadMissionRequest, MissionCommand, MissionStatus, ParamList,
+    ParamSet, ParamSetReply, Reply, SchemaError, SetModeReply, SetModeRequest, TakeoffGoal, Vector3,
+    VehicleState, WaypointReached, parse_mission,
 )
 from aeroperception.services.runtime import CallError, Health, Service, run
 
 from . import contract
 from .commands import CommandHandler, mode_from_custom_mode
 from .link import UdpLink
-from .missions import Home, MissionConversionError, MissionProtocol, convert_items
+from .missions import (
+    SPEED_DEFAULT, Home, MissionConversionError, MissionProtocol, SpeedSchedule, convert_items, mission_to_items,
+    waypoint_speeds,
+)
 from .params import ParamTable, decode_param_id, decode_value
 from .telemetry import Scheduler, TelemetryState
 
+SPEED_SERVICE, SPEED_PARAM = "planner", "max_velocity_mps"   # DO_CHANGE_SPEED sets this
 FTP_OPCODE_NAK = 129
 FTP_ERR_FILE_NOT_FOUND = 10
 
@@ -80,6 +85,12 @@ class GcsService(Service):
                                    request_message=self._request_message,
                                    set_interval=self.sched.set_interval, set_current=self._set_current)
         self.wp_seqs: list[int] = []
+        self.speeds = SpeedSchedule()    # the loaded mission's DO_CHANGE_SPEED items, per waypoint
+        # (mission_id, waypoints) of the mission our items describe; one loaded some other way
+        # (aero mission load/fly) is fetched from mission/srv/get so a download shows it.
+        self.synced: tuple[str, int] | None = None
+        self.fetching = False
+        self.fetch_failed_s = -math.inf
         self.loads = 0
         self.gcs_last_hb: float | None = None
         self.gcs_sysid = 0
@@ -111,14 +122,20 @@ class GcsService(Service):
 
     def _on_mission_status(self, msg: MissionStatus) -> None:
         self.tel.mission = msg
+        if msg.mission_id and (msg.mission_id, msg.total_waypoints) != self.synced:
+            self._fetch_mission()
         self.tel.mission_total = len(self.missions.items)
         if 0 <= msg.active_waypoint < len(self.wp_seqs):
             self.tel.mission_seq = self.wp_seqs[msg.active_waypoint]
             self.missions.current = self.tel.mission_seq
+        if msg.state == MissionStatus.STATE_EXECUTING and msg.mission_id == self.speeds.mission_id:
+            self._apply_mission_speed(msg.active_waypoint)   # however the mission was started
 
     def _on_reached(self, msg: WaypointReached) -> None:
         if 0 <= msg.index < len(self.wp_seqs):
             self.link.send(M.MAVLink_mission_item_reached_message(self.wp_seqs[msg.index]))
+        if msg.mission_id == self.speeds.mission_id:
+            self._apply_mission_speed(msg.index + 1)         # the speed for the next leg, at once
 
     def _position(self) -> tuple[float, float, float]:
         v = self.tel.vehicle
@@ -265,6 +282,15 @@ class GcsService(Service):
         except MissionConversionError as e:
             done(False, str(e), e.result)
             return
+        speeds = waypoint_speeds(items, seqs)
+        found = self.table.find(SPEED_SERVICE, SPEED_PARAM)
+        if found is not None:
+            lo, hi = found[1].min, found[1].max
+            for v in speeds:
+                if v is not None and v != SPEED_DEFAULT and ((lo is not None and v < lo) or (hi is not None and v > hi)):
+                    done(False, f"DO_CHANGE_SPEED {v} m/s outside {found[1].mav_name} [{lo}, {hi}]",
+                         M.MAV_MISSION_INVALID_PARAM2)
+                    return
 
         def loaded(res) -> None:
             if isinstance(res, CallError):
@@ -272,12 +298,48 @@ class GcsService(Service):
                 return
             if res.success:
                 self.wp_seqs = seqs
+                self.speeds = SpeedSchedule(speeds, mission.mission_id)
+                self.synced = (mission.mission_id, len(mission.waypoints))
                 self.tel.mission_total = len(items)
                 self.tel.mission_seq = 0
             done(res.success, res.message, M.MAV_MISSION_DENIED)
 
         self.node.call_async("mission/srv/load", LoadMissionRequest(mission_json=mission.to_json()),
                              LoadMissionReply, loaded, timeout_s=self.params.call_timeout_s)
+
+    def _fetch_mission(self) -> None:
+        """The mission service has a mission we did not upload: fetch it (mission/srv/get) and
+        serve it as items (NAV_TAKEOFF + NAV_WAYPOINTs, see missions.mission_to_items). Not while
+        a transfer is under way; a failed fetch is retried after 5 s."""
+        busy = self.missions.loading or self.missions.transfer is not None
+        if self.fetching or busy or time.monotonic() - self.fetch_failed_s < 5.0:
+            return
+        self.fetching = True
+
+        def done(res) -> None:
+            self.fetching = False
+            if isinstance(res, CallError) or not res.success:
+                self.fetch_failed_s = time.monotonic()
+                return
+            key = (res.mission_id, res.num_waypoints)
+            if key == self.synced or self.missions.loading or self.missions.transfer is not None:
+                return   # ours (an upload overtook the status), or busy: the next status retries
+            try:
+                mission = parse_mission(res.mission_json)
+            except SchemaError as e:
+                self.fetch_failed_s = time.monotonic()
+                self.log.warn("mission_fetch_invalid", error=str(e))
+                return
+            self.missions.items = mission_to_items(mission, self.home)
+            self.missions.current = 0
+            self.wp_seqs = list(range(1, len(mission.waypoints) + 1))   # item 0 is the takeoff
+            self.speeds = SpeedSchedule([], mission.mission_id)
+            self.tel.mission_total = len(self.missions.items)
+            self.tel.mission_seq = 0
+            self.synced = key
+            self.log.info("mission_synced", mission_id=mission.mission_id, items=len(self.missions.items))
+
+        self.node.call_async("mission/srv/get", Empty(), GetMissionReply, done, timeout_s=self.params.call_timeout_s)
 
     def _set_current(self, seq: int) -> bool:
         ok = self.missions.set_current(seq)
@@ -333,6 +395,10 @@ class GcsService(Service):
 
     def mission_start(self, done) -> None:
         st = self.tel.mission
+        # The mission manager (re)starts at its active waypoint, or at 0 when not started/complete.
+        self.speeds.reset()
+        k = st.active_waypoint if st is not None and 0 <= st.active_waypoint < len(self.wp_seqs) else 0
+        self._apply_mission_speed(k)
         if st is not None and st.state == MissionStatus.STATE_IDLE:
             # On the ground: take off first; the mission manager starts the mission once up.
             def after_takeoff(ok: bool, message: str) -> None:
@@ -350,6 +416,37 @@ class GcsService(Service):
             return
         self.node.call_async("mission/action/takeoff/goal", TakeoffGoal(target_altitude_m=altitude_m), GoalReply,
                              self._reply_cb(done), timeout_s=self.params.call_timeout_s)
+
+    def change_speed(self, speed_mps: float | None, done) -> None:
+        """DO_CHANGE_SPEED: the planner's live speed limit; None = its declared default."""
+        found = self.table.find(SPEED_SERVICE, SPEED_PARAM)
+        if speed_mps is None:
+            if found is None or found[1].default is None:
+                done(False, f"{SPEED_SERVICE}.{SPEED_PARAM} default unknown (is the planner running?)")
+                return
+            speed_mps = float(found[1].default)
+
+        def reply(res) -> None:
+            if isinstance(res, CallError):
+                done(False, str(res))
+                return
+            now = self.table.find(SPEED_SERVICE, SPEED_PARAM)
+            if res.success and now is not None and res.value is not None:
+                now[1].value = res.value
+            if not res.success:
+                self.log.warn("change_speed_rejected", speed_mps=speed_mps, error=res.message)
+            done(res.success, res.message)
+
+        self.node.call_async(f"config/{SPEED_SERVICE}/@set", ParamSet(name=SPEED_PARAM, value=float(speed_mps)),
+                             ParamSetReply, reply, timeout_s=self.params.call_timeout_s)
+
+    def _apply_mission_speed(self, k: int) -> None:
+        speed = self.speeds.due(k)
+        if speed is None:
+            return
+        self.log.info("mission_speed", waypoint=k, speed_mps=speed if speed != SPEED_DEFAULT else "default")
+        self.change_speed(None if speed == SPEED_DEFAULT else speed,
+                          lambda ok, message: None if ok else self.log.warn("mission_speed_failed", error=message))
 
     def goto(self, enu, yaw_rad, done) -> None:
         goal = GoToPositionGoal(position_m=Vector3(x=enu[0], y=enu[1], z=enu[2]), yaw_rad=yaw_rad)

@@ -7,6 +7,16 @@ Accepted items: NAV_WAYPOINT, NAV_TAKEOFF, NAV_LAND, NAV_RETURN_TO_LAUNCH, DO_CH
 frames GLOBAL[_INT] (AMSL), GLOBAL_RELATIVE_ALT[_INT], LOCAL_NED, LOCAL_ENU. A takeoff item sets
 the mission's takeoff altitude; LAND adds its position (when it has one) and ends the mission;
 RTL flies back above home. Yaw (param4, NED heading deg, NaN = keep) becomes ENU yaw_deg.
+
+Speed. The stack's Mission (seed 000 JSON) has no speed, so DO_CHANGE_SPEED items do not go into
+it: the planner's live speed limit (planner max_velocity_mps, PLN_MAX_VELOCITY) is the speed.
+`waypoint_speeds` gives, per mission waypoint, the speed in force while flying to it (the last
+DO_CHANGE_SPEED item before it; None = none yet, leave the planner's speed alone), and gcs applies
+it (SpeedSchedule) when the mission starts or resumes at that waypoint and when the previous one
+is reached. Speed types 0 (air) and 1 (ground) both set it (a multicopter in still air); 2/3
+(climb/descent) are accepted and ignored (the planner has one 3-D limit). param2 -1 (or NaN) is
+"no change", -2 "back to the planner's default". The speed stays in force after the mission, as
+PLN_MAX_VELOCITY shows.
 """
 from __future__ import annotations
 
@@ -27,6 +37,28 @@ LOCAL_FRAMES = {M.MAV_FRAME_LOCAL_NED, M.MAV_FRAME_LOCAL_ENU}
 NAV_POSITION = {M.MAV_CMD_NAV_WAYPOINT, M.MAV_CMD_NAV_TAKEOFF, M.MAV_CMD_NAV_LAND}
 SUPPORTED_COMMANDS = {M.MAV_CMD_NAV_WAYPOINT, M.MAV_CMD_NAV_TAKEOFF, M.MAV_CMD_NAV_LAND,
                       M.MAV_CMD_NAV_RETURN_TO_LAUNCH, M.MAV_CMD_DO_CHANGE_SPEED}
+SPEED_TYPES_HORIZONTAL = (0, 1)     # DO_CHANGE_SPEED param1: airspeed, ground speed
+SPEED_TYPES_VERTICAL = (2, 3)       # climb, descent speed: no separate limit here
+SPEED_NO_CHANGE = -1.0
+SPEED_DEFAULT = -2.0
+
+
+def change_speed_value(speed_type: float, speed: float) -> float | None:
+    """DO_CHANGE_SPEED (param1, param2) -> the planner speed it asks for: m/s > 0, SPEED_DEFAULT,
+    or None (no change: -1, NaN, or a vertical speed type). ValueError(param index, reason) if
+    invalid."""
+    if not math.isfinite(speed_type) or int(speed_type) != speed_type or \
+            int(speed_type) not in SPEED_TYPES_HORIZONTAL + SPEED_TYPES_VERTICAL:
+        raise ValueError(1, f"speed type {speed_type} not supported")
+    if int(speed_type) in SPEED_TYPES_VERTICAL:
+        return None
+    if not math.isfinite(speed) or speed == SPEED_NO_CHANGE:
+        return None
+    if speed == SPEED_DEFAULT:
+        return SPEED_DEFAULT
+    if speed <= 0:
+        raise ValueError(2, f"speed {speed} m/s must be > 0 (or -1 no change, -2 default)")
+    return float(speed)
 
 
 class MissionConversionError(ValueError):
@@ -149,7 +181,13 @@ def convert_items(items: list[Item], home: Home, mission_id: str = "gcs", defaul
         if it.command not in SUPPORTED_COMMANDS:
             raise MissionConversionError(M.MAV_MISSION_UNSUPPORTED, f"item {it.seq}: command {it.command} not supported")
         if it.command == M.MAV_CMD_DO_CHANGE_SPEED:
-            continue  # accepted; the planner's speed limit is a parameter (PLN_MAX_VELOCITY)
+            try:
+                change_speed_value(it.param1, it.param2)   # applied by gcs: see waypoint_speeds
+            except ValueError as e:
+                index, reason = e.args
+                result = M.MAV_MISSION_INVALID_PARAM1 if index == 1 else M.MAV_MISSION_INVALID_PARAM2
+                raise MissionConversionError(result, f"item {it.seq}: {reason}") from None
+            continue
         if it.command == M.MAV_CMD_NAV_RETURN_TO_LAUNCH:
             waypoints.append(Waypoint(x=0.0, y=0.0, z=max(last_z, 1.0), yaw_deg=last_yaw))
             seqs.append(it.seq)
@@ -183,6 +221,50 @@ def convert_items(items: list[Item], home: Home, mission_id: str = "gcs", defaul
     mission = Mission(mission_id=mission_id, takeoff_altitude_m=takeoff_alt or default_takeoff_m,
                       waypoints=waypoints, waypoint_acceptance_radius_m=radius or acceptance_radius_m)
     return mission, seqs
+
+
+def waypoint_speeds(items: list[Item], seqs: list[int]) -> list[float | None]:
+    """Per mission waypoint (seqs: the item each came from, as convert_items returns them), the
+    speed asked for by the last DO_CHANGE_SPEED item before it: m/s, SPEED_DEFAULT, or None."""
+    out: list[float | None] = []
+    speed: float | None = None
+    i = 0
+    for seq in seqs:
+        while i < len(items) and items[i].seq < seq:
+            it = items[i]
+            if it.command == M.MAV_CMD_DO_CHANGE_SPEED:
+                try:
+                    v = change_speed_value(it.param1, it.param2)
+                except ValueError:
+                    v = None
+                if v is not None:
+                    speed = v
+            i += 1
+        out.append(speed)
+    return out
+
+
+class SpeedSchedule:
+    """When to change the planner's speed for the loaded mission's DO_CHANGE_SPEED items:
+    due(k) is the speed to apply now that the vehicle flies to waypoint k, None if nothing to do
+    (no item before k, or already applied). reset() forgets what was applied (a new start)."""
+
+    def __init__(self, speeds: list[float | None] | None = None, mission_id: str = ""):
+        self.speeds = list(speeds or [])
+        self.mission_id = mission_id
+        self.applied: float | None = None
+
+    def reset(self) -> None:
+        self.applied = None
+
+    def due(self, k: int) -> float | None:
+        if not 0 <= k < len(self.speeds):
+            return None
+        s = self.speeds[k]
+        if s is None or s == self.applied:
+            return None
+        self.applied = s
+        return s
 
 
 def mission_to_items(mission: Mission, home: Home) -> list[Item]:

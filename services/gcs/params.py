@@ -56,6 +56,7 @@ class Entry:
     ptype: int           # MAV_PARAM_TYPE
     min: float | None = None
     max: float | None = None
+    default: Any = None
 
 
 def param_type_of(value: Any, declared: str = "") -> int | None:
@@ -86,13 +87,27 @@ def decode_value(param_value: float, ptype: int, declared_type: int) -> Any:
     if declared_type == M.MAV_PARAM_TYPE_REAL32:
         if ptype in (M.MAV_PARAM_TYPE_INT32, M.MAV_PARAM_TYPE_UINT8, M.MAV_PARAM_TYPE_UINT32):
             return float(_bytewise_int(param_value, ptype))
-        return float(param_value)
+        return shortest_float32(param_value)
     as_int = _bytewise_int(param_value, ptype if ptype != M.MAV_PARAM_TYPE_REAL32 else M.MAV_PARAM_TYPE_INT32)
     if ptype == M.MAV_PARAM_TYPE_REAL32 and math.isfinite(param_value) and float(param_value).is_integer():
         as_int = int(param_value)  # cast encoding (e.g. MAVProxy): 1.0 means 1
     if declared_type == M.MAV_PARAM_TYPE_UINT8:
         return bool(as_int)
     return as_int
+
+
+def shortest_float32(value: float) -> float:
+    """The shortest decimal that is the same float32: a ground station's 1.1 arrives as the float32
+    1.100000023841858; the service should get 1.1, what the operator typed."""
+    value = float(value)
+    if not math.isfinite(value):
+        return value
+    f32 = struct.unpack("<f", struct.pack("<f", value))[0]
+    for digits in range(6, 10):
+        candidate = float(f"{f32:.{digits}g}")
+        if struct.unpack("<f", struct.pack("<f", candidate))[0] == f32:
+            return candidate
+    return f32
 
 
 def _bytewise_int(param_value: float, ptype: int) -> int:
@@ -126,7 +141,7 @@ class ParamTable:
             pt = param_type_of(d.value, d.type)
             if pt is None:
                 continue
-            out.append(Entry(service, d.name, "", d.value, pt, d.min, d.max))
+            out.append(Entry(service, d.name, "", d.value, pt, d.min, d.max, d.default))
         old = [(e.name, e.value) for e in self.by_service.get(service, [])]
         self.by_service[service] = out
         self._rebuild()
@@ -148,6 +163,13 @@ class ParamTable:
 
     def __len__(self) -> int:
         return len(self.entries)
+
+    def find(self, service: str, name: str) -> tuple[int, Entry] | None:
+        """A service's parameter by its own name (not the MAVLink one)."""
+        for i, e in enumerate(self.entries):
+            if e.service == service and e.name == name:
+                return i, e
+        return None
 
     def lookup(self, name: str | None = None, index: int = -1) -> tuple[int, Entry] | None:
         """PARAM_REQUEST_READ semantics: index >= 0 wins, else the name."""

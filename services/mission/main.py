@@ -10,8 +10,7 @@ import numpy as np
 
 from aeroperception.schemas import (
     ArmReply, GcsLink, ArmRequest, DiagnosticStatus, Empty, GetMissionReply, GoToPositionFeedback,
-    GoToPositionGoal,
-    GoToPositionResult, Header, LandFeedback, LandGoal, LandResult, LoadMissionReply,
+    GoToPositionGoal, GoToPositionResult, Header, LandFeedback, LandGoal, LandResult, LoadMissionReply,
     LoadMissionRequest, MissionCommand, PerceptionHealth, Pose, PoseStamped, Quaternion, Reply,
     SchemaError, SetModeReply, SetModeRequest, TakeoffFeedback, TakeoffGoal, TakeoffResult,
     VehicleState, Vector3, WaypointReached, parse_mission,

@@ -3,11 +3,19 @@ ground-station software: pymavlink first, then MAVSDK-Python. Loopback only, fre
 from __future__ import annotations
 
 import asyncio
+import json
 import math
 import os
+import re
+import shutil
 import socket
+import subprocess
+import sys
+import threading
 import time
+from pathlib import Path
 
+import numpy as np
 import pytest
 
 os.environ.setdefault("MAVLINK20", "1")
@@ -16,7 +24,7 @@ from pymavlink.dialects.v20 import common as M  # noqa: E402
 
 from aeroperception.schemas import GcsLink, MissionStatus, decode  # noqa: E402
 from aeroperception.services.gcs.missions import Home  # noqa: E402
-from aerotest import wait_for_message  # noqa: E402
+from aerotest import wait_for_message, wait_until  # noqa: E402
 
 HOME = Home(35.736805, 139.539676, 10.0)
 
@@ -122,6 +130,21 @@ def test_pymavlink_ground_station(stack):
         pv = g.recv("PARAM_VALUE", lambda m: m.param_id == "PLN_MAX_VELOCITY")
         assert pv.param_value == pytest.approx(3.5)
 
+        # DO_CHANGE_SPEED: the planner's live speed limit (ground speed 2.5; above max refused;
+        # -2 = back to the planner's default)
+        def change_speed(speed):
+            g.conn.mav.command_long_send(1, 1, M.MAV_CMD_DO_CHANGE_SPEED, 0, 1, speed, -1, 0, 0, 0, 0)
+            return g.recv("COMMAND_ACK", lambda m: m.command == M.MAV_CMD_DO_CHANGE_SPEED
+                          and m.result != M.MAV_RESULT_IN_PROGRESS, timeout_s=8).result
+
+        assert change_speed(2.5) == M.MAV_RESULT_ACCEPTED
+        assert st.aero("param", "get", "planner", "max_velocity_mps").stdout.strip() == "2.5"
+        assert change_speed(99.0) == M.MAV_RESULT_DENIED
+        g.conn.mav.param_request_read_send(1, 1, b"PLN_MAX_VELOCITY", -1)
+        assert g.recv("PARAM_VALUE", lambda m: m.param_id == "PLN_MAX_VELOCITY").param_value == pytest.approx(2.5)
+        assert change_speed(-2.0) == M.MAV_RESULT_ACCEPTED
+        assert st.aero("param", "get", "planner", "max_velocity_mps").stdout.strip() == "2.0"
+
         # mission upload (takeoff + 4 waypoints), then download
         pts = waypoints()
         items = [(M.MAV_CMD_NAV_TAKEOFF, HOME.lat_deg, HOME.lon_deg, 4.0)] + \
@@ -155,6 +178,29 @@ def test_pymavlink_ground_station(stack):
         assert g.recv("MISSION_ACK").type == M.MAV_MISSION_UNSUPPORTED
         g.conn.mav.mission_request_list_send(1, 1, 0)
         assert g.recv("MISSION_COUNT").count == len(items)
+
+        # a mission loaded without the ground station (aero mission load) is what a download shows
+        square = Path(__file__).resolve().parents[2] / "examples" / "missions" / "square_20m.json"
+        r = st.aero("mission", "load", str(square))
+        assert r.returncode == 0, r.stderr
+
+        def download():
+            g.conn.mav.mission_request_list_send(1, 1, 0)
+            n = g.recv("MISSION_COUNT").count
+            got = []
+            for i in range(n):
+                g.conn.mav.mission_request_int_send(1, 1, i, 0)
+                got.append(g.recv("MISSION_ITEM_INT", lambda m, i=i: m.seq == i))
+            g.conn.mav.mission_ack_send(1, 1, 0, 0)
+            return got
+
+        deadline = time.monotonic() + 10
+        while len(down := download()) != 6 and time.monotonic() < deadline:   # takeoff + 5 waypoints
+            time.sleep(0.5)
+        assert [d.command for d in down] == [M.MAV_CMD_NAV_TAKEOFF] + [M.MAV_CMD_NAV_WAYPOINT] * 5
+        assert down[0].z == pytest.approx(4.0)
+        lat, lon, alt = HOME.to_geodetic(10.0, -10.0, 4.0)                     # waypoint 0, ENU
+        assert (down[1].x / 1e7, down[1].y / 1e7, down[1].z) == pytest.approx((lat, lon, alt), abs=1e-6)
 
         # garbage on the link is counted, never fatal
         raw = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -230,3 +276,352 @@ def test_mavsdk_ground_station(stack):
     asyncio.run(asyncio.wait_for(session(), 120))
     ms = wait_for_message(st.session, "mission/status", MissionStatus, lambda m: m.total_waypoints == 4, timeout_s=5)
     assert ms.mission_id.startswith("gcs")
+
+
+# ---------------------------------------------------------------- MAVProxy
+
+
+def mavproxy_script() -> str | None:
+    """The installed `mavproxy.py` next to this interpreter, else on PATH."""
+    local = Path(sys.executable).parent / "mavproxy.py"
+    return str(local) if local.is_file() else shutil.which("mavproxy.py")
+
+
+class MavProxy:
+    """MAVProxy driven through its stdin (a pipe), stdout read line by line in a thread.
+
+    Interactive mode on purpose: --non-interactive / --daemon do not read stdin at all. No GUI
+    modules (no --console/--map), --no-state (no logs, no aircraft dir), HOME and cwd in a
+    temporary directory (no ~/.mavproxy, no ~/.mavinit.scr), DISPLAY unset."""
+
+    def __init__(self, master: str, workdir: Path):
+        script = mavproxy_script()
+        if script is None:
+            pytest.skip("mavproxy.py not installed")
+        workdir.mkdir(parents=True, exist_ok=True)
+        env = {k: v for k, v in os.environ.items() if k != "DISPLAY" and not k.startswith("AERO_")}
+        env.update(HOME=str(workdir), PYTHONUNBUFFERED="1", MAVLINK20="1")
+        self.lines: list[str] = []
+        self._cond = threading.Condition()
+        self.proc = subprocess.Popen(
+            [sys.executable, script, f"--master={master}", "--no-state", "--source-system=255",
+             "--source-component=190"],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+            bufsize=1, cwd=workdir, env=env)
+        self._reader = threading.Thread(target=self._read, name="mavproxy-stdout", daemon=True)
+        self._reader.start()
+
+    def _read(self) -> None:
+        for line in self.proc.stdout:
+            with self._cond:
+                self.lines.append(line.rstrip("\n"))
+                self._cond.notify_all()
+
+    def mark(self) -> int:
+        with self._cond:
+            return len(self.lines)
+
+    def send(self, command: str) -> int:
+        """Type one command; returns the output position before it (for expect(after=...))."""
+        mark = self.mark()
+        self.proc.stdin.write(command + "\n")
+        self.proc.stdin.flush()
+        return mark
+
+    def expect(self, pattern: str, timeout_s: float = 5.0, after: int = 0) -> re.Match:
+        """The first output line at or after `after` matching `pattern` (bounded wait)."""
+        rx = re.compile(pattern)
+        deadline = time.monotonic() + timeout_s
+        i = after
+        with self._cond:
+            while True:
+                while i < len(self.lines):
+                    m = rx.search(self.lines[i])
+                    i += 1
+                    if m:
+                        return m
+                left = deadline - time.monotonic()
+                if left <= 0 or self.proc.poll() is not None and i >= len(self.lines):
+                    raise AssertionError(f"MAVProxy printed nothing matching {pattern!r} within {timeout_s} s; "
+                                         f"output:\n" + "\n".join(self.lines[-60:]))
+                self._cond.wait(min(left, 0.2))
+
+    def all_after(self, pattern: str, after: int) -> list[re.Match]:
+        rx = re.compile(pattern)
+        with self._cond:
+            return [m for m in (rx.search(ln) for ln in self.lines[after:]) if m]
+
+    def stop(self) -> None:
+        """EOF on stdin is MAVProxy's clean exit; then SIGTERM, then kill (by handle)."""
+        try:
+            self.proc.stdin.close()
+        except OSError:
+            pass
+        for sig in (None, "terminate", "kill"):
+            if sig is not None and self.proc.poll() is None:
+                getattr(self.proc, sig)()
+            try:
+                self.proc.wait(8.0 if sig is None else 5.0)
+                break
+            except subprocess.TimeoutExpired:
+                continue
+        self._reader.join(2.0)
+
+
+def write_qgc_wpl(path: Path, takeoff_alt: float, pts) -> list[tuple[int, float, float, float]]:
+    """A QGC WPL 110 file as a PX4 ground station writes it (no home line: PX4 missions start at
+    seq 0): NAV_TAKEOFF above home, then NAV_WAYPOINTs, global-relative frame."""
+    rows = [(M.MAV_CMD_NAV_TAKEOFF, HOME.lat_deg, HOME.lon_deg, takeoff_alt)] + \
+           [(M.MAV_CMD_NAV_WAYPOINT, *p) for p in pts]
+    lines = ["QGC WPL 110"]
+    for seq, (cmd, lat, lon, alt) in enumerate(rows):
+        p2 = 0.5 if cmd == M.MAV_CMD_NAV_WAYPOINT else 0.0
+        lines.append(f"{seq}\t{1 if seq == 0 else 0}\t{M.MAV_FRAME_GLOBAL_RELATIVE_ALT}\t{cmd}\t0\t{p2}\t0\t0\t"
+                     f"{lat:.8f}\t{lon:.8f}\t{alt:.3f}\t1")
+    path.write_text("\n".join(lines) + "\n")
+    return rows
+
+
+def test_mavproxy_ground_station(stack, tmp_path):
+    """MAVProxy (scripted through stdin): parameters (MAVFTP NAKed -> plain protocol at once),
+    get/set/refused set, mission load + list, mode, arm, disarm."""
+    port, mp_port = free_udp_port(), free_udp_port()
+    st = start_stack(stack, port, mp_port)   # gcs sends to MAVProxy's udpin port until it talks
+    mp = MavProxy(f"udpin:127.0.0.1:{mp_port}", tmp_path / "mavproxy")
+    try:
+        mp.expect(r"Detected vehicle 1:1", timeout_s=30)
+        t0 = time.monotonic()
+        mp.expect(r"Received \d+ parameters", timeout_s=10)   # MAVFTP would cost ~11 s before the fallback
+        assert time.monotonic() - t0 < 10
+
+        # planner kp: fetched by name (the table fills as the services answer), shown, set
+        value = None
+        deadline = time.monotonic() + 15
+        while value is None and time.monotonic() < deadline:
+            mark = mp.send("param fetch PLN_KP")
+            try:
+                value = float(mp.expect(r"PLN_KP = (-?[\d.]+)", timeout_s=2, after=mark).group(1))
+            except AssertionError:
+                time.sleep(0.5)
+        assert value == pytest.approx(0.8)
+        mark = mp.send("param show PLN_KP")
+        assert float(mp.expect(r"PLN_KP\s+(-?[\d.]+)\s*$", after=mark).group(1)) == pytest.approx(0.8)
+
+        mp.send("param set PLN_KP 1.1")
+        got = wait_until_value(lambda: st.aero("param", "get", "planner", "kp", timeout_s=10).stdout.strip(),
+                               "1.1", timeout_s=10)
+        assert got == "1.1"   # the planner holds 1.1, not the float32 1.100000023841858
+        mark = mp.send("param fetch PLN_KP")
+        assert float(mp.expect(r"PLN_KP = (-?[\d.]+)", after=mark).group(1)) == pytest.approx(1.1)
+
+        # above the declared max (5.0): the planner refuses, gcs echoes the value in force,
+        # MAVProxy retries and gives up
+        mark = mp.send("param set PLN_KP 9")
+        mp.expect(r"Failed to set PLN_KP to 9", timeout_s=10, after=mark)
+        assert st.aero("param", "get", "planner", "kp").stdout.strip() == "1.1"
+
+        # mission: load a QGC WPL file (takeoff + 4 waypoints), then list it back
+        wpl = tmp_path / "square.txt"
+        rows = write_qgc_wpl(wpl, 4.0, waypoints())
+        mark = mp.send(f"wp load {wpl}")
+        mp.expect(rf"Sent all {len(rows)} waypoints", timeout_s=10, after=mark)
+        mp.expect(r"Got MISSION_ACK: TYPE_MISSION: ACCEPTED", timeout_s=10, after=mark)
+        ms = wait_for_message(st.session, "mission/status", MissionStatus, lambda m: m.total_waypoints == 4,
+                              timeout_s=5)
+        assert ms.mission_id.startswith("gcs")
+
+        mark = mp.send("wp list")
+        mp.expect(rf"Requesting {len(rows)} waypoints", timeout_s=5, after=mark)
+        item_rx = r"(\d+) (\d+) (-?\d+\.\d+) (-?\d+\.\d+) (-?\d+\.\d+) p1="
+        mp.expect(item_rx, after=mark)
+        wait_until(lambda: len(mp.all_after(item_rx, mark)) >= len(rows), 5, "wp list output")
+        listed = mp.all_after(item_rx, mark)[:len(rows)]
+        for m, (cmd, lat, lon, alt) in zip(listed, rows):
+            assert int(m.group(1)) == cmd and int(m.group(2)) == M.MAV_FRAME_GLOBAL_RELATIVE_ALT
+            assert float(m.group(3)) == pytest.approx(lat, abs=2e-7) and float(m.group(4)) == pytest.approx(lon, abs=2e-7)
+            assert float(m.group(5)) == pytest.approx(alt)
+
+        # mode: MAVProxy 1.8's `mode LOITER` is broken against PX4 (it passes pymavlink's
+        # (base, main, sub) tuple as one float), so send DO_SET_MODE itself: PX4 AUTO.LOITER = HOLD
+        mark = mp.send(f"long DO_SET_MODE {M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED} 4 3")
+        mp.expect(r"Got COMMAND_ACK: DO_SET_MODE: ACCEPTED", timeout_s=8, after=mark)
+
+        mark = mp.send("arm throttle")
+        mp.expect(r"Got COMMAND_ACK: COMPONENT_ARM_DISARM: ACCEPTED", timeout_s=8, after=mark)
+        mp.expect(r"^(?:\S+> )*ARMED", timeout_s=5, after=mark)
+        mark = mp.send("disarm")
+        mp.expect(r"Got COMMAND_ACK: COMPONENT_ARM_DISARM: ACCEPTED", timeout_s=8, after=mark)
+        mp.expect(r"DISARMED", timeout_s=5, after=mark)
+        assert st.alive("gcs")
+    finally:
+        mp.stop()
+    assert mp.proc.returncode is not None
+
+
+def latest(st, key: str, cls: type, timeout_s: float = 1.0):
+    """The next message on `key` as `cls`, or None after timeout_s."""
+    try:
+        return wait_for_message(st.session, key, cls, timeout_s=timeout_s)
+    except AssertionError:
+        return None
+
+
+def wait_until_value(get, want, timeout_s=10.0, interval_s=0.3):
+    """Poll get() until it returns `want`; the last value either way."""
+    deadline = time.monotonic() + timeout_s
+    value = get()
+    while value != want and time.monotonic() < deadline:
+        time.sleep(interval_s)
+        value = get()
+    return value
+
+
+# ---------------------------------------------------------------- a mission flown end to end
+
+
+class Recorder:
+    """Every message on some keys, decoded, in arrival order: {name: [msg]}."""
+
+    def __init__(self, session, keys: dict):
+        self.lock = threading.Lock()
+        self.data = {name: [] for name in keys}
+        self.subs = [session.declare_subscriber(key, self._cb(name, cls)) for name, (key, cls) in keys.items()]
+
+    def _cb(self, name, cls):
+        def on_sample(sample) -> None:
+            try:
+                msg = decode(sample.payload.to_bytes(), cls)
+            except Exception:  # noqa: BLE001 - not ours
+                return
+            with self.lock:
+                self.data[name].append(msg)
+        return on_sample
+
+    def get(self, name) -> list:
+        with self.lock:
+            return list(self.data[name])
+
+    def last(self, name):
+        with self.lock:
+            return self.data[name][-1] if self.data[name] else None
+
+    def close(self) -> None:
+        for s in self.subs:
+            s.undeclare()
+
+
+@pytest.mark.slow
+def test_mavsdk_mission_flies_in_sim(stack):
+    """MAVSDK uploads takeoff + DO_CHANGE_SPEED + 4 waypoints (a 4 m square at 3 m), arms and
+    starts the mission; the speed item sets the planner's speed when the mission starts (not at
+    upload); every waypoint's MISSION_ITEM_REACHED arrives at the ground station in order, the
+    vehicle lands and disarms (simulator ground truth, fmu's vehicle status), all within 90 s."""
+    mavsdk = pytest.importorskip("mavsdk.asyncio")
+    from mavsdk.asyncio.plugins.action.action import ActionAsync
+    from mavsdk.asyncio.plugins.mavlink_direct.mavlink_direct import MavlinkDirectAsync
+    from mavsdk.asyncio.plugins.mission_raw.mission_raw import MissionRawAsync
+    from mavsdk.asyncio.plugins.telemetry.telemetry import TelemetryAsync
+    from mavsdk.plugins.mission_raw import MissionItem
+
+    from aeroperception.schemas import VehicleState, VehicleStatus, WaypointReached
+
+    port, sdk_port = free_udp_port(), free_udp_port()
+    st = start_stack(stack, port, sdk_port)
+    wait_until(lambda: (m := latest(st, "state/vehicle", VehicleState)) is not None and m.connected, 15,
+               "state/vehicle connected (fmu <-> sim)")
+    alt = 3.0
+    pts = waypoints(alt=alt)
+    speed = 2.5
+    rows = [(M.MAV_CMD_NAV_TAKEOFF, HOME.lat_deg, HOME.lon_deg, alt), (M.MAV_CMD_DO_CHANGE_SPEED, 0.0, 0.0, 0.0)] \
+        + [(M.MAV_CMD_NAV_WAYPOINT, *p) for p in pts]
+
+    def item(i, cmd, lat, lon, z):
+        if cmd == M.MAV_CMD_DO_CHANGE_SPEED:
+            return MissionItem(seq=i, frame=M.MAV_FRAME_MISSION, command=cmd, current=0, autocontinue=1,
+                               param1=1.0, param2=speed, param3=-1.0, param4=0.0, x=0, y=0, z=0.0, mission_type=0)
+        return MissionItem(seq=i, frame=M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, command=cmd, current=1 if i == 0 else 0,
+                           autocontinue=1, param1=0.0, param2=0.5 if cmd == M.MAV_CMD_NAV_WAYPOINT else 0.0,
+                           param3=0.0, param4=float("nan"), x=int(round(lat * 1e7)), y=int(round(lon * 1e7)),
+                           z=z, mission_type=0)
+
+    items = [item(i, *r) for i, r in enumerate(rows)]
+    planner_speed = lambda: st.aero("param", "get", "planner", "max_velocity_mps").stdout.strip()  # noqa: E731
+    wp_seqs = [i for i, r in enumerate(rows) if r[0] == M.MAV_CMD_NAV_WAYPOINT]
+    reached: list[int] = []
+    progress: list[tuple[int, int]] = []
+    timing: dict[str, float] = {}
+
+    async def collect_reached(direct):
+        async for msg in direct.subscribe_message("MISSION_ITEM_REACHED"):
+            reached.append(int(json.loads(msg.fields_json)["seq"]))
+
+    async def collect_progress(raw):
+        async for p in raw.subscribe_mission_progress():
+            progress.append((p.current, p.total))
+
+    async def until(pred, timeout_s, what):
+        deadline = time.monotonic() + timeout_s
+        while not pred():
+            if time.monotonic() > deadline:
+                raise AssertionError(f"timed out after {timeout_s} s waiting for {what}; reached {reached}, "
+                                     f"progress {progress[-3:]}")
+            await asyncio.sleep(0.1)
+
+    async def session():
+        config = mavsdk.Configuration.create_with_component_type(mavsdk.ComponentType.GROUND_STATION)
+        async with mavsdk.Mavsdk(config) as sdk:
+            await sdk.add_any_connection(f"udpin://127.0.0.1:{sdk_port}")
+            system = await sdk.first_autopilot(timeout_s=15.0)
+            assert system is not None, "MAVSDK saw no autopilot"
+            raw, action, tel = MissionRawAsync(system), ActionAsync(system), TelemetryAsync(system)
+            tasks = [asyncio.create_task(collect_reached(MavlinkDirectAsync(system))),
+                     asyncio.create_task(collect_progress(raw))]
+            armed: list[bool] = []
+
+            async def collect_armed():
+                async for a in tel.subscribe_armed():
+                    armed.append(a)
+            tasks.append(asyncio.create_task(collect_armed()))
+            try:
+                await asyncio.wait_for(raw.upload_mission(items), 20)
+                timing["speed_after_upload"] = await asyncio.to_thread(planner_speed)
+                t0 = time.monotonic()
+                await asyncio.wait_for(action.arm(), 15)
+                await asyncio.wait_for(raw.start_mission(), 15)
+                await until(lambda: len(reached) >= len(wp_seqs), 60, "MISSION_ITEM_REACHED for every waypoint")
+                timing["waypoints_s"] = time.monotonic() - t0
+                await until(lambda: armed and not armed[-1], 30, "MAVSDK telemetry: disarmed")
+                timing["flight_s"] = time.monotonic() - t0
+            finally:
+                for t in tasks:
+                    t.cancel()
+                await asyncio.gather(*tasks, return_exceptions=True)
+
+    rec = Recorder(st.session, {"truth": ("sim/truth/state", VehicleState),
+                                "vstatus": ("fmu/out/vehicle_status", VehicleStatus),
+                                "status": ("mission/status", MissionStatus),
+                                "reached": ("mission/waypoint_reached", WaypointReached)})
+    try:
+        asyncio.run(asyncio.wait_for(session(), 110))
+        wait_until(lambda: rec.last("vstatus") is not None and not rec.last("vstatus").armed, 5,
+                   "fmu/out/vehicle_status disarmed")
+        wait_until(lambda: rec.last("status") is not None and rec.last("status").state == "IDLE", 5, "mission IDLE")
+        truth = rec.get("truth")
+        states = [m.state for m in rec.get("status")]
+    finally:
+        rec.close()
+    print(f"gcs mission: waypoints after {timing['waypoints_s']:.1f} s, landed+disarmed after "
+          f"{timing['flight_s']:.1f} s; reached {reached}; progress {sorted(set(progress))}")
+    assert reached == wp_seqs                                    # in order, once each
+    assert timing["speed_after_upload"] == "2.0" and planner_speed() == str(speed)
+    assert timing["flight_s"] < 90
+    assert truth and truth[-1].position_m.z < 0.2 and max(m.position_m.z for m in truth) > alt - 0.5
+    track = np.array([m.position_m.to_array() for m in truth])
+    for seq in wp_seqs:
+        lat, lon, z = rows[seq][1:]
+        target = np.array(HOME.to_enu(lat, lon, z))
+        assert np.linalg.norm(track - target, axis=1).min() < 0.6, f"item {seq}: never within 0.6 m of {target}"
+    order = [s for i, s in enumerate(states) if i == 0 or states[i - 1] != s]
+    assert [s for s in order if s in ("TAKEOFF", "EXECUTING", "LAND")][:3] == ["TAKEOFF", "EXECUTING", "LAND"]
+    assert order[-1] == "IDLE"
+    assert progress and progress[-1] == (len(rows), len(rows))   # MAVSDK: mission finished

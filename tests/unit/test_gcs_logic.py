@@ -14,7 +14,8 @@ from aeroperception.services.gcs.commands import CommandHandler, mode_from_set_m
 from aeroperception.services.gcs.link import Parser, UdpLink, make_mav
 from aeroperception.services.gcs.main import ftp_nak
 from aeroperception.services.gcs.missions import (
-    Home, Item, MissionConversionError, MissionProtocol, convert_items, items_to_mission, mission_to_items,
+    SPEED_DEFAULT, Home, Item, MissionConversionError, MissionProtocol, SpeedSchedule, convert_items,
+    items_to_mission, mission_to_items, waypoint_speeds,
 )
 from aeroperception.services.gcs.params import (
     ParamTable, decode_value, encode_value, mavlink_name,
@@ -123,6 +124,52 @@ def test_unsupported_items_are_refused_with_a_reason():
     with pytest.raises(MissionConversionError) as e:
         items_to_mission([Item(seq=0, frame=M.MAV_FRAME_BODY_FRD, command=M.MAV_CMD_NAV_WAYPOINT)], HOME)
     assert e.value.result == M.MAV_MISSION_UNSUPPORTED_FRAME
+
+
+def speed_item(seq, speed, kind=1.0):
+    return Item(seq=seq, frame=M.MAV_FRAME_MISSION, command=M.MAV_CMD_DO_CHANGE_SPEED, param1=kind, param2=speed,
+                param3=-1.0)
+
+
+def wp_item(seq, north, east, alt=5.0):
+    lat, lon = HOME.projection.reproject(north, east)
+    return Item(seq=seq, frame=M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, command=M.MAV_CMD_NAV_WAYPOINT,
+                x=lat, y=lon, z=alt, param4=math.nan)
+
+
+def test_do_change_speed_items_give_the_speed_per_waypoint():
+    items = [Item(seq=0, frame=M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, command=M.MAV_CMD_NAV_TAKEOFF,
+                  x=HOME.lat_deg, y=HOME.lon_deg, z=4.0, param4=math.nan),
+             speed_item(1, 1.5, kind=0.0),          # airspeed: same as ground speed here
+             speed_item(2, 3.0),                    # the last one before the first waypoint wins
+             wp_item(3, 4, 0),
+             wp_item(4, 4, 4),
+             speed_item(5, -1.0),                   # no change
+             speed_item(6, 0.7, kind=2.0),          # climb speed: ignored
+             wp_item(7, 0, 4),
+             speed_item(8, -2.0),                   # back to the default
+             wp_item(9, 0, 0)]
+    mission, seqs = convert_items(items, HOME)
+    assert seqs == [3, 4, 7, 9] and len(mission.waypoints) == 4
+    assert waypoint_speeds(items, seqs) == [3.0, 3.0, 3.0, SPEED_DEFAULT]
+    assert waypoint_speeds([wp_item(0, 1, 1), speed_item(1, 2.0), wp_item(2, 2, 2)], [0, 2]) == [None, 2.0]
+    # invalid speeds / types refuse the upload, naming the item and the parameter
+    for bad, result in ((speed_item(1, 0.0), M.MAV_MISSION_INVALID_PARAM2),
+                        (speed_item(1, -5.0), M.MAV_MISSION_INVALID_PARAM2),
+                        (speed_item(1, 2.0, kind=7.0), M.MAV_MISSION_INVALID_PARAM1)):
+        with pytest.raises(MissionConversionError) as e:
+            convert_items([wp_item(0, 1, 1), bad, wp_item(2, 2, 2)], HOME)
+        assert e.value.result == result and "item 1" in str(e.value)
+
+
+def test_speed_schedule_applies_each_speed_once_per_start():
+    sched = SpeedSchedule([None, 3.0, 3.0, SPEED_DEFAULT], "gcs-1")
+    assert sched.due(0) is None                       # no DO_CHANGE_SPEED before waypoint 0
+    assert sched.due(1) == 3.0 and sched.due(1) is None and sched.due(2) is None
+    assert sched.due(3) == SPEED_DEFAULT and sched.due(4) is None and sched.due(-1) is None
+    sched.reset()                                     # the mission starts again
+    assert sched.due(2) == 3.0
+    assert SpeedSchedule().due(0) is None
 
 
 def test_mission_to_items_round_trip():
@@ -255,6 +302,11 @@ def test_param_values_bytewise():
     assert struct.pack("<f", encode_value(-3, M.MAV_PARAM_TYPE_INT32)) == struct.pack("<i", -3)
     assert decode_value(2.5, M.MAV_PARAM_TYPE_REAL32, M.MAV_PARAM_TYPE_REAL32) == 2.5
     assert decode_value(5.0, M.MAV_PARAM_TYPE_REAL32, M.MAV_PARAM_TYPE_INT32) == 5   # cast-encoded
+    # a float32 on the wire reaches the service as the decimal the operator typed
+    f32 = struct.unpack("<f", struct.pack("<f", 1.1))[0]
+    assert f32 != 1.1 and decode_value(f32, M.MAV_PARAM_TYPE_REAL32, M.MAV_PARAM_TYPE_REAL32) == 1.1
+    assert decode_value(struct.unpack("<f", struct.pack("<f", -0.3))[0], M.MAV_PARAM_TYPE_REAL32,
+                        M.MAV_PARAM_TYPE_REAL32) == -0.3
 
 
 # ---------------------------------------------------------------- commands
@@ -274,6 +326,7 @@ class FakeOps:
     def mission_start(self, done): self._rec("start", done)
     def takeoff(self, alt, done): self._rec("takeoff", alt, done)
     def goto(self, enu, yaw, done): self._rec("goto", enu, yaw, done)
+    def change_speed(self, speed, done): self._rec("speed", speed, done)
 
 
 def handler():
@@ -306,6 +359,31 @@ def test_arm_acks_real_outcome_progress_and_no_double_execution():
     assert ops.calls[-1] == ("arm", False, True)
     ops.dones[-1](True, "ok")
     assert sent[-1].result == M.MAV_RESULT_ACCEPTED
+
+
+def test_do_change_speed_command():
+    h, sent, ops = handler()
+    h.handle(cmd_long(M.MAV_CMD_DO_CHANGE_SPEED, 1.0, 3.5, -1.0), 0.0)      # ground speed 3.5 m/s
+    assert ops.calls[-1] == ("speed", 3.5) and sent == []
+    ops.dones[-1](True, "ok")
+    assert sent[-1].command == M.MAV_CMD_DO_CHANGE_SPEED and sent[-1].result == M.MAV_RESULT_ACCEPTED
+    h.handle(cmd_long(M.MAV_CMD_DO_CHANGE_SPEED, 0.0, 20.0), 0.0)           # the planner refuses it
+    assert ops.calls[-1] == ("speed", 20.0)
+    ops.dones[-1](False, "above max")
+    assert sent[-1].result == M.MAV_RESULT_DENIED
+    h.handle(cmd_long(M.MAV_CMD_DO_CHANGE_SPEED, 1.0, -2.0), 0.0)           # back to the default
+    assert ops.calls[-1] == ("speed", None)
+    ops.dones[-1](True, "ok")
+    n = len(ops.calls)
+    for p1, p2, result in ((1.0, -1.0, M.MAV_RESULT_ACCEPTED),             # no change
+                           (1.0, math.nan, M.MAV_RESULT_ACCEPTED),
+                           (2.0, 1.0, M.MAV_RESULT_UNSUPPORTED),            # climb speed
+                           (1.0, 0.0, M.MAV_RESULT_DENIED),
+                           (1.0, -3.0, M.MAV_RESULT_DENIED),
+                           (9.0, 2.0, M.MAV_RESULT_DENIED)):
+        h.handle(cmd_long(M.MAV_CMD_DO_CHANGE_SPEED, p1, p2), 0.0)
+        assert sent[-1].result == result, (p1, p2)
+    assert len(ops.calls) == n                       # none of those reached the planner
 
 
 def test_command_table():
