@@ -12,7 +12,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from aeroperception.schemas import (
     ArmReply, ArmRequest, Attitude, BatteryState, DiagnosticStatus, EmergencyStopReply,
-    EmergencyStopRequest, Imu, LocalPosition, Odometry, SetModeReply, SetModeRequest,
+    EmergencyStopRequest, Image, Imu, LocalPosition, Odometry, SetModeReply, SetModeRequest,
     TrajectorySetpoint, VehicleState, VehicleStatus,
 )
 from aeroperception.services.runtime import Health, Service, run
@@ -65,6 +65,10 @@ class FmuService(Service):
         self.pubs["state/vehicle"] = pub("state/vehicle", VehicleState, express=True)
         node.subscribe("fmu/in/trajectory_setpoint", TrajectorySetpoint, self._on_setpoint)
         node.subscribe("state/visual_odometry", Odometry, self._on_vio)
+        self.imu_stamps_ns: deque[int] = deque(maxlen=400)      # recent sensors/imu stamps (2 s)
+        self.camera_imu_dt_ms: deque[float] = deque(maxlen=50)  # image stamp - newest IMU stamp before it
+        if p.publish_imu:  # seed 000 imu_adapter: verify camera / IMU time alignment
+            node.subscribe("sensors/camera/left/image", Image, self._on_image_stamp)
         node.serve("fmu/srv/arm", ArmRequest, ArmReply, self._srv_arm, locked=False)
         node.serve("fmu/srv/set_mode", SetModeRequest, SetModeReply, self._srv_set_mode, locked=False)
         node.serve("fmu/srv/emergency_stop", EmergencyStopRequest, EmergencyStopReply, self._srv_estop, locked=False)
@@ -128,6 +132,7 @@ class FmuService(Service):
             self.pubs["fmu/out/sensor_combined"].publish(imu)
             if "sensors/imu" in self.pubs:
                 self.pubs["sensors/imu"].publish(imu)
+                self.imu_stamps_ns.append(stamp)
         elif t == "COMMAND_ACK":
             self.acks.on_ack(m)
         elif t == "STATUSTEXT":  # the FC says why it refused a command (PX4: "Arming denied: ...")
@@ -203,6 +208,16 @@ class FmuService(Service):
         self._send(lambda mav: mav.odometry_send(**f))
         self.counters["vio_injected"] += 1
 
+    def _on_image_stamp(self, img: Image) -> None:
+        """Camera frames should fall inside the IMU stream: log how far each is from the last IMU
+        sample at or before it (large or negative values mean clock or driver trouble)."""
+        before = [t for t in self.imu_stamps_ns if t <= img.header.stamp_ns]
+        dt_ms = (img.header.stamp_ns - (before[-1] if before else self.imu_stamps_ns[0])) / 1e6 \
+            if self.imu_stamps_ns else float("nan")
+        self.camera_imu_dt_ms.append(dt_ms)
+        self.log.throttled("info", "cam_imu", "camera_imu_alignment", period_s=5.0, dt_ms=round(dt_ms, 3),
+                           imu_samples=len(self.imu_stamps_ns))
+
     # ------------------------------------------------------------ queryables
 
     def _command(self, command: int, params: list[float], confirm, timeout_s: float) -> tuple[bool, str]:
@@ -268,6 +283,10 @@ class FmuService(Service):
     # ------------------------------------------------------------ health
 
     def health(self) -> Health:
+        if self.camera_imu_dt_ms:
+            dts = np.array(self.camera_imu_dt_ms)
+            self.counters["camera_imu_dt_p50_ms"] = round(float(np.nanmedian(dts)), 3)
+            self.counters["camera_imu_dt_max_ms"] = round(float(np.nanmax(np.abs(dts))), 3)
         values = dict(self.counters, mode=self.tm.flight_mode, armed=self.tm.armed, autopilot=self.tm.autopilot.name,
                       planner="streaming" if self.hold is None and self.planner_sp is not None else "holding")
         if not self.link_fresh():

@@ -153,6 +153,7 @@ class SimService(Service):
         seed = a.seed if a.seed is not None else self.scenario.seed
         self.speed = a.speed if a.speed > 0 else 1.0
         self.vehicle = SimVehicle(self.node.params, seed=seed)
+        self.epoch_ns = time.time_ns() - self.vehicle.time_ns
         self.endpoint = MavlinkEndpoint(target=parse_address(a.target), bind=parse_address(a.bind))
         self.stop_event = threading.Event()
         pub = self.node.publisher
@@ -169,7 +170,7 @@ class SimService(Service):
                 for info in self.sensors.stereo.infos():
                     side = "left" if "left" in info.frame_id else "right"
                     key = f"sensors/camera/{side}/info"
-                    self.node.serve(key, None, CameraInfo, lambda _r, i=info: camera_info_msg(i, self.runner.now_ns()))
+                    self.node.serve(key, None, CameraInfo, lambda _r, i=info: camera_info_msg(i, self.stamp(self.runner.now_ns())))
                 self.node.every(1.0, self._publish_infos, name="camera_info")
             if a.sensors == "all" and self.sensors.lidar is not None:
                 self.periods_ns["lidar"] = int(1e9 / self.sensors.lidar.info().rate_hz)
@@ -183,6 +184,11 @@ class SimService(Service):
         self.runner.start()
         self.log.info("sim_started", scenario=self.scenario.name, seed=seed, speed=self.speed,
                       mavlink_target=a.target, sensors=a.sensors)
+
+    def stamp(self, sim_ns: int) -> int:
+        """Stamps on Zenoh: sim time anchored at the wall-clock epoch when the sim started, so at
+        1x they agree with services on wall time, and at other speeds services follow sim/clock."""
+        return self.epoch_ns + sim_ns
 
     def stop(self) -> None:
         if hasattr(self, "runner"):   # start() may have failed (bad --scenario) before it existed
@@ -200,17 +206,18 @@ class SimService(Service):
 
     def _on_truth(self, t: VehicleTruth) -> None:
         now = t.stamp_ns
+        stamp = self.stamp(now)
         if self._due("truth", now):
-            self.pubs["sim/clock"].publish(Clock(header=Header(stamp_ns=now), speed_factor=self.speed))
+            self.pubs["sim/clock"].publish(Clock(header=Header(stamp_ns=stamp), speed_factor=self.speed))
             self.pubs["sim/truth/state"].publish(VehicleState(
-                header=Header(stamp_ns=now, frame_id="map"), position_m=Vector3.from_array(t.position_enu_m),
+                header=Header(stamp_ns=stamp, frame_id="map"), position_m=Vector3.from_array(t.position_enu_m),
                 velocity_mps=Vector3.from_array(t.velocity_enu_mps), acceleration_mps2=Vector3.from_array(t.accel_enu_mps2),
                 orientation=Quaternion.from_array(t.q_enu_flu), angular_velocity_radps=Vector3.from_array(t.angular_velocity_flu_radps),
                 estimator_name="truth", confidence=1.0, armed=self.vehicle.commander.armed,
                 flight_mode=self.vehicle.commander.mode, connected=True))
         if "imu" in self.periods_ns and self._due("imu", now):
             s = self.sensors.imu.sample(t)
-            self.pubs["sensors/imu"].publish(Imu(header=Header(stamp_ns=now, frame_id="base_link"),
+            self.pubs["sensors/imu"].publish(Imu(header=Header(stamp_ns=stamp, frame_id="base_link"),
                                                  angular_velocity_radps=Vector3.from_array(s.angular_velocity_flu_radps),
                                                  linear_acceleration_mps2=Vector3.from_array(s.linear_acceleration_flu_mps2)))
         for w in self.workers:
@@ -222,11 +229,11 @@ class SimService(Service):
     def _render_camera(self, t: VehicleTruth) -> None:
         left, right = self.sensors.stereo.render(t)
         encoding = "mono8" if left.ndim == 2 else "rgb8"
-        header = Header(stamp_ns=t.stamp_ns, frame_id="camera_left_optical")
+        header = Header(stamp_ns=self.stamp(t.stamp_ns), frame_id="camera_left_optical")
         self.pubs["sensors/camera/left/image"].publish(Image.from_numpy(left, encoding, header))
         if right is not None:
             self.pubs["sensors/camera/right/image"].publish(
-                Image.from_numpy(right, encoding, Header(stamp_ns=t.stamp_ns, frame_id="camera_right_optical")))
+                Image.from_numpy(right, encoding, Header(stamp_ns=header.stamp_ns, frame_id="camera_right_optical")))
         if self.scenario.targets:
             boxes = project_targets(self.sensors.stereo.left, t)
             dets = [Detection2D(center_x_px=(b.bbox_xyxy_px[0] + b.bbox_xyxy_px[2]) / 2,
@@ -239,8 +246,8 @@ class SimService(Service):
                                                                   image_width=left.shape[1], image_height=left.shape[0]))
 
     def _render_lidar(self, t: VehicleTruth) -> None:
-        scan = self.sensors.lidar.scan(t, stamp_ns=t.stamp_ns)
-        header = Header(stamp_ns=t.stamp_ns, frame_id=scan.frame_id)
+        scan = self.sensors.lidar.scan(t, stamp_ns=self.stamp(t.stamp_ns))
+        header = Header(stamp_ns=scan.stamp_ns, frame_id=scan.frame_id)
         points = NDArray.from_numpy(scan.points_m.astype(np.float32, copy=False))
         self.pubs["sensors/lidar/points"].publish(PointCloud(header=header, points=points))
         self.pubs["sim/truth/lidar_labels"].publish(PointCloud(header=header, points=points,
@@ -249,7 +256,7 @@ class SimService(Service):
     def _publish_infos(self) -> None:
         for info in self.sensors.stereo.infos():
             side = "left" if "left" in info.frame_id else "right"
-            self.pubs[f"sensors/camera/{side}/info"].publish(camera_info_msg(info, self.runner.now_ns()))
+            self.pubs[f"sensors/camera/{side}/info"].publish(camera_info_msg(info, self.stamp(self.runner.now_ns())))
 
     # ------------------------------------------------------------ health
 
