@@ -23,6 +23,7 @@ import numpy as np
 
 from aeroperception.schemas import DiagnosticStatus, MissionCommand, Reply, SchemaError, decode
 from aeroperception.services.runtime.node import CallError, call
+from aeroperception.services.runtime.service import SWITCH_INTERVAL_S
 from aeroperception.services.runtime.session import make_config, open_session
 
 from .bench_pubsub import measure
@@ -107,6 +108,7 @@ def breakdown(tap: Tap, seen: dict[str, list[float]]) -> dict[str, np.ndarray]:
 
 
 def run(duration_s: float = 20.0, sensors: str = "none") -> int:
+    sys.setswitchinterval(SWITCH_INTERVAL_S)  # the tap must not wait for the GIL either
     router_port, sim_tx, fmu_rx, sim_bind = _free_port(), _free_port(), _free_port(), _free_port()
     tap = Tap(sim_tx, fmu_rx)
     endpoint = f"tcp/127.0.0.1:{router_port}"
