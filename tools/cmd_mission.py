@@ -118,14 +118,14 @@ def fly(args) -> int:
                 _command(session, args, cmd)
             except CliError as e:
                 print(f"  {cmd}: {e}", file=sys.stderr)
-        _follow(session, args, latest, changed, quiet=True)
+        _follow(session, args, latest, changed, quiet=True, interrupted=True)
         return 130
     finally:
         sub.undeclare()
         session.close()
 
 
-def _follow(session, args, latest, changed, quiet: bool = False) -> int:
+def _follow(session, args, latest, changed, quiet: bool = False, interrupted: bool = False) -> int:
     """Print progress until the vehicle is back in IDLE after having flown."""
     deadline = time.monotonic() + args.timeout
     flew = False
@@ -150,6 +150,7 @@ def _follow(session, args, latest, changed, quiet: bool = False) -> int:
         elif not flew and "failed" in st.message:
             raise CliError(f"mission could not start: {st.message}")
         elif flew:
-            print(f"4/4 done: landed and disarmed; states {' -> '.join(seen)}", flush=True)
+            done = "landed after the interruption" if interrupted else "4/4 done: landed"
+            print(f"{done} and disarmed; states {' -> '.join(seen)}", flush=True)
             return 0
     raise CliError(f"mission did not finish within {args.timeout:.0f} s (last state {last_state})")

@@ -7,6 +7,11 @@ free loopback port. Ground truth comes from sim/truth/state (ENU), never from th
 - failure modes and actions on one module-scoped stack: invalid mission, arming refused without
   a position, planner silent (fmu holds), setpoints stopped (the sim fails over to HOLD like
   PX4), and the takeoff / goto (cancelled and completed) / land actions through ActionClient.
+- VIO injection on the same stack: fresh Odometry on state/visual_odometry reaches the sim as
+  MAVLink ODOMETRY (counted by fmu and by the sim, at the true position); stale Odometry is
+  dropped by fmu and never reaches the sim.
+- `aero mission fly` interrupted (slow, same stack): SIGINT while EXECUTING -> HOLD, LAND, the
+  command waits for the landing and exits 130.
 - `aero mission fly` error paths that need no stack (missing file, bad JSON).
 
 The sim runs at SPEED x real time (services follow sim/clock); every wait is bounded; paused
@@ -18,6 +23,7 @@ import math
 import os
 import signal
 import socket
+import subprocess
 import threading
 import time
 from contextlib import contextmanager
@@ -27,18 +33,19 @@ import numpy as np
 import pytest
 import zenoh
 
-from aerotest import aero, is_service_process, wait_until
+from aerotest import aero, aero_argv, clean_env, is_service_process, wait_until
 from aeroperception.schemas import (
-    ArmReply, ArmRequest, DiagnosticStatus, GoalStatus, GoToPositionGoal,
-    LandGoal, LoadMissionReply, LoadMissionRequest, MissionCommand, MissionStatus,
+    ArmReply, ArmRequest, Clock, DiagnosticStatus, GoalStatus, GoToPositionGoal, Header,
+    LandGoal, LoadMissionReply, LoadMissionRequest, MissionCommand, MissionStatus, Odometry, Pose,
     Reply, SchemaError, SetModeReply, SetModeRequest, TakeoffGoal, TakeoffResult, Vector3,
-    VehicleState, VehicleStatus, WaypointReached, decode, load_mission_file,
+    VehicleState, VehicleStatus, WaypointReached, decode, encode, load_mission_file,
 )
 from aeroperception.services.runtime import ActionClient
-from aeroperception.services.runtime.node import CallError, call
+from aeroperception.services.runtime.node import CallError, call, encoding_for
 
 REPO = Path(__file__).resolve().parents[2]
 SURVEY = REPO / "examples" / "missions" / "survey_01.json"
+SQUARE = REPO / "examples" / "missions" / "square_20m.json"
 SERVICES = ["sim", "fmu", "planner", "mission", "diagnostics"]
 SPEED = 1.0          # real time: robust on a loaded 2-core CI machine (2x also passes, ~40 s faster)
 HOVER_ALT_M = 3.0
@@ -489,3 +496,138 @@ def test_setpoints_stop_sim_fails_over_to_hold(fstack):
         ensure_landed(st)
     t = truth(st)
     assert t.position_m.z < 0.2 and not t.armed
+
+
+# ---------------------------------------------------------------- VIO injection
+
+
+def fmu_clock(st):
+    """`now` on fmu's clock (what its _on_vio measures a stamp's age against): wall time, or
+    sim/clock extrapolated when fmu runs with --sim-time (`aero up --speed` != 1, AERO_SIM_TIME=1)."""
+    pid = service_pid(st, "fmu")
+    argv = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
+    env = Path(f"/proc/{pid}/environ").read_bytes().split(b"\0")
+    if b"--sim-time" not in argv and b"AERO_SIM_TIME=1" not in env:
+        return time.time_ns
+    tick = latest(st, "sim/clock", Clock, 3.0)
+    assert tick is not None, "fmu runs on sim time but there is no sim/clock"
+    t0 = time.monotonic()
+    return lambda: tick.header.stamp_ns + int((time.monotonic() - t0) * (tick.speed_factor or 1.0) * 1e9)
+
+
+def vio_counters(st) -> dict[str, int]:
+    f, s = diag(st, "fmu").values, diag(st, "sim").values
+    return {"injected": int(f["vio_injected"]), "stale": int(f["vio_stale_dropped"]),
+            "sim_odometry": int(s["vision_odometry"])}
+
+
+def publish_vio(st, rec: Recorder, clock, n: int, age_s: float = 0.0, rate_hz: float = 30.0) -> None:
+    """n Odometry messages at rate_hz on state/visual_odometry, at the true pose (ENU), stamped
+    `age_s` before now on fmu's clock."""
+    pub = st.session.declare_publisher("state/visual_odometry", encoding=encoding_for(Odometry))
+    try:
+        next_t = time.monotonic()
+        for _ in range(n):
+            t = rec.last("truth")
+            pub.put(encode(Odometry(header=Header(stamp_ns=clock() - int(age_s * 1e9), frame_id="odom"),
+                                    pose=Pose(position=t.position_m, orientation=t.orientation))))
+            next_t += 1.0 / rate_hz
+            time.sleep(max(0.0, next_t - time.monotonic()))
+    finally:
+        pub.undeclare()
+
+
+def test_vio_fresh_injected_stale_dropped(fstack):
+    st = fstack
+    clock = fmu_clock(st)
+    n = 60  # 2 s at 30 Hz
+    with recording(st, truth=("sim/truth/state", VehicleState)) as rec:
+        wait_until(lambda: rec.last("truth"), 3, "sim/truth/state")
+        c0 = vio_counters(st)
+
+        # Fresh: fmu injects every one as MAVLink ODOMETRY, the sim receives every one.
+        publish_vio(st, rec, clock, n)
+        c1 = wait_until(lambda: (c := vio_counters(st))["injected"] + c["stale"] - c0["injected"] - c0["stale"] >= n
+                        and c["sim_odometry"] - c0["sim_odometry"] >= c["injected"] - c0["injected"] and c,
+                        8, f"{n} fresh odometry messages handled by fmu and received by the sim")
+        err = float(diag(st, "sim").values["vision_error_m"])
+    print(f"vio fresh: {c0} -> {c1}, sim vision_error_m {err:.3f}")
+    assert c1["stale"] == c0["stale"], f"fresh odometry counted stale: {c0} -> {c1}"
+    assert c1["injected"] - c0["injected"] == n, f"{c0} -> {c1}"
+    assert c1["sim_odometry"] - c0["sim_odometry"] == n, f"sim received {c1['sim_odometry'] - c0['sim_odometry']} of {n}"
+    assert err < 0.15, f"injected position {err:.3f} m from the truth"
+
+    # Stale (3 s old > vio_timeout_s 1 s): dropped by fmu, nothing reaches the sim.
+    with recording(st, truth=("sim/truth/state", VehicleState)) as rec:
+        wait_until(lambda: rec.last("truth"), 3, "sim/truth/state")
+        publish_vio(st, rec, clock, 30, age_s=3.0)
+    c2 = wait_until(lambda: (c := vio_counters(st))["stale"] - c1["stale"] >= 30 and c, 8,
+                    "30 stale odometry messages dropped by fmu")
+    c3 = vio_counters(st)  # one more sim report, well after anything fmu could have sent
+    print(f"vio stale: {c1} -> {c2} -> {c3}")
+    assert c3["stale"] - c1["stale"] == 30 and c3["injected"] == c1["injected"], f"{c1} -> {c3}"
+    assert c3["sim_odometry"] == c1["sim_odometry"], f"stale odometry reached the sim: {c1} -> {c3}"
+
+
+# ---------------------------------------------------------------- `aero mission fly` interrupted
+
+
+@pytest.mark.slow
+def test_fly_interrupted_holds_lands_exits_130(fstack):
+    st = fstack
+    ensure_landed(st)
+    out: list[str] = []
+    err: list[str] = []
+    proc = subprocess.Popen(aero_argv() + ["mission", "fly", str(SQUARE), "--timeout", "120"],
+                            env=clean_env(st.endpoint), stdin=subprocess.DEVNULL,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    readers = [threading.Thread(target=lambda f=f, buf=buf: [buf.append(line) for line in f], daemon=True)
+               for f, buf in ((proc.stdout, out), (proc.stderr, err))]
+    for r in readers:
+        r.start()
+    try:
+        with recording(st, truth=("sim/truth/state", VehicleState), status=("mission/status", MissionStatus),
+                       vstatus=("fmu/out/vehicle_status", VehicleStatus)) as rec:
+            wait_state(st, "EXECUTING", 40)
+            time.sleep(1.5)  # under way to the first waypoint
+            assert proc.poll() is None, f"fly exited early ({proc.returncode})\n{''.join(out)}{''.join(err)}"
+            at_interrupt = rec.last("truth")
+            t_int = time.monotonic()
+            proc.send_signal(signal.SIGINT)
+            try:
+                code = proc.wait(60)
+            except subprocess.TimeoutExpired:
+                raise AssertionError(f"fly still running 60 s after SIGINT\n{''.join(out)}\n{st.describe()}") from None
+            t_exit = time.monotonic()
+            time.sleep(0.5)  # the state just after the exit
+            truth_after = rec.get("truth", since=t_int)
+            with rec.lock:
+                states = [(t, m.state) for t, m in rec.data["status"] if t >= t_int]
+            vstatus = rec.last("vstatus")
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(5)
+        for r in readers:
+            r.join(5)
+    stdout, stderr = "".join(out), "".join(err)
+    print(f"interrupted after {t_exit - t_int:.1f} s:\n{stdout}")
+    assert code == 130, f"exit {code}\n{stdout}\n{stderr}"
+    assert "interrupted: HOLD, then LAND" in stdout, stdout
+    assert "landed after the interruption and disarmed" in stdout and "4/4 done" not in stdout, stdout
+    assert "Traceback" not in stderr, stderr
+    # The vehicle held, landed and disarmed before the command returned, and it returned promptly.
+    with rec.lock:
+        landed_at = next((t for t, m in rec.data["truth"] if t >= t_int and m.position_m.z < 0.2 and not m.armed), None)
+        idle_at = next((t for t, s in states if s == "IDLE"), None)
+    assert landed_at is not None and landed_at <= t_exit + 0.1, "fly exited before the vehicle was down and disarmed"
+    assert idle_at is not None and t_exit - idle_at < 3.0, f"fly exited {t_exit - (idle_at or 0):.1f} s after IDLE"
+    distinct = [s for k, (_, s) in enumerate(states) if k == 0 or s != states[k - 1][1]]
+    assert distinct[-2:] == ["LAND", "IDLE"] and "EXECUTING" not in distinct[1:], f"mission states {distinct}"
+    final = truth_after[-1]
+    assert final.position_m.z < 0.2 and not final.armed, f"truth z {final.position_m.z:.2f} armed {final.armed}"
+    assert vstatus is not None and not vstatus.armed
+    assert mission_state(st) == "IDLE"
+    # It stopped where it was interrupted (braking distance), not at a waypoint.
+    moved = float(np.linalg.norm(pos(final)[:2] - pos(at_interrupt)[:2]))
+    assert moved < 3.0, f"landed {moved:.2f} m from where it was interrupted"
