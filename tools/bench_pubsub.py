@@ -18,7 +18,7 @@ import time
 import numpy as np
 import zenoh
 
-from aeroperception.schemas import Image, NDArray, VehicleState, decode, encode
+from aeroperception.schemas import Image, NDArray, VehicleState, encode
 from aeroperception.services.runtime.node import Node
 from aeroperception.services.runtime.session import make_config, open_session
 

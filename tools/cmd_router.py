@@ -37,7 +37,6 @@ def open_router(zenoh_config: str | None, listen: list[str] | None) -> zenoh.Ses
 def run(args) -> int:
     router = open_router(args.zenoh_config, args.listen)
     stop = ShutdownFlag().install().event
-    locators = router.info.routers_zid()  # noqa: F841 - touch the session so errors surface now
     print(f"aero router: zid {router.zid()} listening on {', '.join(args.listen or ['zenoh.json5 endpoints'])}",
           file=sys.stderr, flush=True)
     stop.wait()

@@ -3,11 +3,8 @@ from __future__ import annotations
 
 import time
 
-import zenoh
-
 from aeroperception.schemas import DiagnosticStatus
 from aeroperception.services.runtime import Health, Service, run
-from aeroperception.services.runtime.node import LIVELINESS_ROOT
 
 from . import contract
 from .logic import Aggregator
@@ -23,9 +20,7 @@ class DiagnosticsService(Service):
         self.agg = Aggregator(stale_after_s=self.params.stale_after_s)
         self.params.on_change(lambda n, v: setattr(self.agg, "stale_after_s", v) if n == "stale_after_s" else None)
         self.node.subscribe("diagnostics/*", DiagnosticStatus, self._on_status)
-        prefix = f"{LIVELINESS_ROOT}/{self.node.vehicle or 'default'}/*"
-        self.node._entities.append(self.node.session.liveliness().declare_subscriber(
-            prefix, lambda s: self.node._invoke(str(s.key_expr), self._on_token, s), history=True))
+        self.node.on_liveliness("*", self.agg.on_liveliness)
         self.pub = self.node.publisher("diagnostics/agg", contract.OUTPUTS["diagnostics/agg"])
         self.last = None
         self.loop = self.node.every(1.0 / self.params.publish_rate_hz, self._publish, name="publish")
@@ -33,9 +28,6 @@ class DiagnosticsService(Service):
 
     def _on_status(self, st: DiagnosticStatus) -> None:
         self.agg.on_status(st, time.monotonic())
-
-    def _on_token(self, sample: zenoh.Sample) -> None:
-        self.agg.on_liveliness(str(sample.key_expr).rsplit("/", 1)[-1], sample.kind == zenoh.SampleKind.PUT)
 
     def _publish(self) -> None:
         self.last = self.agg.rollup(time.monotonic(), self.node.now_ns())

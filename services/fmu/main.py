@@ -11,9 +11,7 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink
 
 from aeroperception.schemas import (
-    ArmReply, ArmRequest, Attitude, BatteryState, DiagnosticStatus, EmergencyStopReply,
-    EmergencyStopRequest, Image, Imu, LocalPosition, Odometry, SetModeReply, SetModeRequest,
-    TrajectorySetpoint, VehicleState, VehicleStatus,
+    ArmReply, ArmRequest, DiagnosticStatus, EmergencyStopReply, EmergencyStopRequest, Image, Odometry, SetModeReply, SetModeRequest, TrajectorySetpoint, VehicleState,
 )
 from aeroperception.services.runtime import Health, Service, run
 
@@ -95,7 +93,7 @@ class FmuService(Service):
                 continue
             if m is None:
                 continue
-            self.node._invoke("mavlink", self._on_mavlink, m)
+            self.node.run_callback("mavlink", self._on_mavlink, m)
 
     def _on_mavlink(self, m) -> None:
         t = m.get_type()

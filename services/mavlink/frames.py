@@ -46,7 +46,7 @@ _FLIP_Z = np.array([1.0, 1.0, -1.0])
 _FLIP_YZ = np.array([1.0, -1.0, -1.0])
 
 from aeroperception.services.runtime.rotations import (  # noqa: E402 - re-exported for the sim
-    _assemble, _components, _quat, _vec, quat_conjugate, quat_from_axis_angle, quat_from_euler,
+    _quat, _vec, quat_conjugate, quat_from_axis_angle, quat_from_euler,
     quat_from_rotmat, quat_multiply, quat_normalize, quat_rotate, quat_to_euler, quat_to_rotmat,
     quat_to_rotvec,
 )

@@ -9,8 +9,8 @@ from dataclasses import fields
 import numpy as np
 
 from aeroperception.schemas import (
-    ArmReply, GcsLink, ArmRequest, DiagnosticStatus, Empty, GetMissionReply, GoToPositionFeedback,
-    GoToPositionGoal, GoToPositionResult, Header, LandFeedback, LandGoal, LandResult, LoadMissionReply,
+    ArmReply, ArmRequest, DiagnosticStatus, GcsLink, Empty, GetMissionReply, GoToPositionFeedback,
+    GoToPositionGoal, GoToPositionResult, LandFeedback, LandGoal, LandResult, LoadMissionReply,
     LoadMissionRequest, MissionCommand, PerceptionHealth, Pose, PoseStamped, Quaternion, Reply,
     SchemaError, SetModeReply, SetModeRequest, TakeoffFeedback, TakeoffGoal, TakeoffResult,
     VehicleState, Vector3, WaypointReached, parse_mission,

@@ -4,8 +4,6 @@ from __future__ import annotations
 import math
 import time
 
-import numpy as np
-
 from aeroperception.schemas import (
     DiagnosticStatus, Header, PoseStamped, TrajectoryStatus, VehicleState, WaypointReached,
 )

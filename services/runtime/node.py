@@ -184,6 +184,23 @@ class Node:
             self.session.declare_subscriber(full_key, lambda s: self._invoke(str(s.key_expr), callback, s))
         )
 
+    def run_callback(self, source: str, fn: Callable, *args: Any) -> Any:
+        """Run fn(*args) like a subscriber callback: holding node.lock, exceptions counted per
+        `source` and logged (throttled), never raised. For input threads a service owns
+        (e.g. a MAVLink reader), so their handlers share the service's single-threaded model."""
+        return self._invoke(source, fn, *args)
+
+    def on_liveliness(self, pattern: str, callback: Callable[[str, bool], None]) -> None:
+        """callback(last key chunk, alive) for tokens under aero/alive/<vehicle>/<pattern>,
+        including those already alive (history)."""
+        key = f"{LIVELINESS_ROOT}/{self.vehicle or 'default'}/{pattern}"
+
+        def on_sample(s: zenoh.Sample) -> None:
+            k = str(s.key_expr)
+            self._invoke(k, callback, k.rsplit("/", 1)[-1], s.kind == zenoh.SampleKind.PUT)
+
+        self._entities.append(self.session.liveliness().declare_subscriber(key, on_sample, history=True))
+
     def _invoke(self, key: str, fn: Callable, *args: Any, locked: bool = True) -> Any:
         try:
             if not locked:
