@@ -28,7 +28,8 @@ CALLS = {
 }
 ACTIONS = ["mission/action/takeoff", "mission/action/land", "mission/action/goto"]
 
-# Seed 001 §5.1 / §14: bind 14551, send to the ground station at 14550 (learnt from its first packet).
+# Seed 001 §5.1 / §14: bind 14551, send to the ground station at 14550 until one talks; then to every
+# ground station heard (link.py).
 DEFAULT_LOCAL_PORT = 14551
 DEFAULT_REMOTE_PORT = 14550
 # Seed 001 §15: default home (Tanashi, Tokyo), altitude 10 m AMSL.
@@ -37,7 +38,7 @@ DEFAULT_HOME_LON_DEG = 139.539676
 DEFAULT_HOME_ALT_M = 10.0
 
 PARAMS = [
-    Param("gcs_ip", "127.0.0.1", description="ground station address until it sends its first packet"),
+    Param("gcs_ip", "127.0.0.1", description="ground station address while none is heard"),
     Param("remote_port", DEFAULT_REMOTE_PORT, "", 1, 65535, description="ground station UDP port (initial)"),
     Param("local_port", DEFAULT_LOCAL_PORT, "", 0, 65535, description="UDP port we bind (0 = any)"),
     Param("bind_ip", "0.0.0.0", description="address we bind"),
@@ -47,11 +48,18 @@ PARAMS = [
     Param("home_lat_deg", DEFAULT_HOME_LAT_DEG, "deg", -90.0, 90.0, description="home latitude (local ENU origin)"),
     Param("home_lon_deg", DEFAULT_HOME_LON_DEG, "deg", -180.0, 180.0, description="home longitude"),
     Param("home_alt_m", DEFAULT_HOME_ALT_M, "m", -500.0, 9000.0, description="home altitude AMSL"),
-    Param("gcs_timeout_s", 3.5, "s", 0.5, 60.0, description="no GCS heartbeat this long -> gcs/link down"),
+    Param("gcs_timeout_s", 3.5, "s", 0.5, 60.0, description="a ground station without a heartbeat this long gets no "
+          "telemetry; none left -> gcs/link down"),
     Param("mission_item_timeout_s", 0.25, "s", 0.05, 5.0, description="re-request a mission item after this"),
     Param("mission_retries", 5, "", 1, 50, description="re-requests of one item before giving up"),
     Param("max_mission_items", 500, "", 1, 10000, description="MISSION_COUNT above this is refused"),
     Param("param_services", "planner,mission,fmu,gcs", description="services whose parameters are exposed"),
     Param("param_refresh_s", 5.0, "s", 0.5, 120.0, description="re-read config/<service>/@params this often"),
     Param("call_timeout_s", 3.0, "s", 0.2, 20.0, description="timeout of calls into the stack"),
+    # MAVLink 2 signing (link.py). The key itself is never a parameter (parameters are readable on
+    # config/gcs/@params and logged when set): a file, or the environment variable below. Read at start.
+    Param("signing_key_file", "", description="MAVLink 2 signing key file (64 hex digits or 32 raw bytes); "
+          "empty = env AERO_GCS_SIGNING_KEY (hex), else no signing. When set, unsigned packets are refused"),
+    Param("signing_link_id", 0, "", 0, 255, description="MAVLink 2 signing link id of our packets"),
 ]
+SIGNING_KEY_ENV = "AERO_GCS_SIGNING_KEY"

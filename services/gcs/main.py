@@ -8,6 +8,7 @@ asynchronous (node.call_async), their replies come back under node.lock. So the 
 from __future__ import annotations
 
 import math
+import os
 import time
 
 from pymavlink.dialects.v20 import common as M
@@ -22,10 +23,11 @@ from aeroperception.services.runtime import CallError, Health, Service, run
 
 from . import contract
 from .commands import CommandHandler, mode_from_custom_mode
-from .link import UdpLink
+from .link import UdpLink, load_signing_key, parse_signing_key
+from .messages import statustext
 from .missions import (
-    SPEED_DEFAULT, Home, MissionConversionError, MissionProtocol, SpeedSchedule, convert_items, mission_to_items,
-    waypoint_speeds,
+    SPEED_DEFAULT, Home, MissionConversionError, MissionProtocol, Progress, SpeedSchedule, convert_items,
+    mission_to_items, waypoint_speeds,
 )
 from .params import ParamTable, decode_param_id, decode_value
 from .telemetry import Scheduler, TelemetryState
@@ -65,26 +67,52 @@ class GcsService(Service):
         g.add_argument("--remote-port", type=int, default=None, help="ground station port (default 14550)")
         g.add_argument("--gcs-ip", default=None, help="ground station address until it talks (default 127.0.0.1)")
         g.add_argument("--bind-ip", default=None, help="address to bind (default 0.0.0.0)")
+        g.add_argument("--signing-key-file", default=None, metavar="FILE",
+                       help="MAVLink 2 signing: sign everything, refuse unsigned packets; FILE holds the 32-byte "
+                            f"key as 64 hex digits or raw bytes (or set {contract.SIGNING_KEY_ENV}=<hex>)")
+        g.add_argument("--signing-link-id", type=int, default=None, help="MAVLink 2 signing link id (default 0)")
+
+    def _signing_key(self) -> tuple[bytes | None, str]:
+        """The signing key and where it came from (never the key itself in any message)."""
+        path = self.params.signing_key_file
+        if path:
+            key, shared = load_signing_key(path)
+            if shared:
+                self.log.warn("signing_key_file_permissions", file=path,
+                              hint="readable by other users; chmod 600")
+            return key, f"file {path}"
+        env = os.environ.get(contract.SIGNING_KEY_ENV, "")
+        if env:
+            try:
+                return parse_signing_key(env), f"env {contract.SIGNING_KEY_ENV}"
+            except ValueError as e:
+                raise ValueError(f"{contract.SIGNING_KEY_ENV}: {e}") from None
+        return None, ""
 
     def start(self) -> None:
         p = self.params
         for flag, name in (("local_port", "local_port"), ("remote_port", "remote_port"),
-                           ("gcs_ip", "gcs_ip"), ("bind_ip", "bind_ip")):
+                           ("gcs_ip", "gcs_ip"), ("bind_ip", "bind_ip"), ("signing_key_file", "signing_key_file"),
+                           ("signing_link_id", "signing_link_id")):
             v = getattr(self.args, flag, None)
             if v is not None:
                 p.set(name, v)
         node = self.node
         self.home = Home(p.home_lat_deg, p.home_lon_deg, p.home_alt_m)
-        self.link = UdpLink(p.bind_ip, p.local_port, p.gcs_ip, p.remote_port, p.system_id, p.component_id)
+        key, key_source = self._signing_key()
+        self.link = UdpLink(p.bind_ip, p.local_port, p.gcs_ip, p.remote_port, p.system_id, p.component_id,
+                            timeout_s=p.gcs_timeout_s, signing_key=key, signing_link_id=p.signing_link_id)
+        del key
         self.tel = TelemetryState(self.home)
         self.sched = Scheduler(p.telemetry_period_s, self.tel.build)
         self.table = ParamTable(p.param_services.split(","))
         self.missions = MissionProtocol(self.link.send, self._load, p.mission_item_timeout_s,
-                                        p.mission_retries, p.max_mission_items, log=self.log.warn)
+                                        p.mission_retries, p.max_mission_items, log=self.log.warn,
+                                        notify=self._notify)
         self.cmds = CommandHandler(self.link.send, self, self.home, position_enu=self._position,
                                    request_message=self._request_message,
                                    set_interval=self.sched.set_interval, set_current=self._set_current)
-        self.wp_seqs: list[int] = []
+        self.progress = Progress()       # MISSION_ITEM_REACHED for our mission (takeoff + waypoints)
         self.speeds = SpeedSchedule()    # the loaded mission's DO_CHANGE_SPEED items, per waypoint
         # (mission_id, waypoints) of the mission our items describe; one loaded some other way
         # (aero mission load/fly) is fetched from mission/srv/get so a download shows it.
@@ -92,9 +120,11 @@ class GcsService(Service):
         self.fetching = False
         self.fetch_failed_s = -math.inf
         self.loads = 0
+        self.notices = 0                      # STATUSTEXTs sent (chunk ids)
         self.gcs_last_hb: float | None = None
         self.gcs_sysid = 0
         self.gcs_connected = False
+        self.gcs_alive: set[tuple[str, int]] = set()
         self.ignored: dict[str, int] = {}
         self.pub_link = node.publisher("gcs/link", GcsLink)
         self.pub_joy = node.publisher("gcs/joystick", Joystick)
@@ -108,7 +138,8 @@ class GcsService(Service):
         node.every(1.0, self._publish_link, name="gcs_link")
         self.link.start(self._on_mav_locked)
         self.log.info("gcs_link", bind=f"{self.link.local_address[0]}:{self.link.local_address[1]}",
-                      remote=f"{p.gcs_ip}:{p.remote_port}")
+                      remote=f"{p.gcs_ip}:{p.remote_port}", signing=self.link.signing,
+                      signing_key=key_source or None, signing_link_id=p.signing_link_id if key_source else None)
 
     def stop(self) -> None:
         link = getattr(self, "link", None)
@@ -124,16 +155,26 @@ class GcsService(Service):
         self.tel.mission = msg
         if msg.mission_id and (msg.mission_id, msg.total_waypoints) != self.synced:
             self._fetch_mission()
-        self.tel.mission_total = len(self.missions.items)
+        for seq in self.progress.on_status(msg.mission_id, msg.state):   # the takeoff item, when done
+            self.link.send(M.MAVLink_mission_item_reached_message(seq), broadcast=True)
+        self._sync_plan()
         if 0 <= msg.active_waypoint < len(self.wp_seqs):
             self.tel.mission_seq = self.wp_seqs[msg.active_waypoint]
             self.missions.current = self.tel.mission_seq
         if msg.state == MissionStatus.STATE_EXECUTING and msg.mission_id == self.speeds.mission_id:
             self._apply_mission_speed(msg.active_waypoint)   # however the mission was started
 
+    @property
+    def wp_seqs(self) -> list[int]:
+        return self.progress.wp_seqs
+
+    def _sync_plan(self) -> None:
+        self.tel.mission_total = len(self.missions.items)
+        self.tel.mission_id = self.missions.plan_id
+
     def _on_reached(self, msg: WaypointReached) -> None:
-        if 0 <= msg.index < len(self.wp_seqs):
-            self.link.send(M.MAVLink_mission_item_reached_message(self.wp_seqs[msg.index]))
+        for seq in self.progress.on_reached(msg.mission_id, msg.index):   # (the takeoff first, if not yet)
+            self.link.send(M.MAVLink_mission_item_reached_message(seq), broadcast=True)
         if msg.mission_id == self.speeds.mission_id:
             self._apply_mission_speed(msg.index + 1)         # the speed for the next leg, at once
 
@@ -149,10 +190,25 @@ class GcsService(Service):
             self.link.send(msg)
         self.missions.tick(now)
         self.cmds.tick(now, timeout_s=self.params.call_timeout_s + 2.0)
-        if self.gcs_connected and self.gcs_last_hb is not None and now - self.gcs_last_hb > self.params.gcs_timeout_s:
+        self._sync_plan()
+        self._check_peers(now)
+
+    def _check_peers(self, now: float) -> None:
+        """gcs/link is up while any ground station is alive (heartbeat within gcs_timeout_s)."""
+        alive = {p.address for p in self.link.alive(now)}
+        for addr in sorted(self.gcs_alive - alive):
+            self.log.warn("gcs_lost", address=f"{addr[0]}:{addr[1]}", timeout_s=self.params.gcs_timeout_s)
+        for addr in sorted(alive - self.gcs_alive):
+            peer = self.link.peers.get(addr)
+            self.log.info("gcs_heard", address=f"{addr[0]}:{addr[1]}", system_id=peer.system_id if peer else None)
+        self.gcs_alive = alive
+        if self.gcs_connected and not alive:
             self.gcs_connected = False
             self.log.warn("gcs_link_lost", timeout_s=self.params.gcs_timeout_s)
             self._publish_link()
+
+    def _addresses(self) -> str:
+        return ",".join(f"{a[0]}:{a[1]}" for a in sorted(self.gcs_alive))
 
     def _publish_link(self) -> None:
         age = time.monotonic() - self.gcs_last_hb if self.gcs_last_hb is not None else None
@@ -165,7 +221,7 @@ class GcsService(Service):
     # ------------------------------------------------------------ MAVLink in
 
     def _on_mav_locked(self, msg) -> None:
-        self.node._invoke(f"mavlink:{msg.get_type()}", self._on_mav, msg)
+        self.node.run_callback(f"mavlink:{msg.get_type()}", self._on_mav, msg)
 
     def _on_mav(self, msg) -> None:
         t = msg.get_type()
@@ -178,6 +234,7 @@ class GcsService(Service):
             if msg.get_srcSystem() != self.params.system_id:
                 self.gcs_last_hb = now
                 self.gcs_sysid = msg.get_srcSystem()
+                self._check_peers(now)
                 if not self.gcs_connected:
                     self.gcs_connected = True
                     self.log.info("gcs_link_up", system_id=self.gcs_sysid,
@@ -254,7 +311,8 @@ class GcsService(Service):
                 entry.value = reply.value
             elif not reply.success:
                 self.log.warn("param_set_rejected", param=entry.mav_name, value=value, error=reply.message)
-            self.link.send(self.table.value_msg(index, entry))  # always echoed: the value in force
+            # always echoed, to every ground station (as PX4 does): the value in force
+            self.link.send(self.table.value_msg(index, entry), broadcast=True)
 
         if entry.service == self.NAME:
             apply(self.node.set_param(entry.name, value))
@@ -297,7 +355,7 @@ class GcsService(Service):
                 done(False, str(res), M.MAV_MISSION_ERROR)
                 return
             if res.success:
-                self.wp_seqs = seqs
+                self.progress.load(mission.mission_id, items, seqs)
                 self.speeds = SpeedSchedule(speeds, mission.mission_id)
                 self.synced = (mission.mission_id, len(mission.waypoints))
                 self.tel.mission_total = len(items)
@@ -332,7 +390,9 @@ class GcsService(Service):
                 return
             self.missions.items = mission_to_items(mission, self.home)
             self.missions.current = 0
-            self.wp_seqs = list(range(1, len(mission.waypoints) + 1))   # item 0 is the takeoff
+            self.progress.load(mission.mission_id, self.missions.items,
+                               list(range(1, len(mission.waypoints) + 1)))   # item 0 is the takeoff
+            self._sync_plan()
             self.speeds = SpeedSchedule([], mission.mission_id)
             self.tel.mission_total = len(self.missions.items)
             self.tel.mission_seq = 0
@@ -346,6 +406,12 @@ class GcsService(Service):
         if ok:
             self.tel.mission_seq = seq
         return ok
+
+    def _notify(self, text: str, peer: tuple[int, int]) -> None:
+        """A STATUSTEXT (critical, as PX4 reports a refused mission) to the ground station `peer`."""
+        self.notices += 1
+        for m in statustext(M.MAV_SEVERITY_CRITICAL, text, self.notices):
+            self.link.send(m, peer=peer)
 
     def _request_message(self, msg_id: int, param2: float) -> int:
         msg = self.tel.build(msg_id)
@@ -459,6 +525,8 @@ class GcsService(Service):
         inv = self.link.parser.invalid_total
         values = {
             "gcs_connected": self.gcs_connected, "gcs_address": f"{self.link.remote[0]}:{self.link.remote[1]}",
+            "ground_stations": len(self.gcs_alive), "ground_station_addresses": self._addresses(),
+            "signing": self.link.signing, "signing_rejected": self.link.parser.signing_rejected,
             "bind": f"{self.link.local_address[0]}:{self.link.local_address[1]}",
             "mavlink_rx": self.link.parser.received, "mavlink_tx": self.link.sent,
             "mavlink_invalid": inv, "params_exposed": len(self.table), "mission_items": len(self.missions.items),

@@ -7,6 +7,13 @@ Accepted items: NAV_WAYPOINT, NAV_TAKEOFF, NAV_LAND, NAV_RETURN_TO_LAUNCH, DO_CH
 frames GLOBAL[_INT] (AMSL), GLOBAL_RELATIVE_ALT[_INT], LOCAL_NED, LOCAL_ENU. A takeoff item sets
 the mission's takeoff altitude; LAND adds its position (when it has one) and ends the mission;
 RTL flies back above home. Yaw (param4, NED heading deg, NaN = keep) becomes ENU yaw_deg.
+A waypoint at or below home altitude in a global-relative frame (z <= 0) is refused
+(MAV_MISSION_INVALID_PARAM7, naming the item); NAV_LAND and RTL items are exempt, and so are the
+AMSL and local frames (terrain may fall away from home; the operator gave an absolute height).
+
+Plan id. `plan_id(items)` is a CRC-32 of the items (never 0: 0 means "no mission"); gcs reports
+it as MISSION_CURRENT.mission_id and in MISSION_ACK / MISSION_COUNT opaque_id (MAVLink extension
+fields, see messages.py), so a ground station notices that the mission on the vehicle changed.
 
 Speed. The stack's Mission (seed 000 JSON) has no speed, so DO_CHANGE_SPEED items do not go into
 it: the planner's live speed limit (planner max_velocity_mps, PLN_MAX_VELOCITY) is the speed.
@@ -21,6 +28,8 @@ PLN_MAX_VELOCITY shows.
 from __future__ import annotations
 
 import math
+import struct
+import zlib
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -29,6 +38,8 @@ from pymavlink.dialects.v20 import common as mavlink
 from aeroperception.schemas import Mission, Waypoint
 from aeroperception.services.mavlink import frames
 from aeroperception.services.mavlink.geo import MapProjection
+
+from .messages import MissionAck, MissionCount, statustext
 
 M = mavlink
 GLOBAL_FRAMES = {M.MAV_FRAME_GLOBAL, M.MAV_FRAME_GLOBAL_INT}
@@ -211,6 +222,9 @@ def convert_items(items: list[Item], home: Home, mission_id: str = "gcs", defaul
                 seqs.append(it.seq)
             break  # the mission manager lands after the last waypoint
         x, y, z = item_to_enu(it, home)
+        if it.frame in RELATIVE_FRAMES and it.z <= 0:
+            raise MissionConversionError(M.MAV_MISSION_INVALID_PARAM7,
+                                         f"item {it.seq}: waypoint altitude {it.z:.1f} m is at or below home")
         if it.param2 > 0 and radius is None:
             radius = float(it.param2)
         waypoints.append(Waypoint(x=x, y=y, z=z, yaw_deg=last_yaw))
@@ -267,6 +281,64 @@ class SpeedSchedule:
         return s
 
 
+def plan_id(items: list[Item]) -> int:
+    """An opaque id of a plan (CRC-32 of every item's frame, command and values); 0 = no plan."""
+    if not items:
+        return 0
+    crc = 0
+    for it in items:
+        crc = zlib.crc32(struct.pack("<HBHB7d", it.seq, it.frame & 0xFF, it.command & 0xFFFF, it.autocontinue & 0xFF,
+                                     it.param1, it.param2, it.param3, it.param4, it.x, it.y, it.z), crc)
+    return crc or 1
+
+
+def takeoff_seq(items: list[Item]) -> int | None:
+    """The seq of the NAV_TAKEOFF item a mission starts with (only DO_CHANGE_SPEED before it), or None."""
+    for it in items:
+        if it.command == M.MAV_CMD_NAV_TAKEOFF:
+            return it.seq
+        if it.command != M.MAV_CMD_DO_CHANGE_SPEED:
+            return None
+    return None
+
+
+class Progress:
+    """The item seqs of MISSION_ITEM_REACHED for the stack's progress on the mission our items
+    describe (`mission_id`): a waypoint's item when mission/waypoint_reached says so, and the
+    NAV_TAKEOFF item the mission starts with (if any) once per run when the takeoff is done, i.e.
+    when the mission goes on to its first waypoint (state EXECUTING, or a waypoint reached first).
+    A run ends when the stack is IDLE again (landed)."""
+
+    def __init__(self) -> None:
+        self.mission_id = ""
+        self.wp_seqs: list[int] = []          # the item seq of each mission waypoint
+        self.takeoff_seq: int | None = None
+        self.takeoff_reported = False
+
+    def load(self, mission_id: str, items: list[Item], wp_seqs: list[int]) -> None:
+        self.mission_id, self.wp_seqs = mission_id, list(wp_seqs)
+        self.takeoff_seq, self.takeoff_reported = takeoff_seq(items), False
+
+    def _takeoff(self) -> list[int]:
+        if self.takeoff_seq is None or self.takeoff_reported:
+            return []
+        self.takeoff_reported = True
+        return [self.takeoff_seq]
+
+    def on_status(self, mission_id: str, state: str) -> list[int]:
+        if state == "IDLE":
+            self.takeoff_reported = False
+            return []
+        if state == "EXECUTING" and mission_id == self.mission_id and mission_id:
+            return self._takeoff()
+        return []
+
+    def on_reached(self, mission_id: str, index: int) -> list[int]:
+        if not mission_id or mission_id != self.mission_id or not 0 <= index < len(self.wp_seqs):
+            return []
+        return self._takeoff() + [self.wp_seqs[index]]
+
+
 def mission_to_items(mission: Mission, home: Home) -> list[Item]:
     """Mission -> items (NAV_TAKEOFF above home, NAV_WAYPOINT per waypoint, global-relative)."""
     items = [Item(seq=0, frame=M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, command=M.MAV_CMD_NAV_TAKEOFF,
@@ -306,17 +378,25 @@ class MissionProtocol:
     send(msg): transmit one MAVLink message object.
     load(items, done): hand a complete upload to the stack; done(ok, message, mav_result) may be
         called later (from another thread, under the same lock as the rest of the service).
+    notify(text, peer): tell one ground station why its upload was refused (STATUSTEXT); by
+        default the STATUSTEXT goes through send().
+
+    One upload at a time: while one ground station uploads, another one's MISSION_COUNT,
+    MISSION_REQUEST_LIST or MISSION_CLEAR_ALL is refused (MISSION_ACK DENIED, counted as "busy");
+    the same ground station may restart its own upload.
     """
 
     def __init__(self, send: Callable, load: LoadFn, item_timeout_s: float = 0.25, retries: int = 5,
-                 max_items: int = 500, log: Callable[..., None] | None = None):
+                 max_items: int = 500, log: Callable[..., None] | None = None,
+                 notify: Callable[[str, tuple[int, int]], None] | None = None):
         self.send = send
         self.load = load
+        self.notify = notify or (lambda text, peer: [self.send(m) for m in statustext(M.MAV_SEVERITY_CRITICAL, text)])
         self.item_timeout_s = item_timeout_s
         self.retries = retries
         self.max_items = max_items
         self.log = log or (lambda *a, **k: None)
-        self.items: list[Item] = []          # the accepted mission, as uploaded
+        self.items = []                      # the accepted mission, as uploaded (sets plan_id)
         self.current = 0
         self.transfer: Transfer | None = None
         self.loading = False
@@ -324,18 +404,34 @@ class MissionProtocol:
         self.uploads_accepted = 0
         self.uploads_rejected = 0
 
+    @property
+    def items(self) -> list[Item]:
+        return self._items
+
+    @items.setter
+    def items(self, items: list[Item]) -> None:
+        self._items = list(items)
+        self.plan_id = plan_id(self._items)   # MISSION_CURRENT.mission_id, MISSION_ACK/COUNT opaque_id
+
     def _err(self, what: str) -> None:
         self.errors[what] = self.errors.get(what, 0) + 1
 
     def _ack(self, peer, result: int, mission_type: int = 0) -> None:
-        self.send(M.MAVLink_mission_ack_message(peer[0], peer[1], result, mission_type))
+        opaque = self.plan_id if result == M.MAV_MISSION_ACCEPTED and mission_type == M.MAV_MISSION_TYPE_MISSION else 0
+        self.send(MissionAck(peer[0], peer[1], result, mission_type, opaque))
+
+    def _busy(self, peer, loading: bool = True) -> bool:
+        """Another ground station's upload is under way (or, with `loading`, an upload is being
+        loaded into the stack)."""
+        t = self.transfer
+        return (t is not None and t.direction == "upload" and t.peer != peer) or (loading and self.loading)
 
     # ------------------------------------------------------------ upload (GCS -> us)
 
     def on_count(self, msg, now_s: float) -> None:
         peer = (msg.get_srcSystem(), msg.get_srcComponent())
         mtype = getattr(msg, "mission_type", 0)
-        if self.loading:
+        if self._busy(peer):
             self._err("busy")
             self._ack(peer, M.MAV_MISSION_DENIED, mtype)
             return
@@ -346,6 +442,7 @@ class MissionProtocol:
         if msg.count > self.max_items:
             self._err("count_too_large")
             self.transfer = None
+            self.notify(f"Mission rejected: {msg.count} items, at most {self.max_items}", peer)
             self._ack(peer, M.MAV_MISSION_NO_SPACE, mtype)
             return
         if msg.count == 0:
@@ -368,6 +465,9 @@ class MissionProtocol:
         t = self.transfer
         if t is None or t.direction != "upload":
             self._err("item_without_upload")
+            return
+        if (msg.get_srcSystem(), msg.get_srcComponent()) != t.peer:
+            self._err("item_from_other_peer")   # not part of the upload under way
             return
         if getattr(msg, "mission_type", 0) != t.mission_type:
             self._err("item_wrong_type")
@@ -402,6 +502,7 @@ class MissionProtocol:
             else:
                 self.uploads_rejected += 1
                 self.log("mission_rejected", message=message)
+                self.notify(f"Mission rejected: {message}", peer)   # before the ACK: shown with it
                 self._ack(peer, result if result != M.MAV_MISSION_ACCEPTED else M.MAV_MISSION_ERROR, mtype)
 
         self.load(items, done)
@@ -412,10 +513,14 @@ class MissionProtocol:
         peer = (msg.get_srcSystem(), msg.get_srcComponent())
         mtype = getattr(msg, "mission_type", 0)
         if mtype != M.MAV_MISSION_TYPE_MISSION:
-            self.send(M.MAVLink_mission_count_message(peer[0], peer[1], 0, mtype))
+            self.send(MissionCount(peer[0], peer[1], 0, mtype))
+            return
+        if self._busy(peer, loading=False):
+            self._err("busy")
+            self._ack(peer, M.MAV_MISSION_DENIED, mtype)
             return
         n = len(self.items)
-        self.send(M.MAVLink_mission_count_message(peer[0], peer[1], n, mtype))
+        self.send(MissionCount(peer[0], peer[1], n, mtype, self.plan_id))
         self.transfer = Transfer("download", peer, n, mtype, list(self.items), 0, now_s) if n else None
 
     def on_request(self, msg, now_s: float) -> None:
@@ -435,6 +540,8 @@ class MissionProtocol:
             self.transfer.last_send_s = now_s
 
     def on_ack(self, msg, now_s: float) -> None:
+        if self.transfer is not None and (msg.get_srcSystem(), msg.get_srcComponent()) != self.transfer.peer:
+            return   # another ground station's ACK says nothing about this transfer
         if self.transfer is not None and self.transfer.direction == "download":
             self.transfer = None
         elif self.transfer is not None and self.transfer.direction == "upload" and msg.type != M.MAV_MISSION_ACCEPTED:
@@ -452,6 +559,10 @@ class MissionProtocol:
         mtype = getattr(msg, "mission_type", 0)
         if mtype not in (M.MAV_MISSION_TYPE_MISSION, M.MAV_MISSION_TYPE_ALL):
             self._ack(peer, M.MAV_MISSION_ACCEPTED, mtype)
+            return
+        if self._busy(peer):
+            self._err("busy")
+            self._ack(peer, M.MAV_MISSION_DENIED, mtype)
             return
         self.transfer = None
         self.clear(peer, mtype)

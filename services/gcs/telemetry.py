@@ -16,6 +16,7 @@ from pymavlink.dialects.v20 import common as M
 from aeroperception.schemas import BatteryState, LandedState, MissionStatus, VehicleState
 from aeroperception.services.mavlink import frames, px4
 
+from .messages import MissionCurrent
 from .missions import Home
 
 CAPABILITIES = (M.MAV_PROTOCOL_CAPABILITY_MISSION_INT | M.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
@@ -46,6 +47,7 @@ class TelemetryState:
     mission: MissionStatus | None = None
     mission_seq: int = 0            # MISSION_CURRENT.seq (item index)
     mission_total: int = 0
+    mission_id: int = 0             # MISSION_CURRENT.mission_id: the plan's id (missions.plan_id), 0 = none
     boot_s: float = field(default_factory=time.monotonic)
 
     def boot_ms(self) -> int:
@@ -155,7 +157,8 @@ class TelemetryState:
                 state = M.MISSION_STATE_ACTIVE
             elif st.state == "HOLDING" and st.active_waypoint >= 0:
                 state = M.MISSION_STATE_PAUSED
-        return M.MAVLink_mission_current_message(self.mission_seq, self.mission_total, state, 0)
+        return MissionCurrent(self.mission_seq, self.mission_total, state, 0,
+                              self.mission_id if self.mission_total else 0)
 
     def autopilot_version(self):
         return M.MAVLink_autopilot_version_message(

@@ -7,7 +7,7 @@ import json
 import math
 import os
 import re
-import shutil
+import importlib.util
 import socket
 import subprocess
 import sys
@@ -22,7 +22,8 @@ os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil  # noqa: E402
 from pymavlink.dialects.v20 import common as M  # noqa: E402
 
-from aeroperception.schemas import GcsLink, MissionStatus, decode  # noqa: E402
+from aeroperception.schemas import DiagnosticStatus, GcsLink, MissionStatus, decode  # noqa: E402
+from aeroperception.services.gcs.messages import extension_fields  # noqa: E402
 from aeroperception.services.gcs.missions import Home  # noqa: E402
 from aerotest import wait_for_message, wait_until  # noqa: E402
 
@@ -47,8 +48,8 @@ def start_stack(stack, gcs_port: int, gcs_remote: int):
 class Gcs:
     """A pymavlink ground station that talks first (gcs learns our address)."""
 
-    def __init__(self, gcs_port: int):
-        self.conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{gcs_port}", source_system=255,
+    def __init__(self, gcs_port: int, system_id: int = 255):
+        self.conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{gcs_port}", source_system=system_id,
                                                source_component=190, dialect="common")
         self.log: list = []
 
@@ -160,6 +161,11 @@ def test_pymavlink_ground_station(stack):
         ms = wait_for_message(st.session, "mission/status", MissionStatus,
                               lambda m: m.total_waypoints == 4, timeout_s=5)
         assert ms.mission_id.startswith("gcs")
+        # the plan's id: in the ACK (opaque_id) and in MISSION_CURRENT (mission_id extension field)
+        plan = extension_fields(ack)["opaque_id"]
+        assert plan != 0
+        mc = g.recv("MISSION_CURRENT", lambda m: m.total == len(items))
+        assert extension_fields(mc)["mission_id"] == plan
 
         g.conn.mav.mission_request_list_send(1, 1, 0)
         cnt = g.recv("MISSION_COUNT")
@@ -178,6 +184,22 @@ def test_pymavlink_ground_station(stack):
         assert g.recv("MISSION_ACK").type == M.MAV_MISSION_UNSUPPORTED
         g.conn.mav.mission_request_list_send(1, 1, 0)
         assert g.recv("MISSION_COUNT").count == len(items)
+
+        # a waypoint at home altitude (relative frame): refused, the STATUSTEXT names the item
+        g.conn.mav.mission_count_send(1, 1, 2, 0)
+        for _ in range(2):
+            req = g.recv("MISSION_REQUEST_INT")
+            lat, lon, _ = pts[req.seq]
+            g.conn.mav.mission_item_int_send(1, 1, req.seq, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, M.MAV_CMD_NAV_WAYPOINT,
+                                             0, 1, 0, 0, 0, math.nan, int(lat * 1e7), int(lon * 1e7),
+                                             5.0 if req.seq == 0 else 0.0, 0)
+        text = g.recv("STATUSTEXT", lambda m: m.chunk_seq == 0)
+        text2 = g.recv("STATUSTEXT", lambda m: m.id == text.id and m.chunk_seq == 1)
+        assert text.severity == M.MAV_SEVERITY_CRITICAL
+        assert (text.text + text2.text).startswith("Mission rejected: item 1: waypoint altitude 0.0 m")
+        assert g.recv("MISSION_ACK").type == M.MAV_MISSION_INVALID_PARAM7
+        g.conn.mav.mission_request_list_send(1, 1, 0)
+        assert extension_fields(g.recv("MISSION_COUNT", lambda m: m.count == len(items)))["opaque_id"] == plan
 
         # a mission loaded without the ground station (aero mission load) is what a download shows
         square = Path(__file__).resolve().parents[2] / "examples" / "missions" / "square_20m.json"
@@ -199,6 +221,8 @@ def test_pymavlink_ground_station(stack):
             time.sleep(0.5)
         assert [d.command for d in down] == [M.MAV_CMD_NAV_TAKEOFF] + [M.MAV_CMD_NAV_WAYPOINT] * 5
         assert down[0].z == pytest.approx(4.0)
+        mc = g.recv("MISSION_CURRENT", lambda m: m.total == 6)
+        assert extension_fields(mc)["mission_id"] not in (0, plan)     # a changed mission, noticed
         lat, lon, alt = HOME.to_geodetic(10.0, -10.0, 4.0)                     # waypoint 0, ENU
         assert (down[1].x / 1e7, down[1].y / 1e7, down[1].z) == pytest.approx((lat, lon, alt), abs=1e-6)
 
@@ -223,6 +247,50 @@ def test_pymavlink_ground_station(stack):
         assert st.alive("gcs")
     finally:
         g.close()
+
+
+def test_signing_refuses_unsigned_ground_stations(stack, tmp_path):
+    """gcs with --signing-key-file: a pymavlink ground station signing with the same key works
+    (signed telemetry, parameters, gcs/link up); one that does not sign is ignored (no answer, not
+    a link) and counted in diagnostics/gcs; the key appears in no log."""
+    key = os.urandom(32)
+    key_file = tmp_path / "gcs.key"
+    key_file.write_text(key.hex() + "\n")
+    key_file.chmod(0o600)
+    port = free_udp_port()
+    st = stack(["gcs"], extra_args=[
+        "--arg", f"gcs:--local-port={port}", "--arg", f"gcs:--remote-port={free_udp_port()}",
+        "--arg", "gcs:--bind-ip=127.0.0.1", "--arg", f"gcs:--signing-key-file={key_file}",
+        "--arg", "gcs:--signing-link-id=5"], timeout_s=30)
+    signed, plain = Gcs(port), Gcs(port, system_id=254)
+    signed.conn.setup_signing(key, sign_outgoing=True, link_id=1)   # refuses anything unsigned itself
+    try:
+        # the unsigned one: heartbeats and a parameter request, never answered
+        deadline = time.monotonic() + 1.5
+        while time.monotonic() < deadline:
+            plain.heartbeat()
+            plain.conn.mav.param_request_read_send(1, 1, b"GCS_SYSTEM_ID", -1)
+            assert plain.conn.recv_match(blocking=True, timeout=0.3) is None
+        hb = signed.recv("HEARTBEAT", lambda m: m.get_srcSystem() == 1, timeout_s=5)
+        assert hb._signed and hb._link_id == 5
+        signed.conn.mav.param_request_read_send(1, 1, b"GCS_SYSTEM_ID", -1)
+        pv = signed.recv("PARAM_VALUE", lambda m: m.param_id == "GCS_SYSTEM_ID")
+        assert pv._signed
+        link = wait_for_message(st.session, "gcs/link", GcsLink, lambda m: m.connected, timeout_s=5)
+        assert link.system_id == 255
+        diag = wait_for_message(st.session, "diagnostics/gcs", DiagnosticStatus,
+                                lambda d: int(d.values.get("mavlink_invalid[unsigned]", 0)) >= 6, timeout_s=5)
+        assert diag.values["signing"] == "True" and int(diag.values["signing_rejected"]) >= 6
+        assert diag.values["ground_stations"] == "1" and diag.level == DiagnosticStatus.WARN
+        assert signed.conn.mav.signing.badsig_count == 0
+        assert st.alive("gcs")
+    finally:
+        signed.close()
+        plain.close()
+    log = st.service_log("gcs")
+    started = [json.loads(line) for line in log.splitlines() if '"gcs_link"' in line]
+    assert started and started[0]["signing"] is True and started[0]["signing_key"] == f"file {key_file}"
+    assert key.hex() not in log and key.hex().upper() not in log
 
 
 def test_mavsdk_ground_station(stack):
@@ -281,10 +349,10 @@ def test_mavsdk_ground_station(stack):
 # ---------------------------------------------------------------- MAVProxy
 
 
-def mavproxy_script() -> str | None:
-    """The installed `mavproxy.py` next to this interpreter, else on PATH."""
-    local = Path(sys.executable).parent / "mavproxy.py"
-    return str(local) if local.is_file() else shutil.which("mavproxy.py")
+def mavproxy_installed() -> bool:
+    """MAVProxy runs as `python -m MAVProxy.mavproxy` with this interpreter (not a `mavproxy.py`
+    found on PATH, which may be a pyenv shim or another Python's script)."""
+    return importlib.util.find_spec("MAVProxy") is not None
 
 
 class MavProxy:
@@ -295,16 +363,15 @@ class MavProxy:
     temporary directory (no ~/.mavproxy, no ~/.mavinit.scr), DISPLAY unset."""
 
     def __init__(self, master: str, workdir: Path):
-        script = mavproxy_script()
-        if script is None:
-            pytest.skip("mavproxy.py not installed")
+        if not mavproxy_installed():
+            pytest.fail("MAVProxy is not installed (pip install -e '.[test]')")
         workdir.mkdir(parents=True, exist_ok=True)
         env = {k: v for k, v in os.environ.items() if k != "DISPLAY" and not k.startswith("AERO_")}
         env.update(HOME=str(workdir), PYTHONUNBUFFERED="1", MAVLINK20="1")
         self.lines: list[str] = []
         self._cond = threading.Condition()
         self.proc = subprocess.Popen(
-            [sys.executable, script, f"--master={master}", "--no-state", "--source-system=255",
+            [sys.executable, "-m", "MAVProxy.mavproxy", f"--master={master}", "--no-state", "--source-system=255",
              "--source-component=190"],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
             bufsize=1, cwd=workdir, env=env)
@@ -515,7 +582,8 @@ def test_mavsdk_mission_flies_in_sim(stack):
     """MAVSDK uploads takeoff + DO_CHANGE_SPEED + 4 waypoints (a 4 m square at 3 m), arms and
     starts the mission; the speed item sets the planner's speed when the mission starts (not at
     upload); every waypoint's MISSION_ITEM_REACHED arrives at the ground station in order, the
-    vehicle lands and disarms (simulator ground truth, fmu's vehicle status), all within 90 s."""
+    vehicle lands and disarms (simulator ground truth, fmu's vehicle status), all within 90 s.
+    The takeoff item's MISSION_ITEM_REACHED comes first, as PX4 sends it when the takeoff is done."""
     mavsdk = pytest.importorskip("mavsdk.asyncio")
     from mavsdk.asyncio.plugins.action.action import ActionAsync
     from mavsdk.asyncio.plugins.mavlink_direct.mavlink_direct import MavlinkDirectAsync
@@ -588,7 +656,8 @@ def test_mavsdk_mission_flies_in_sim(stack):
                 t0 = time.monotonic()
                 await asyncio.wait_for(action.arm(), 15)
                 await asyncio.wait_for(raw.start_mission(), 15)
-                await until(lambda: len(reached) >= len(wp_seqs), 60, "MISSION_ITEM_REACHED for every waypoint")
+                await until(lambda: len(reached) >= len(wp_seqs) + 1, 60,
+                            "MISSION_ITEM_REACHED for the takeoff and every waypoint")
                 timing["waypoints_s"] = time.monotonic() - t0
                 await until(lambda: armed and not armed[-1], 30, "MAVSDK telemetry: disarmed")
                 timing["flight_s"] = time.monotonic() - t0
@@ -612,7 +681,7 @@ def test_mavsdk_mission_flies_in_sim(stack):
         rec.close()
     print(f"gcs mission: waypoints after {timing['waypoints_s']:.1f} s, landed+disarmed after "
           f"{timing['flight_s']:.1f} s; reached {reached}; progress {sorted(set(progress))}")
-    assert reached == wp_seqs                                    # in order, once each
+    assert reached == [0] + wp_seqs             # the takeoff item, then every waypoint, in order, once each
     assert timing["speed_after_upload"] == "2.0" and planner_speed() == str(speed)
     assert timing["flight_s"] < 90
     assert truth and truth[-1].position_m.z < 0.2 and max(m.position_m.z for m in truth) > alt - 0.5

@@ -3,19 +3,27 @@ parameter names and values, commands, telemetry encoding, garbage on the link.""
 from __future__ import annotations
 
 import math
+import os
 import socket
 import struct
+import time
 
 import pytest
-from pymavlink.dialects.v20 import common as M
+
+os.environ.setdefault("MAVLINK20", "1")   # mavutil picks the MAVLink 2 dialect (signing needs it)
+from pymavlink import mavutil  # noqa: E402
+from pymavlink.dialects.v20 import common as M  # noqa: E402
 
 from aeroperception.schemas import Mission, Quaternion, Vector3, VehicleState, Waypoint
 from aeroperception.services.gcs.commands import CommandHandler, mode_from_set_mode
-from aeroperception.services.gcs.link import Parser, UdpLink, make_mav
+from aeroperception.services.gcs.link import (
+    Parser, UdpLink, load_signing_key, make_mav, parse_signing_key, signing_timestamp,
+)
 from aeroperception.services.gcs.main import ftp_nak
+from aeroperception.services.gcs.messages import extension_fields, statustext
 from aeroperception.services.gcs.missions import (
-    SPEED_DEFAULT, Home, Item, MissionConversionError, MissionProtocol, SpeedSchedule, convert_items,
-    items_to_mission, mission_to_items, waypoint_speeds,
+    SPEED_DEFAULT, Home, Item, MissionConversionError, MissionProtocol, Progress, SpeedSchedule, convert_items,
+    items_to_mission, mission_to_items, plan_id, takeoff_seq, waypoint_speeds,
 )
 from aeroperception.services.gcs.params import (
     ParamTable, decode_value, encode_value, mavlink_name,
@@ -494,7 +502,6 @@ def test_udp_link_learns_the_ground_station_address():
         got = []
         link.start(got.append)
         gcs.sendto(M.MAVLink_heartbeat_message(6, 8, 0, 0, 0, 3).pack(GCS), link.local_address)
-        import time
         deadline = time.monotonic() + 2.0
         while not got and time.monotonic() < deadline:
             time.sleep(0.01)
@@ -512,3 +519,360 @@ def test_ftp_is_nakked():
     req = from_gcs(M.MAVLink_file_transfer_protocol_message(0, 1, 1, [7, 0, 0, 4] + [0] * 247))
     nak = ftp_nak(req)
     assert nak.payload[3] == 129 and nak.payload[5] == 4 and nak.payload[0] == 8 and nak.target_system == 255
+
+
+# ---------------------------------------------------------------- waypoint altitude, plan id, one upload at a time
+
+
+def from_mav(mav, msg):
+    (m,) = Parser().feed(msg.pack(mav))
+    return m
+
+
+class ConvertingLoader:
+    """Like gcs's _load: an item the conversion refuses refuses the upload with its result."""
+
+    def __call__(self, items, done):
+        try:
+            convert_items(items, HOME)
+        except MissionConversionError as e:
+            done(False, str(e), e.result)
+            return
+        done(True, "ok", M.MAV_MISSION_ACCEPTED)
+
+
+def takeoff_item(seq, alt=4.0):
+    return Item(seq=seq, frame=M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, command=M.MAV_CMD_NAV_TAKEOFF,
+                x=HOME.lat_deg, y=HOME.lon_deg, z=alt, param4=math.nan)
+
+
+def test_waypoint_at_or_below_home_is_refused_naming_the_item():
+    for z in (0.0, -3.0):
+        with pytest.raises(MissionConversionError) as e:
+            convert_items([takeoff_item(0), wp_item(1, 5, 5), wp_item(2, 5, 0, alt=z)], HOME)
+        assert e.value.result == M.MAV_MISSION_INVALID_PARAM7 and "item 2" in str(e.value)
+    lat, lon = HOME.projection.reproject(5, 5)
+    rel = M.MAV_FRAME_GLOBAL_RELATIVE_ALT
+    # NAV_LAND and RTL at 0 m are fine; so are AMSL and local frames (not checked)
+    convert_items([wp_item(0, 5, 5), Item(seq=1, frame=rel, command=M.MAV_CMD_NAV_LAND, x=lat, y=lon, z=0.0)], HOME)
+    convert_items([wp_item(0, 5, 5), Item(seq=1, frame=rel, command=M.MAV_CMD_NAV_RETURN_TO_LAUNCH, z=0.0)], HOME)
+    m = items_to_mission([Item(seq=0, frame=M.MAV_FRAME_GLOBAL_INT, command=M.MAV_CMD_NAV_WAYPOINT,
+                               x=lat, y=lon, z=HOME.alt_m - 1.0)], HOME)
+    assert m.waypoints[0].z == pytest.approx(-1.0)
+
+    # over the protocol: a STATUSTEXT naming the item, then the error ACK; nothing loaded
+    p, sent = proto(ConvertingLoader())
+    (lat0, lon0, _), (lat1, lon1, _) = square(2)
+    ack = upload(p, sent, [(lat0, lon0, 5.0), (lat1, lon1, 0.0)])
+    assert ack.get_type() == "MISSION_ACK" and ack.type == M.MAV_MISSION_INVALID_PARAM7
+    texts = [m for m in sent if m.get_type() == "STATUSTEXT"]
+    assert texts and all(t.severity == M.MAV_SEVERITY_CRITICAL for t in texts)
+    text = "".join(t.text for t in texts)
+    assert text.startswith("Mission rejected: item 1") and "below home" in text
+    assert sent.index(texts[-1]) < sent.index(ack) and p.items == [] and p.uploads_rejected == 1
+
+
+def test_statustext_chunks_long_texts():
+    assert len(statustext(M.MAV_SEVERITY_INFO, "short")) == 1
+    chunks = statustext(M.MAV_SEVERITY_CRITICAL, "x" * 120, 9)
+    assert [(c.id, c.chunk_seq, len(c.text)) for c in chunks] == [(9, 0, 50), (9, 1, 50), (9, 2, 20)]
+    chunks = statustext(M.MAV_SEVERITY_CRITICAL, "y" * 100, 0)   # a multiple of 50: an empty last chunk
+    assert [(c.id, c.chunk_seq, len(c.text)) for c in chunks] == [(1, 0, 50), (1, 1, 50), (1, 2, 0)]
+    mav = make_mav(1, 1)
+    assert [Parser().feed(c.pack(mav))[0].chunk_seq for c in chunks] == [0, 1, 2]
+
+
+def test_plan_id_in_mission_current_ack_and_count():
+    p, sent = proto()
+    assert p.plan_id == 0 and plan_id([]) == 0
+    ack = upload(p, sent, square())
+    pid = p.plan_id
+    assert pid != 0 and ack.opaque_id == pid
+    mav = make_mav(1, 1)
+    assert extension_fields(from_mav(mav, ack))["opaque_id"] == pid      # as a ground station parses it
+    p.handle(from_gcs(M.MAVLink_mission_request_list_message(1, 1, 0)), 1.0)
+    count = from_mav(mav, sent[-1])
+    assert count.count == 4 and extension_fields(count)["opaque_id"] == pid
+    p.handle(from_gcs(M.MAVLink_mission_ack_message(1, 1, 0, 0)), 1.0)
+
+    tel = TelemetryState(HOME, mission_seq=2, mission_total=4, mission_id=pid)
+    mc = from_mav(mav, tel.mission_current())
+    assert (mc.seq, mc.total) == (2, 4)                                   # stock pymavlink still reads it
+    assert extension_fields(mc) == {"seq": 2, "total": 4, "mission_state": M.MISSION_STATE_NOT_STARTED,
+                                    "mission_mode": 0, "mission_id": pid, "fence_id": 0, "rally_points_id": 0}
+    assert extension_fields(from_mav(mav, TelemetryState(HOME).mission_current()))["mission_id"] == 0
+
+    upload(p, sent, square())                 # the same plan again: the same id
+    assert p.plan_id == pid
+    upload(p, sent, square(alt=6.0))          # another plan: another id
+    assert p.plan_id not in (0, pid)
+    p.handle(from_gcs(M.MAVLink_mission_clear_all_message(1, 1, 0)), 2.0)
+    assert p.plan_id == 0
+
+
+def test_one_upload_at_a_time_between_ground_stations():
+    other = make_mav(246, 190)
+    p, sent = proto()
+    pts = square(2)
+    p.handle(from_gcs(M.MAVLink_mission_count_message(1, 1, 2, 0)), 0.0)
+    assert sent[-1].get_type() == "MISSION_REQUEST_INT" and sent[-1].target_system == 255
+    n = len(sent)
+    # another ground station meanwhile: its upload, download and clear are refused, its items ignored
+    p.handle(from_mav(other, M.MAVLink_mission_count_message(1, 1, 1, 0)), 0.0)
+    assert sent[-1].get_type() == "MISSION_ACK" and sent[-1].type == M.MAV_MISSION_DENIED
+    assert sent[-1].target_system == 246
+    p.handle(from_mav(other, M.MAVLink_mission_request_list_message(1, 1, 0)), 0.0)
+    assert sent[-1].type == M.MAV_MISSION_DENIED and sent[-1].target_system == 246
+    p.handle(from_mav(other, M.MAVLink_mission_clear_all_message(1, 1, 0)), 0.0)
+    assert sent[-1].type == M.MAV_MISSION_DENIED
+    lat, lon, alt = pts[0]
+    p.handle(from_mav(other, M.MAVLink_mission_item_int_message(
+        1, 1, 0, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, M.MAV_CMD_NAV_WAYPOINT, 0, 1, 0, 0, 0, 0,
+        int(lat * 1e7), int(lon * 1e7), alt, 0)), 0.0)
+    p.handle(from_mav(other, M.MAVLink_mission_ack_message(1, 1, M.MAV_MISSION_OPERATION_CANCELLED, 0)), 0.0)
+    assert p.errors["busy"] == 3 and p.errors["item_from_other_peer"] == 1
+    assert p.transfer is not None and p.transfer.expected == 0 and len(sent) == n + 3
+    # the first one finishes its upload undisturbed; then the other may download it
+    for i, (lat, lon, alt) in enumerate(pts):
+        p.handle(item_int(i, lat, lon, alt), 0.1)
+    assert sent[-1].get_type() == "MISSION_ACK" and sent[-1].type == M.MAV_MISSION_ACCEPTED and len(p.items) == 2
+    p.handle(from_mav(other, M.MAVLink_mission_request_list_message(1, 1, 0)), 0.2)
+    assert sent[-1].get_type() == "MISSION_COUNT" and sent[-1].count == 2 and sent[-1].target_system == 246
+
+
+def test_takeoff_item_reached_once_per_run_before_the_first_waypoint():
+    items = [takeoff_item(0), speed_item(1, 2.0), wp_item(2, 4, 0), wp_item(3, 4, 4)]
+    assert takeoff_seq(items) == 0
+    assert takeoff_seq([speed_item(0, 2.0), takeoff_item(1), wp_item(2, 4, 0)]) == 1
+    assert takeoff_seq([wp_item(0, 4, 0), takeoff_item(1)]) is None and takeoff_seq([]) is None
+    pr = Progress()
+    pr.load("gcs-1", items, [2, 3])
+    assert pr.on_status("gcs-1", "TAKEOFF") == [] and pr.on_status("gcs-1", "HOLDING") == []
+    assert pr.on_status("gcs-1", "EXECUTING") == [0]          # on to the first waypoint: takeoff done
+    assert pr.on_status("gcs-1", "EXECUTING") == []
+    assert pr.on_reached("gcs-1", 0) == [2] and pr.on_reached("gcs-1", 1) == [3]
+    assert pr.on_reached("gcs-1", 2) == [] and pr.on_reached("aero-square", 0) == []   # not ours
+    assert pr.on_status("gcs-1", "HOLDING") == [] and pr.on_status("gcs-1", "EXECUTING") == []   # resumed
+    assert pr.on_status("gcs-1", "IDLE") == []                # landed: the next run reports it again
+    assert pr.on_reached("gcs-1", 0) == [0, 2]                # a waypoint before the status: takeoff first
+    assert pr.on_status("aero-square", "EXECUTING") == []
+    pr.load("gcs-2", [wp_item(0, 4, 0), wp_item(1, 4, 4)], [0, 1])   # no takeoff item: nothing for it
+    assert pr.on_status("gcs-2", "EXECUTING") == [] and pr.on_reached("gcs-2", 0) == [0]
+
+
+# ---------------------------------------------------------------- several ground stations
+
+
+class FakeClock:
+    def __init__(self, t: float = 100.0):
+        self.t = t
+
+    def __call__(self) -> float:
+        return self.t
+
+
+def udp_peer() -> socket.socket:
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    s.bind(("127.0.0.1", 0))
+    s.settimeout(0.02)
+    return s
+
+
+def drain(sock: socket.socket, wait_s: float = 0.3, until: int = 0) -> list:
+    """The MAVLink messages arriving on `sock` within wait_s (sooner once `until` have arrived)."""
+    out, parser = [], Parser()
+    deadline = time.monotonic() + wait_s
+    while time.monotonic() < deadline and not (until and len(out) >= until):
+        try:
+            data, _ = sock.recvfrom(65535)
+        except socket.timeout:
+            continue
+        out += parser.feed(data)
+    return out
+
+
+def types(msgs) -> list[str]:
+    return [m.get_type() for m in msgs]
+
+
+def poll(pred, timeout_s: float = 2.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not pred():
+        assert time.monotonic() < deadline, "condition not met in time"
+        time.sleep(0.005)
+
+
+def test_several_ground_stations_telemetry_to_all_alive_replies_to_the_asker():
+    clock = FakeClock()
+    initial, a, b = udp_peer(), udp_peer(), udp_peer()
+    link = UdpLink("127.0.0.1", 0, "127.0.0.1", initial.getsockname()[1], 1, 1, timeout_s=3.0, clock=clock)
+    mav_a, mav_b = make_mav(255, 190), make_mav(246, 190)
+    hb_gcs = M.MAVLink_heartbeat_message(M.MAV_TYPE_GCS, M.MAV_AUTOPILOT_INVALID, 0, 0, 0, 4)
+    hb = TelemetryState(HOME).heartbeat()
+
+    def on_message(m):
+        if m.get_type() == "PARAM_REQUEST_READ":   # answered at once, as gcs does: to the asker only
+            link.send(M.MAVLink_param_value_message(b"GCS_X", 1.0, M.MAV_PARAM_TYPE_REAL32, 1, 0))
+
+    def hb_from(sock, mav):
+        n = link.parser.received
+        sock.sendto(hb_gcs.pack(mav), link.local_address)
+        poll(lambda: link.parser.received > n)
+
+    try:
+        link.start(on_message)
+        link.send(hb)                                  # nobody heard yet: the initial address
+        assert types(drain(initial, until=1)) == ["HEARTBEAT"]
+        assert link.destinations() == [initial.getsockname()] and not link.alive()
+
+        hb_from(a, mav_a)                              # A talks: telemetry to A only
+        link.send(hb)
+        assert types(drain(a, until=1)) == ["HEARTBEAT"] and drain(initial, 0.1) == []
+        hb_from(b, mav_b)                              # B too: telemetry to both
+        assert {p.address for p in link.alive()} == {a.getsockname(), b.getsockname()}
+        link.send(hb)
+        assert types(drain(a, until=1)) == ["HEARTBEAT"] and types(drain(b, until=1)) == ["HEARTBEAT"]
+
+        # B asks: only B gets the answer
+        b.sendto(M.MAVLink_param_request_read_message(1, 1, b"GCS_X", -1).pack(mav_b), link.local_address)
+        assert types(drain(b, until=1)) == ["PARAM_VALUE"] and drain(a, 0.1) == []
+        # a later reply with a target goes where that target spoke from
+        link.send(M.MAVLink_command_ack_message(M.MAV_CMD_COMPONENT_ARM_DISARM, 0, 0, 0, 255, 190))
+        assert types(drain(a, until=1)) == ["COMMAND_ACK"] and drain(b, 0.1) == []
+        link.send(M.MAVLink_mission_ack_message(246, 0, 0, 0))         # target_component 0: that system
+        assert types(drain(b, until=1)) == ["MISSION_ACK"] and drain(a, 0.1) == []
+        for m in statustext(M.MAV_SEVERITY_CRITICAL, "to B"):           # explicit peer
+            link.send(m, peer=(246, 190))
+        assert types(drain(b, until=1)) == ["STATUSTEXT"] and drain(a, 0.1) == []
+        link.send(M.MAVLink_param_value_message(b"GCS_X", 2.0, M.MAV_PARAM_TYPE_REAL32, 1, 0), broadcast=True)
+        assert types(drain(a, until=1)) == ["PARAM_VALUE"] and types(drain(b, until=1)) == ["PARAM_VALUE"]
+
+        # A goes silent: after the timeout only B (still beating) gets telemetry
+        clock.t += 2.0
+        hb_from(b, mav_b)
+        clock.t += 1.5                                 # A's heartbeat 3.5 s old, B's 1.5 s
+        assert [p.address for p in link.alive()] == [b.getsockname()]
+        link.send(hb)
+        assert types(drain(b, until=1)) == ["HEARTBEAT"] and drain(a, 0.1) == []
+        # nobody left: the initial address and the last ground station heard
+        clock.t += 10.0
+        assert not link.alive() and link.destinations() == [initial.getsockname(), b.getsockname()]
+        link.send(hb)
+        assert types(drain(initial, until=1)) == ["HEARTBEAT"] and types(drain(b, until=1)) == ["HEARTBEAT"]
+        assert drain(a, 0.1) == []
+    finally:
+        link.close()
+        for s in (initial, a, b):
+            s.close()
+
+
+# ---------------------------------------------------------------- MAVLink 2 signing
+
+KEY = bytes(range(1, 33))
+OTHER_KEY = bytes(32)
+
+
+def test_signing_key_from_hex_raw_bytes_or_file(tmp_path):
+    assert parse_signing_key(KEY.hex()) == KEY
+    assert parse_signing_key(f"  {KEY.hex().upper()}\n") == KEY
+    assert parse_signing_key(KEY) == KEY
+    for bad in ("abc", "zz" * 32, KEY.hex()[:-2], KEY[:31], KEY.hex() + "00"):
+        with pytest.raises(ValueError) as e:
+            parse_signing_key(bad)
+        assert KEY.hex()[:8] not in str(e.value) and "zz" not in str(e.value)   # never echoes the key
+    f = tmp_path / "gcs.key"
+    f.write_text(KEY.hex() + "\n")
+    f.chmod(0o600)
+    assert load_signing_key(f) == (KEY, False)
+    f.chmod(0o644)
+    assert load_signing_key(f) == (KEY, True)                 # readable by others: gcs warns
+    with pytest.raises(ValueError, match="signing key file"):
+        load_signing_key(tmp_path / "missing.key")
+
+
+def ground_station(port: int, system_id: int, key: bytes | None = None, link_id: int = 0):
+    """A pymavlink ground station (mavutil), signing with `key` if given."""
+    conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=system_id, source_component=190,
+                                      dialect="common")
+    if key is not None:
+        conn.setup_signing(key, sign_outgoing=True, link_id=link_id)
+    return conn
+
+
+def recv_type(conn, mtype: str, timeout_s: float = 2.0):
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        m = conn.recv_match(type=mtype, blocking=True, timeout=0.05)
+        if m is not None:
+            return m
+    return None
+
+
+def signed_frame(msg, system_id: int, key: bytes, link_id: int, timestamp: int) -> bytes:
+    mav = make_mav(system_id, 190)
+    mav.signing.secret_key, mav.signing.sign_outgoing = key, True
+    mav.signing.link_id, mav.signing.timestamp = link_id, timestamp
+    return msg.pack(mav)
+
+
+def test_signing_signed_ground_station_works_unsigned_and_wrongly_signed_are_dropped_and_counted():
+    link = UdpLink("127.0.0.1", 0, "127.0.0.1", 9, 1, 1, signing_key=KEY, signing_link_id=7)
+    port = link.local_address[1]
+    got = []
+
+    def on_message(m):
+        got.append((m.get_srcSystem(), m.get_type()))
+        if m.get_type() == "PARAM_REQUEST_READ":
+            link.send(M.MAVLink_param_value_message(b"GCS_X", 1.0, M.MAV_PARAM_TYPE_REAL32, 1, 0))
+
+    good = ground_station(port, 255, KEY)
+    plain = ground_station(port, 254)
+    wrong = ground_station(port, 253, OTHER_KEY)
+    raw = udp_peer()
+    hb_gcs = M.MAVLink_heartbeat_message(M.MAV_TYPE_GCS, M.MAV_AUTOPILOT_INVALID, 0, 0, 0, 4)
+    try:
+        link.start(on_message)
+        for c in (good, plain, wrong):
+            c.mav.heartbeat_send(M.MAV_TYPE_GCS, M.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+            c.mav.param_request_read_send(1, 1, b"GCS_X", -1)
+        poll(lambda: len(got) >= 2 and link.parser.invalid["unsigned"] >= 2
+             and link.parser.invalid["bad_signature"] >= 2)
+        assert got == [(255, "HEARTBEAT"), (255, "PARAM_REQUEST_READ")]
+        assert [p.system_id for p in link.alive()] == [255]
+
+        # the signed ground station gets its answer, signed with our link id and a current timestamp
+        # (its pymavlink, holding the key, would drop anything unsigned or wrongly signed)
+        pv = recv_type(good, "PARAM_VALUE")
+        assert pv is not None and pv._signed and pv._link_id == 7
+        tlow, thigh = struct.unpack("<IH", bytes(pv.get_msgbuf())[-12:-6])
+        assert abs((tlow + (thigh << 32)) - signing_timestamp()) < 5 * 100_000
+        assert good.mav.signing.goodsig_count >= 1 and good.mav.signing.badsig_count == 0
+        link.send(TelemetryState(HOME).heartbeat())             # telemetry: to the signed one only
+        assert recv_type(good, "HEARTBEAT") is not None
+        assert plain.recv_match(blocking=True, timeout=0.3) is None
+        assert wrong.recv_match(blocking=True, timeout=0.1) is None
+
+        # replay protection: a signed frame is accepted once; a copy, or a new stream from long
+        # ago, is refused
+        now = signing_timestamp()
+        frame = signed_frame(hb_gcs, 252, KEY, 3, now)
+        for _ in range(2):
+            raw.sendto(frame, link.local_address)
+        raw.sendto(signed_frame(hb_gcs, 251, KEY, 3, now - 120 * 100_000), link.local_address)
+        poll(lambda: link.parser.invalid["replayed"] == 1 and link.parser.invalid["stale_timestamp"] == 1)
+        assert got[-1] == (252, "HEARTBEAT") and got.count((252, "HEARTBEAT")) == 1
+
+        # a wrongly signed frame with a far-future timestamp on the good station's stream does not
+        # lock it out (pymavlink alone would record that timestamp before checking the signature)
+        raw.sendto(signed_frame(hb_gcs, 255, OTHER_KEY, 0, now + 3600 * 100_000), link.local_address)
+        poll(lambda: link.parser.invalid["bad_signature"] >= 3)
+        n = len(got)
+        good.mav.param_request_read_send(1, 1, b"GCS_X", -1)
+        poll(lambda: len(got) > n)
+        assert got[-1] == (255, "PARAM_REQUEST_READ")
+        assert link.parser.signing_rejected == link.parser.invalid_total >= 7
+    finally:
+        link.close()
+        for c in (good, plain, wrong):
+            c.close()
+        raw.close()
