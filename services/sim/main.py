@@ -3,29 +3,27 @@ sensors/**, ground truth on sim/truth/** and the clock on sim/clock.
 
 Timing: the vehicle runner owns sim time. Each physics step reports its truth here; the IMU is
 sampled at its rate in that callback, and camera / LiDAR frames are *requested* there with the
-exact truth of their stamp, then rendered on their own threads (Open3D releases the GIL). A
-renderer that cannot keep up skips frames and reports the achieved rate (WARN), never delays
-the physics.
+exact truth of their stamp, then rendered in processes of their own (render.py: Open3D holds
+the GIL while it casts rays). A renderer that cannot keep up skips frames and reports the
+achieved rate (WARN), never delays the physics.
 """
 from __future__ import annotations
 
 import math
-import threading
 import time
-from collections import deque
 
 import numpy as np
 import zenoh
 
 from aeroperception.schemas import (
-    CameraInfo, Clock, DiagnosticStatus, Detection2D, Detection2DArray, Header, Image, Imu, NDArray,
+    CameraInfo, Clock, DiagnosticStatus, Detection2DArray, Header, Image, Imu, NDArray,
     PointCloud, Pose, Quaternion, Vector3, VehicleState,
 )
 from aeroperception.services.runtime import Health, Param, Service, run
 from aeroperception.services.runtime.rotations import quat_from_rotmat
 
+from .render import RenderProcess
 from .sensors.rig import build_sensors
-from .sensors.truth_boxes import project_targets
 from .truth import VehicleTruth
 from .vehicle import PARAMS as VEHICLE_PARAMS
 from .vehicle import PX4_SITL_BIND, PX4_SITL_TARGET, MavlinkEndpoint, SimVehicle, SimVehicleRunner, parse_address
@@ -75,59 +73,6 @@ def camera_info_msg(info, stamp_ns: int) -> CameraInfo:
                       T_body_camera=Pose(position=Vector3.from_array(info.t_body_camera_m), orientation=Quaternion.from_array(quat_from_rotmat(r))))
 
 
-class RenderWorker:
-    """One sensor on its own thread: takes the newest request (truth at a stamp), renders it,
-    publishes it. A request arriving while busy replaces the pending one (frame skipped)."""
-
-    def __init__(self, name: str, render, stop: threading.Event):
-        self.name, self.render, self.stop = name, render, stop
-        self.cv = threading.Condition()
-        self.pending: VehicleTruth | None = None
-        self.requested = self.rendered = self.skipped = self.errors = 0
-        self.error, self.error_wall = "", 0.0
-        self.render_ms: deque[float] = deque(maxlen=100)
-        self.done_wall: deque[float] = deque(maxlen=50)
-        self.thread = threading.Thread(target=self._run, name=f"sim-{name}", daemon=True)
-        self.thread.start()
-
-    def request(self, truth: VehicleTruth) -> None:
-        with self.cv:
-            if self.pending is not None:
-                self.skipped += 1
-            self.pending = truth
-            self.requested += 1
-            self.cv.notify()
-
-    def _run(self) -> None:
-        while not self.stop.is_set():
-            with self.cv:
-                if self.pending is None:
-                    self.cv.wait(0.2)
-                    continue
-                truth, self.pending = self.pending, None
-            t0 = time.perf_counter()
-            try:
-                self.render(truth)
-            except Exception as e:  # noqa: BLE001 - keep the sensor alive, report (not a frame)
-                self.errors += 1
-                self.error, self.error_wall = f"{type(e).__name__}: {e}", time.monotonic()
-                continue
-            self.render_ms.append((time.perf_counter() - t0) * 1e3)
-            self.done_wall.append(time.monotonic())
-            self.rendered += 1
-
-    def achieved_hz(self, speed: float) -> float:
-        """Frames per sim second over the recent window."""
-        if len(self.done_wall) < 2:
-            return 0.0
-        first, last, n = self.done_wall[0], self.done_wall[-1], len(self.done_wall) - 1
-        span = last - first
-        # A renderer that stopped delivering must not keep reporting its old rate.
-        if time.monotonic() - last > 2.0 * span / n:
-            span = time.monotonic() - first
-        return n / span / max(speed, 1e-9) if span > 0 else 0.0
-
-
 class SimService(Service):
     """Built-in simulator: PX4-like vehicle over MAVLink + scenario sensors + ground truth."""
 
@@ -155,18 +100,18 @@ class SimService(Service):
         self.vehicle = SimVehicle(self.node.params, seed=seed)
         self.epoch_ns = time.time_ns() - self.vehicle.time_ns
         self.endpoint = MavlinkEndpoint(target=parse_address(a.target), bind=parse_address(a.bind))
-        self.stop_event = threading.Event()
         pub = self.node.publisher
         self.pubs = {k: pub(k, cls, **_qos(k)) for k, cls in OUTPUTS.items()}
         self.sensors = build_sensors(self.scenario) if a.sensors != "none" else None
-        self.workers: list[RenderWorker] = []
+        self.workers: list[RenderProcess] = []
+        node_kwargs = dict(vehicle=a.vehicle, zenoh_config=a.zenoh_config, connect=a.connect, log_level=a.log_level)
         self.next_ns: dict[str, int] = {}
         self.periods_ns: dict[str, int] = {"truth": int(1e9 / self.params.truth_rate_hz)}
         if self.sensors is not None:
             self.periods_ns["imu"] = int(1e9 / self.scenario.sensors.imu.rate_hz)
             if a.sensors == "all" and self.sensors.stereo is not None:
                 self.periods_ns["camera"] = int(1e9 / self.sensors.stereo.infos()[0].rate_hz)
-                self.workers.append(RenderWorker("camera", self._render_camera, self.stop_event))
+                self.workers.append(RenderProcess("camera", a.scenario, node_kwargs))
                 for info in self.sensors.stereo.infos():
                     side = "left" if "left" in info.frame_id else "right"
                     key = f"sensors/camera/{side}/info"
@@ -174,7 +119,7 @@ class SimService(Service):
                 self.node.every(1.0, self._publish_infos, name="camera_info")
             if a.sensors == "all" and self.sensors.lidar is not None:
                 self.periods_ns["lidar"] = int(1e9 / self.sensors.lidar.info().rate_hz)
-                self.workers.append(RenderWorker("lidar", self._render_lidar, self.stop_event))
+                self.workers.append(RenderProcess("lidar", a.scenario, node_kwargs))
         # Physics steps at a multiple of the IMU rate (>= 250 Hz) so IMU samples are evenly spaced
         # (200 Hz from 250 Hz physics would alternate 4 / 8 ms gaps).
         imu_hz = self.scenario.sensors.imu.rate_hz
@@ -192,8 +137,9 @@ class SimService(Service):
 
     def stop(self) -> None:
         if hasattr(self, "runner"):   # start() may have failed (bad --scenario) before it existed
-            self.stop_event.set()
             self.runner.stop()
+        for w in getattr(self, "workers", []):
+            w.stop()
 
     # ------------------------------------------------------------ physics-step callback
 
@@ -222,36 +168,9 @@ class SimService(Service):
                                                  linear_acceleration_mps2=Vector3.from_array(s.linear_acceleration_flu_mps2)))
         for w in self.workers:
             if self._due(w.name, now):
-                w.request(t)
+                w.request(t, stamp)
 
     # ------------------------------------------------------------ renderers (own threads)
-
-    def _render_camera(self, t: VehicleTruth) -> None:
-        left, right = self.sensors.stereo.render(t)
-        encoding = "mono8" if left.ndim == 2 else "rgb8"
-        header = Header(stamp_ns=self.stamp(t.stamp_ns), frame_id="camera_left_optical")
-        self.pubs["sensors/camera/left/image"].publish(Image.from_numpy(left, encoding, header))
-        if right is not None:
-            self.pubs["sensors/camera/right/image"].publish(
-                Image.from_numpy(right, encoding, Header(stamp_ns=header.stamp_ns, frame_id="camera_right_optical")))
-        if self.scenario.targets:
-            boxes = project_targets(self.sensors.stereo.left, t)
-            dets = [Detection2D(center_x_px=(b.bbox_xyxy_px[0] + b.bbox_xyxy_px[2]) / 2,
-                                center_y_px=(b.bbox_xyxy_px[1] + b.bbox_xyxy_px[3]) / 2,
-                                size_x_px=b.bbox_xyxy_px[2] - b.bbox_xyxy_px[0],
-                                size_y_px=b.bbox_xyxy_px[3] - b.bbox_xyxy_px[1],
-                                class_id=b.class_id, class_name=b.class_name, score=b.visible_fraction)
-                    for b in boxes]
-            self.pubs["sim/truth/boxes"].publish(Detection2DArray(header=header, detections=dets,
-                                                                  image_width=left.shape[1], image_height=left.shape[0]))
-
-    def _render_lidar(self, t: VehicleTruth) -> None:
-        scan = self.sensors.lidar.scan(t, stamp_ns=self.stamp(t.stamp_ns))
-        header = Header(stamp_ns=scan.stamp_ns, frame_id=scan.frame_id)
-        points = NDArray.from_numpy(scan.points_m.astype(np.float32, copy=False))
-        self.pubs["sensors/lidar/points"].publish(PointCloud(header=header, points=points))
-        self.pubs["sim/truth/lidar_labels"].publish(PointCloud(header=header, points=points,
-                                                               labels=NDArray.from_numpy(scan.labels)))
 
     def _publish_infos(self) -> None:
         for info in self.sensors.stereo.infos():

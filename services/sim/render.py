@@ -1,0 +1,184 @@
+"""Camera and LiDAR rendering in processes of their own.
+
+Why processes: Open3D's RaycastingScene.cast_rays holds the GIL for the whole cast (measured: a
+spinning thread got 7 % of its speed while a render ran). In the simulator's process that
+starved the 400 Hz physics loop and the IMU/clock publishers; in a child process the render uses
+its own interpreter. The parent sends the exact truth of each frame's stamp over a pipe; the child
+keeps only the newest request (older ones are counted as skipped), renders, publishes on Zenoh with
+its own session, and reports each frame's render time back for the sim's diagnostics.
+"""
+from __future__ import annotations
+
+import multiprocessing as mp
+import os
+import threading
+import time
+from collections import deque
+from typing import Any
+
+import numpy as np
+
+from aeroperception.schemas import Detection2D, Detection2DArray, Header, Image, NDArray, PointCloud
+
+CAMERA_KEYS = ("sensors/camera/left/image", "sensors/camera/right/image", "sim/truth/boxes")
+LIDAR_KEYS = ("sensors/lidar/points", "sim/truth/lidar_labels")
+
+
+class _CameraRenderer:
+    def __init__(self, node, sensors, scenario):
+        self.stereo, self.has_targets = sensors.stereo, bool(scenario.targets)
+        self.left = node.publisher(CAMERA_KEYS[0], Image)
+        self.right = node.publisher(CAMERA_KEYS[1], Image)
+        self.boxes = node.publisher(CAMERA_KEYS[2], Detection2DArray)
+
+    def __call__(self, truth, stamp_ns: int) -> None:
+        from .sensors.truth_boxes import project_targets
+
+        left, right = self.stereo.render(truth)
+        encoding = "mono8" if left.ndim == 2 else "rgb8"
+        header = Header(stamp_ns=stamp_ns, frame_id="camera_left_optical")
+        self.left.publish(Image.from_numpy(left, encoding, header))
+        if right is not None:
+            self.right.publish(Image.from_numpy(right, encoding, Header(stamp_ns=stamp_ns, frame_id="camera_right_optical")))
+        if self.has_targets:
+            dets = [Detection2D(center_x_px=(b.bbox_xyxy_px[0] + b.bbox_xyxy_px[2]) / 2,
+                                center_y_px=(b.bbox_xyxy_px[1] + b.bbox_xyxy_px[3]) / 2,
+                                size_x_px=b.bbox_xyxy_px[2] - b.bbox_xyxy_px[0],
+                                size_y_px=b.bbox_xyxy_px[3] - b.bbox_xyxy_px[1],
+                                class_id=b.class_id, class_name=b.class_name, score=b.visible_fraction)
+                    for b in project_targets(self.stereo.left, truth)]
+            self.boxes.publish(Detection2DArray(header=header, detections=dets,
+                                                image_width=left.shape[1], image_height=left.shape[0]))
+
+
+class _LidarRenderer:
+    def __init__(self, node, sensors, scenario):
+        self.lidar = sensors.lidar
+        self.points = node.publisher(LIDAR_KEYS[0], PointCloud)
+        self.labels = node.publisher(LIDAR_KEYS[1], PointCloud)
+
+    def __call__(self, truth, stamp_ns: int) -> None:
+        scan = self.lidar.scan(truth, stamp_ns=stamp_ns)
+        header = Header(stamp_ns=stamp_ns, frame_id=scan.frame_id)
+        points = NDArray.from_numpy(scan.points_m.astype(np.float32, copy=False))
+        self.points.publish(PointCloud(header=header, points=points))
+        self.labels.publish(PointCloud(header=header, points=points, labels=NDArray.from_numpy(scan.labels)))
+
+
+RENDERERS = {"camera": _CameraRenderer, "lidar": _LidarRenderer}
+
+
+def _child_main(sensor: str, scenario_ref: str, node_kwargs: dict, conn) -> None:
+    """Entry point of the render process (spawned: no inherited Zenoh state)."""
+    from aeroperception.services.runtime import Node
+
+    from .sensors.rig import build_sensors
+    from .world.scenario import load_scenario
+
+    node = Node(f"sim_{sensor}", **node_kwargs)
+    if not node.connect(max_wait_s=15):
+        conn.send(("error", "no Zenoh router"))
+        return
+    try:
+        scenario = load_scenario(scenario_ref)
+        render = RENDERERS[sensor](node, build_sensors(scenario), scenario)
+        conn.send(("ready", os.getpid()))
+        parent = os.getppid()
+        while True:
+            if not conn.poll(0.5):
+                if os.getppid() != parent:  # the sim died: do not linger
+                    return
+                continue
+            request, skipped = None, 0
+            while conn.poll():
+                msg = conn.recv()
+                if msg is None:
+                    return
+                skipped += request is not None
+                request = msg
+            truth, stamp_ns = request
+            t0 = time.perf_counter()
+            try:
+                render(truth, stamp_ns)
+                conn.send(("frame", (time.perf_counter() - t0) * 1e3, skipped, None))
+            except Exception as e:  # noqa: BLE001 - keep rendering, report
+                conn.send(("frame", (time.perf_counter() - t0) * 1e3, skipped, f"{type(e).__name__}: {e}"))
+    except (EOFError, BrokenPipeError, KeyboardInterrupt):
+        return
+    finally:
+        node.close()
+
+
+class RenderProcess:
+    """Parent side: request(truth, stamp) never blocks the physics; stats for diagnostics."""
+
+    def __init__(self, name: str, scenario_ref: str, node_kwargs: dict[str, Any]):
+        self.name = name
+        self.requested = self.rendered = self.skipped = self.errors = 0
+        self.error, self.error_wall = "", 0.0
+        self.render_ms: deque[float] = deque(maxlen=100)
+        self.done_wall: deque[float] = deque(maxlen=50)
+        ctx = mp.get_context("spawn")
+        self._conn, child_conn = ctx.Pipe(duplex=True)
+        self.proc = ctx.Process(target=_child_main, args=(name, scenario_ref, node_kwargs, child_conn),
+                                name=f"sim-{name}", daemon=True)
+        self.proc.start()
+        child_conn.close()
+        self._send_lock = threading.Lock()
+        self._stop = threading.Event()
+        self._reader = threading.Thread(target=self._read, name=f"sim-{name}-stats", daemon=True)
+        self._reader.start()
+
+    def request(self, truth, stamp_ns: int) -> None:
+        self.requested += 1
+        try:
+            with self._send_lock:
+                self._conn.send((truth, stamp_ns))
+        except (BrokenPipeError, OSError):
+            self.errors += 1
+            self.error, self.error_wall = "render process gone", time.monotonic()
+
+    def _read(self) -> None:
+        while not self._stop.is_set():
+            try:
+                if not self._conn.poll(0.5):
+                    continue
+                kind, *rest = self._conn.recv()
+            except (EOFError, OSError):
+                return
+            if kind == "frame":
+                ms, skipped, err = rest
+                self.skipped += skipped
+                if err:
+                    self.errors += 1
+                    self.error, self.error_wall = err, time.monotonic()
+                    continue
+                self.render_ms.append(ms)
+                self.done_wall.append(time.monotonic())
+                self.rendered += 1
+            elif kind == "error":
+                self.errors += 1
+                self.error, self.error_wall = rest[0], time.monotonic()
+
+    def achieved_hz(self, speed: float) -> float:
+        """Frames per sim second over the recent window (0 when it stopped delivering)."""
+        if len(self.done_wall) < 2:
+            return 0.0
+        first, last, n = self.done_wall[0], self.done_wall[-1], len(self.done_wall) - 1
+        span = last - first
+        if time.monotonic() - last > 2.0 * span / n:
+            span = time.monotonic() - first
+        return n / span / max(speed, 1e-9) if span > 0 else 0.0
+
+    def stop(self, timeout_s: float = 1.5) -> None:
+        self._stop.set()
+        try:
+            with self._send_lock:
+                self._conn.send(None)
+        except (BrokenPipeError, OSError):
+            pass
+        self.proc.join(timeout_s)
+        if self.proc.is_alive():
+            self.proc.terminate()
+            self.proc.join(0.5)
+        self._conn.close()
