@@ -15,8 +15,8 @@ from .sensors import (
 )
 from .safety import SafetyStatus
 from .vehicle import (
-    Attitude, ControlOutput, LandedState, LocalPosition, TrajectorySetpoint, UAVMode, UAVStatus,
-    VehicleState, VehicleStatus,
+    Attitude, ControlOutput, HomePosition, LandedState, LocalPosition, TrajectorySetpoint, UAVMode,
+    UAVStatus, VehicleState, VehicleStatus,
 )
 from .planning import (
     CollisionConstraint, Mission, Trajectory, TrajectoryStatus, Waypoint, load_mission_file,
@@ -46,7 +46,7 @@ __all__ = [
     "BatteryState", "DiagnosticStatus", "DiagnosticArray", "Odometry", "VioHealth",
     # vehicle
     "LandedState", "VehicleState", "TrajectorySetpoint", "ControlOutput", "UAVMode", "UAVStatus",
-    "VehicleStatus", "LocalPosition", "Attitude",
+    "VehicleStatus", "LocalPosition", "Attitude", "HomePosition",
     # planning and mission
     "Trajectory", "TrajectoryStatus", "CollisionConstraint", "Waypoint", "Mission", "parse_mission",
     "load_mission_file", "MissionStatus", "MissionCommand", "PerceptionHealth", "WaypointReached",

@@ -16,7 +16,7 @@ from .safety import SafetyStatus
 
 __all__ = [
     "LandedState", "VehicleState", "TrajectorySetpoint", "ControlOutput", "UAVMode", "UAVStatus",
-    "VehicleStatus", "LocalPosition", "Attitude",
+    "VehicleStatus", "LocalPosition", "Attitude", "HomePosition",
 ]
 
 
@@ -246,3 +246,22 @@ class Attitude(Message, kw_only=True):
     header: Header = msgspec.field(default_factory=Header)
     orientation: Quaternion = msgspec.field(default_factory=Quaternion)
     angular_velocity_radps: Vector3 = msgspec.field(default_factory=Vector3)
+
+
+@schema("HomePosition", 1)
+class HomePosition(Message, kw_only=True):
+    """The flight controller's home (fmu/out/home_position, on change and 1 Hz, latched): where the
+    local ENU frame sits on the Earth. Replaces px4 HomePosition / MAVLink HOME_POSITION.
+
+    `latitude_deg`/`longitude_deg` are WGS84, `altitude_amsl_m` above mean sea level; `position_m`
+    is the same point in the local ENU frame (`header.frame_id`, e.g. "map"). The local origin is
+    not necessarily home (PX4: the EKF origin), so geodetic <-> local conversions about home must
+    add/subtract `position_m`. Altitudes "relative to home" (MAVLink relative_alt, global-relative
+    mission frames) are above `altitude_amsl_m`, i.e. local z minus `position_m.z`.
+    """
+
+    header: Header = msgspec.field(default_factory=Header)
+    latitude_deg: float = 0.0
+    longitude_deg: float = 0.0
+    altitude_amsl_m: float = 0.0
+    position_m: Vector3 = msgspec.field(default_factory=Vector3)

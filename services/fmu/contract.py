@@ -1,6 +1,6 @@
 """Contract of fmu: keys in/out (ENU/FLU) and parameters."""
 from aeroperception.schemas import (
-    ArmReply, ArmRequest, Attitude, BatteryState, EmergencyStopReply, EmergencyStopRequest, Imu,
+    ArmReply, ArmRequest, Attitude, BatteryState, EmergencyStopReply, EmergencyStopRequest, HomePosition, Imu,
     LocalPosition, Odometry, SetModeReply, SetModeRequest, TrajectorySetpoint, VehicleState, VehicleStatus,
 )
 from aeroperception.services.runtime import Param
@@ -15,6 +15,7 @@ OUTPUTS = {
     "fmu/out/vehicle_attitude": Attitude,               # 50 Hz
     "fmu/out/vehicle_status": VehicleStatus,            # 5 Hz
     "fmu/out/battery_status": BatteryState,             # 1 Hz
+    "fmu/out/home_position": HomePosition,              # FC's home (HOME_POSITION): on change + 1 Hz (latched)
     "fmu/out/sensor_combined": Imu,                     # FC IMU (HIGHRES_IMU), FLU
     "sensors/imu": Imu,                                 # only with publish_imu (real hardware)
     "state/vehicle": VehicleState,                      # 50 Hz
@@ -30,6 +31,8 @@ PARAMS = [
     Param("setpoint_timeout_s", 0.1, "s", 0.02, 1.0, description="planner silent this long -> hold position"),
     Param("link_timeout_s", 0.5, "s", 0.1, 5.0, description="no MAVLink this long -> link stale, ERROR"),
     Param("vio_timeout_s", 1.0, "s", 0.1, 5.0, description="older VIO is not injected"),
+    Param("home_request_period_s", 10.0, "s", 1.0, 120.0,
+          description="ask the FC for HOME_POSITION this often until it sends one"),
     Param("command_timeout_s", 3.0, "s", 0.5, 20.0, description="wait for ACK + heartbeat confirmation"),
     Param("publish_imu", False, description="republish HIGHRES_IMU as sensors/imu (real hardware, no sim)"),
     Param("source_system", 1, "", 1, 255, description="our MAVLink system id"),

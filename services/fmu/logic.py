@@ -14,7 +14,7 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
 from aeroperception.schemas import (
-    Attitude, BatteryState, Header, Imu, LandedState, LocalPosition, Odometry, Quaternion,
+    Attitude, BatteryState, Header, HomePosition, Imu, LandedState, LocalPosition, Odometry, Quaternion,
     TrajectorySetpoint, Vector3, VehicleState, VehicleStatus,
 )
 from aeroperception.services.mavlink import frames
@@ -59,6 +59,7 @@ class Telemetry:
     last_rx_s: float = 0.0
     last_heartbeat_s: float = 0.0
     system_id: int = 1
+    home: HomePosition | None = None      # the FC's home (HOME_POSITION), None until it sends one
 
     def on_heartbeat(self, m) -> VehicleStatus:
         if m.autopilot != self.autopilot.mav_autopilot:
@@ -90,6 +91,14 @@ class Telemetry:
         self.yaw_rad = frames.yaw_from_q(self.q_enu_flu)
         return Attitude(header=Header(stamp_ns=stamp_ns, frame_id="map"), orientation=Quaternion.from_array(self.q_enu_flu),
                         angular_velocity_radps=Vector3.from_array(self.rates_flu_radps))
+
+    def on_home_position(self, m, stamp_ns: int) -> HomePosition | None:
+        """HOME_POSITION -> HomePosition (kept as `home`); None (and `home` unchanged) if the FC
+        reports no usable home. Returns the new home whether or not it changed."""
+        home = home_position_from_mavlink(m, stamp_ns)
+        if home is not None:
+            self.home = home
+        return home
 
     def on_extended_sys_state(self, m) -> None:
         self.landed_state = MAV_LANDED.get(m.landed_state, LandedState.UNDEFINED)
@@ -129,6 +138,21 @@ class Telemetry:
             flight_mode=self.flight_mode, armed=self.armed, landed_state=self.landed_state,
             battery_remaining=self.battery_remaining, battery_voltage_v=self.battery_voltage_v,
             connected=connected)
+
+
+def home_position_from_mavlink(m, stamp_ns: int) -> HomePosition | None:
+    """HOME_POSITION (lat/lon degE7, altitude mm AMSL, x/y/z local NED of home) -> HomePosition
+    (position_m local ENU). None when there is no usable home: latitude/longitude out of range,
+    or both exactly 0 (what autopilots send before a home is set). A non-finite local position
+    is taken as the local origin."""
+    lat, lon, alt = m.latitude / 1e7, m.longitude / 1e7, m.altitude / 1e3
+    if not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0) or (m.latitude == 0 and m.longitude == 0):
+        return None
+    ned = np.array([m.x, m.y, m.z], dtype=float)
+    if not np.all(np.isfinite(ned)):
+        ned = np.zeros(3)
+    return HomePosition(header=Header(stamp_ns=stamp_ns, frame_id="map"), latitude_deg=lat, longitude_deg=lon,
+                        altitude_amsl_m=alt, position_m=Vector3.from_array(frames.ned_to_enu(ned) + 0.0))  # no -0.0
 
 
 def highres_imu_to_imu(m, stamp_ns: int) -> Imu:

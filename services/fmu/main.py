@@ -53,6 +53,7 @@ class FmuService(Service):
         self.last_target_sent_s = 0.0
         self.hold: tuple[np.ndarray, float] | None = None
         self.streams_requested = False
+        self.home_requested_s = -math.inf    # last MAV_CMD_REQUEST_MESSAGE(HOME_POSITION)
         self.statustexts: deque[tuple[float, int, str]] = deque(maxlen=16)  # (rx time, severity, text)
         self.conn = mavutil.mavlink_connection(self.args.fcu_url, source_system=p.source_system,
                                                source_component=p.source_component, autoreconnect=True)
@@ -72,6 +73,7 @@ class FmuService(Service):
         node.serve("fmu/srv/emergency_stop", EmergencyStopRequest, EmergencyStopReply, self._srv_estop, locked=False)
         self.stream_loop = node.every(1.0 / p.offboard_rate_hz, self._offboard_tick, name="offboard")
         node.every(1.0, self._heartbeat_tick, name="heartbeat")
+        node.every(1.0, self._home_tick, name="home")
         self.reader = threading.Thread(target=self._read_loop, name="fmu-mavlink", daemon=True)
         self.reader.start()
         self.log.info("fcu_link", url=self.args.fcu_url)
@@ -131,6 +133,8 @@ class FmuService(Service):
             if "sensors/imu" in self.pubs:
                 self.pubs["sensors/imu"].publish(imu)
                 self.imu_stamps_ns.append(stamp)
+        elif t == "HOME_POSITION":  # answer to our request, and sent by PX4 whenever home changes
+            self._on_home_position(m, stamp)
         elif t == "COMMAND_ACK":
             self.acks.on_ack(m)
         elif t == "STATUSTEXT":  # the FC says why it refused a command (PX4: "Arming denied: ...")
@@ -143,6 +147,34 @@ class FmuService(Service):
         self.streams_requested = True
         for msg_id, hz in STREAMS_HZ.items():
             self._command_nowait(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, msg_id, 1e6 / hz)
+        if self.tm.home is None:
+            self._request_home()
+
+    def _request_home(self) -> None:
+        self.home_requested_s = time.monotonic()
+        self._command_nowait(mavlink.MAV_CMD_REQUEST_MESSAGE, mavlink.MAVLINK_MSG_ID_HOME_POSITION)
+
+    def _on_home_position(self, m, stamp: int) -> None:
+        old = self.tm.home
+        home = self.tm.on_home_position(m, stamp)
+        if home is None:
+            self.log.throttled("warn", "home", "home_position_invalid", latitude=m.latitude, longitude=m.longitude)
+            return
+        if old is None or (old.latitude_deg, old.longitude_deg, old.altitude_amsl_m, old.position_m) != \
+                (home.latitude_deg, home.longitude_deg, home.altitude_amsl_m, home.position_m):
+            self.log.info("home_position", latitude_deg=home.latitude_deg, longitude_deg=home.longitude_deg,
+                          altitude_amsl_m=home.altitude_amsl_m,
+                          position_m=[round(v, 3) for v in home.position_m.to_array().tolist()],
+                          first=old is None)
+        self.pubs["fmu/out/home_position"].publish(home)
+
+    def _home_tick(self) -> None:
+        """Latched home: republish at 1 Hz; until the FC sent one, ask again every home_request_period_s."""
+        if self.tm.home is not None:
+            self.pubs["fmu/out/home_position"].publish(self.tm.home)
+        elif self.streams_requested and self.link_fresh() and \
+                time.monotonic() - self.home_requested_s >= self.params.home_request_period_s:
+            self._request_home()
 
     # ------------------------------------------------------------ MAVLink out
 
@@ -286,7 +318,9 @@ class FmuService(Service):
             self.counters["camera_imu_dt_p50_ms"] = round(float(np.nanmedian(dts)), 3)
             self.counters["camera_imu_dt_max_ms"] = round(float(np.nanmax(np.abs(dts))), 3)
         values = dict(self.counters, mode=self.tm.flight_mode, armed=self.tm.armed, autopilot=self.tm.autopilot.name,
-                      planner="streaming" if self.hold is None and self.planner_sp is not None else "holding")
+                      planner="streaming" if self.hold is None and self.planner_sp is not None else "holding",
+                      home=(f"{self.tm.home.latitude_deg:.7f},{self.tm.home.longitude_deg:.7f},"
+                            f"{self.tm.home.altitude_amsl_m:.2f}" if self.tm.home is not None else "unknown"))
         if not self.link_fresh():
             age = time.monotonic() - self.tm.last_rx_s if self.tm.last_rx_s else math.inf
             return Health(DiagnosticStatus.ERROR, f"flight controller link stale ({age:.1f} s) on {self.args.fcu_url}", values)

@@ -133,6 +133,8 @@ class CommandHandler:
             alt = p[6] - self.home.alt_m if math.isfinite(p[6]) else None
             if alt is not None and alt <= 0.2:
                 alt = None  # PX4: an altitude at or below home means "the default"
+            elif alt is not None:
+                alt = self.home.local_z(alt)
             self._async(c, now_s, lambda d: self.ops.takeoff(alt, d))
         elif cmd == M.MAV_CMD_NAV_LAND:
             self._async(c, now_s, lambda d: self.ops.mission_command("LAND", d))
@@ -147,7 +149,7 @@ class CommandHandler:
                     rel = alt if math.isfinite(alt) else cur[2]
                 target = self.home.to_enu(lat, lon, rel)
             else:
-                target = (cur[0], cur[1], (alt - self.home.alt_m) if math.isfinite(alt) else cur[2])
+                target = (cur[0], cur[1], self.home.local_z(alt - self.home.alt_m) if math.isfinite(alt) else cur[2])
             yaw = float(frames.yaw_ned_to_enu(math.radians(p[3]))) if math.isfinite(p[3]) else None
             self._async(c, now_s, lambda d: self.ops.goto(target, yaw, d))
         elif cmd == M.MAV_CMD_DO_CHANGE_SPEED:

@@ -1,6 +1,6 @@
 """Contract of gcs: keys in/out, calls, ports and parameters."""
 from aeroperception.schemas import (
-    ArmReply, ArmRequest, BatteryState, Empty, GcsLink, GetMissionReply, Joystick, LoadMissionReply,
+    ArmReply, ArmRequest, BatteryState, Empty, GcsLink, GetMissionReply, HomePosition, Joystick, LoadMissionReply,
     LoadMissionRequest, MissionCommand, MissionStatus, ParamList, ParamSet, ParamSetReply, Reply,
     SetModeReply, SetModeRequest, VehicleState, WaypointReached,
 )
@@ -10,6 +10,7 @@ NAME = "gcs"
 INPUTS = {
     "state/vehicle": VehicleState,                  # pose (ENU), mode, armed, landed, battery
     "fmu/out/battery_status": BatteryState,         # real battery for SYS_STATUS / BATTERY_STATUS
+    "fmu/out/home_position": HomePosition,          # the FC's home: geodetic <-> local (else the home_* params)
     "mission/status": MissionStatus,                # MISSION_CURRENT
     "mission/waypoint_reached": WaypointReached,    # MISSION_ITEM_REACHED
 }
@@ -32,7 +33,8 @@ ACTIONS = ["mission/action/takeoff", "mission/action/land", "mission/action/goto
 # ground station heard (link.py).
 DEFAULT_LOCAL_PORT = 14551
 DEFAULT_REMOTE_PORT = 14550
-# Seed 001 §15: default home (Tanashi, Tokyo), altitude 10 m AMSL.
+# Seed 001 §15: default home (Tanashi, Tokyo), altitude 10 m AMSL. Only a fallback: once fmu publishes
+# the flight controller's home (fmu/out/home_position), that is the home.
 DEFAULT_HOME_LAT_DEG = 35.736805
 DEFAULT_HOME_LON_DEG = 139.539676
 DEFAULT_HOME_ALT_M = 10.0
@@ -45,9 +47,10 @@ PARAMS = [
     Param("system_id", 1, "", 1, 255, description="our MAVLink system id"),
     Param("component_id", 1, "", 1, 255, description="our MAVLink component id (1 = autopilot)"),
     Param("telemetry_period_s", 0.9, "s", 0.05, 10.0, description="default period of the telemetry set (seed: 900 ms)"),
-    Param("home_lat_deg", DEFAULT_HOME_LAT_DEG, "deg", -90.0, 90.0, description="home latitude (local ENU origin)"),
-    Param("home_lon_deg", DEFAULT_HOME_LON_DEG, "deg", -180.0, 180.0, description="home longitude"),
-    Param("home_alt_m", DEFAULT_HOME_ALT_M, "m", -500.0, 9000.0, description="home altitude AMSL"),
+    Param("home_lat_deg", DEFAULT_HOME_LAT_DEG, "deg", -90.0, 90.0,
+          description="home latitude (local ENU origin) until the flight controller's home is known"),
+    Param("home_lon_deg", DEFAULT_HOME_LON_DEG, "deg", -180.0, 180.0, description="home longitude (fallback)"),
+    Param("home_alt_m", DEFAULT_HOME_ALT_M, "m", -500.0, 9000.0, description="home altitude AMSL (fallback)"),
     Param("gcs_timeout_s", 3.5, "s", 0.5, 60.0, description="a ground station without a heartbeat this long gets no "
           "telemetry; none left -> gcs/link down"),
     Param("mission_item_timeout_s", 0.25, "s", 0.05, 5.0, description="re-request a mission item after this"),

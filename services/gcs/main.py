@@ -15,14 +15,15 @@ from pymavlink.dialects.v20 import common as M
 
 from aeroperception.schemas import (
     ArmReply, ArmRequest, BatteryState, DiagnosticStatus, Empty, GcsLink, GetMissionReply, GoalReply,
-    GoToPositionGoal, Joystick, LoadMissionReply, LoadMissionRequest, MissionCommand, MissionStatus, ParamList,
-    ParamSet, ParamSetReply, Reply, SchemaError, SetModeReply, SetModeRequest, TakeoffGoal, Vector3,
+    GoToPositionGoal, HomePosition, Joystick, LoadMissionReply, LoadMissionRequest, MissionCommand, MissionStatus,
+    ParamList, ParamSet, ParamSetReply, Reply, SchemaError, SetModeReply, SetModeRequest, TakeoffGoal, Vector3,
     VehicleState, WaypointReached, parse_mission,
 )
 from aeroperception.services.runtime import CallError, Health, Service, run
 
 from . import contract
 from .commands import CommandHandler, mode_from_custom_mode
+from .home import SOURCE_PARAM, HomeTracker, home_from_msg, origin_shift_m
 from .link import UdpLink, load_signing_key, parse_signing_key
 from .messages import statustext
 from .missions import (
@@ -98,6 +99,7 @@ class GcsService(Service):
             if v is not None:
                 p.set(name, v)
         node = self.node
+        # Until fmu reports the flight controller's home, the parameters' (home = local origin).
         self.home = Home(p.home_lat_deg, p.home_lon_deg, p.home_alt_m)
         key, key_source = self._signing_key()
         self.link = UdpLink(p.bind_ip, p.local_port, p.gcs_ip, p.remote_port, p.system_id, p.component_id,
@@ -112,6 +114,7 @@ class GcsService(Service):
         self.cmds = CommandHandler(self.link.send, self, self.home, position_enu=self._position,
                                    request_message=self._request_message,
                                    set_interval=self.sched.set_interval, set_current=self._set_current)
+        self.homes = HomeTracker(self.home, busy=self._upload_under_way, apply=self._apply_home)
         self.progress = Progress()       # MISSION_ITEM_REACHED for our mission (takeoff + waypoints)
         self.speeds = SpeedSchedule()    # the loaded mission's DO_CHANGE_SPEED items, per waypoint
         # (mission_id, waypoints) of the mission our items describe; one loaded some other way
@@ -130,6 +133,7 @@ class GcsService(Service):
         self.pub_joy = node.publisher("gcs/joystick", Joystick)
         node.subscribe("state/vehicle", VehicleState, self._on_vehicle)
         node.subscribe("fmu/out/battery_status", BatteryState, lambda m: setattr(self.tel, "battery", m))
+        node.subscribe("fmu/out/home_position", HomePosition, self._on_home_position)
         node.subscribe("mission/status", MissionStatus, self._on_mission_status)
         node.subscribe("mission/waypoint_reached", WaypointReached, self._on_reached)
         self._refresh_params()
@@ -150,6 +154,35 @@ class GcsService(Service):
 
     def _on_vehicle(self, msg: VehicleState) -> None:
         self.tel.vehicle = msg
+
+    def _on_home_position(self, msg: HomePosition) -> None:
+        home = home_from_msg(msg)
+        if home is None:
+            self.node.report_bad_input("fmu/out/home_position", "non-finite or out-of-range home")
+            return
+        was_pending = self.homes.pending
+        self.homes.offer(home)
+        if self.homes.pending is not None and self.homes.pending != was_pending:
+            self.log.info("home_change_deferred", reason="mission upload under way",
+                          latitude_deg=home.lat_deg, longitude_deg=home.lon_deg, altitude_amsl_m=home.alt_m)
+
+    def _upload_under_way(self) -> bool:
+        t = self.missions.transfer
+        return self.missions.loading or (t is not None and t.direction == "upload")
+
+    def _apply_home(self, new: Home, old: Home, source: str) -> None:
+        """The home in force changed: every conversion uses it from now on; ground stations are told
+        (HOME_POSITION at once, as PX4 sends it on change)."""
+        self.home = self.tel.home = self.cmds.home = new
+        shift = origin_shift_m(old, new)
+        self.log.info("home_changed", source=source, latitude_deg=new.lat_deg, longitude_deg=new.lon_deg,
+                      altitude_amsl_m=new.alt_m, local_m=[round(v, 3) for v in new.local_m],
+                      previous=[old.lat_deg, old.lon_deg, old.alt_m], shift_m=round(shift, 3))
+        if self.missions.items and (shift > 0.5 or abs(new.alt_m - new.local_m[2] - old.alt_m + old.local_m[2]) > 0.5):
+            self.log.warn("mission_converted_about_previous_home", shift_m=round(shift, 3),
+                          hint="the loaded mission's local positions were converted about the previous home; "
+                               "upload it again")
+        self.link.send(self.tel.home_position(), broadcast=True)
 
     def _on_mission_status(self, msg: MissionStatus) -> None:
         self.tel.mission = msg
@@ -189,6 +222,7 @@ class GcsService(Service):
         for msg in self.sched.due(now):
             self.link.send(msg)
         self.missions.tick(now)
+        self.homes.poll()                # a home held back during an upload, once it is over
         self.cmds.tick(now, timeout_s=self.params.call_timeout_s + 2.0)
         self._sync_plan()
         self._check_peers(now)
@@ -531,6 +565,9 @@ class GcsService(Service):
             "mavlink_rx": self.link.parser.received, "mavlink_tx": self.link.sent,
             "mavlink_invalid": inv, "params_exposed": len(self.table), "mission_items": len(self.missions.items),
             "uploads_accepted": self.missions.uploads_accepted, "uploads_rejected": self.missions.uploads_rejected,
+            "home_source": self.homes.source,
+            "home": f"{self.home.lat_deg:.7f},{self.home.lon_deg:.7f},{self.home.alt_m:.2f}",
+            "home_pending": self.homes.pending is not None,
         }
         for k, n in self.link.parser.invalid.items():
             values[f"mavlink_invalid[{k}]"] = n
@@ -541,6 +578,8 @@ class GcsService(Service):
         level, message = DiagnosticStatus.OK, "ground station connected" if self.gcs_connected else "no ground station"
         if self.tel.vehicle is None:
             level, message = DiagnosticStatus.WARN, f"{message}; no state/vehicle"
+        elif self.homes.source == SOURCE_PARAM:
+            message += "; home from parameters (no fmu/out/home_position yet)"
         if inv or self.missions.errors:
             level = max(level, DiagnosticStatus.WARN)
             message += f"; {inv + sum(self.missions.errors.values())} invalid MAVLink inputs dropped"

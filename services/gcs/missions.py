@@ -1,8 +1,10 @@
 """MAVLink mission items <-> the stack's Mission (ENU about home), and the mission protocol state
 machine (upload, download, clear, set current) for mission_type 0, without Zenoh.
 
-Conversion. The local ENU frame's origin is home (lat, lon, alt AMSL); the projection is PX4's
-(services/mavlink/geo.py) and every NED<->ENU step goes through services/mavlink/frames.py.
+Conversion. Geodetic <-> local ENU about home (`Home`: lat, lon, alt AMSL, and where home is in
+the local frame: the flight controller's HOME_POSITION, else the gcs parameters with home at the
+local origin); the projection is PX4's (services/mavlink/geo.py) and every NED<->ENU step goes
+through services/mavlink/frames.py.
 Accepted items: NAV_WAYPOINT, NAV_TAKEOFF, NAV_LAND, NAV_RETURN_TO_LAUNCH, DO_CHANGE_SPEED in
 frames GLOBAL[_INT] (AMSL), GLOBAL_RELATIVE_ALT[_INT], LOCAL_NED, LOCAL_ENU. A takeoff item sets
 the mission's takeoff altitude; LAND adds its position (when it has one) and ends the mission;
@@ -31,6 +33,7 @@ import math
 import struct
 import zlib
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Callable
 
 from pymavlink.dialects.v20 import common as mavlink
@@ -82,25 +85,56 @@ class MissionConversionError(ValueError):
 
 @dataclass(frozen=True)
 class Home:
+    """Where the local ENU frame sits on the Earth: home's geodetic position (`alt_m` AMSL) and
+    `local_m`, the same point in the local ENU frame (the flight controller's HOME_POSITION
+    x/y/z; (0, 0, 0) when home is the local origin, as with the gcs parameters).
+
+    Geodetic <-> local goes through the local origin, as PX4 does it (its MapProjection is about
+    the EKF origin, not home): `origin` is the point whose projection puts home at `local_m`.
+    Altitudes "relative" are above home (MAVLink relative_alt, global-relative mission frames):
+    local z = relative altitude + local_m z.
+    """
+
     lat_deg: float
     lon_deg: float
     alt_m: float  # AMSL
+    local_m: tuple[float, float, float] = (0.0, 0.0, 0.0)   # home in the local ENU frame
 
     @property
     def projection(self) -> MapProjection:
+        """The projection about home itself."""
         return MapProjection(self.lat_deg, self.lon_deg)
 
+    @cached_property
+    def origin(self) -> MapProjection:
+        """The projection about the local origin (home when local_m is zero)."""
+        east, north = float(self.local_m[0]), float(self.local_m[1])
+        if east == 0.0 and north == 0.0:
+            return self.projection
+        lat, lon = self.projection.reproject(-north, -east)   # first guess, then fixed-point refinement
+        for _ in range(8):
+            got_lat, got_lon = MapProjection(lat, lon).reproject(north, east)
+            d_lat, d_lon = self.lat_deg - got_lat, (self.lon_deg - got_lon + 180.0) % 360.0 - 180.0
+            lat, lon = lat + d_lat, lon + d_lon
+            if abs(d_lat) < 1e-12 and abs(d_lon) < 1e-12:
+                break
+        return MapProjection(lat, (lon + 180.0) % 360.0 - 180.0)
+
+    def local_z(self, alt_rel_m: float) -> float:
+        """Altitude above home -> local ENU z."""
+        return float(alt_rel_m) + float(self.local_m[2])
+
     def to_enu(self, lat_deg: float, lon_deg: float, alt_rel_m: float) -> tuple[float, float, float]:
-        """Geodetic (altitude above home) -> ENU metres about home."""
-        north, east = self.projection.project(lat_deg, lon_deg)
-        x, y, z = frames.ned_to_enu([north, east, -alt_rel_m])
-        return float(x), float(y), float(z)
+        """Geodetic (altitude above home) -> local ENU metres."""
+        north, east = self.origin.project(lat_deg, lon_deg)
+        x, y, _ = frames.ned_to_enu([north, east, 0.0])
+        return float(x), float(y), self.local_z(alt_rel_m)
 
     def to_geodetic(self, x: float, y: float, z: float) -> tuple[float, float, float]:
-        """ENU metres about home -> (lat_deg, lon_deg, altitude above home)."""
-        north, east, down = frames.enu_to_ned([x, y, z])
-        lat, lon = self.projection.reproject(float(north), float(east))
-        return lat, lon, -float(down)
+        """Local ENU metres -> (lat_deg, lon_deg, altitude above home)."""
+        north, east, _ = frames.enu_to_ned([x, y, 0.0])
+        lat, lon = self.origin.reproject(float(north), float(east))
+        return lat, lon, float(z) - float(self.local_m[2])
 
 
 @dataclass
@@ -200,7 +234,8 @@ def convert_items(items: list[Item], home: Home, mission_id: str = "gcs", defaul
                 raise MissionConversionError(result, f"item {it.seq}: {reason}") from None
             continue
         if it.command == M.MAV_CMD_NAV_RETURN_TO_LAUNCH:
-            waypoints.append(Waypoint(x=0.0, y=0.0, z=max(last_z, 1.0), yaw_deg=last_yaw))
+            waypoints.append(Waypoint(x=home.local_m[0], y=home.local_m[1], z=max(last_z, home.local_z(1.0)),
+                                      yaw_deg=last_yaw))
             seqs.append(it.seq)
             break
         if it.frame not in RELATIVE_FRAMES | GLOBAL_FRAMES | LOCAL_FRAMES:
@@ -210,8 +245,9 @@ def convert_items(items: list[Item], home: Home, mission_id: str = "gcs", defaul
             last_yaw = math.degrees(frames.yaw_ned_to_enu(math.radians(it.param4)))
         if it.command == M.MAV_CMD_NAV_TAKEOFF:
             x, y, z = item_to_enu(it, home)
-            if z <= 0:
-                raise MissionConversionError(M.MAV_MISSION_INVALID_PARAM7, f"item {it.seq}: takeoff altitude {z:.1f} m <= 0")
+            if z - home.local_m[2] <= 0:
+                raise MissionConversionError(M.MAV_MISSION_INVALID_PARAM7,
+                                             f"item {it.seq}: takeoff altitude {z - home.local_m[2]:.1f} m <= 0")
             takeoff_alt = z
             last_z = z
             continue
@@ -342,7 +378,8 @@ class Progress:
 def mission_to_items(mission: Mission, home: Home) -> list[Item]:
     """Mission -> items (NAV_TAKEOFF above home, NAV_WAYPOINT per waypoint, global-relative)."""
     items = [Item(seq=0, frame=M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, command=M.MAV_CMD_NAV_TAKEOFF,
-                  param4=math.nan, x=home.lat_deg, y=home.lon_deg, z=mission.takeoff_altitude_m)]
+                  param4=math.nan, x=home.lat_deg, y=home.lon_deg,
+                  z=mission.takeoff_altitude_m - home.local_m[2])]
     for wp in mission.waypoints:
         lat, lon, alt = home.to_geodetic(wp.x, wp.y, wp.z)
         yaw_ned = math.degrees(frames.yaw_enu_to_ned(math.radians(wp.yaw_deg)))

@@ -2,7 +2,8 @@
 per-message interval scheduler (SET_MESSAGE_INTERVAL / REQUEST_MESSAGE).
 
 Everything arrives ENU/FLU (state/vehicle) and leaves NED/FRD through services/mavlink/frames.py;
-geodetic positions are the local position projected about home (services/mavlink/geo.py).
+geodetic positions are the local position projected about home (services/mavlink/geo.py): the
+flight controller's home once fmu reports it, else gcs's home parameters (see home.py).
 """
 from __future__ import annotations
 
@@ -141,9 +142,10 @@ class TelemetryState:
 
     def home_position(self):
         h = self.home
+        x, y, z = (float(c) for c in frames.enu_to_ned(h.local_m))   # home in the local NED frame
         return M.MAVLink_home_position_message(
             int(round(h.lat_deg * 1e7)), int(round(h.lon_deg * 1e7)), int(round(h.alt_m * 1000)),
-            0.0, 0.0, 0.0, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0)
+            x, y, z, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0)
 
     def extended_sys_state(self):
         landed = self.vehicle.landed_state if self.vehicle else LandedState.UNDEFINED

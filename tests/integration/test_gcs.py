@@ -22,12 +22,20 @@ os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil  # noqa: E402
 from pymavlink.dialects.v20 import common as M  # noqa: E402
 
-from aeroperception.schemas import DiagnosticStatus, GcsLink, MissionStatus, decode  # noqa: E402
+from aeroperception.schemas import DiagnosticStatus, GcsLink, HomePosition, MissionStatus, decode  # noqa: E402
+from aeroperception.services.gcs.contract import (  # noqa: E402
+    DEFAULT_HOME_ALT_M, DEFAULT_HOME_LAT_DEG, DEFAULT_HOME_LON_DEG,
+)
 from aeroperception.services.gcs.messages import extension_fields  # noqa: E402
 from aeroperception.services.gcs.missions import Home  # noqa: E402
+from aeroperception.services.sim.vehicle.params import make_params  # noqa: E402
 from aerotest import wait_for_message, wait_until  # noqa: E402
 
-HOME = Home(35.736805, 139.539676, 10.0)
+# The flight controller's home: the built-in sim's (PX4 SITL's default, near Zurich), which gcs
+# takes from fmu/out/home_position. gcs's own home parameters (Tokyo) are only the fallback.
+_SIM = make_params()
+HOME = Home(_SIM.SIM_HOME_LAT, _SIM.SIM_HOME_LON, _SIM.SIM_HOME_ALT)
+PARAM_HOME = Home(DEFAULT_HOME_LAT_DEG, DEFAULT_HOME_LON_DEG, DEFAULT_HOME_ALT_M)
 
 
 def free_udp_port() -> int:
@@ -37,12 +45,17 @@ def free_udp_port() -> int:
 
 
 def start_stack(stack, gcs_port: int, gcs_remote: int):
+    """The stack, once gcs converts about the flight controller's home (fmu/out/home_position),
+    so missions uploaded by the tests are converted about the sim's home."""
     p1, p2 = free_udp_port(), free_udp_port()
-    return stack(["sim", "fmu", "planner", "mission", "gcs"], extra_args=[
+    st = stack(["sim", "fmu", "planner", "mission", "gcs"], extra_args=[
         "--arg", f"fmu:--fcu-url=udpin:127.0.0.1:{p1}", "--arg", f"sim:--target=127.0.0.1:{p1}",
         "--arg", f"sim:--bind=127.0.0.1:{p2}", "--arg", "sim:--sensors=none",
         "--arg", f"gcs:--local-port={gcs_port}", "--arg", f"gcs:--remote-port={gcs_remote}",
         "--arg", "gcs:--bind-ip=127.0.0.1"], timeout_s=40)
+    wait_for_message(st.session, "diagnostics/gcs", DiagnosticStatus,
+                     lambda d: d.values.get("home_source") == "flight_controller", timeout_s=15)
+    return st
 
 
 class Gcs:
@@ -92,9 +105,22 @@ def test_pymavlink_ground_station(stack):
         link = wait_for_message(st.session, "gcs/link", GcsLink, lambda m: m.connected, timeout_s=5)
         assert link.system_id == 255
 
-        # telemetry from the stack's state: home about the seed's default, local NED
+        # telemetry from the stack's state, geodetic about the flight controller's home (fmu reads the
+        # sim's HOME_POSITION), not gcs's parameter default: the vehicle sits at home
+        fc_home = wait_for_message(st.session, "fmu/out/home_position", HomePosition, timeout_s=5)
+        assert (fc_home.latitude_deg, fc_home.longitude_deg, fc_home.altitude_amsl_m) == \
+            pytest.approx((HOME.lat_deg, HOME.lon_deg, HOME.alt_m), abs=1e-6)
         gp = g.recv("GLOBAL_POSITION_INT", timeout_s=5)
-        assert abs(gp.lat / 1e7 - HOME.lat_deg) < 1e-4 and abs(gp.lon / 1e7 - HOME.lon_deg) < 1e-4
+        assert abs(gp.lat / 1e7 - HOME.lat_deg) < 1e-5 and abs(gp.lon / 1e7 - HOME.lon_deg) < 1e-5
+        assert abs(gp.alt / 1e3 - HOME.alt_m) < 0.5 and abs(gp.relative_alt / 1e3) < 0.5
+        raw = g.recv("GPS_RAW_INT", timeout_s=5)
+        assert abs(raw.lat / 1e7 - HOME.lat_deg) < 1e-5 and abs(raw.lon / 1e7 - HOME.lon_deg) < 1e-5
+        g.conn.mav.command_long_send(1, 1, M.MAV_CMD_REQUEST_MESSAGE, 0, M.MAVLINK_MSG_ID_HOME_POSITION,
+                                     0, 0, 0, 0, 0, 0)
+        hp = g.recv("HOME_POSITION", timeout_s=5)
+        assert (hp.latitude, hp.longitude, hp.altitude) == \
+            (round(HOME.lat_deg * 1e7), round(HOME.lon_deg * 1e7), round(HOME.alt_m * 1e3))
+        assert abs(PARAM_HOME.lat_deg - HOME.lat_deg) > 1.0    # (the fallback is far away: a real check)
         g.recv("SYS_STATUS", lambda m: m.voltage_battery not in (0, 0xFFFF), timeout_s=5)
 
         # capabilities
@@ -282,6 +308,7 @@ def test_signing_refuses_unsigned_ground_stations(stack, tmp_path):
                                 lambda d: int(d.values.get("mavlink_invalid[unsigned]", 0)) >= 6, timeout_s=5)
         assert diag.values["signing"] == "True" and int(diag.values["signing_rejected"]) >= 6
         assert diag.values["ground_stations"] == "1" and diag.level == DiagnosticStatus.WARN
+        assert diag.values["home_source"] == "param"     # no flight controller: the parameters' home
         assert signed.conn.mav.signing.badsig_count == 0
         assert st.alive("gcs")
     finally:

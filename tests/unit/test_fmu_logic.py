@@ -13,12 +13,12 @@ import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
 from aeroperception.schemas import (
-    BatteryState, Imu, LandedState, LocalPosition, NDArray, Odometry, Pose, Quaternion,
+    BatteryState, HomePosition, Imu, LandedState, LocalPosition, NDArray, Odometry, Pose, Quaternion,
     TrajectorySetpoint, Twist, Vector3, VehicleStatus,
 )
 from aeroperception.services.fmu.logic import (
     IGNORE_ACC, IGNORE_POS, IGNORE_VEL, IGNORE_YAW, IGNORE_YAW_RATE, CommandWaiter, Telemetry,
-    ack_name, highres_imu_to_imu, hold_target, odometry_fields, setpoint_target,
+    ack_name, highres_imu_to_imu, hold_target, home_position_from_mavlink, odometry_fields, setpoint_target,
 )
 
 MAV = mavlink.MAVLink(None, srcSystem=255, srcComponent=190)
@@ -253,6 +253,44 @@ def test_vehicle_state_reports_a_stale_link_with_zero_confidence():
     assert tm.vehicle_state(1, connected=False).confidence == 0.0
     assert tm.vehicle_state(1, connected=True).confidence == 1.0
     assert not tm.vehicle_state(1, connected=False).connected
+
+
+# ================================================================ home (HOME_POSITION -> HomePosition)
+
+def home_msg(lat_e7=473977420, lon_e7=85455940, alt_mm=488000, x=0.0, y=0.0, z=0.0):
+    """HOME_POSITION as PX4 sends it: geodetic home + home in the local NED frame."""
+    return mavlink.MAVLink_home_position_message(
+        latitude=lat_e7, longitude=lon_e7, altitude=alt_mm, x=x, y=y, z=z, q=[1.0, 0.0, 0.0, 0.0],
+        approach_x=0.0, approach_y=0.0, approach_z=0.0, time_usec=5_000_000)
+
+
+def test_home_position_geodetic_and_local_ned_becomes_enu():
+    # home 3 m North, 4 m East, 0.5 m below the local origin (NED z = +0.5)
+    m = home_msg(x=3.0, y=4.0, z=0.5)
+    packs(m)
+    tm = Telemetry()
+    home = tm.on_home_position(m, stamp_ns=77)
+    assert isinstance(home, HomePosition) and tm.home == home
+    assert home.latitude_deg == pytest.approx(47.397742, abs=1e-9)
+    assert home.longitude_deg == pytest.approx(8.545594, abs=1e-9)
+    assert home.altitude_amsl_m == pytest.approx(488.0)
+    assert vec(home.position_m) == [4.0, 3.0, -0.5]        # ENU: East 4, North 3, Up -0.5
+    assert home.header.stamp_ns == 77 and home.header.frame_id == "map"
+
+
+def test_home_position_southern_western_hemisphere_and_non_finite_local_position():
+    home = home_position_from_mavlink(home_msg(-338688197, -1512093048, -12345, x=math.nan), 1)
+    assert (home.latitude_deg, home.longitude_deg) == pytest.approx((-33.8688197, -151.2093048), abs=1e-9)
+    assert home.altitude_amsl_m == pytest.approx(-12.345)
+    assert vec(home.position_m) == [0.0, 0.0, 0.0]          # unknown local position: the origin
+
+
+def test_home_position_without_a_home_is_ignored():
+    tm = Telemetry()
+    good = tm.on_home_position(home_msg(), 1)
+    assert tm.on_home_position(home_msg(0, 0, 0), 2) is None            # "no home yet" (lat = lon = 0)
+    assert tm.on_home_position(home_msg(lat_e7=950000000), 3) is None   # latitude 95 deg
+    assert tm.home == good
 
 
 # ================================================================ IMU (FRD -> FLU)

@@ -19,7 +19,7 @@ from aeroperception.schemas import (
     CameraInfo, CancelReply, CancelRequest, CollisionConstraint, ControlOutput, Detection2D,
     Detection2DArray, DiagnosticArray, DiagnosticStatus, EmergencyStopReply, EmergencyStopRequest,
     Empty, GetMissionReply, GoalReply, GoalStatus, GoToPositionFeedback, GoToPositionGoal, GoToPositionResult, Header,
-    Image, Imu, LandedState, LandFeedback, LandGoal, LandResult, LoadMissionReply,
+    HomePosition, Image, Imu, LandedState, LandFeedback, LandGoal, LandResult, LoadMissionReply,
     LoadMissionRequest, LocalPosition, Message, Mission, MissionCommand, MissionStatus, NDArray,
     OccupancyGrid, Odometry, PerceptionHealth, PointCloud, Pose, PoseStamped, Quaternion, Reply,
     ResultRequest, SafetyStatus, SchemaError, SelectPluginReply, SelectPluginRequest, SetModeReply,
@@ -191,6 +191,9 @@ SAMPLES = {
         header=H, position_m=V, velocity_mps=Vector3(x=0.2), acceleration_mps2=Vector3(z=-0.1), yaw_rad=1.0,
         position_valid=True, velocity_valid=True, distance_bottom_m=2.5),
     "Attitude": lambda: Attitude(header=H, orientation=Q, angular_velocity_radps=Vector3(y=0.4)),
+    "HomePosition": lambda: HomePosition(
+        header=H, latitude_deg=47.397742, longitude_deg=8.545594, altitude_amsl_m=488.0,
+        position_m=Vector3(x=1.0, y=-2.0, z=0.3)),
     "SafetyStatus": _safety,
     "Trajectory": _trajectory,
     "TrajectoryStatus": _traj_status,
