@@ -3,10 +3,12 @@ ground-station software: pymavlink first, then MAVSDK-Python. Loopback only, fre
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import math
 import os
 import re
+import importlib
 import importlib.util
 import socket
 import subprocess
@@ -84,6 +86,18 @@ class Gcs:
     def close(self):
         self.conn.close()
 
+
+
+@contextlib.asynccontextmanager
+async def mavsdk_autopilot(port: int):
+    """MAVSDK (in-process) as a ground station on udpin://127.0.0.1:port, yielding the autopilot."""
+    mavsdk = importlib.import_module("mavsdk.asyncio")
+    config = mavsdk.Configuration.create_with_component_type(mavsdk.ComponentType.GROUND_STATION)
+    async with mavsdk.Mavsdk(config) as sdk:
+        await sdk.add_any_connection(f"udpin://127.0.0.1:{port}")
+        system = await sdk.first_autopilot(timeout_s=15.0)
+        assert system is not None, "MAVSDK saw no autopilot"
+        yield system
 
 def waypoints(n=4, alt=5.0):
     pts = []
@@ -322,7 +336,7 @@ def test_signing_refuses_unsigned_ground_stations(stack, tmp_path):
 
 def test_mavsdk_ground_station(stack):
     """MAVSDK-Python 4.x (in-process): connect, all params, set a float, mission_raw up/down, arm."""
-    mavsdk = pytest.importorskip("mavsdk.asyncio")
+    pytest.importorskip("mavsdk.asyncio")
     from mavsdk.asyncio.plugins.action.action import ActionAsync
     from mavsdk.asyncio.plugins.mission_raw.mission_raw import MissionRawAsync
     from mavsdk.asyncio.plugins.param.param import ParamAsync
@@ -333,11 +347,7 @@ def test_mavsdk_ground_station(stack):
     pts = waypoints()
 
     async def session():
-        config = mavsdk.Configuration.create_with_component_type(mavsdk.ComponentType.GROUND_STATION)
-        async with mavsdk.Mavsdk(config) as sdk:
-            await sdk.add_any_connection(f"udpin://127.0.0.1:{sdk_port}")
-            system = await sdk.first_autopilot(timeout_s=15.0)
-            assert system is not None, "MAVSDK saw no autopilot"
+        async with mavsdk_autopilot(sdk_port) as system:
             param = ParamAsync(system)
             names: set[str] = set()
             deadline = time.monotonic() + 20
@@ -611,7 +621,7 @@ def test_mavsdk_mission_flies_in_sim(stack):
     upload); every waypoint's MISSION_ITEM_REACHED arrives at the ground station in order, the
     vehicle lands and disarms (simulator ground truth, fmu's vehicle status), all within 90 s.
     The takeoff item's MISSION_ITEM_REACHED comes first, as PX4 sends it when the takeoff is done."""
-    mavsdk = pytest.importorskip("mavsdk.asyncio")
+    pytest.importorskip("mavsdk.asyncio")
     from mavsdk.asyncio.plugins.action.action import ActionAsync
     from mavsdk.asyncio.plugins.mavlink_direct.mavlink_direct import MavlinkDirectAsync
     from mavsdk.asyncio.plugins.mission_raw.mission_raw import MissionRawAsync
@@ -663,11 +673,7 @@ def test_mavsdk_mission_flies_in_sim(stack):
             await asyncio.sleep(0.1)
 
     async def session():
-        config = mavsdk.Configuration.create_with_component_type(mavsdk.ComponentType.GROUND_STATION)
-        async with mavsdk.Mavsdk(config) as sdk:
-            await sdk.add_any_connection(f"udpin://127.0.0.1:{sdk_port}")
-            system = await sdk.first_autopilot(timeout_s=15.0)
-            assert system is not None, "MAVSDK saw no autopilot"
+        async with mavsdk_autopilot(sdk_port) as system:
             raw, action, tel = MissionRawAsync(system), ActionAsync(system), TelemetryAsync(system)
             tasks = [asyncio.create_task(collect_reached(MavlinkDirectAsync(system))),
                      asyncio.create_task(collect_progress(raw))]
