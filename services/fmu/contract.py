@@ -1,7 +1,7 @@
 """Contract of fmu: keys in/out (ENU/FLU) and parameters."""
 from aeroperception.schemas import (
     ArmReply, ArmRequest, Attitude, BatteryState, EmergencyStopReply, EmergencyStopRequest, HomePosition, Imu,
-    LocalPosition, Odometry, SetModeReply, SetModeRequest, TrajectorySetpoint, VehicleState, VehicleStatus,
+    LocalPosition, Odometry, SetModeReply, SetModeRequest, TrajectorySetpoint, TrajectoryStatus, VehicleState, VehicleStatus,
 )
 from aeroperception.services.runtime import Param
 
@@ -9,6 +9,8 @@ NAME = "fmu"
 INPUTS = {
     "fmu/in/trajectory_setpoint": TrajectorySetpoint,   # from planner, ENU
     "state/visual_odometry": Odometry,                  # from vio, injected as ODOMETRY (VISION)
+    "planner/status": TrajectoryStatus,                 # ERROR -> stop following the planner, hold
+    "aero/alive/<vehicle>/planner": None,               # liveliness: gone -> hold at once
 }
 OUTPUTS = {
     "fmu/out/vehicle_local_position": LocalPosition,    # 50 Hz

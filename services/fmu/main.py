@@ -11,7 +11,7 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink
 
 from aeroperception.schemas import (
-    ArmReply, ArmRequest, DiagnosticStatus, EmergencyStopReply, EmergencyStopRequest, Image, Odometry, SetModeReply, SetModeRequest, TrajectorySetpoint, VehicleState,
+    ArmReply, ArmRequest, DiagnosticStatus, EmergencyStopReply, EmergencyStopRequest, Image, Odometry, SetModeReply, SetModeRequest, TrajectorySetpoint, TrajectoryStatus, VehicleState,
 )
 from aeroperception.services.runtime import Health, Service, run
 
@@ -47,7 +47,7 @@ class FmuService(Service):
         self.acks = CommandWaiter()
         self.send_lock = threading.Lock()
         self.counters = {"rx": 0, "bad_packets": 0, "setpoints_sent": 0, "holds_sent": 0, "vio_injected": 0,
-                         "vio_stale_dropped": 0}
+                         "vio_stale_dropped": 0, "setpoints_ignored": 0}
         self.planner_sp: TrajectorySetpoint | None = None
         self.planner_sp_rx_s = 0.0
         self.last_target_sent_s = 0.0
@@ -63,6 +63,12 @@ class FmuService(Service):
                      if k != "sensors/imu" or p.publish_imu}
         self.pubs["state/vehicle"] = pub("state/vehicle", VehicleState, express=True)
         node.subscribe("fmu/in/trajectory_setpoint", TrajectorySetpoint, self._on_setpoint)
+        # Stop following the planner at once when it goes away or says it is in ERROR, rather
+        # than after setpoint_timeout_s of silence (or never, if it kept sending stale motion).
+        self.planner_ok, self.planner_why = True, ""
+        node.on_liveliness("planner", lambda _name, alive: self._planner_health(alive, "planner not alive"))
+        node.subscribe("planner/status", TrajectoryStatus,
+                       lambda st: self._planner_health(st.status != TrajectoryStatus.STATUS_ERROR, "planner reports ERROR"))
         node.subscribe("state/visual_odometry", Odometry, self._on_vio)
         self.imu_stamps_ns: deque[int] = deque(maxlen=400)      # recent sensors/imu stamps (2 s)
         self.camera_imu_dt_ms: deque[float] = deque(maxlen=50)  # image stamp - newest IMU stamp before it
@@ -192,7 +198,20 @@ class FmuService(Service):
     def link_fresh(self) -> bool:
         return time.monotonic() - self.tm.last_rx_s < self.params.link_timeout_s
 
+    def _planner_health(self, ok: bool, why: str) -> None:
+        if ok == self.planner_ok:
+            return
+        self.planner_ok, self.planner_why = ok, "" if ok else why
+        if not ok:
+            self.planner_sp_rx_s = 0.0  # the next offboard tick freezes a hold here
+            self.log.warn("planner_lost_holding", reason=why)
+        else:
+            self.log.info("planner_back")
+
     def _on_setpoint(self, sp: TrajectorySetpoint) -> None:
+        if not self.planner_ok:
+            self.counters["setpoints_ignored"] += 1
+            return
         self.planner_sp, self.planner_sp_rx_s = sp, time.monotonic()
         self.hold = None
         self._send_target(setpoint_target(sp))  # forward at once: the hot path
@@ -318,7 +337,8 @@ class FmuService(Service):
             self.counters["camera_imu_dt_p50_ms"] = round(float(np.nanmedian(dts)), 3)
             self.counters["camera_imu_dt_max_ms"] = round(float(np.nanmax(np.abs(dts))), 3)
         values = dict(self.counters, mode=self.tm.flight_mode, armed=self.tm.armed, autopilot=self.tm.autopilot.name,
-                      planner="streaming" if self.hold is None and self.planner_sp is not None else "holding",
+                      planner="streaming" if self.hold is None and self.planner_sp is not None else
+                      f"holding ({self.planner_why})" if self.planner_why else "holding",
                       home=(f"{self.tm.home.latitude_deg:.7f},{self.tm.home.longitude_deg:.7f},"
                             f"{self.tm.home.altitude_amsl_m:.2f}" if self.tm.home is not None else "unknown"))
         if not self.link_fresh():

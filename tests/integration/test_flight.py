@@ -463,6 +463,26 @@ def test_planner_silent_fmu_holds(fstack):
     wait_until(lambda: diag(st, "fmu").values["planner"] == "streaming", 5, "fmu streaming planner setpoints")
 
 
+def test_planner_gone_fmu_holds_at_once_and_follows_it_again_after_restart(fstack):
+    """Liveliness, not the 100 ms silence: a planner that exits is dropped at once; `aero up`
+    restarts it and fmu streams its setpoints again."""
+    st = fstack
+    ensure_hovering(st)
+    old_pid = service_pid(st, "planner")
+    with recording(st, truth=("sim/truth/state", VehicleState)) as rec:
+        os.kill(old_pid, signal.SIGTERM)
+        t_kill = time.monotonic()
+        d = wait_until(lambda: (lambda v: v if v.values["planner"] == "holding (planner not alive)" else None)(
+            diag(st, "fmu")), 5, "fmu holding because the planner is gone")
+        print(f"fmu dropped the planner {time.monotonic() - t_kill:.2f} s after SIGTERM")
+        wait_until(lambda: st.pids().get("planner") not in (None, old_pid), 20, "aero up restarted the planner")
+        wait_until(lambda: diag(st, "fmu").values["planner"] == "streaming", 20, "fmu following the new planner")
+        track = np.array([pos(m) for m in rec.get("truth", since=t_kill)])
+    drift = np.linalg.norm(track - track[0], axis=1).max()
+    assert drift < 0.5, f"drifted {drift:.2f} m while the planner was away"
+    assert truth(st).flight_mode == "OFFBOARD"
+
+
 def test_setpoints_stop_sim_fails_over_to_hold(fstack):
     st = fstack
     ensure_hovering(st)
