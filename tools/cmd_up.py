@@ -35,9 +35,14 @@ from .common import CliError
 LEVELS = {0: "OK", 1: "WARN", 2: "ERROR", 3: "STALE"}
 
 
-def load_profiles() -> dict[str, list[str]]:
+def load_profiles() -> dict[str, dict]:
+    """{profile: {"services": [...], "args": {service: [flags]}}}; a bare list means services only."""
     text = resources.files("aeroperception.tools").joinpath("profiles.yaml").read_text()
-    return yaml.safe_load(text)["profiles"]
+    out = {}
+    for name, spec in yaml.safe_load(text)["profiles"].items():
+        spec = {"services": spec} if isinstance(spec, list) else dict(spec)
+        out[name] = {"services": list(spec["services"]), "args": dict(spec.get("args") or {})}
+    return out
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -97,7 +102,7 @@ def select_services(args) -> list[str]:
     profiles = load_profiles()
     if args.profile not in profiles:
         raise CliError(f"unknown profile {args.profile!r}; profiles: {', '.join(profiles)}")
-    names = list(profiles[args.profile])
+    names = list(profiles[args.profile]["services"])
     if args.only:
         only = [s.strip() for s in args.only.split(",") if s.strip()]
         unknown = [s for s in only if s not in names]
@@ -108,8 +113,9 @@ def select_services(args) -> list[str]:
     return [n for n in names if n not in excl]
 
 
-def service_argv(name: str, args, endpoint: str) -> list[str]:
-    argv = [sys.executable, "-m", f"aeroperception.services.{name}", "--connect", endpoint]
+def service_argv(name: str, args, endpoint: str, profile_args: list[str] = ()) -> list[str]:
+    """The child's command line: the profile's flags for it first, so --arg/--fcu-url override them."""
+    argv = [sys.executable, "-m", f"aeroperception.services.{name}", "--connect", endpoint, *profile_args]
     if args.speed is not None and args.speed != 1.0:
         argv.append("--sim-time")
     if name == "sim":
@@ -134,7 +140,9 @@ def run(args) -> int:
     router = open_router(None, [args.listen])
     endpoint = args.listen.replace("0.0.0.0", "127.0.0.1")
     env = dict(os.environ, AERO_CONNECT=endpoint, PYTHONUNBUFFERED="1")
-    children = {n: Child(n, service_argv(n, args, endpoint), log_dir / f"{n}.log") for n in names}
+    profile_args = load_profiles()[args.profile]["args"]
+    children = {n: Child(n, service_argv(n, args, endpoint, [str(a) for a in profile_args.get(n, [])]),
+                         log_dir / f"{n}.log") for n in names}
     lock = threading.Lock()
 
     def on_token(s: zenoh.Sample) -> None:

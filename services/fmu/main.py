@@ -123,7 +123,8 @@ class FmuService(Service):
                 self._request_streams()
         elif t == "LOCAL_POSITION_NED":
             local = self.tm.on_local_position(m, stamp)
-            self.pubs["state/vehicle"].publish(self.tm.vehicle_state(stamp, connected=True))  # hot path first
+            # connected once the FC has identified itself (heartbeat: mode, armed); hot path first
+            self.pubs["state/vehicle"].publish(self.tm.vehicle_state(stamp, connected=self.tm.last_heartbeat_s > 0))
             self.pubs["fmu/out/vehicle_local_position"].publish(local)
         elif t == "ATTITUDE_QUATERNION":
             self.pubs["fmu/out/vehicle_attitude"].publish(self.tm.on_attitude_quaternion(m, stamp))
