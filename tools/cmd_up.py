@@ -56,6 +56,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--scenario", default=None, help="sim: scenario world (open_field, village, slope_forest)")
     p.add_argument("--speed", type=float, default=None, help="sim: run faster than real time (services follow sim/clock)")
     p.add_argument("--seed", type=int, default=None, help="sim: random seed (wind, noise)")
+    p.add_argument("--sensors", default=None, choices=["all", "imu", "none"],
+                   help="sim: which scenario sensors to render (none: vehicle and truth only, least CPU)")
     p.add_argument("--fcu-url", default=None, help="fmu: MAVLink URL of the flight controller")
     p.add_argument("--arg", action="append", default=[], metavar="SERVICE:FLAG",
                    help="extra flag for one service, e.g. --arg planner:--param=kp=1.0")
@@ -119,7 +121,8 @@ def service_argv(name: str, args, endpoint: str, profile_args: list[str] = ()) -
     if args.speed is not None and args.speed != 1.0:
         argv.append("--sim-time")
     if name == "sim":
-        for flag, val in (("--scenario", args.scenario), ("--speed", args.speed), ("--seed", args.seed)):
+        for flag, val in (("--scenario", args.scenario), ("--speed", args.speed), ("--seed", args.seed),
+                          ("--sensors", args.sensors)):
             if val is not None:
                 argv += [flag, str(val)]
     if name == "fmu" and args.fcu_url:
