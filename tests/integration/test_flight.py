@@ -33,7 +33,7 @@ import numpy as np
 import pytest
 import zenoh
 
-from aerotest import aero, aero_argv, clean_env, is_service_process, wait_until
+from aerotest import aero, aero_argv, clean_env, is_service_process, wait_for_message, wait_until
 from aeroperception.schemas import (
     ArmReply, ArmRequest, Clock, DiagnosticStatus, GoalStatus, GoToPositionGoal, Header,
     LandGoal, LoadMissionReply, LoadMissionRequest, MissionCommand, MissionStatus, Odometry, Pose,
@@ -122,24 +122,10 @@ def recording(st, **keys: tuple[str, type]):
 
 def latest(st, key: str, cls: type, timeout_s: float = 3.0, pred=None):
     """The next message on `key` (matching pred), or None after timeout_s."""
-    got: list = []
-    ev = threading.Event()
-
-    def on_sample(sample: zenoh.Sample) -> None:
-        try:
-            msg = decode(sample.payload.to_bytes(), cls)
-        except SchemaError:
-            return
-        if not got and (pred is None or pred(msg)):
-            got.append(msg)
-            ev.set()
-
-    sub = st.session.declare_subscriber(key, on_sample)
     try:
-        ev.wait(timeout_s)
-    finally:
-        sub.undeclare()
-    return got[0] if got else None
+        return wait_for_message(st.session, key, cls, pred, timeout_s)
+    except AssertionError:
+        return None
 
 
 def diag(st, name: str) -> DiagnosticStatus:
@@ -472,8 +458,8 @@ def test_planner_gone_fmu_holds_at_once_and_follows_it_again_after_restart(fstac
     with recording(st, truth=("sim/truth/state", VehicleState)) as rec:
         os.kill(old_pid, signal.SIGTERM)
         t_kill = time.monotonic()
-        d = wait_until(lambda: (lambda v: v if v.values["planner"] == "holding (planner not alive)" else None)(
-            diag(st, "fmu")), 5, "fmu holding because the planner is gone")
+        wait_until(lambda: diag(st, "fmu").values["planner"] == "holding (planner not alive)", 5,
+                   "fmu holding because the planner is gone")
         print(f"fmu dropped the planner {time.monotonic() - t_kill:.2f} s after SIGTERM")
         wait_until(lambda: st.pids().get("planner") not in (None, old_pid), 20, "aero up restarted the planner")
         wait_until(lambda: diag(st, "fmu").values["planner"] == "streaming", 20, "fmu following the new planner")
