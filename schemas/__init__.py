@@ -5,7 +5,7 @@
 See README.md in this folder for the wire format and the map from every seed/ROS type to its schema.
 """
 from ._base import (
-    REGISTRY, Header, Message, NDArray, SchemaError, decode, encode, from_builtins, get_schema,
+    REGISTRY, Header, Message, NDArray, SchemaError, check_known_fields, decode, encode, from_builtins, get_schema,
     now_ns, schema, schema_id, to_builtins,
 )
 from .geometry import Pose, PoseStamped, Quaternion, Twist, Vector3
@@ -38,7 +38,7 @@ from .actions import (
 __all__ = [
     # machinery
     "Message", "NDArray", "Header", "SchemaError", "schema", "REGISTRY", "get_schema", "encode",
-    "decode", "to_builtins", "from_builtins", "schema_id", "now_ns",
+    "decode", "to_builtins", "from_builtins", "check_known_fields", "schema_id", "now_ns",
     # geometry
     "Vector3", "Quaternion", "Pose", "Twist", "PoseStamped",
     # sensors, perception, health

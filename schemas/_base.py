@@ -11,14 +11,16 @@ Decoding failures of any kind raise one error type, `SchemaError`, naming the fi
 from __future__ import annotations
 
 import math
+import threading
 from typing import Any, ClassVar, Iterable, TypeVar
 
 import msgspec
+import msgspec.inspect
 import numpy as np
 
 __all__ = [
     "Message", "NDArray", "Header", "SchemaError", "schema", "REGISTRY", "get_schema",
-    "encode", "decode", "to_builtins", "from_builtins", "schema_id", "now_ns",
+    "encode", "decode", "to_builtins", "from_builtins", "check_known_fields", "schema_id", "now_ns",
 ]
 
 M = TypeVar("M", bound="Message")
@@ -62,6 +64,7 @@ def schema(name: str, version: int = 1):
         cls.__schema_name__ = name
         cls.__schema_version__ = version
         REGISTRY[name] = cls
+        _codec(cls)  # built now, at import (under the import lock), never lazily in a worker thread
         return cls
 
     return wrap
@@ -153,9 +156,90 @@ def now_ns() -> int:
 
 
 # ---------------------------------------------------------------- codec
+#
+# msgspec 0.22 segfaulted when two threads used a freshly created Decoder for the first time
+# (seen in gcs at start-up). Every registered schema therefore gets its Decoder and its strict
+# field map when it is registered; the few unregistered classes decoded ad hoc are built under a
+# lock. Nothing is created lazily on a hot path.
 
 _encoder = msgspec.msgpack.Encoder()
-_decoders: dict[type, msgspec.msgpack.Decoder] = {}
+_plain = msgspec.msgpack.Decoder()          # untyped: the strict check reads the raw map once
+
+
+class _Codec:
+    """A class's typed Decoder and, for strict decoding, its field tree."""
+
+    __slots__ = ("decoder", "fields")
+
+    def __init__(self, cls: type) -> None:
+        self.decoder = msgspec.msgpack.Decoder(cls)
+        self.fields = _field_tree(msgspec.inspect.type_info(cls))
+
+
+_codecs: dict[type, _Codec] = {}
+_codecs_lock = threading.Lock()
+
+
+def _codec(cls: type) -> _Codec:
+    c = _codecs.get(cls)
+    if c is None:
+        with _codecs_lock:
+            c = _codecs.get(cls)
+            if c is None:
+                c = _codecs[cls] = _Codec(cls)
+    return c
+
+
+def _field_tree(info: Any) -> Any:
+    """What strict decoding checks: for a Struct {wire name: subtree}, for containers the
+    element's subtree, for unions the tuple of struct alternatives; None where nothing can hold
+    unknown fields. Recursive schemas do not occur in this package."""
+    ti = msgspec.inspect
+    if isinstance(info, ti.StructType):
+        return {f.encode_name: _field_tree(f.type) for f in info.fields}
+    if isinstance(info, (ti.ListType, ti.VarTupleType, ti.SetType, ti.FrozenSetType)):
+        sub = _field_tree(info.item_type)
+        return ("items", sub) if sub is not None else None
+    if isinstance(info, ti.DictType):
+        sub = _field_tree(info.value_type)
+        return ("values", sub) if sub is not None else None
+    if isinstance(info, ti.UnionType):
+        subs = [t for t in (_field_tree(t) for t in info.types) if t is not None]
+        return subs[0] if len(subs) == 1 else None
+    return None
+
+
+def _unknown_fields(obj: Any, tree: Any, path: str) -> str | None:
+    """The first field of `obj` that `tree` does not declare, as a dotted path, else None."""
+    if tree is None:
+        return None
+    if isinstance(tree, dict):
+        if not isinstance(obj, dict):
+            return None  # wrong type: the typed decoder reports it
+        for k, v in obj.items():
+            where = f"{path}.{k}" if path else str(k)
+            if k not in tree:
+                return where
+            bad = _unknown_fields(v, tree[k], where)
+            if bad:
+                return bad
+        return None
+    kind, sub = tree
+    if kind == "items" and isinstance(obj, (list, tuple)):
+        for i, v in enumerate(obj):
+            bad = _unknown_fields(v, sub, f"{path}[{i}]")
+            if bad:
+                return bad
+    elif kind == "values" and isinstance(obj, dict):
+        for k, v in obj.items():
+            bad = _unknown_fields(v, sub, f"{path}[{k!r}]")
+            if bad:
+                return bad
+    return None
+
+
+def _name(cls: type) -> str:
+    return getattr(cls, "__schema_name__", "") or cls.__name__
 
 
 def encode(msg: Message) -> bytes:
@@ -166,15 +250,29 @@ def encode(msg: Message) -> bytes:
         raise SchemaError(f"{type(msg).__name__}: cannot encode: {e}") from None
 
 
-def decode(data: bytes | bytearray | memoryview, cls: type[M]) -> M:
-    """Decode and validate; any failure raises SchemaError naming schema and field."""
-    dec = _decoders.get(cls)
-    if dec is None:
-        dec = _decoders[cls] = msgspec.msgpack.Decoder(cls)
+def decode(data: bytes | bytearray | memoryview, cls: type[M], strict: bool = False) -> M:
+    """Decode and validate; any failure raises SchemaError naming schema and field.
+
+    Telemetry is decoded leniently (unknown fields ignored: forward compatible). `strict=True`
+    is for what commands motion or changes state (requests, goals, setpoints, user files):
+    an unknown field anywhere in the message is refused, naming it.
+    """
+    codec = _codec(cls)
     try:
-        return dec.decode(data)
+        msg = codec.decoder.decode(data)
     except (msgspec.DecodeError, msgspec.ValidationError) as e:
-        raise SchemaError(f"{getattr(cls, '__schema_name__', '') or cls.__name__}: {e}") from None
+        raise SchemaError(f"{_name(cls)}: {e}") from None
+    if strict:
+        check_known_fields(_plain.decode(data), cls)
+    return msg
+
+
+def check_known_fields(obj: Any, cls: type) -> None:
+    """Raise SchemaError if the plain map `obj` has a field `cls` does not declare (at any depth)."""
+    bad = _unknown_fields(obj, _codec(cls).fields, "")
+    if bad:
+        raise SchemaError(f"{_name(cls)}: unknown field `{bad}` (check the spelling; "
+                          f"`aero schema show {_name(cls)}` lists the fields)")
 
 
 def to_builtins(msg: Any) -> Any:
@@ -182,9 +280,13 @@ def to_builtins(msg: Any) -> Any:
     return msgspec.to_builtins(msg, builtin_types=(bytes, bytearray, memoryview))
 
 
-def from_builtins(obj: Any, cls: type[M]) -> M:
-    """Validate plain data (e.g. parsed YAML/JSON from the CLI) into a message."""
+def from_builtins(obj: Any, cls: type[M], strict: bool = False) -> M:
+    """Validate plain data (e.g. parsed YAML/JSON from the CLI or a user file) into a message;
+    `strict=True` refuses unknown fields like `decode(..., strict=True)`."""
     try:
-        return msgspec.convert(obj, cls, strict=False)
+        msg = msgspec.convert(obj, cls, strict=False)
     except msgspec.ValidationError as e:
-        raise SchemaError(f"{getattr(cls, '__schema_name__', '') or cls.__name__}: {e}") from None
+        raise SchemaError(f"{_name(cls)}: {e}") from None
+    if strict:
+        check_known_fields(obj, cls)
+    return msg

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import msgspec
 
-from ._base import Header, Message, SchemaError, schema
+from ._base import Header, Message, SchemaError, check_known_fields, from_builtins, schema
 from ._checks import check_finite, check_positive
 from .geometry import PoseStamped, Vector3
 from .vehicle import TrajectorySetpoint
@@ -161,12 +161,15 @@ _mission_json = msgspec.json.Decoder(Mission)
 
 
 def parse_mission(text: str | bytes) -> Mission:
-    """Parse and validate mission JSON; SchemaError names the offending field
-    (e.g. "Mission: Expected `float`, got `str` - at `$.waypoints[1].x`")."""
+    """Parse and validate mission JSON strictly (a user file: a misspelt field such as
+    `takeoff_altitude` is refused, not silently replaced by the default); SchemaError names
+    the offending field (e.g. "Mission: Expected `float`, got `str` - at `$.waypoints[1].x`")."""
     try:
-        return _mission_json.decode(text)
+        mission = _mission_json.decode(text)
     except (msgspec.DecodeError, msgspec.ValidationError) as e:
         raise SchemaError(f"Mission: {e}") from None
+    check_known_fields(msgspec.json.decode(text), Mission)
+    return mission
 
 
 def load_mission_file(path: str | Path) -> Mission:
@@ -184,7 +187,4 @@ def load_mission_file(path: str | Path) -> Mission:
         obj = yaml.safe_load(text)
     except yaml.YAMLError as e:
         raise SchemaError(f"Mission: {p} is not valid YAML: {e}") from None
-    try:
-        return msgspec.convert(obj, Mission)
-    except msgspec.ValidationError as e:
-        raise SchemaError(f"Mission: {e}") from None
+    return from_builtins(obj, Mission, strict=True)

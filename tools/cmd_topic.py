@@ -209,7 +209,7 @@ def build_message(type_name: str, text: str, stamp: bool = True) -> Message:
         data = parse_data(text)
         if not isinstance(data, dict):
             raise CliError(f"message data must be a mapping of field names, got {data!r}")
-        msg = from_builtins(data, cls)
+        msg = from_builtins(data, cls, strict=True)  # what a user types is a command: no unknown fields
     except SchemaError as e:
         raise CliError(f"{e}") from None
     header = getattr(msg, "header", None)

@@ -62,7 +62,7 @@ class FmuService(Service):
         self.pubs = {k: pub(k, cls) for k, cls in contract.OUTPUTS.items()
                      if k != "sensors/imu" or p.publish_imu}
         self.pubs["state/vehicle"] = pub("state/vehicle", VehicleState, express=True)
-        node.subscribe("fmu/in/trajectory_setpoint", TrajectorySetpoint, self._on_setpoint)
+        node.subscribe("fmu/in/trajectory_setpoint", TrajectorySetpoint, self._on_setpoint, strict=True)
         # Stop following the planner at once when it goes away or says it is in ERROR, rather
         # than after setpoint_timeout_s of silence (or never, if it kept sending stale motion).
         self.planner_ok, self.planner_why = True, ""

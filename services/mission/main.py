@@ -63,7 +63,7 @@ class MissionService(Service):
         node.subscribe("state/vehicle", VehicleState, lambda m: self.mgr.on_vehicle(m, time.monotonic()))
         node.subscribe("perception/health", PerceptionHealth,
                        lambda m: self.mgr.on_perception(m.overall_healthy, time.monotonic()))
-        node.subscribe("mission/command", MissionCommand, self._on_command)
+        node.subscribe("mission/command", MissionCommand, self._on_command, strict=True)
         gcs_up = {"last": None}
 
         def on_gcs_link(m: GcsLink) -> None:

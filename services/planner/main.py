@@ -33,7 +33,7 @@ class PlannerService(Service):
         self.pub_status = self.node.publisher("planner/status", TrajectoryStatus)
         self.pub_reached = self.node.publisher("planner/waypoint_reached", WaypointReached)
         self.node.subscribe("state/vehicle", VehicleState, self._on_state)
-        self.node.subscribe("mission/active_goal", PoseStamped, self._on_goal)
+        self.node.subscribe("mission/active_goal", PoseStamped, self._on_goal, strict=True)
         self.last_pub_s = 0.0
         self.loop = self.node.every(1.0 / p.rate_hz, self._tick, name="setpoint")
         self.node.every(0.1, self._publish_status, name="status")

@@ -157,8 +157,10 @@ class Node:
         self._entities.append(pub)
         return pub
 
-    def subscribe(self, key: str, cls: type[M], callback: Callable[[M], None]) -> None:
-        """Decode samples on `key` (vehicle prefix applied) as `cls` and call `callback(msg)`."""
+    def subscribe(self, key: str, cls: type[M], callback: Callable[[M], None], strict: bool = False) -> None:
+        """Decode samples on `key` (vehicle prefix applied) as `cls` and call `callback(msg)`.
+        `strict=True` for inputs that command motion or state (unknown fields refused);
+        telemetry stays lenient (forward compatible)."""
         full = self.key(key)
         expected = cls.__schema_name__
 
@@ -170,7 +172,7 @@ class Node:
                 self.log.throttled("debug", f"other:{k}", "other_schema_skipped", schema=named)
                 return
             try:
-                msg = decode(sample.payload.to_bytes(), cls)
+                msg = decode(sample.payload.to_bytes(), cls, strict=strict)
             except SchemaError as e:
                 self.report_bad_input(k, str(e))
                 return
@@ -226,6 +228,7 @@ class Node:
 
         Handlers run on a worker thread holding node.lock (unless locked=False, for handlers
         that wait on something, e.g. a flight controller's ACK, and do their own locking);
+        requests are commands, so they are decoded strictly (an unknown field is refused) and
         an invalid request gets a reply with success=False naming the problem.
         """
         full = self.key(key)
@@ -237,7 +240,7 @@ class Node:
                 if req_cls is not None:
                     raw = query.payload.to_bytes() if query.payload is not None else b"\x80"
                     try:
-                        req = decode(raw, req_cls)
+                        req = decode(raw, req_cls, strict=True)
                     except SchemaError as e:
                         self.report_bad_input(k, str(e))
                         query.reply(k, encode(_failure(reply_cls, f"invalid request: {e}")),
@@ -363,7 +366,7 @@ class Node:
         k = str(sample.key_expr)
         name = k.rsplit("/", 1)[-1]
         try:
-            msg = decode(sample.payload.to_bytes(), ParamSetMsg)
+            msg = decode(sample.payload.to_bytes(), ParamSetMsg, strict=True)
         except SchemaError as e:
             self.report_bad_input(k, str(e))
             return

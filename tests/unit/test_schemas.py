@@ -764,3 +764,83 @@ def test_cli_schema_export_to_unwritable_place_exits_2(aero, tmp_path, capsys):
     assert aero("schema", "export", "--out", str(blocker / "sub")) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "cannot write" in err
+
+
+# ---------------------------------------------------------------- codec thread safety, strictness
+
+_CONCURRENT_FIRST_DECODE = r"""
+import threading
+from aeroperception.schemas import REGISTRY, decode, encode, SchemaError
+payloads = []
+for cls in REGISTRY.values():
+    try:
+        payloads.append((cls, encode(cls())))
+    except Exception:
+        payloads.append((cls, b"\x80"))
+start = threading.Barrier(8)
+def work():
+    start.wait()
+    for cls, data in payloads:
+        try:
+            decode(data, cls)
+        except SchemaError:
+            pass
+ts = [threading.Thread(target=work) for _ in range(8)]
+[t.start() for t in ts]
+[t.join() for t in ts]
+print("ok", len(payloads))
+"""
+
+
+def test_first_decode_from_many_threads_at_once_does_not_crash():
+    """Issue 8 #1: msgspec 0.22 segfaulted when threads raced on a lazily created Decoder
+    (4 of 40 fresh processes). Decoders are now built at registration; each run is a fresh
+    interpreter so every decode is the first one."""
+    import subprocess
+    import sys
+
+    for run in range(8):
+        p = subprocess.run([sys.executable, "-c", _CONCURRENT_FIRST_DECODE], capture_output=True,
+                           text=True, timeout=60)
+        assert p.returncode == 0, f"run {run}: exit {p.returncode} (negative = signal): {p.stderr[-500:]}"
+        assert p.stdout.startswith("ok ")
+
+
+def test_every_registered_schema_has_its_codec_built_up_front():
+    from aeroperception.schemas import REGISTRY
+    from aeroperception.schemas._base import _codecs
+
+    assert set(REGISTRY.values()) <= set(_codecs)
+
+
+def test_strict_decode_refuses_unknown_fields_naming_them_and_lenient_ignores_them():
+    import msgpack
+
+    from aeroperception.schemas import LandGoal, SchemaError, TrajectorySetpoint, decode
+
+    raw = msgpack.packb({"a": 1})
+    assert decode(raw, TrajectorySetpoint) == TrajectorySetpoint()     # telemetry: forward compatible
+    with pytest.raises(SchemaError, match="unknown field `a`"):
+        decode(raw, TrajectorySetpoint, strict=True)
+    with pytest.raises(SchemaError, match="unknown field `bogus`"):
+        decode(msgpack.packb({"bogus": True, "junk": 2}), LandGoal, strict=True)
+    nested = msgpack.packb({"position_m": {"x": 1.0, "w": 2.0}})
+    with pytest.raises(SchemaError, match=r"unknown field `position_m.w`"):
+        decode(nested, TrajectorySetpoint, strict=True)
+    ok = decode(msgpack.packb({"position_m": {"x": 1.0}, "position_valid": True}), TrajectorySetpoint, strict=True)
+    assert ok.position_m.x == 1.0
+
+
+def test_mission_file_with_a_misspelt_field_is_refused(tmp_path):
+    from aeroperception.schemas import SchemaError, load_mission_file, parse_mission
+
+    good = '{"takeoff_altitude_m": 4, "waypoints": [{"x": 0, "y": 0, "z": 4}]}'
+    assert parse_mission(good).takeoff_altitude_m == 4
+    with pytest.raises(SchemaError, match="unknown field `takeoff_altitude`"):
+        parse_mission('{"takeoff_altitude": 4, "waypoints": [{"x": 0, "y": 0, "z": 4}]}')
+    with pytest.raises(SchemaError, match=r"unknown field `waypoints\[0\].zz`"):
+        parse_mission('{"waypoints": [{"x": 0, "y": 0, "z": 4, "zz": 1}]}')
+    f = tmp_path / "m.yaml"
+    f.write_text("takeoff_altitud_m: 4\nwaypoints: [{x: 0, y: 0, z: 4}]\n")
+    with pytest.raises(SchemaError, match="unknown field `takeoff_altitud_m`"):
+        load_mission_file(f)
