@@ -51,8 +51,10 @@ PARAMS = [
           description="home latitude (local ENU origin) until the flight controller's home is known"),
     Param("home_lon_deg", DEFAULT_HOME_LON_DEG, "deg", -180.0, 180.0, description="home longitude (fallback)"),
     Param("home_alt_m", DEFAULT_HOME_ALT_M, "m", -500.0, 9000.0, description="home altitude AMSL (fallback)"),
-    Param("gcs_timeout_s", 3.5, "s", 0.5, 60.0, description="a ground station without a heartbeat this long gets no "
-          "telemetry; none left -> gcs/link down"),
+    Param("gcs_timeout_s", 3.5, "s", 0.5, 60.0, description="a ground station without a heartbeat this long (time "
+          "gcs was running) gets no telemetry; none left -> gcs/link down; no verdict before this long after start"),
+    Param("gcs_system_ids", "", description="system ids that count as ground stations besides MAV_TYPE_GCS "
+          "heartbeats (comma-separated, e.g. '255,254')"),
     Param("mission_item_timeout_s", 0.25, "s", 0.05, 5.0, description="re-request a mission item after this"),
     Param("mission_retries", 5, "", 1, 50, description="re-requests of one item before giving up"),
     Param("max_mission_items", 500, "", 1, 10000, description="MISSION_COUNT above this is refused"),

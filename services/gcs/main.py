@@ -31,6 +31,7 @@ from .missions import (
     mission_to_items, waypoint_speeds,
 )
 from .params import ParamTable, decode_param_id, decode_value
+from .presence import GroundStationFilter, LinkVerdict, ListeningClock
 from .telemetry import Scheduler, TelemetryState
 
 SPEED_SERVICE, SPEED_PARAM = "planner", "max_velocity_mps"   # DO_CHANGE_SPEED sets this
@@ -102,9 +103,15 @@ class GcsService(Service):
         # Until fmu reports the flight controller's home, the parameters' (home = local origin).
         self.home = Home(p.home_lat_deg, p.home_lon_deg, p.home_alt_m)
         key, key_source = self._signing_key()
+        # Ground-station presence (presence.py): heartbeat ages in listening time, only ground
+        # stations count, no verdict before a full timeout.
+        self.clock = ListeningClock()
+        self.clock.tick()
         self.link = UdpLink(p.bind_ip, p.local_port, p.gcs_ip, p.remote_port, p.system_id, p.component_id,
-                            timeout_s=p.gcs_timeout_s, signing_key=key, signing_link_id=p.signing_link_id)
+                            timeout_s=p.gcs_timeout_s, signing_key=key, signing_link_id=p.signing_link_id,
+                            clock=self.clock, is_ground_station=GroundStationFilter.from_param(p.gcs_system_ids))
         del key
+        self.verdict = LinkVerdict(p.gcs_timeout_s, self.clock())
         self.tel = TelemetryState(self.home)
         self.sched = Scheduler(p.telemetry_period_s, self.tel.build)
         self.table = ParamTable(p.param_services.split(","))
@@ -124,9 +131,8 @@ class GcsService(Service):
         self.fetch_failed_s = -math.inf
         self.loads = 0
         self.notices = 0                      # STATUSTEXTs sent (chunk ids)
-        self.gcs_last_hb: float | None = None
+        self.gcs_last_hb: float | None = None     # ListeningClock time of the last ground station heartbeat
         self.gcs_sysid = 0
-        self.gcs_connected = False
         self.gcs_alive: set[tuple[str, int]] = set()
         self.ignored: dict[str, int] = {}
         self.pub_link = node.publisher("gcs/link", GcsLink)
@@ -217,7 +223,15 @@ class GcsService(Service):
 
     # ------------------------------------------------------------ timers
 
+    @property
+    def gcs_connected(self) -> bool:
+        return bool(self.verdict.connected)
+
     def _tick(self) -> None:
+        stall = self.clock.tick()
+        if stall:
+            self.log.warn("gcs_stalled", stalled_s=round(stall + self.clock.stall_s, 2),
+                          hint="not counted in ground-station heartbeat ages")
         now = time.monotonic()
         for msg in self.sched.due(now):
             self.link.send(msg)
@@ -225,27 +239,38 @@ class GcsService(Service):
         self.homes.poll()                # a home held back during an upload, once it is over
         self.cmds.tick(now, timeout_s=self.params.call_timeout_s + 2.0)
         self._sync_plan()
-        self._check_peers(now)
+        self._check_peers(self.clock())
 
     def _check_peers(self, now: float) -> None:
-        """gcs/link is up while any ground station is alive (heartbeat within gcs_timeout_s)."""
-        alive = {p.address for p in self.link.alive(now)}
+        """gcs/link is up while any ground station is alive (heartbeat within gcs_timeout_s of
+        listening time); no verdict before a full timeout after start (presence.py)."""
+        alive = {p.address for p in self.link.ground_stations(now)}
         for addr in sorted(self.gcs_alive - alive):
             self.log.warn("gcs_lost", address=f"{addr[0]}:{addr[1]}", timeout_s=self.params.gcs_timeout_s)
         for addr in sorted(alive - self.gcs_alive):
             peer = self.link.peers.get(addr)
             self.log.info("gcs_heard", address=f"{addr[0]}:{addr[1]}", system_id=peer.system_id if peer else None)
         self.gcs_alive = alive
-        if self.gcs_connected and not alive:
-            self.gcs_connected = False
+        before = self.verdict.connected
+        now_connected = self.verdict.update(now, bool(alive))
+        if now_connected == before:
+            return
+        if now_connected:
+            self.log.info("gcs_link_up", system_id=self.gcs_sysid,
+                          address=f"{self.link.remote[0]}:{self.link.remote[1]}")
+        elif before:
             self.log.warn("gcs_link_lost", timeout_s=self.params.gcs_timeout_s)
-            self._publish_link()
+        else:
+            self.log.info("gcs_link_none", listened_s=self.params.gcs_timeout_s)
+        self._publish_link()
 
     def _addresses(self) -> str:
         return ",".join(f"{a[0]}:{a[1]}" for a in sorted(self.gcs_alive))
 
     def _publish_link(self) -> None:
-        age = time.monotonic() - self.gcs_last_hb if self.gcs_last_hb is not None else None
+        if self.verdict.connected is None:
+            return   # no verdict yet (presence.py)
+        age = self.clock() - self.gcs_last_hb if self.gcs_last_hb is not None else None
         addr = f"{self.link.remote[0]}:{self.link.remote[1]}" if self.link.learnt else ""
         self.pub_link.publish(GcsLink(header=self.node.header(), connected=self.gcs_connected, address=addr,
                                       system_id=self.gcs_sysid, last_heartbeat_age_s=age,
@@ -265,15 +290,12 @@ class GcsService(Service):
             self.ignored["other_target"] = self.ignored.get("other_target", 0) + 1
             return
         if t == "HEARTBEAT":
-            if msg.get_srcSystem() != self.params.system_id:
-                self.gcs_last_hb = now
+            if msg.get_srcSystem() != self.link.system_id and self.link.is_ground_station(msg):
+                self.gcs_last_hb = self.clock()
                 self.gcs_sysid = msg.get_srcSystem()
-                self._check_peers(now)
-                if not self.gcs_connected:
-                    self.gcs_connected = True
-                    self.log.info("gcs_link_up", system_id=self.gcs_sysid,
-                                  address=f"{self.link.remote[0]}:{self.link.remote[1]}")
-                    self._publish_link()
+                self._check_peers(self.gcs_last_hb)
+            elif msg.get_srcSystem() != self.link.system_id:
+                self.ignored["heartbeat_not_gcs"] = self.ignored.get("heartbeat_not_gcs", 0) + 1
         elif self.missions.handle(msg, now):
             pass
         elif t in ("COMMAND_LONG", "COMMAND_INT"):

@@ -853,17 +853,18 @@ def test_several_ground_stations_telemetry_to_all_alive_replies_to_the_asker():
         assert types(drain(initial, until=1)) == ["HEARTBEAT"]
         assert link.destinations() == [initial.getsockname()] and not link.alive()
 
-        hb_from(a, mav_a)                              # A talks: telemetry to A only
-        link.send(hb)
-        assert types(drain(a, until=1)) == ["HEARTBEAT"] and drain(initial, 0.1) == []
+        hb_from(a, mav_a)                              # A talks: telemetry to A, and still to the
+        link.send(hb)                                  # initial address (a listen-only station, issue 9 #4)
+        assert types(drain(a, until=1)) == ["HEARTBEAT"] and types(drain(initial, until=1)) == ["HEARTBEAT"]
         hb_from(b, mav_b)                              # B too: telemetry to both
         assert {p.address for p in link.alive()} == {a.getsockname(), b.getsockname()}
         link.send(hb)
         assert types(drain(a, until=1)) == ["HEARTBEAT"] and types(drain(b, until=1)) == ["HEARTBEAT"]
+        assert types(drain(initial, until=1)) == ["HEARTBEAT"]
 
         # B asks: only B gets the answer
         b.sendto(M.MAVLink_param_request_read_message(1, 1, b"GCS_X", -1).pack(mav_b), link.local_address)
-        assert types(drain(b, until=1)) == ["PARAM_VALUE"] and drain(a, 0.1) == []
+        assert types(drain(b, until=1)) == ["PARAM_VALUE"] and drain(a, 0.1) == [] and drain(initial, 0.1) == []
         # a later reply with a target goes where that target spoke from
         link.send(M.MAVLink_command_ack_message(M.MAV_CMD_COMPONENT_ARM_DISARM, 0, 0, 0, 255, 190))
         assert types(drain(a, until=1)) == ["COMMAND_ACK"] and drain(b, 0.1) == []
@@ -874,6 +875,7 @@ def test_several_ground_stations_telemetry_to_all_alive_replies_to_the_asker():
         assert types(drain(b, until=1)) == ["STATUSTEXT"] and drain(a, 0.1) == []
         link.send(M.MAVLink_param_value_message(b"GCS_X", 2.0, M.MAV_PARAM_TYPE_REAL32, 1, 0), broadcast=True)
         assert types(drain(a, until=1)) == ["PARAM_VALUE"] and types(drain(b, until=1)) == ["PARAM_VALUE"]
+        assert types(drain(initial, until=1)) == ["PARAM_VALUE"]
 
         # A goes silent: after the timeout only B (still beating) gets telemetry
         clock.t += 2.0
@@ -882,6 +884,7 @@ def test_several_ground_stations_telemetry_to_all_alive_replies_to_the_asker():
         assert [p.address for p in link.alive()] == [b.getsockname()]
         link.send(hb)
         assert types(drain(b, until=1)) == ["HEARTBEAT"] and drain(a, 0.1) == []
+        assert types(drain(initial, until=1)) == ["HEARTBEAT"]
         # nobody left: the initial address and the last ground station heard
         clock.t += 10.0
         assert not link.alive() and link.destinations() == [initial.getsockname(), b.getsockname()]
