@@ -120,7 +120,8 @@ class GcsService(Service):
                                         notify=self._notify)
         self.cmds = CommandHandler(self.link.send, self, self.home, position_enu=self._position,
                                    request_message=self._request_message,
-                                   set_interval=self.sched.set_interval, set_current=self._set_current)
+                                   set_interval=self.sched.set_interval, set_current=self._set_current,
+                                   notify=self._notify)
         self.homes = HomeTracker(self.home, busy=self._upload_under_way, apply=self._apply_home)
         self.progress = Progress()       # MISSION_ITEM_REACHED for our mission (takeoff + waypoints)
         self.speeds = SpeedSchedule()    # the loaded mission's DO_CHANGE_SPEED items, per waypoint
@@ -320,7 +321,7 @@ class GcsService(Service):
                 self.cmds.ack(M.MAVLINK_MSG_ID_SET_MODE, M.MAV_RESULT_DENIED, (msg.get_srcSystem(), msg.get_srcComponent()))
             else:
                 peer = (msg.get_srcSystem(), msg.get_srcComponent())
-                self.set_mode(mode, lambda ok, _m: self.cmds.ack(
+                self.set_mode(mode, lambda ok, _m, *_: self.cmds.ack(
                     M.MAVLINK_MSG_ID_SET_MODE, M.MAV_RESULT_ACCEPTED if ok else M.MAV_RESULT_DENIED, peer))
         elif t == "MANUAL_CONTROL":
             self.pub_joy.publish(Joystick(header=self.node.header(), x=msg.x / 1000.0, y=msg.y / 1000.0,
@@ -463,11 +464,15 @@ class GcsService(Service):
             self.tel.mission_seq = seq
         return ok
 
-    def _notify(self, text: str, peer: tuple[int, int]) -> None:
-        """A STATUSTEXT (critical, as PX4 reports a refused mission) to the ground station `peer`."""
+    def _notify(self, text: str, peer: tuple[int, int] | None, severity: int = M.MAV_SEVERITY_CRITICAL) -> None:
+        """A STATUSTEXT (critical, as PX4 reports a refused mission or mode change) to the ground
+        station `peer` (None: to every ground station)."""
         self.notices += 1
-        for m in statustext(M.MAV_SEVERITY_CRITICAL, text, self.notices):
-            self.link.send(m, peer=peer)
+        for m in statustext(severity, text, self.notices):
+            if peer is None:
+                self.link.send(m, broadcast=True)
+            else:
+                self.link.send(m, peer=peer)
 
     def _request_message(self, msg_id: int, param2: float) -> int:
         msg = self.tel.build(msg_id)
@@ -481,7 +486,7 @@ class GcsService(Service):
     def _reply_cb(self, done):
         def cb(res) -> None:
             if isinstance(res, CallError):
-                done(False, str(res))
+                done(False, str(res), True)      # the call failed (FAILED), not a refusal (DENIED)
             else:
                 done(res.success, res.message)
         return cb
@@ -502,7 +507,7 @@ class GcsService(Service):
         elif mode in ("HOLD", "LAND", "RTL"):
             # Through the mission manager (so it stops pushing goals); on the ground it refuses,
             # then the flight controller decides.
-            def after(ok: bool, message: str) -> None:
+            def after(ok: bool, message: str, failed: bool = False) -> None:
                 if ok:
                     done(True, message)
                 else:
@@ -523,9 +528,9 @@ class GcsService(Service):
         self._apply_mission_speed(k)
         if st is not None and st.state == MissionStatus.STATE_IDLE:
             # On the ground: take off first; the mission manager starts the mission once up.
-            def after_takeoff(ok: bool, message: str) -> None:
+            def after_takeoff(ok: bool, message: str, failed: bool = False) -> None:
                 if not ok:
-                    done(False, message)
+                    done(False, message, failed)
                 else:
                     self.mission_command("START", done)
             self.mission_command("TAKEOFF", after_takeoff)
@@ -550,7 +555,7 @@ class GcsService(Service):
 
         def reply(res) -> None:
             if isinstance(res, CallError):
-                done(False, str(res))
+                done(False, str(res), True)
                 return
             now = self.table.find(SPEED_SERVICE, SPEED_PARAM)
             if res.success and now is not None and res.value is not None:
@@ -568,7 +573,7 @@ class GcsService(Service):
             return
         self.log.info("mission_speed", waypoint=k, speed_mps=speed if speed != SPEED_DEFAULT else "default")
         self.change_speed(None if speed == SPEED_DEFAULT else speed,
-                          lambda ok, message: None if ok else self.log.warn("mission_speed_failed", error=message))
+                          lambda ok, message, *_: None if ok else self.log.warn("mission_speed_failed", error=message))
 
     def goto(self, enu, yaw_rad, done) -> None:
         goal = GoToPositionGoal(position_m=Vector3(x=enu[0], y=enu[1], z=enu[2]), yaw_rad=yaw_rad)
@@ -597,6 +602,11 @@ class GcsService(Service):
             values[f"mission_protocol[{k}]"] = n
         for k, n in self.cmds.results.items():
             values[f"command_ack[{k}]"] = n
+        values["command_retransmissions"] = self.cmds.retransmissions
+        values["ignored"] = sum(self.ignored.values())
+        for k, n in self.ignored.items():
+            values[f"ignored[{k}]"] = n
+        values["stalls"] = self.clock.stalls
         level, message = DiagnosticStatus.OK, "ground station connected" if self.gcs_connected else "no ground station"
         if self.tel.vehicle is None:
             level, message = DiagnosticStatus.WARN, f"{message}; no state/vehicle"

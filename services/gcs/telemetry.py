@@ -20,9 +20,11 @@ from aeroperception.services.mavlink import frames, px4
 from .messages import MissionCurrent
 from .missions import Home
 
+# What we really support. Not SET_POSITION_TARGET_LOCAL_NED (issue 9 #5): offboard setpoints from a
+# ground station would bypass the mission manager and the planner; such messages are counted as
+# ignored (diagnostics `ignored[SET_POSITION_TARGET_LOCAL_NED]`).
 CAPABILITIES = (M.MAV_PROTOCOL_CAPABILITY_MISSION_INT | M.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
-                | M.MAV_PROTOCOL_CAPABILITY_MAVLINK2 | M.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
-                | M.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED)
+                | M.MAV_PROTOCOL_CAPABILITY_MAVLINK2 | M.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE)
 FLIGHT_SW_VERSION = (1 << 24) | (15 << 16) | (0 << 8) | 255   # reported as PX4 v1.15.0 (official)
 SENSORS = (M.MAV_SYS_STATUS_SENSOR_3D_GYRO | M.MAV_SYS_STATUS_SENSOR_3D_ACCEL | M.MAV_SYS_STATUS_SENSOR_3D_MAG
            | M.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE | M.MAV_SYS_STATUS_SENSOR_GPS

@@ -478,16 +478,21 @@ def cmd_long(cmd, *p):
     return from_gcs(M.MAVLink_command_long_message(1, 1, cmd, 0, *p))
 
 
-def test_arm_acks_real_outcome_progress_and_no_double_execution():
+def test_arm_acks_real_outcome_once_and_no_double_execution():
+    """Issue 9 #1: one final ACK, never IN_PROGRESS (MAVSDK takes it as the outcome); a retry while
+    the first runs is neither run again nor answered; a refusal comes with a STATUSTEXT reason."""
     h, sent, ops = handler()
+    notes = []
+    h.notify = lambda text, peer: notes.append((text, peer))
     h.handle(cmd_long(M.MAV_CMD_COMPONENT_ARM_DISARM, 1.0), 0.0)
     assert ops.calls == [("arm", True, False)] and sent == []
     h.tick(0.35)
-    assert sent[-1].result == M.MAV_RESULT_IN_PROGRESS
-    h.handle(cmd_long(M.MAV_CMD_COMPONENT_ARM_DISARM, 1.0), 0.4)      # retransmission
-    assert len(ops.calls) == 1 and sent[-1].result == M.MAV_RESULT_IN_PROGRESS
+    assert sent == []                                                  # no IN_PROGRESS
+    h.handle(cmd_long(M.MAV_CMD_COMPONENT_ARM_DISARM, 1.0), 0.5)      # MAVSDK's retransmission
+    assert len(ops.calls) == 1 and sent == [] and h.retransmissions == 1
     ops.dones[0](False, "pre-arm check failed")
-    assert sent[-1].result == M.MAV_RESULT_DENIED and sent[-1].target_system == 255
+    assert [m.result for m in sent] == [M.MAV_RESULT_DENIED] and sent[-1].target_system == 255
+    assert notes == [("COMPONENT_ARM_DISARM denied: pre-arm check failed", (255, 190))]
     h.handle(cmd_long(M.MAV_CMD_COMPONENT_ARM_DISARM, 1.0, math.nan), 0.9)      # MAVSDK leaves param2 NaN
     assert ops.calls[-1] == ("arm", True, False)
     ops.dones[-1](True, "ok")
@@ -495,6 +500,22 @@ def test_arm_acks_real_outcome_progress_and_no_double_execution():
     assert ops.calls[-1] == ("arm", False, True)
     ops.dones[-1](True, "ok")
     assert sent[-1].result == M.MAV_RESULT_ACCEPTED
+    assert M.MAV_RESULT_IN_PROGRESS not in [m.result for m in sent]
+
+
+def test_mode_change_final_ack_failed_when_the_stack_does_not_answer():
+    h, sent, ops = handler()
+    notes = []
+    h.notify = lambda text, peer: notes.append(text)
+    h.handle(cmd_long(M.MAV_CMD_DO_SET_MODE, M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 3), 0.0)   # POSCTL
+    assert ops.calls == [("set_mode", "POSCTL")]
+    ops.dones[0](False, "timeout calling fmu/srv/set_mode", True)        # the call failed: FAILED
+    assert sent[-1].result == M.MAV_RESULT_FAILED and notes[-1].startswith("DO_SET_MODE failed: timeout")
+    h.handle(cmd_long(M.MAV_CMD_DO_SET_MODE, M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 3), 1.0)
+    h.tick(7.0, timeout_s=5.0)                                            # nothing ever came back
+    assert sent[-1].result == M.MAV_RESULT_FAILED and len(sent) == 2
+    ops.dones[1](True, "late")                                            # too late: not answered twice
+    assert len(sent) == 2
 
 
 def test_do_change_speed_command():
@@ -581,6 +602,8 @@ def test_telemetry_is_ned_and_geodetic_about_home():
     assert tel.extended_sys_state().landed_state == 2
     assert tel.autopilot_version().capabilities == CAPABILITIES
     assert CAPABILITIES & M.MAV_PROTOCOL_CAPABILITY_MISSION_INT and CAPABILITIES & M.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
+    # issue 9 #5: ground-station setpoints are ignored, so not advertised
+    assert not CAPABILITIES & M.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED
     hp = tel.home_position()
     assert hp.latitude == int(round(HOME.lat_deg * 1e7))
 
