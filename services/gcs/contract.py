@@ -58,7 +58,8 @@ PARAMS = [
     Param("mission_item_timeout_s", 0.25, "s", 0.05, 5.0, description="re-request a mission item after this"),
     Param("mission_retries", 5, "", 1, 50, description="re-requests of one item before giving up"),
     Param("max_mission_items", 500, "", 1, 10000, description="MISSION_COUNT above this is refused"),
-    Param("param_services", "planner,mission,fmu,gcs", description="services whose parameters are exposed"),
+    Param("param_services", "planner,mission,fmu,gcs,safety",
+          description="services whose parameters are exposed under gcs's names (PX4-named aliases: params.py)"),
     Param("param_refresh_s", 5.0, "s", 0.5, 120.0, description="re-read config/<service>/@params this often"),
     Param("call_timeout_s", 3.0, "s", 0.2, 20.0, description="timeout of calls into the stack"),
     # MAVLink 2 signing (link.py). The key itself is never a parameter (parameters are readable on

@@ -305,11 +305,7 @@ class GcsService(Service):
             for i, e in enumerate(self.table.entries):
                 self.link.send(self.table.value_msg(i, e))
         elif t == "PARAM_REQUEST_READ":
-            found = self.table.lookup(decode_param_id(msg.param_id), msg.param_index)
-            if found is not None:
-                self.link.send(self.table.value_msg(*found))
-            else:
-                self.ignored["unknown_param"] = self.ignored.get("unknown_param", 0) + 1
+            self._param_read(msg)
         elif t == "PARAM_SET":
             self._param_set(msg)
         elif t == "MISSION_SET_CURRENT":
@@ -338,7 +334,7 @@ class GcsService(Service):
     # ------------------------------------------------------------ parameters
 
     def _refresh_params(self) -> None:
-        for svc in self.table.services:
+        for svc in self.table.sources:
             if svc == self.NAME:
                 self.table.update_service(svc, self.node.param_list().params)
                 continue
@@ -350,50 +346,90 @@ class GcsService(Service):
 
             self.node.call_async(f"config/{svc}/@params", None, ParamList, done, timeout_s=2.0)
 
-    def _param_set(self, msg) -> None:
+    def _param_read(self, msg) -> None:
+        """PARAM_REQUEST_READ; an unknown name gets no PARAM_VALUE (PX4), only PARAM_ERROR."""
         name = decode_param_id(msg.param_id)
+        found = self.table.lookup(name, msg.param_index)
+        if found is not None:
+            self.link.send(self.table.value_msg(*found))
+            return
+        self.ignored["unknown_param"] = self.ignored.get("unknown_param", 0) + 1
+        if msg.param_index >= 0:
+            self._notify(f"[pm] unknown param ID: {msg.param_index}", self._peer(msg), M.MAV_SEVERITY_INFO)
+        self._param_error(msg, name, M.MAV_PARAM_ERROR_DOES_NOT_EXIST)
+
+    def _peer(self, msg) -> tuple[int, int]:
+        return msg.get_srcSystem(), msg.get_srcComponent()
+
+    def _param_error(self, msg, name: str, error: int) -> None:
+        self.link.send(M.MAVLink_param_error_message(msg.get_srcSystem(), msg.get_srcComponent(),
+                                                     name.encode()[:16], getattr(msg, "param_index", -1), error))
+
+    def _param_set(self, msg) -> None:
+        """PARAM_SET: to the owning service(s) (an alias: every owner present), then the value in
+        force to every ground station (as PX4 does); refusals explained in a STATUSTEXT."""
+        name = decode_param_id(msg.param_id)
+        peer = self._peer(msg)
         found = self.table.lookup(name)
         if found is None:
             self.ignored["unknown_param"] = self.ignored.get("unknown_param", 0) + 1
+            self._notify(f"[pm] unknown param: {name}", peer, M.MAV_SEVERITY_INFO)
+            self._param_error(msg, name, M.MAV_PARAM_ERROR_DOES_NOT_EXIST)
             return
         index, entry = found
+        if entry.readonly:
+            self._notify(f"{name} is read-only: {entry.readonly}", peer, M.MAV_SEVERITY_WARNING)
+            self._param_error(msg, name, M.MAV_PARAM_ERROR_READ_ONLY)
+            self.link.send(self.table.value_msg(index, entry))
+            return
         try:
             value = decode_value(msg.param_value, msg.param_type, entry.ptype)
         except Exception:  # noqa: BLE001 - an undecodable value: echo the current one
             self.link.send(self.table.value_msg(index, entry))
             return
+        targets = entry.targets or ((entry.service, entry.name),)
+        replies: dict[tuple[str, str], ParamSetReply] = {}
 
-        def apply(reply: ParamSetReply) -> None:
-            if reply.success and reply.value is not None:
-                entry.value = reply.value
-            elif not reply.success:
-                self.log.warn("param_set_rejected", param=entry.mav_name, value=value, error=reply.message)
-            # always echoed, to every ground station (as PX4 does): the value in force
-            self.link.send(self.table.value_msg(index, entry), broadcast=True)
+        def record(target: tuple[str, str], reply: ParamSetReply) -> None:
+            replies[target] = reply
+            if len(replies) < len(targets):
+                return
+            for (svc, pname), rep in replies.items():
+                if rep.success and rep.value is not None:
+                    self.table.set_value(svc, pname, rep.value)
+                elif not rep.success:
+                    self.log.warn("param_set_rejected", param=name, service=svc, name=pname, value=value,
+                                  error=rep.message)
+                    if entry.targets:
+                        self._notify(f"{name}: {svc} refused {value}: {rep.message}", peer, M.MAV_SEVERITY_WARNING)
+            now = self.table.lookup(name)
+            if now is not None:   # always echoed, to every ground station (as PX4 does): the value in force
+                self.link.send(self.table.value_msg(*now), broadcast=True)
 
-        if entry.service == self.NAME:
-            apply(self.node.set_param(entry.name, value))
-            return
+        for svc, pname in targets:
+            if svc == self.NAME:
+                record((svc, pname), self.node.set_param(pname, value))
+                continue
 
-        def done(res) -> None:
-            if isinstance(res, CallError):
-                res = ParamSetReply(success=False, message=str(res))
-            apply(res)
+            def done(res, target=(svc, pname)) -> None:
+                if isinstance(res, CallError):
+                    res = ParamSetReply(success=False, message=str(res))
+                record(target, res)
 
-        self.node.call_async(f"config/{entry.service}/@set", ParamSet(name=entry.name, value=value),
-                             ParamSetReply, done, timeout_s=self.params.call_timeout_s)
+            self.node.call_async(f"config/{svc}/@set", ParamSet(name=pname, value=value), ParamSetReply, done,
+                                 timeout_s=self.params.call_timeout_s)
 
     # ------------------------------------------------------------ missions
 
     def _load(self, items, done) -> None:
-        default_alt = 3.0
-        for e in self.table.by_service.get("mission", []):
-            if e.name == "takeoff_altitude_m":
-                default_alt = float(e.value)
+        default_alt = self.table.find("mission", "takeoff_altitude_m")
+        # PX4: an item without an acceptance radius (param2 0) uses NAV_ACC_RAD (the planner's)
+        radius = self.table.find("planner", "acceptance_radius_m")
         self.loads += 1
         try:
             mission, seqs = convert_items(items, self.home, mission_id=f"gcs-{self.loads}",
-                                          default_takeoff_m=default_alt)
+                                          default_takeoff_m=float(default_alt[1].value) if default_alt else 3.0,
+                                          acceptance_radius_m=float(radius[1].value) if radius else 0.5)
         except MissionConversionError as e:
             done(False, str(e), e.result)
             return
@@ -557,9 +593,8 @@ class GcsService(Service):
             if isinstance(res, CallError):
                 done(False, str(res), True)
                 return
-            now = self.table.find(SPEED_SERVICE, SPEED_PARAM)
-            if res.success and now is not None and res.value is not None:
-                now[1].value = res.value
+            if res.success and res.value is not None:
+                self.table.set_value(SPEED_SERVICE, SPEED_PARAM, res.value)
             if not res.success:
                 self.log.warn("change_speed_rejected", speed_mps=speed_mps, error=res.message)
             done(res.success, res.message)
