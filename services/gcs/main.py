@@ -203,6 +203,9 @@ class GcsService(Service):
             self.missions.current = self.tel.mission_seq
         if msg.state == MissionStatus.STATE_EXECUTING and msg.mission_id == self.speeds.mission_id:
             self._apply_mission_speed(msg.active_waypoint)   # however the mission was started
+        restore = self.speeds.observe(msg.mission_id, msg.state, msg.active_waypoint, msg.total_waypoints)
+        if restore is not None:
+            self._restore_speed(restore, f"mission {self.speeds.mission_id or '-'} over ({msg.state})")
 
     @property
     def wp_seqs(self) -> list[int]:
@@ -449,6 +452,7 @@ class GcsService(Service):
                 return
             if res.success:
                 self.progress.load(mission.mission_id, items, seqs)
+                self._end_speed_scope("mission replaced")
                 self.speeds = SpeedSchedule(speeds, mission.mission_id)
                 self.synced = (mission.mission_id, len(mission.waypoints))
                 self.tel.mission_total = len(items)
@@ -486,6 +490,7 @@ class GcsService(Service):
             self.progress.load(mission.mission_id, self.missions.items,
                                list(range(1, len(mission.waypoints) + 1)))   # item 0 is the takeoff
             self._sync_plan()
+            self._end_speed_scope("mission replaced")
             self.speeds = SpeedSchedule([], mission.mission_id)
             self.tel.mission_total = len(self.missions.items)
             self.tel.mission_seq = 0
@@ -562,16 +567,22 @@ class GcsService(Service):
         self.speeds.reset()
         k = st.active_waypoint if st is not None and 0 <= st.active_waypoint < len(self.wp_seqs) else 0
         self._apply_mission_speed(k)
+
+        def started(ok: bool, message: str, failed: bool = False) -> None:
+            if not ok:
+                self._end_speed_scope("mission start failed")
+            done(ok, message, failed)
+
         if st is not None and st.state == MissionStatus.STATE_IDLE:
             # On the ground: take off first; the mission manager starts the mission once up.
             def after_takeoff(ok: bool, message: str, failed: bool = False) -> None:
                 if not ok:
-                    done(False, message, failed)
+                    started(False, message, failed)
                 else:
-                    self.mission_command("START", done)
+                    self.mission_command("START", started)
             self.mission_command("TAKEOFF", after_takeoff)
         else:
-            self.mission_command("START", done)
+            self.mission_command("START", started)
 
     def takeoff(self, altitude_m: float | None, done) -> None:
         if altitude_m is None:
@@ -580,8 +591,19 @@ class GcsService(Service):
         self.node.call_async("mission/action/takeoff/goal", TakeoffGoal(target_altitude_m=altitude_m), GoalReply,
                              self._reply_cb(done), timeout_s=self.params.call_timeout_s)
 
+    def _planner_speed(self) -> float | None:
+        found = self.table.find(SPEED_SERVICE, SPEED_PARAM)
+        return float(found[1].value) if found is not None else None
+
     def change_speed(self, speed_mps: float | None, done) -> None:
-        """DO_CHANGE_SPEED: the planner's live speed limit; None = its declared default."""
+        """DO_CHANGE_SPEED (command): the planner's live speed limit; None = its declared default.
+        While our mission runs the change is mission-scoped (ends with it, missions.py)."""
+        st = self.tel.mission
+        if st is not None and st.mission_id == self.speeds.mission_id and st.state in SpeedSchedule.RUNNING:
+            self.speeds.begin(self._planner_speed())
+        self._set_planner_speed(speed_mps, done)
+
+    def _set_planner_speed(self, speed_mps: float | None, done) -> None:
         found = self.table.find(SPEED_SERVICE, SPEED_PARAM)
         if speed_mps is None:
             if found is None or found[1].default is None:
@@ -606,9 +628,22 @@ class GcsService(Service):
         speed = self.speeds.due(k)
         if speed is None:
             return
+        self.speeds.begin(self._planner_speed())
         self.log.info("mission_speed", waypoint=k, speed_mps=speed if speed != SPEED_DEFAULT else "default")
-        self.change_speed(None if speed == SPEED_DEFAULT else speed,
-                          lambda ok, message, *_: None if ok else self.log.warn("mission_speed_failed", error=message))
+        self._set_planner_speed(None if speed == SPEED_DEFAULT else speed,
+                                lambda ok, message, *_: None if ok else self.log.warn("mission_speed_failed",
+                                                                                      error=message))
+
+    def _end_speed_scope(self, why: str) -> None:
+        restore = self.speeds.end()
+        if restore is not None:
+            self._restore_speed(restore, why)
+
+    def _restore_speed(self, speed_mps: float, why: str) -> None:
+        """The mission that changed the planner's speed is over: the speed from before it."""
+        self.log.info("mission_speed_restored", speed_mps=speed_mps, reason=why)
+        self._set_planner_speed(speed_mps, lambda ok, message, *_: None if ok else self.log.warn(
+            "mission_speed_restore_failed", speed_mps=speed_mps, error=message))
 
     def goto(self, enu, yaw_rad, done) -> None:
         goal = GoToPositionGoal(position_m=Vector3(x=enu[0], y=enu[1], z=enu[2]), yaw_rad=yaw_rad)

@@ -24,8 +24,12 @@ DO_CHANGE_SPEED item before it; None = none yet, leave the planner's speed alone
 it (SpeedSchedule) when the mission starts or resumes at that waypoint and when the previous one
 is reached. Speed types 0 (air) and 1 (ground) both set it (a multicopter in still air); 2/3
 (climb/descent) are accepted and ignored (the planner has one 3-D limit). param2 -1 (or NaN) is
-"no change", -2 "back to the planner's default". The speed stays in force after the mission, as
-PLN_MAX_VELOCITY shows.
+"no change", -2 "back to the planner's default".
+Mission-scoped (issue 9 #7): a speed set for a mission (its DO_CHANGE_SPEED items, or a
+DO_CHANGE_SPEED command while it flies) ends with the mission: the planner's speed from before
+is restored when the mission completes (last waypoint reached), lands (LAND/RTL, aborted or not),
+is IDLE again, or is replaced by another mission. A pause (HOLDING) keeps it. A DO_CHANGE_SPEED
+command outside a mission stays in force (PLN_MAX_VELOCITY / MPC_XY_VEL_MAX show it).
 """
 from __future__ import annotations
 
@@ -297,12 +301,44 @@ def waypoint_speeds(items: list[Item], seqs: list[int]) -> list[float | None]:
 class SpeedSchedule:
     """When to change the planner's speed for the loaded mission's DO_CHANGE_SPEED items:
     due(k) is the speed to apply now that the vehicle flies to waypoint k, None if nothing to do
-    (no item before k, or already applied). reset() forgets what was applied (a new start)."""
+    (no item before k, or already applied). reset() forgets what was applied (a new start).
 
-    def __init__(self, speeds: list[float | None] | None = None, mission_id: str = ""):
+    Scope: begin(current) remembers the planner's speed before the mission first changed it;
+    observe(mission/status fields) returns, once the run is over, the speed to restore (and
+    forgets it), else None. A run is over when another mission replaces it, or, after it was seen
+    running (TAKEOFF / EXECUTING / HOLDING), when its last waypoint is reached or it lands or is
+    IDLE; a start that fails ends it too (the caller restores)."""
+
+    RUNNING = ("TAKEOFF", "EXECUTING", "HOLDING")
+
+    def __init__(self, speeds: list[float | None] | None = None, mission_id: str = "",
+                 restore: float | None = None):
         self.speeds = list(speeds or [])
         self.mission_id = mission_id
         self.applied: float | None = None
+        self.restore = restore          # the planner's speed before this mission changed it
+        self.running = False            # the run was seen under way since begin()
+
+    def begin(self, current: float | None) -> None:
+        if self.restore is None and current is not None:
+            self.restore = float(current)
+            self.running = False
+
+    def end(self) -> float | None:
+        """Forget the scope; the speed to restore (None if nothing was changed)."""
+        speed, self.restore, self.running, self.applied = self.restore, None, False, None
+        return speed
+
+    def observe(self, mission_id: str, state: str, active_waypoint: int, total_waypoints: int) -> float | None:
+        if self.restore is None:
+            return None
+        done = total_waypoints > 0 and active_waypoint >= total_waypoints
+        if mission_id == self.mission_id and state in self.RUNNING and not done:
+            self.running = True
+            return None
+        if mission_id != self.mission_id or (self.running and (done or state in ("IDLE", "LAND"))):
+            return self.end()
+        return None
 
     def reset(self) -> None:
         self.applied = None

@@ -1066,3 +1066,26 @@ def test_px4_names_map_to_the_owning_services_parameters():
     assert not any(e.service == "sim" for e in t.entries)  # the sim's own names are not exposed
     idx, e = t.lookup("MIS_TAKEOFF_ALT")
     assert t.value_msg(idx, e).param_id == "MIS_TAKEOFF_ALT" and t.lookup(index=idx)[1] is e
+
+
+def test_mission_speed_ends_with_the_mission():
+    """Issue 9 #7: a speed set for a mission is restored when the mission completes, lands, is
+    replaced or fails to start; not while it is only paused, not before it was seen running."""
+    s = SpeedSchedule([5.0, 5.0], "gcs-1")
+    assert s.due(0) == 5.0
+    s.begin(2.0)
+    s.begin(5.0)                                          # later changes keep the speed from before
+    assert s.observe("gcs-1", "IDLE", 0, 2) is None      # the start is still on its way (status lags)
+    assert s.observe("gcs-1", "TAKEOFF", 0, 2) is None
+    assert s.observe("gcs-1", "EXECUTING", 1, 2) is None
+    assert s.observe("gcs-1", "HOLDING", 1, 2) is None   # paused: still the mission's speed
+    assert s.observe("gcs-1", "LAND", 2, 2) == 2.0       # last waypoint reached: restored, once
+    assert s.observe("gcs-1", "IDLE", 2, 2) is None and s.restore is None
+    for over in (("gcs-1", "LAND", 1, 2), ("gcs-1", "IDLE", 1, 2), ("gcs-1", "HOLDING", 2, 2)):
+        s.begin(2.0)
+        s.observe("gcs-1", "EXECUTING", 0, 2)
+        assert s.observe(*over) == 2.0, over             # RTL/LAND mid-mission, landed, complete+hold
+    s.begin(2.0)
+    assert s.observe("other", "IDLE", -1, 3) == 2.0      # replaced, even before it ran
+    s.begin(2.0)
+    assert s.end() == 2.0 and s.end() is None            # a failed start: the caller restores
