@@ -123,7 +123,9 @@ class GcsService(Service):
                                    set_interval=self.sched.set_interval, set_current=self._set_current,
                                    notify=self._notify)
         self.homes = HomeTracker(self.home, busy=self._upload_under_way, apply=self._apply_home)
-        self.progress = Progress()       # MISSION_ITEM_REACHED for our mission (takeoff + waypoints)
+        self.progress = Progress()       # MISSION_ITEM_REACHED / MISSION_CURRENT for our mission
+        self._last_progress: tuple[int, int] = (0, 0)
+        self.tel.progress = self.progress
         self.speeds = SpeedSchedule()    # the loaded mission's DO_CHANGE_SPEED items, per waypoint
         # (mission_id, waypoints) of the mission our items describe; one loaded some other way
         # (aero mission load/fly) is fetched from mission/srv/get so a download shows it.
@@ -195,12 +197,8 @@ class GcsService(Service):
         self.tel.mission = msg
         if msg.mission_id and (msg.mission_id, msg.total_waypoints) != self.synced:
             self._fetch_mission()
-        for seq in self.progress.on_status(msg.mission_id, msg.state):   # the takeoff item, when done
-            self.link.send(M.MAVLink_mission_item_reached_message(seq), broadcast=True)
+        self._progress(self.progress.on_status(msg.mission_id, msg.state, msg.active_waypoint, msg.total_waypoints))
         self._sync_plan()
-        if 0 <= msg.active_waypoint < len(self.wp_seqs):
-            self.tel.mission_seq = self.wp_seqs[msg.active_waypoint]
-            self.missions.current = self.tel.mission_seq
         if msg.state == MissionStatus.STATE_EXECUTING and msg.mission_id == self.speeds.mission_id:
             self._apply_mission_speed(msg.active_waypoint)   # however the mission was started
         restore = self.speeds.observe(msg.mission_id, msg.state, msg.active_waypoint, msg.total_waypoints)
@@ -215,9 +213,21 @@ class GcsService(Service):
         self.tel.mission_total = len(self.missions.items)
         self.tel.mission_id = self.missions.plan_id
 
-    def _on_reached(self, msg: WaypointReached) -> None:
-        for seq in self.progress.on_reached(msg.mission_id, msg.index):   # (the takeoff first, if not yet)
+    def _progress(self, reached: list[int]) -> None:
+        """MISSION_ITEM_REACHED for each seq, to every ground station; MISSION_CURRENT at once when
+        the current item or the mission state changed (as PX4 sends it on change)."""
+        for seq in reached:
             self.link.send(M.MAVLink_mission_item_reached_message(seq), broadcast=True)
+        if 0 <= self.progress.current < len(self.missions.items):
+            self.missions.current = self.progress.current
+        now = (self.progress.current, self.progress.state)
+        if reached or now != self._last_progress:
+            self._last_progress = now
+            self._sync_plan()
+            self.link.send(self.tel.mission_current(), broadcast=True)
+
+    def _on_reached(self, msg: WaypointReached) -> None:
+        self._progress(self.progress.on_reached(msg.mission_id, msg.index))
         if msg.mission_id == self.speeds.mission_id:
             self._apply_mission_speed(msg.index + 1)         # the speed for the next leg, at once
 
@@ -502,6 +512,7 @@ class GcsService(Service):
     def _set_current(self, seq: int) -> bool:
         ok = self.missions.set_current(seq)
         if ok:
+            self.progress.set_current(seq)
             self.tel.mission_seq = seq
         return ok
 

@@ -18,7 +18,7 @@ from aeroperception.schemas import BatteryState, LandedState, MissionStatus, Veh
 from aeroperception.services.mavlink import frames, px4
 
 from .messages import MissionCurrent
-from .missions import Home
+from .missions import Home, Progress
 
 # What we really support. Not SET_POSITION_TARGET_LOCAL_NED (issue 9 #5): offboard setpoints from a
 # ground station would bypass the mission manager and the planner; such messages are counted as
@@ -51,6 +51,7 @@ class TelemetryState:
     mission_seq: int = 0            # MISSION_CURRENT.seq (item index)
     mission_total: int = 0
     mission_id: int = 0             # MISSION_CURRENT.mission_id: the plan's id (missions.plan_id), 0 = none
+    progress: Progress | None = None  # the mission protocol's progress (current item, mission_state)
     boot_s: float = field(default_factory=time.monotonic)
 
     def boot_ms(self) -> int:
@@ -154,6 +155,9 @@ class TelemetryState:
         return M.MAVLink_extended_sys_state_message(M.MAV_VTOL_STATE_UNDEFINED, landed)
 
     def mission_current(self):
+        pr = self.progress
+        if pr is not None and self.mission_total and pr.total == self.mission_total:
+            return MissionCurrent(pr.current, pr.total, pr.state, pr.mode, self.mission_id)
         st = self.mission
         state = M.MISSION_STATE_NO_MISSION if self.mission_total == 0 else M.MISSION_STATE_NOT_STARTED
         if st is not None and self.mission_total:
