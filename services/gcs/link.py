@@ -243,6 +243,7 @@ class UdpLink:
         self.local_address = self.sock.getsockname()
         self.initial: Address = (gcs_ip, remote_port)
         self.system_id = system_id
+        self.component_id = component_id
         self.timeout_s = timeout_s
         self.clock = clock
         self.is_ground_station = is_ground_station or (lambda m: m.type == mavlink.MAV_TYPE_GCS)
@@ -265,6 +266,12 @@ class UdpLink:
         self.datagrams = 0
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
+
+    def set_system_id(self, system_id: int) -> None:
+        """Send as another system from now on (a companion follows its flight controller's id)."""
+        with self._lock:
+            self.system_id = system_id
+            self.mav.srcSystem = system_id
 
     # ------------------------------------------------------------ peers
 

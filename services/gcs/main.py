@@ -16,8 +16,8 @@ from pymavlink.dialects.v20 import common as M
 from aeroperception.schemas import (
     ArmReply, ArmRequest, BatteryState, DiagnosticStatus, Empty, GcsLink, GetMissionReply, GoalReply,
     GoToPositionGoal, HomePosition, Joystick, LoadMissionReply, LoadMissionRequest, MissionCommand, MissionStatus,
-    ParamList, ParamSet, ParamSetReply, Reply, SchemaError, SetModeReply, SetModeRequest, TakeoffGoal, Vector3,
-    VehicleState, WaypointReached, parse_mission,
+    ParamList, ParamSet, ParamSetReply, Reply, SafetyStatus, SchemaError, SetModeReply, SetModeRequest, TakeoffGoal,
+    Vector3, VehicleState, VehicleStatus, WaypointReached, parse_mission,
 )
 from aeroperception.services.runtime import CallError, Health, Service, run
 
@@ -32,6 +32,7 @@ from .missions import (
 )
 from .params import ParamTable, decode_param_id, decode_value
 from .presence import GroundStationFilter, LinkVerdict, ListeningClock
+from .safety_relay import SafetyRelay
 from .telemetry import Scheduler, TelemetryState
 
 SPEED_SERVICE, SPEED_PARAM = "planner", "max_velocity_mps"   # DO_CHANGE_SPEED sets this
@@ -103,17 +104,22 @@ class GcsService(Service):
         # Until fmu reports the flight controller's home, the parameters' (home = local origin).
         self.home = Home(p.home_lat_deg, p.home_lon_deg, p.home_alt_m)
         key, key_source = self._signing_key()
+        self.companion = p.identity == contract.IDENTITY_COMPANION
+        component_id = contract.COMPANION_COMPONENT_ID if self.companion else p.component_id
         # Ground-station presence (presence.py): heartbeat ages in listening time, only ground
         # stations count, no verdict before a full timeout.
         self.clock = ListeningClock()
         self.clock.tick()
-        self.link = UdpLink(p.bind_ip, p.local_port, p.gcs_ip, p.remote_port, p.system_id, p.component_id,
+        self.link = UdpLink(p.bind_ip, p.local_port, p.gcs_ip, p.remote_port, p.system_id, component_id,
                             timeout_s=p.gcs_timeout_s, signing_key=key, signing_link_id=p.signing_link_id,
                             clock=self.clock, is_ground_station=GroundStationFilter.from_param(p.gcs_system_ids))
         del key
         self.verdict = LinkVerdict(p.gcs_timeout_s, self.clock())
-        self.tel = TelemetryState(self.home)
+        self.tel = TelemetryState(self.home, companion=self.companion)
         self.sched = Scheduler(p.telemetry_period_s, self.tel.build)
+        if self.companion:   # the flight controller sends the vehicle's telemetry itself
+            self.sched.periods = {M.MAVLINK_MSG_ID_HEARTBEAT: 1.0}
+        self.safety = SafetyRelay()
         self.table = ParamTable(p.param_services.split(","))
         self.missions = MissionProtocol(self.link.send, self._load, p.mission_item_timeout_s,
                                         p.mission_retries, p.max_mission_items, log=self.log.warn,
@@ -145,6 +151,9 @@ class GcsService(Service):
         node.subscribe("fmu/out/home_position", HomePosition, self._on_home_position)
         node.subscribe("mission/status", MissionStatus, self._on_mission_status)
         node.subscribe("mission/waypoint_reached", WaypointReached, self._on_reached)
+        node.subscribe("safety/status", SafetyStatus, self._on_safety)
+        if self.companion:
+            node.subscribe("fmu/out/vehicle_status", VehicleStatus, self._on_vehicle_status)
         self._refresh_params()
         node.every(0.05, self._tick, name="link")
         node.every(p.param_refresh_s, self._refresh_params, name="params")
@@ -163,6 +172,19 @@ class GcsService(Service):
 
     def _on_vehicle(self, msg: VehicleState) -> None:
         self.tel.vehicle = msg
+
+    def _on_safety(self, msg: SafetyStatus) -> None:
+        self.tel.safety, self.tel.safety_rx_s = msg, time.monotonic()
+        for severity, text in self.safety.update(msg):
+            self._notify(text, None, severity)
+
+    def _on_vehicle_status(self, msg: VehicleStatus) -> None:
+        """identity=companion: take the flight controller's system id (we are a component of it)."""
+        sysid = int(msg.system_id)
+        if 1 <= sysid <= 255 and sysid != self.link.system_id:
+            self.log.info("system_id_from_flight_controller", system_id=sysid, previous=self.link.system_id,
+                          component_id=contract.COMPANION_COMPONENT_ID)
+            self.link.set_system_id(sysid)
 
     def _on_home_position(self, msg: HomePosition) -> None:
         home = home_from_msg(msg)
@@ -300,9 +322,17 @@ class GcsService(Service):
         t = msg.get_type()
         now = time.monotonic()
         target_sys = getattr(msg, "target_system", None)
-        if target_sys not in (None, 0, self.params.system_id) and t != "FILE_TRANSFER_PROTOCOL":
+        if target_sys not in (None, 0, self.link.system_id) and t != "FILE_TRANSFER_PROTOCOL":
             self.ignored["other_target"] = self.ignored.get("other_target", 0) + 1
             return
+        if self.companion and t != "HEARTBEAT":
+            # Only what is addressed to our component; the flight controller answers the rest
+            # (parameters asked of every component are ours to answer too).
+            comp = getattr(msg, "target_component", None)
+            if comp is not None and comp != self.link.component_id and not (
+                    comp == 0 and t in ("PARAM_REQUEST_LIST", "PARAM_REQUEST_READ")):
+                self.ignored["other_component"] = self.ignored.get("other_component", 0) + 1
+                return
         if t == "HEARTBEAT":
             if msg.get_srcSystem() != self.link.system_id and self.link.is_ground_station(msg):
                 self.gcs_last_hb = self.clock()
@@ -669,6 +699,8 @@ class GcsService(Service):
             "gcs_connected": self.gcs_connected, "gcs_address": f"{self.link.remote[0]}:{self.link.remote[1]}",
             "ground_stations": len(self.gcs_alive), "ground_station_addresses": self._addresses(),
             "signing": self.link.signing, "signing_rejected": self.link.parser.signing_rejected,
+            "identity": f"{self.params.identity} {self.link.system_id}:{self.link.component_id}",
+            "geofence_reported": bool(self.tel.fence_bits()[0]),
             "bind": f"{self.link.local_address[0]}:{self.link.local_address[1]}",
             "mavlink_rx": self.link.parser.received, "mavlink_tx": self.link.sent,
             "mavlink_invalid": inv, "params_exposed": len(self.table), "mission_items": len(self.missions.items),
