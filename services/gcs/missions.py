@@ -9,9 +9,10 @@ Accepted items: NAV_WAYPOINT, NAV_TAKEOFF, NAV_LAND, NAV_RETURN_TO_LAUNCH, DO_CH
 frames GLOBAL[_INT] (AMSL), GLOBAL_RELATIVE_ALT[_INT], LOCAL_NED, LOCAL_ENU. A takeoff item sets
 the mission's takeoff altitude; LAND adds its position (when it has one) and ends the mission;
 RTL flies back above home. Yaw (param4, NED heading deg, NaN = keep) becomes ENU yaw_deg.
-A waypoint at or below home altitude in a global-relative frame (z <= 0) is refused
-(MAV_MISSION_INVALID_PARAM7, naming the item); NAV_LAND and RTL items are exempt, and so are the
-AMSL and local frames (terrain may fall away from home; the operator gave an absolute height).
+A waypoint at or below home altitude is refused (MAV_MISSION_INVALID_PARAM7, naming the item), in
+every frame alike: global-relative z <= 0, AMSL z <= home's altitude (issue 8 #5: an AMSL item at
+home altitude had become a waypoint at ground level), local z at or below home's; NAV_LAND and RTL
+items are exempt. (The mission service's geofence floor applies on top.)
 
 Plan id. `plan_id(items)` is a CRC-32 of the items (never 0: 0 means "no mission"); gcs reports
 it as MISSION_CURRENT.mission_id and in MISSION_ACK / MISSION_COUNT opaque_id (MAVLink extension
@@ -262,9 +263,12 @@ def convert_items(items: list[Item], home: Home, mission_id: str = "gcs", defaul
                 seqs.append(it.seq)
             break  # the mission manager lands after the last waypoint
         x, y, z = item_to_enu(it, home)
-        if it.frame in RELATIVE_FRAMES and it.z <= 0:
+        above_home = z - home.local_m[2]
+        if above_home <= 0:
+            amsl = f" ({it.z:.1f} m AMSL, home {home.alt_m:.1f} m)" if it.frame in GLOBAL_FRAMES else ""
             raise MissionConversionError(M.MAV_MISSION_INVALID_PARAM7,
-                                         f"item {it.seq}: waypoint altitude {it.z:.1f} m is at or below home")
+                                         f"item {it.seq}: waypoint altitude {above_home:.1f} m is at or below "
+                                         f"home{amsl}")
         if it.param2 > 0 and radius is None:
             radius = float(it.param2)
         waypoints.append(Waypoint(x=x, y=y, z=z, yaw_deg=last_yaw))

@@ -704,12 +704,23 @@ def test_waypoint_at_or_below_home_is_refused_naming_the_item():
         assert e.value.result == M.MAV_MISSION_INVALID_PARAM7 and "item 2" in str(e.value)
     lat, lon = HOME.projection.reproject(5, 5)
     rel = M.MAV_FRAME_GLOBAL_RELATIVE_ALT
-    # NAV_LAND and RTL at 0 m are fine; so are AMSL and local frames (not checked)
+    # NAV_LAND and RTL at 0 m are fine
     convert_items([wp_item(0, 5, 5), Item(seq=1, frame=rel, command=M.MAV_CMD_NAV_LAND, x=lat, y=lon, z=0.0)], HOME)
     convert_items([wp_item(0, 5, 5), Item(seq=1, frame=rel, command=M.MAV_CMD_NAV_RETURN_TO_LAUNCH, z=0.0)], HOME)
+    # issue 8 #5: an AMSL item at (or below) home altitude is refused like a relative one, naming it;
+    # so is a local item at or below home; above home both are fine
+    for frame, z in ((M.MAV_FRAME_GLOBAL_INT, HOME.alt_m), (M.MAV_FRAME_GLOBAL, HOME.alt_m - 1.0),
+                     (M.MAV_FRAME_LOCAL_NED, 0.0), (M.MAV_FRAME_LOCAL_ENU, -2.0)):
+        x, y = (lat, lon) if frame in (M.MAV_FRAME_GLOBAL_INT, M.MAV_FRAME_GLOBAL) else (5.0, 5.0)
+        with pytest.raises(MissionConversionError) as e:
+            items_to_mission([wp_item(0, 5, 5), Item(seq=1, frame=frame, command=M.MAV_CMD_NAV_WAYPOINT,
+                                                     x=x, y=y, z=z)], HOME)
+        assert e.value.result == M.MAV_MISSION_INVALID_PARAM7 and str(e.value).startswith("item 1: "), frame
+    assert "m AMSL, home 10.0 m" in str(pytest.raises(MissionConversionError, items_to_mission, [Item(
+        seq=0, frame=M.MAV_FRAME_GLOBAL_INT, command=M.MAV_CMD_NAV_WAYPOINT, x=lat, y=lon, z=HOME.alt_m)], HOME).value)
     m = items_to_mission([Item(seq=0, frame=M.MAV_FRAME_GLOBAL_INT, command=M.MAV_CMD_NAV_WAYPOINT,
-                               x=lat, y=lon, z=HOME.alt_m - 1.0)], HOME)
-    assert m.waypoints[0].z == pytest.approx(-1.0)
+                               x=lat, y=lon, z=HOME.alt_m + 4.0)], HOME)
+    assert m.waypoints[0].z == pytest.approx(4.0)
 
     # over the protocol: a STATUSTEXT naming the item, then the error ACK; nothing loaded
     p, sent = proto(ConvertingLoader())
