@@ -3,7 +3,12 @@
 Threads: the UDP receive thread hands every parsed message to `_on_mav` under node.lock; a 20 Hz
 timer sends due telemetry and drives the mission/command timers; calls into the stack are
 asynchronous (node.call_async), their replies come back under node.lock. So the logic objects
-(MissionProtocol, CommandHandler, ParamTable, TelemetryState) are only touched under one lock.
+(MissionProtocol, CommandHandler, ParamTable, TelemetryState, Progress) are only touched under one lock.
+
+Identity (contract.IDENTITY_*): as the vehicle itself (sim profile: PX4-like autopilot, sys 1 comp
+1), or as the flight controller's onboard computer (vehicle profile: comp 191 of the FC's system,
+heartbeat only, parameters and commands addressed to comp 191), so a ground station that also
+hears the FC's own link sees one vehicle.
 """
 from __future__ import annotations
 

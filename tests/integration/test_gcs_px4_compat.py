@@ -119,6 +119,10 @@ def test_mavsdk_mission_progress_reaches_finished(stack):
     st = start_stack(stack, port, sdk_port)
     wait_until(lambda: (m := latest(st, "state/vehicle", VehicleState)) is not None and m.connected, 15,
                "state/vehicle connected")
+    # the simulated FC accepts OFFBOARD only after > 1 s of fmu's setpoint stream (PX4's rule)
+    wait_until(lambda: (d := latest(st, "diagnostics/fmu", DiagnosticStatus)) is not None
+               and d.values.get("planner") == "streaming", 15, "fmu streaming the planner's setpoints")
+    time.sleep(2.0)
     pts = [HOME.projection.reproject(n, e) for n, e in ((3.0, 0.0), (3.0, 3.0), (0.0, 3.0))]
     plan = MissionPlan([MissionItem(latitude_deg=lat, longitude_deg=lon, relative_altitude_m=3.0, speed_m_s=None,
                                     is_fly_through=False, acceptance_radius_m=0.5) for lat, lon in pts])
