@@ -226,9 +226,6 @@ def test_vehicle_profile_one_vehicle_beside_the_flight_controller(zenoh_router, 
     listener = Station(free_udp_port())              # the ground station: listens only
     fc = Station(listener.port, system_id=7, component_id=1, mav_type=M.MAV_TYPE_QUADROTOR,
                  autopilot=M.MAV_AUTOPILOT_PX4)       # PX4's own GCS link, to the same port
-    fc.sock.close()
-    fc.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    fc.sock.settimeout(0.05)
     gcs = GcsProcess(zenoh_router, tmp_path / "gcs.log", free_udp_port(), listener.port, "identity=companion").start()
     try:
         stop = threading.Event()
