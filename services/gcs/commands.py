@@ -1,10 +1,22 @@
-"""COMMAND_LONG / COMMAND_INT handling (no Zenoh): every command gets one final COMMAND_ACK with
-the real outcome; commands that wait on the stack get MAV_RESULT_IN_PROGRESS first if they take
-longer than `progress_after_s` (MAVSDK wants an answer within 0.5 s); a retransmission of a
-command still running is answered IN_PROGRESS, not executed twice.
+"""COMMAND_LONG / COMMAND_INT handling (no Zenoh): every command gets exactly one COMMAND_ACK, the
+final one, with the real outcome, as PX4 answers (issue 9 #1):
+
+- ACCEPTED once the stack has done it (a mode change: once the flight controller reports the
+  new mode, which fmu/srv/set_mode waits for);
+- DENIED when the stack refused it, FAILED when the call into the stack failed or timed out;
+  either way a STATUSTEXT with the reason goes to the asker first (PX4 reports refused mode
+  changes the same way), so the operator sees why;
+- never MAV_RESULT_IN_PROGRESS: PX4 sends it only for long-running operations (calibration),
+  and MAVSDK treats an IN_PROGRESS answer to a mode change as the outcome (UNKNOWN).
+
+A retransmission of a command still running (MAVSDK retries after 0.5 s, up to 3 times) is not
+executed again and not answered: the final ACK answers the retries too, because MAVSDK matches
+an ACK by command id. The stack answers within ~1 s in practice; after `timeout_s` (tick) the
+command is answered FAILED.
 
 The stack is reached through `ops` (see Ops): arm, set_mode, mission_command, takeoff, goto,
-mission_start, change_speed; each takes a done(ok, message) callback that may run later.
+mission_start, change_speed; each takes a done(ok, message[, failed]) callback that may run
+later (`failed`: the call itself failed, not a refusal).
 """
 from __future__ import annotations
 
@@ -18,7 +30,7 @@ from aeroperception.services.mavlink import frames, px4
 
 from .missions import SPEED_DEFAULT, Home, change_speed_value
 
-Done = Callable[[bool, str], None]
+Done = Callable[..., None]   # done(ok: bool, message: str, failed: bool = False)
 FORCE_MAGIC = 21196
 
 
@@ -37,7 +49,7 @@ class Pending:
     command: int
     peer: tuple[int, int]
     started_s: float
-    progress_sent: bool = False
+    retransmissions: int = 0
 
 
 @dataclass
@@ -68,7 +80,7 @@ class CommandHandler:
                  request_message: Callable[[int, float], int],
                  set_interval: Callable[[int, float], bool],
                  set_current: Callable[[int], bool],
-                 progress_after_s: float = 0.3):
+                 notify: Callable[[str, tuple[int, int]], None] | None = None):
         self.send = send
         self.ops = ops
         self.home = home
@@ -76,9 +88,10 @@ class CommandHandler:
         self.request_message = request_message
         self.set_interval = set_interval
         self.set_current = set_current
-        self.progress_after_s = progress_after_s
+        self.notify = notify or (lambda text, peer: None)
         self.pending: dict[tuple[int, tuple[int, int]], Pending] = {}
         self.results: dict[str, int] = {}
+        self.retransmissions = 0
 
     def ack(self, command: int, result: int, peer: tuple[int, int], progress: int = 0) -> None:
         name = M.enums["MAV_RESULT"][result].name if result in M.enums["MAV_RESULT"] else str(result)
@@ -91,9 +104,9 @@ class CommandHandler:
         c = Command.from_msg(msg)
         key = (c.command, c.peer)
         if key in self.pending:
-            # A retransmission while the first one runs: say so instead of running it twice.
-            self.ack(c.command, M.MAV_RESULT_IN_PROGRESS, c.peer)
-            self.pending[key].progress_sent = True
+            # A retransmission while the first one runs: not run twice, answered by the final ACK.
+            self.pending[key].retransmissions += 1
+            self.retransmissions += 1
             return
         try:
             self._dispatch(c, now_s)
@@ -106,10 +119,14 @@ class CommandHandler:
         key = (c.command, c.peer)
         self.pending[key] = Pending(c.command, c.peer, now_s)
 
-        def done(ok: bool, message: str = "") -> None:
+        def done(ok: bool, message: str = "", failed: bool = False) -> None:
             if self.pending.pop(key, None) is None:
+                return   # already answered FAILED by tick()
+            if ok:
+                self.ack(c.command, M.MAV_RESULT_ACCEPTED, c.peer)
                 return
-            self.ack(c.command, M.MAV_RESULT_ACCEPTED if ok else M.MAV_RESULT_DENIED, c.peer)
+            self.notify(f"{command_name(c.command)} {'failed' if failed else 'denied'}: {message}", c.peer)
+            self.ack(c.command, M.MAV_RESULT_FAILED if failed else M.MAV_RESULT_DENIED, c.peer)
 
         start(done)
 
@@ -196,11 +213,15 @@ class CommandHandler:
         for key, pend in list(self.pending.items()):
             if now_s - pend.started_s > timeout_s:
                 self.pending.pop(key)
+                self.notify(f"{command_name(pend.command)} failed: no answer from the stack in {timeout_s:.0f} s",
+                            pend.peer)
                 self.ack(pend.command, M.MAV_RESULT_FAILED, pend.peer)
-            elif not pend.progress_sent and now_s - pend.started_s >= self.progress_after_s:
-                pend.progress_sent = True
-                self.ack(pend.command, M.MAV_RESULT_IN_PROGRESS, pend.peer)
 
+
+def command_name(command: int) -> str:
+    """MAV_CMD_DO_SET_MODE -> "DO_SET_MODE" (the number if unknown)."""
+    e = M.enums["MAV_CMD"].get(command)
+    return e.name.removeprefix("MAV_CMD_") if e is not None else f"command {command}"
 
 def _int(v: float, default: int = 0) -> int:
     """A float parameter as an integer; NaN/inf ("unused" in MAVLink) -> default."""

@@ -1,8 +1,8 @@
 """Contract of gcs: keys in/out, calls, ports and parameters."""
 from aeroperception.schemas import (
     ArmReply, ArmRequest, BatteryState, Empty, GcsLink, GetMissionReply, HomePosition, Joystick, LoadMissionReply,
-    LoadMissionRequest, MissionCommand, MissionStatus, ParamList, ParamSet, ParamSetReply, Reply,
-    SetModeReply, SetModeRequest, VehicleState, WaypointReached,
+    LoadMissionRequest, MissionCommand, MissionStatus, ParamList, ParamSet, ParamSetReply, Reply, SafetyStatus,
+    SetModeReply, SetModeRequest, VehicleState, VehicleStatus, WaypointReached,
 )
 from aeroperception.services.runtime import Param
 
@@ -13,6 +13,8 @@ INPUTS = {
     "fmu/out/home_position": HomePosition,          # the FC's home: geodetic <-> local (else the home_* params)
     "mission/status": MissionStatus,                # MISSION_CURRENT
     "mission/waypoint_reached": WaypointReached,    # MISSION_ITEM_REACHED
+    "safety/status": SafetyStatus,                  # SYS_STATUS geofence bits; warnings/errors -> STATUSTEXT
+    "fmu/out/vehicle_status": VehicleStatus,        # identity=companion: the flight controller's system id
 }
 OUTPUTS = {
     "gcs/link": GcsLink,                            # on change + 1 Hz: ground station heartbeat up/down
@@ -32,6 +34,14 @@ ACTIONS = ["mission/action/takeoff", "mission/action/land", "mission/action/goto
 # Seed 001 §5.1 / §14: bind 14551, send to the ground station at 14550 until one talks; then to every
 # ground station heard (link.py).
 DEFAULT_LOCAL_PORT = 14551
+# Who gcs is on the ground-station link (issue 9 #6). In the sim profile the stack is the vehicle
+# (the built-in sim has no ground-station link of its own). In the vehicle profile the flight
+# controller (PX4 SITL or real, its own GCS link on 14550) is the vehicle and gcs is its onboard
+# computer: MAV_COMP_ID_ONBOARD_COMPUTER of the FC's system, MAV_TYPE_ONBOARD_CONTROLLER heartbeats,
+# no vehicle telemetry, and only messages addressed to that component (parameters also to 0).
+IDENTITY_AUTOPILOT = "autopilot"
+IDENTITY_COMPANION = "companion"
+COMPANION_COMPONENT_ID = 191        # MAV_COMP_ID_ONBOARD_COMPUTER
 DEFAULT_REMOTE_PORT = 14550
 # Seed 001 §15: default home (Tanashi, Tokyo), altitude 10 m AMSL. Only a fallback: once fmu publishes
 # the flight controller's home (fmu/out/home_position), that is the home.
@@ -44,19 +54,25 @@ PARAMS = [
     Param("remote_port", DEFAULT_REMOTE_PORT, "", 1, 65535, description="ground station UDP port (initial)"),
     Param("local_port", DEFAULT_LOCAL_PORT, "", 0, 65535, description="UDP port we bind (0 = any)"),
     Param("bind_ip", "0.0.0.0", description="address we bind"),
-    Param("system_id", 1, "", 1, 255, description="our MAVLink system id"),
-    Param("component_id", 1, "", 1, 255, description="our MAVLink component id (1 = autopilot)"),
+    Param("identity", IDENTITY_AUTOPILOT, choices=(IDENTITY_AUTOPILOT, IDENTITY_COMPANION),
+          description="autopilot: present the stack as the vehicle (sim profile); companion: as the flight "
+                      "controller's onboard computer, component 191 of its system (vehicle profile)"),
+    Param("system_id", 1, "", 1, 255, description="our MAVLink system id (companion: until fmu reports the FC's)"),
+    Param("component_id", 1, "", 1, 255, description="our MAVLink component id (1 = autopilot; companion: 191)"),
     Param("telemetry_period_s", 0.9, "s", 0.05, 10.0, description="default period of the telemetry set (seed: 900 ms)"),
     Param("home_lat_deg", DEFAULT_HOME_LAT_DEG, "deg", -90.0, 90.0,
           description="home latitude (local ENU origin) until the flight controller's home is known"),
     Param("home_lon_deg", DEFAULT_HOME_LON_DEG, "deg", -180.0, 180.0, description="home longitude (fallback)"),
     Param("home_alt_m", DEFAULT_HOME_ALT_M, "m", -500.0, 9000.0, description="home altitude AMSL (fallback)"),
-    Param("gcs_timeout_s", 3.5, "s", 0.5, 60.0, description="a ground station without a heartbeat this long gets no "
-          "telemetry; none left -> gcs/link down"),
+    Param("gcs_timeout_s", 3.5, "s", 0.5, 60.0, description="a ground station without a heartbeat this long (time "
+          "gcs was running) gets no telemetry; none left -> gcs/link down; no verdict before this long after start"),
+    Param("gcs_system_ids", "", description="system ids that count as ground stations besides MAV_TYPE_GCS "
+          "heartbeats (comma-separated, e.g. '255,254')"),
     Param("mission_item_timeout_s", 0.25, "s", 0.05, 5.0, description="re-request a mission item after this"),
     Param("mission_retries", 5, "", 1, 50, description="re-requests of one item before giving up"),
     Param("max_mission_items", 500, "", 1, 10000, description="MISSION_COUNT above this is refused"),
-    Param("param_services", "planner,mission,fmu,gcs", description="services whose parameters are exposed"),
+    Param("param_services", "planner,mission,fmu,gcs,safety",
+          description="services whose parameters are exposed under gcs's names (PX4-named aliases: params.py)"),
     Param("param_refresh_s", 5.0, "s", 0.5, 120.0, description="re-read config/<service>/@params this often"),
     Param("call_timeout_s", 3.0, "s", 0.2, 20.0, description="timeout of calls into the stack"),
     # MAVLink 2 signing (link.py). The key itself is never a parameter (parameters are readable on

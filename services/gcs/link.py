@@ -4,9 +4,11 @@ Binds `local_port`. Several ground stations may be connected at once; each is kn
 address it sends from (address learning: a ground station may start the conversation from
 anywhere). Where a message goes:
 
-- telemetry and anything else sent without a recipient: to every ground station that has sent a
-  HEARTBEAT within `timeout_s`; while none has, to the initial `gcs_ip:remote_port` and to the
-  last ground station heard (so one that restarted on the same address hears us again);
+- telemetry and anything else sent without a recipient: to the initial `gcs_ip:remote_port`
+  always (a listen-only ground station there, e.g. a second QGC or MAVSDK on 14550, must be able
+  to connect while another station talks to us), plus every peer that has sent a HEARTBEAT within
+  `timeout_s`; while none has, plus the last one heard (so one that restarted on the same address
+  hears us again);
 - a reply sent while a received message is being handled (same thread, synchronously: e.g.
   PARAM_VALUE for PARAM_REQUEST_LIST/READ, MISSION_REQUEST_INT, MISSION_COUNT, TIMESYNC,
   AUTOPILOT_VERSION for REQUEST_MESSAGE): to the address that message came from, only;
@@ -24,6 +26,11 @@ the same key with a timestamp that moves forward per (link_id, system, component
 stream at most 60 s behind ours). Unsigned, wrongly signed and replayed packets are dropped and
 counted (Parser.invalid: unsigned / bad_signature / replayed / stale_timestamp): they do not make
 a ground station "alive", and get no reply. The key is never logged.
+
+Ground stations. Only a HEARTBEAT from a ground station (MAV_TYPE_GCS, or a system id the
+operator configured: `is_ground_station`) makes a peer a ground station (`ground_stations()`,
+what gcs/link reports); any other heartbeat (a stray packet, a companion, another vehicle) only
+makes its sender a telemetry destination.
 
 Parsing is robust: garbage bytes, bad CRCs and unknown message ids are counted, never raised.
 """
@@ -215,6 +222,7 @@ class Peer:
     last_rx_s: float = 0.0
     last_heartbeat_s: float | None = None
     received: int = 0
+    ground_station: bool = False     # its heartbeats say it is a ground station (see the module docstring)
 
     def alive(self, now_s: float, timeout_s: float) -> bool:
         return self.last_heartbeat_s is not None and now_s - self.last_heartbeat_s <= timeout_s
@@ -226,7 +234,8 @@ class UdpLink:
     def __init__(self, bind_ip: str, local_port: int, gcs_ip: str, remote_port: int,
                  system_id: int = 1, component_id: int = 1, *, timeout_s: float = 3.5,
                  signing_key: bytes | None = None, signing_link_id: int = 0,
-                 clock: Callable[[], float] = time.monotonic):
+                 clock: Callable[[], float] = time.monotonic,
+                 is_ground_station: Callable[[mavlink.MAVLink_message], bool] | None = None):
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         self.sock.bind((bind_ip, local_port))
@@ -234,8 +243,10 @@ class UdpLink:
         self.local_address = self.sock.getsockname()
         self.initial: Address = (gcs_ip, remote_port)
         self.system_id = system_id
+        self.component_id = component_id
         self.timeout_s = timeout_s
         self.clock = clock
+        self.is_ground_station = is_ground_station or (lambda m: m.type == mavlink.MAV_TYPE_GCS)
         self.peers: OrderedDict[Address, Peer] = OrderedDict()   # least recently heard first
         self.by_id: OrderedDict[tuple[int, int], Address] = OrderedDict()
         self.last_peer: Address | None = None   # the latest HEARTBEAT's address
@@ -256,6 +267,12 @@ class UdpLink:
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
 
+    def set_system_id(self, system_id: int) -> None:
+        """Send as another system from now on (a companion follows its flight controller's id)."""
+        with self._lock:
+            self.system_id = system_id
+            self.mav.srcSystem = system_id
+
     # ------------------------------------------------------------ peers
 
     @property
@@ -274,15 +291,16 @@ class UdpLink:
         with self._lock:
             return [p for p in self.peers.values() if p.alive(now, self.timeout_s)]
 
+    def ground_stations(self, now_s: float | None = None) -> list[Peer]:
+        """The alive peers whose heartbeats say they are ground stations."""
+        return [p for p in self.alive(now_s) if p.ground_station]
+
     def destinations(self, now_s: float | None = None) -> list[Address]:
         """Where a message without a recipient goes (see the module docstring)."""
         alive = [p.address for p in self.alive(now_s)]
-        if alive:
-            return alive
-        out = [self.initial]
-        if self.last_peer is not None and self.last_peer != self.initial:
-            out.append(self.last_peer)
-        return out
+        if not alive and self.last_peer is not None:
+            alive = [self.last_peer]
+        return list(dict.fromkeys([self.initial] + alive))
 
     def current_source(self) -> Address | None:
         """The address of the message being handled on this thread (None outside a handler)."""
@@ -305,6 +323,7 @@ class UdpLink:
             self.by_id.popitem(last=False)
         if msg.get_type() == "HEARTBEAT" and peer.system_id != self.system_id:
             peer.last_heartbeat_s = now
+            peer.ground_station = bool(self.is_ground_station(msg))
             self.last_peer = addr
         self.learnt = True
 

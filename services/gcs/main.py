@@ -3,7 +3,12 @@
 Threads: the UDP receive thread hands every parsed message to `_on_mav` under node.lock; a 20 Hz
 timer sends due telemetry and drives the mission/command timers; calls into the stack are
 asynchronous (node.call_async), their replies come back under node.lock. So the logic objects
-(MissionProtocol, CommandHandler, ParamTable, TelemetryState) are only touched under one lock.
+(MissionProtocol, CommandHandler, ParamTable, TelemetryState, Progress) are only touched under one lock.
+
+Identity (contract.IDENTITY_*): as the vehicle itself (sim profile: PX4-like autopilot, sys 1 comp
+1), or as the flight controller's onboard computer (vehicle profile: comp 191 of the FC's system,
+heartbeat only, parameters and commands addressed to comp 191), so a ground station that also
+hears the FC's own link sees one vehicle.
 """
 from __future__ import annotations
 
@@ -16,8 +21,8 @@ from pymavlink.dialects.v20 import common as M
 from aeroperception.schemas import (
     ArmReply, ArmRequest, BatteryState, DiagnosticStatus, Empty, GcsLink, GetMissionReply, GoalReply,
     GoToPositionGoal, HomePosition, Joystick, LoadMissionReply, LoadMissionRequest, MissionCommand, MissionStatus,
-    ParamList, ParamSet, ParamSetReply, Reply, SchemaError, SetModeReply, SetModeRequest, TakeoffGoal, Vector3,
-    VehicleState, WaypointReached, parse_mission,
+    ParamList, ParamSet, ParamSetReply, Reply, SafetyStatus, SchemaError, SetModeReply, SetModeRequest, TakeoffGoal,
+    Vector3, VehicleState, VehicleStatus, WaypointReached, parse_mission,
 )
 from aeroperception.services.runtime import CallError, Health, Service, run
 
@@ -31,6 +36,8 @@ from .missions import (
     mission_to_items, waypoint_speeds,
 )
 from .params import ParamTable, decode_param_id, decode_value
+from .presence import GroundStationFilter, LinkVerdict, ListeningClock
+from .safety_relay import SafetyRelay
 from .telemetry import Scheduler, TelemetryState
 
 SPEED_SERVICE, SPEED_PARAM = "planner", "max_velocity_mps"   # DO_CHANGE_SPEED sets this
@@ -102,20 +109,34 @@ class GcsService(Service):
         # Until fmu reports the flight controller's home, the parameters' (home = local origin).
         self.home = Home(p.home_lat_deg, p.home_lon_deg, p.home_alt_m)
         key, key_source = self._signing_key()
-        self.link = UdpLink(p.bind_ip, p.local_port, p.gcs_ip, p.remote_port, p.system_id, p.component_id,
-                            timeout_s=p.gcs_timeout_s, signing_key=key, signing_link_id=p.signing_link_id)
+        self.companion = p.identity == contract.IDENTITY_COMPANION
+        component_id = contract.COMPANION_COMPONENT_ID if self.companion else p.component_id
+        # Ground-station presence (presence.py): heartbeat ages in listening time, only ground
+        # stations count, no verdict before a full timeout.
+        self.clock = ListeningClock()
+        self.clock.tick()
+        self.link = UdpLink(p.bind_ip, p.local_port, p.gcs_ip, p.remote_port, p.system_id, component_id,
+                            timeout_s=p.gcs_timeout_s, signing_key=key, signing_link_id=p.signing_link_id,
+                            clock=self.clock, is_ground_station=GroundStationFilter.from_param(p.gcs_system_ids))
         del key
-        self.tel = TelemetryState(self.home)
+        self.verdict = LinkVerdict(p.gcs_timeout_s, self.clock())
+        self.tel = TelemetryState(self.home, companion=self.companion)
         self.sched = Scheduler(p.telemetry_period_s, self.tel.build)
+        if self.companion:   # the flight controller sends the vehicle's telemetry itself
+            self.sched.periods = {M.MAVLINK_MSG_ID_HEARTBEAT: 1.0}
+        self.safety = SafetyRelay()
         self.table = ParamTable(p.param_services.split(","))
         self.missions = MissionProtocol(self.link.send, self._load, p.mission_item_timeout_s,
                                         p.mission_retries, p.max_mission_items, log=self.log.warn,
                                         notify=self._notify)
         self.cmds = CommandHandler(self.link.send, self, self.home, position_enu=self._position,
                                    request_message=self._request_message,
-                                   set_interval=self.sched.set_interval, set_current=self._set_current)
+                                   set_interval=self.sched.set_interval, set_current=self._set_current,
+                                   notify=self._notify)
         self.homes = HomeTracker(self.home, busy=self._upload_under_way, apply=self._apply_home)
-        self.progress = Progress()       # MISSION_ITEM_REACHED for our mission (takeoff + waypoints)
+        self.progress = Progress()       # MISSION_ITEM_REACHED / MISSION_CURRENT for our mission
+        self._last_progress: tuple[int, int] = (0, 0)
+        self.tel.progress = self.progress
         self.speeds = SpeedSchedule()    # the loaded mission's DO_CHANGE_SPEED items, per waypoint
         # (mission_id, waypoints) of the mission our items describe; one loaded some other way
         # (aero mission load/fly) is fetched from mission/srv/get so a download shows it.
@@ -124,9 +145,8 @@ class GcsService(Service):
         self.fetch_failed_s = -math.inf
         self.loads = 0
         self.notices = 0                      # STATUSTEXTs sent (chunk ids)
-        self.gcs_last_hb: float | None = None
+        self.gcs_last_hb: float | None = None     # ListeningClock time of the last ground station heartbeat
         self.gcs_sysid = 0
-        self.gcs_connected = False
         self.gcs_alive: set[tuple[str, int]] = set()
         self.ignored: dict[str, int] = {}
         self.pub_link = node.publisher("gcs/link", GcsLink)
@@ -136,6 +156,9 @@ class GcsService(Service):
         node.subscribe("fmu/out/home_position", HomePosition, self._on_home_position)
         node.subscribe("mission/status", MissionStatus, self._on_mission_status)
         node.subscribe("mission/waypoint_reached", WaypointReached, self._on_reached)
+        node.subscribe("safety/status", SafetyStatus, self._on_safety)
+        if self.companion:
+            node.subscribe("fmu/out/vehicle_status", VehicleStatus, self._on_vehicle_status)
         self._refresh_params()
         node.every(0.05, self._tick, name="link")
         node.every(p.param_refresh_s, self._refresh_params, name="params")
@@ -154,6 +177,19 @@ class GcsService(Service):
 
     def _on_vehicle(self, msg: VehicleState) -> None:
         self.tel.vehicle = msg
+
+    def _on_safety(self, msg: SafetyStatus) -> None:
+        self.tel.safety, self.tel.safety_rx_s = msg, time.monotonic()
+        for severity, text in self.safety.update(msg):
+            self._notify(text, None, severity)
+
+    def _on_vehicle_status(self, msg: VehicleStatus) -> None:
+        """identity=companion: take the flight controller's system id (we are a component of it)."""
+        sysid = int(msg.system_id)
+        if 1 <= sysid <= 255 and sysid != self.link.system_id:
+            self.log.info("system_id_from_flight_controller", system_id=sysid, previous=self.link.system_id,
+                          component_id=contract.COMPANION_COMPONENT_ID)
+            self.link.set_system_id(sysid)
 
     def _on_home_position(self, msg: HomePosition) -> None:
         home = home_from_msg(msg)
@@ -188,14 +224,13 @@ class GcsService(Service):
         self.tel.mission = msg
         if msg.mission_id and (msg.mission_id, msg.total_waypoints) != self.synced:
             self._fetch_mission()
-        for seq in self.progress.on_status(msg.mission_id, msg.state):   # the takeoff item, when done
-            self.link.send(M.MAVLink_mission_item_reached_message(seq), broadcast=True)
+        self._progress(self.progress.on_status(msg.mission_id, msg.state, msg.active_waypoint, msg.total_waypoints))
         self._sync_plan()
-        if 0 <= msg.active_waypoint < len(self.wp_seqs):
-            self.tel.mission_seq = self.wp_seqs[msg.active_waypoint]
-            self.missions.current = self.tel.mission_seq
         if msg.state == MissionStatus.STATE_EXECUTING and msg.mission_id == self.speeds.mission_id:
             self._apply_mission_speed(msg.active_waypoint)   # however the mission was started
+        restore = self.speeds.observe(msg.mission_id, msg.state, msg.active_waypoint, msg.total_waypoints)
+        if restore is not None:
+            self._restore_speed(restore, f"mission {self.speeds.mission_id or '-'} over ({msg.state})")
 
     @property
     def wp_seqs(self) -> list[int]:
@@ -205,9 +240,21 @@ class GcsService(Service):
         self.tel.mission_total = len(self.missions.items)
         self.tel.mission_id = self.missions.plan_id
 
-    def _on_reached(self, msg: WaypointReached) -> None:
-        for seq in self.progress.on_reached(msg.mission_id, msg.index):   # (the takeoff first, if not yet)
+    def _progress(self, reached: list[int]) -> None:
+        """MISSION_ITEM_REACHED for each seq, to every ground station; MISSION_CURRENT at once when
+        the current item or the mission state changed (as PX4 sends it on change)."""
+        for seq in reached:
             self.link.send(M.MAVLink_mission_item_reached_message(seq), broadcast=True)
+        if 0 <= self.progress.current < len(self.missions.items):
+            self.missions.current = self.progress.current
+        now = (self.progress.current, self.progress.state)
+        if reached or now != self._last_progress:
+            self._last_progress = now
+            self._sync_plan()
+            self.link.send(self.tel.mission_current(), broadcast=True)
+
+    def _on_reached(self, msg: WaypointReached) -> None:
+        self._progress(self.progress.on_reached(msg.mission_id, msg.index))
         if msg.mission_id == self.speeds.mission_id:
             self._apply_mission_speed(msg.index + 1)         # the speed for the next leg, at once
 
@@ -217,7 +264,15 @@ class GcsService(Service):
 
     # ------------------------------------------------------------ timers
 
+    @property
+    def gcs_connected(self) -> bool:
+        return bool(self.verdict.connected)
+
     def _tick(self) -> None:
+        stall = self.clock.tick()
+        if stall:
+            self.log.warn("gcs_stalled", stalled_s=round(stall + self.clock.stall_s, 2),
+                          hint="not counted in ground-station heartbeat ages")
         now = time.monotonic()
         for msg in self.sched.due(now):
             self.link.send(msg)
@@ -225,27 +280,38 @@ class GcsService(Service):
         self.homes.poll()                # a home held back during an upload, once it is over
         self.cmds.tick(now, timeout_s=self.params.call_timeout_s + 2.0)
         self._sync_plan()
-        self._check_peers(now)
+        self._check_peers(self.clock())
 
     def _check_peers(self, now: float) -> None:
-        """gcs/link is up while any ground station is alive (heartbeat within gcs_timeout_s)."""
-        alive = {p.address for p in self.link.alive(now)}
+        """gcs/link is up while any ground station is alive (heartbeat within gcs_timeout_s of
+        listening time); no verdict before a full timeout after start (presence.py)."""
+        alive = {p.address for p in self.link.ground_stations(now)}
         for addr in sorted(self.gcs_alive - alive):
             self.log.warn("gcs_lost", address=f"{addr[0]}:{addr[1]}", timeout_s=self.params.gcs_timeout_s)
         for addr in sorted(alive - self.gcs_alive):
             peer = self.link.peers.get(addr)
             self.log.info("gcs_heard", address=f"{addr[0]}:{addr[1]}", system_id=peer.system_id if peer else None)
         self.gcs_alive = alive
-        if self.gcs_connected and not alive:
-            self.gcs_connected = False
+        before = self.verdict.connected
+        now_connected = self.verdict.update(now, bool(alive))
+        if now_connected == before:
+            return
+        if now_connected:
+            self.log.info("gcs_link_up", system_id=self.gcs_sysid,
+                          address=f"{self.link.remote[0]}:{self.link.remote[1]}")
+        elif before:
             self.log.warn("gcs_link_lost", timeout_s=self.params.gcs_timeout_s)
-            self._publish_link()
+        else:
+            self.log.info("gcs_link_none", listened_s=self.params.gcs_timeout_s)
+        self._publish_link()
 
     def _addresses(self) -> str:
         return ",".join(f"{a[0]}:{a[1]}" for a in sorted(self.gcs_alive))
 
     def _publish_link(self) -> None:
-        age = time.monotonic() - self.gcs_last_hb if self.gcs_last_hb is not None else None
+        if self.verdict.connected is None:
+            return   # no verdict yet (presence.py)
+        age = self.clock() - self.gcs_last_hb if self.gcs_last_hb is not None else None
         addr = f"{self.link.remote[0]}:{self.link.remote[1]}" if self.link.learnt else ""
         self.pub_link.publish(GcsLink(header=self.node.header(), connected=self.gcs_connected, address=addr,
                                       system_id=self.gcs_sysid, last_heartbeat_age_s=age,
@@ -261,19 +327,24 @@ class GcsService(Service):
         t = msg.get_type()
         now = time.monotonic()
         target_sys = getattr(msg, "target_system", None)
-        if target_sys not in (None, 0, self.params.system_id) and t != "FILE_TRANSFER_PROTOCOL":
+        if target_sys not in (None, 0, self.link.system_id) and t != "FILE_TRANSFER_PROTOCOL":
             self.ignored["other_target"] = self.ignored.get("other_target", 0) + 1
             return
+        if self.companion and t != "HEARTBEAT":
+            # Only what is addressed to our component; the flight controller answers the rest
+            # (parameters asked of every component are ours to answer too).
+            comp = getattr(msg, "target_component", None)
+            if comp is not None and comp != self.link.component_id and not (
+                    comp == 0 and t in ("PARAM_REQUEST_LIST", "PARAM_REQUEST_READ")):
+                self.ignored["other_component"] = self.ignored.get("other_component", 0) + 1
+                return
         if t == "HEARTBEAT":
-            if msg.get_srcSystem() != self.params.system_id:
-                self.gcs_last_hb = now
+            if msg.get_srcSystem() != self.link.system_id and self.link.is_ground_station(msg):
+                self.gcs_last_hb = self.clock()
                 self.gcs_sysid = msg.get_srcSystem()
-                self._check_peers(now)
-                if not self.gcs_connected:
-                    self.gcs_connected = True
-                    self.log.info("gcs_link_up", system_id=self.gcs_sysid,
-                                  address=f"{self.link.remote[0]}:{self.link.remote[1]}")
-                    self._publish_link()
+                self._check_peers(self.gcs_last_hb)
+            elif msg.get_srcSystem() != self.link.system_id:
+                self.ignored["heartbeat_not_gcs"] = self.ignored.get("heartbeat_not_gcs", 0) + 1
         elif self.missions.handle(msg, now):
             pass
         elif t in ("COMMAND_LONG", "COMMAND_INT"):
@@ -282,11 +353,7 @@ class GcsService(Service):
             for i, e in enumerate(self.table.entries):
                 self.link.send(self.table.value_msg(i, e))
         elif t == "PARAM_REQUEST_READ":
-            found = self.table.lookup(decode_param_id(msg.param_id), msg.param_index)
-            if found is not None:
-                self.link.send(self.table.value_msg(*found))
-            else:
-                self.ignored["unknown_param"] = self.ignored.get("unknown_param", 0) + 1
+            self._param_read(msg)
         elif t == "PARAM_SET":
             self._param_set(msg)
         elif t == "MISSION_SET_CURRENT":
@@ -298,7 +365,7 @@ class GcsService(Service):
                 self.cmds.ack(M.MAVLINK_MSG_ID_SET_MODE, M.MAV_RESULT_DENIED, (msg.get_srcSystem(), msg.get_srcComponent()))
             else:
                 peer = (msg.get_srcSystem(), msg.get_srcComponent())
-                self.set_mode(mode, lambda ok, _m: self.cmds.ack(
+                self.set_mode(mode, lambda ok, _m, *_: self.cmds.ack(
                     M.MAVLINK_MSG_ID_SET_MODE, M.MAV_RESULT_ACCEPTED if ok else M.MAV_RESULT_DENIED, peer))
         elif t == "MANUAL_CONTROL":
             self.pub_joy.publish(Joystick(header=self.node.header(), x=msg.x / 1000.0, y=msg.y / 1000.0,
@@ -315,7 +382,7 @@ class GcsService(Service):
     # ------------------------------------------------------------ parameters
 
     def _refresh_params(self) -> None:
-        for svc in self.table.services:
+        for svc in self.table.sources:
             if svc == self.NAME:
                 self.table.update_service(svc, self.node.param_list().params)
                 continue
@@ -327,50 +394,90 @@ class GcsService(Service):
 
             self.node.call_async(f"config/{svc}/@params", None, ParamList, done, timeout_s=2.0)
 
-    def _param_set(self, msg) -> None:
+    def _param_read(self, msg) -> None:
+        """PARAM_REQUEST_READ; an unknown name gets no PARAM_VALUE (PX4), only PARAM_ERROR."""
         name = decode_param_id(msg.param_id)
+        found = self.table.lookup(name, msg.param_index)
+        if found is not None:
+            self.link.send(self.table.value_msg(*found))
+            return
+        self.ignored["unknown_param"] = self.ignored.get("unknown_param", 0) + 1
+        if msg.param_index >= 0:
+            self._notify(f"[pm] unknown param ID: {msg.param_index}", self._peer(msg), M.MAV_SEVERITY_INFO)
+        self._param_error(msg, name, M.MAV_PARAM_ERROR_DOES_NOT_EXIST)
+
+    def _peer(self, msg) -> tuple[int, int]:
+        return msg.get_srcSystem(), msg.get_srcComponent()
+
+    def _param_error(self, msg, name: str, error: int) -> None:
+        self.link.send(M.MAVLink_param_error_message(msg.get_srcSystem(), msg.get_srcComponent(),
+                                                     name.encode()[:16], getattr(msg, "param_index", -1), error))
+
+    def _param_set(self, msg) -> None:
+        """PARAM_SET: to the owning service(s) (an alias: every owner present), then the value in
+        force to every ground station (as PX4 does); refusals explained in a STATUSTEXT."""
+        name = decode_param_id(msg.param_id)
+        peer = self._peer(msg)
         found = self.table.lookup(name)
         if found is None:
             self.ignored["unknown_param"] = self.ignored.get("unknown_param", 0) + 1
+            self._notify(f"[pm] unknown param: {name}", peer, M.MAV_SEVERITY_INFO)
+            self._param_error(msg, name, M.MAV_PARAM_ERROR_DOES_NOT_EXIST)
             return
         index, entry = found
+        if entry.readonly:
+            self._notify(f"{name} is read-only: {entry.readonly}", peer, M.MAV_SEVERITY_WARNING)
+            self._param_error(msg, name, M.MAV_PARAM_ERROR_READ_ONLY)
+            self.link.send(self.table.value_msg(index, entry))
+            return
         try:
             value = decode_value(msg.param_value, msg.param_type, entry.ptype)
         except Exception:  # noqa: BLE001 - an undecodable value: echo the current one
             self.link.send(self.table.value_msg(index, entry))
             return
+        targets = entry.targets or ((entry.service, entry.name),)
+        replies: dict[tuple[str, str], ParamSetReply] = {}
 
-        def apply(reply: ParamSetReply) -> None:
-            if reply.success and reply.value is not None:
-                entry.value = reply.value
-            elif not reply.success:
-                self.log.warn("param_set_rejected", param=entry.mav_name, value=value, error=reply.message)
-            # always echoed, to every ground station (as PX4 does): the value in force
-            self.link.send(self.table.value_msg(index, entry), broadcast=True)
+        def record(target: tuple[str, str], reply: ParamSetReply) -> None:
+            replies[target] = reply
+            if len(replies) < len(targets):
+                return
+            for (svc, pname), rep in replies.items():
+                if rep.success and rep.value is not None:
+                    self.table.set_value(svc, pname, rep.value)
+                elif not rep.success:
+                    self.log.warn("param_set_rejected", param=name, service=svc, name=pname, value=value,
+                                  error=rep.message)
+                    if entry.targets:
+                        self._notify(f"{name}: {svc} refused {value}: {rep.message}", peer, M.MAV_SEVERITY_WARNING)
+            now = self.table.lookup(name)
+            if now is not None:   # always echoed, to every ground station (as PX4 does): the value in force
+                self.link.send(self.table.value_msg(*now), broadcast=True)
 
-        if entry.service == self.NAME:
-            apply(self.node.set_param(entry.name, value))
-            return
+        for svc, pname in targets:
+            if svc == self.NAME:
+                record((svc, pname), self.node.set_param(pname, value))
+                continue
 
-        def done(res) -> None:
-            if isinstance(res, CallError):
-                res = ParamSetReply(success=False, message=str(res))
-            apply(res)
+            def done(res, target=(svc, pname)) -> None:
+                if isinstance(res, CallError):
+                    res = ParamSetReply(success=False, message=str(res))
+                record(target, res)
 
-        self.node.call_async(f"config/{entry.service}/@set", ParamSet(name=entry.name, value=value),
-                             ParamSetReply, done, timeout_s=self.params.call_timeout_s)
+            self.node.call_async(f"config/{svc}/@set", ParamSet(name=pname, value=value), ParamSetReply, done,
+                                 timeout_s=self.params.call_timeout_s)
 
     # ------------------------------------------------------------ missions
 
     def _load(self, items, done) -> None:
-        default_alt = 3.0
-        for e in self.table.by_service.get("mission", []):
-            if e.name == "takeoff_altitude_m":
-                default_alt = float(e.value)
+        default_alt = self.table.find("mission", "takeoff_altitude_m")
+        # PX4: an item without an acceptance radius (param2 0) uses NAV_ACC_RAD (the planner's)
+        radius = self.table.find("planner", "acceptance_radius_m")
         self.loads += 1
         try:
             mission, seqs = convert_items(items, self.home, mission_id=f"gcs-{self.loads}",
-                                          default_takeoff_m=default_alt)
+                                          default_takeoff_m=float(default_alt[1].value) if default_alt else 3.0,
+                                          acceptance_radius_m=float(radius[1].value) if radius else 0.5)
         except MissionConversionError as e:
             done(False, str(e), e.result)
             return
@@ -390,6 +497,7 @@ class GcsService(Service):
                 return
             if res.success:
                 self.progress.load(mission.mission_id, items, seqs)
+                self._end_speed_scope("mission replaced")
                 self.speeds = SpeedSchedule(speeds, mission.mission_id)
                 self.synced = (mission.mission_id, len(mission.waypoints))
                 self.tel.mission_total = len(items)
@@ -427,6 +535,7 @@ class GcsService(Service):
             self.progress.load(mission.mission_id, self.missions.items,
                                list(range(1, len(mission.waypoints) + 1)))   # item 0 is the takeoff
             self._sync_plan()
+            self._end_speed_scope("mission replaced")
             self.speeds = SpeedSchedule([], mission.mission_id)
             self.tel.mission_total = len(self.missions.items)
             self.tel.mission_seq = 0
@@ -438,14 +547,19 @@ class GcsService(Service):
     def _set_current(self, seq: int) -> bool:
         ok = self.missions.set_current(seq)
         if ok:
+            self.progress.set_current(seq)
             self.tel.mission_seq = seq
         return ok
 
-    def _notify(self, text: str, peer: tuple[int, int]) -> None:
-        """A STATUSTEXT (critical, as PX4 reports a refused mission) to the ground station `peer`."""
+    def _notify(self, text: str, peer: tuple[int, int] | None, severity: int = M.MAV_SEVERITY_CRITICAL) -> None:
+        """A STATUSTEXT (critical, as PX4 reports a refused mission or mode change) to the ground
+        station `peer` (None: to every ground station)."""
         self.notices += 1
-        for m in statustext(M.MAV_SEVERITY_CRITICAL, text, self.notices):
-            self.link.send(m, peer=peer)
+        for m in statustext(severity, text, self.notices):
+            if peer is None:
+                self.link.send(m, broadcast=True)
+            else:
+                self.link.send(m, peer=peer)
 
     def _request_message(self, msg_id: int, param2: float) -> int:
         msg = self.tel.build(msg_id)
@@ -459,7 +573,7 @@ class GcsService(Service):
     def _reply_cb(self, done):
         def cb(res) -> None:
             if isinstance(res, CallError):
-                done(False, str(res))
+                done(False, str(res), True)      # the call failed (FAILED), not a refusal (DENIED)
             else:
                 done(res.success, res.message)
         return cb
@@ -480,7 +594,7 @@ class GcsService(Service):
         elif mode in ("HOLD", "LAND", "RTL"):
             # Through the mission manager (so it stops pushing goals); on the ground it refuses,
             # then the flight controller decides.
-            def after(ok: bool, message: str) -> None:
+            def after(ok: bool, message: str, failed: bool = False) -> None:
                 if ok:
                     done(True, message)
                 else:
@@ -499,16 +613,22 @@ class GcsService(Service):
         self.speeds.reset()
         k = st.active_waypoint if st is not None and 0 <= st.active_waypoint < len(self.wp_seqs) else 0
         self._apply_mission_speed(k)
+
+        def started(ok: bool, message: str, failed: bool = False) -> None:
+            if not ok:
+                self._end_speed_scope("mission start failed")
+            done(ok, message, failed)
+
         if st is not None and st.state == MissionStatus.STATE_IDLE:
             # On the ground: take off first; the mission manager starts the mission once up.
-            def after_takeoff(ok: bool, message: str) -> None:
+            def after_takeoff(ok: bool, message: str, failed: bool = False) -> None:
                 if not ok:
-                    done(False, message)
+                    started(False, message, failed)
                 else:
-                    self.mission_command("START", done)
+                    self.mission_command("START", started)
             self.mission_command("TAKEOFF", after_takeoff)
         else:
-            self.mission_command("START", done)
+            self.mission_command("START", started)
 
     def takeoff(self, altitude_m: float | None, done) -> None:
         if altitude_m is None:
@@ -517,8 +637,19 @@ class GcsService(Service):
         self.node.call_async("mission/action/takeoff/goal", TakeoffGoal(target_altitude_m=altitude_m), GoalReply,
                              self._reply_cb(done), timeout_s=self.params.call_timeout_s)
 
+    def _planner_speed(self) -> float | None:
+        found = self.table.find(SPEED_SERVICE, SPEED_PARAM)
+        return float(found[1].value) if found is not None else None
+
     def change_speed(self, speed_mps: float | None, done) -> None:
-        """DO_CHANGE_SPEED: the planner's live speed limit; None = its declared default."""
+        """DO_CHANGE_SPEED (command): the planner's live speed limit; None = its declared default.
+        While our mission runs the change is mission-scoped (ends with it, missions.py)."""
+        st = self.tel.mission
+        if st is not None and st.mission_id == self.speeds.mission_id and st.state in SpeedSchedule.RUNNING:
+            self.speeds.begin(self._planner_speed())
+        self._set_planner_speed(speed_mps, done)
+
+    def _set_planner_speed(self, speed_mps: float | None, done) -> None:
         found = self.table.find(SPEED_SERVICE, SPEED_PARAM)
         if speed_mps is None:
             if found is None or found[1].default is None:
@@ -528,11 +659,10 @@ class GcsService(Service):
 
         def reply(res) -> None:
             if isinstance(res, CallError):
-                done(False, str(res))
+                done(False, str(res), True)
                 return
-            now = self.table.find(SPEED_SERVICE, SPEED_PARAM)
-            if res.success and now is not None and res.value is not None:
-                now[1].value = res.value
+            if res.success and res.value is not None:
+                self.table.set_value(SPEED_SERVICE, SPEED_PARAM, res.value)
             if not res.success:
                 self.log.warn("change_speed_rejected", speed_mps=speed_mps, error=res.message)
             done(res.success, res.message)
@@ -544,9 +674,22 @@ class GcsService(Service):
         speed = self.speeds.due(k)
         if speed is None:
             return
+        self.speeds.begin(self._planner_speed())
         self.log.info("mission_speed", waypoint=k, speed_mps=speed if speed != SPEED_DEFAULT else "default")
-        self.change_speed(None if speed == SPEED_DEFAULT else speed,
-                          lambda ok, message: None if ok else self.log.warn("mission_speed_failed", error=message))
+        self._set_planner_speed(None if speed == SPEED_DEFAULT else speed,
+                                lambda ok, message, *_: None if ok else self.log.warn("mission_speed_failed",
+                                                                                      error=message))
+
+    def _end_speed_scope(self, why: str) -> None:
+        restore = self.speeds.end()
+        if restore is not None:
+            self._restore_speed(restore, why)
+
+    def _restore_speed(self, speed_mps: float, why: str) -> None:
+        """The mission that changed the planner's speed is over: the speed from before it."""
+        self.log.info("mission_speed_restored", speed_mps=speed_mps, reason=why)
+        self._set_planner_speed(speed_mps, lambda ok, message, *_: None if ok else self.log.warn(
+            "mission_speed_restore_failed", speed_mps=speed_mps, error=message))
 
     def goto(self, enu, yaw_rad, done) -> None:
         goal = GoToPositionGoal(position_m=Vector3(x=enu[0], y=enu[1], z=enu[2]), yaw_rad=yaw_rad)
@@ -561,6 +704,8 @@ class GcsService(Service):
             "gcs_connected": self.gcs_connected, "gcs_address": f"{self.link.remote[0]}:{self.link.remote[1]}",
             "ground_stations": len(self.gcs_alive), "ground_station_addresses": self._addresses(),
             "signing": self.link.signing, "signing_rejected": self.link.parser.signing_rejected,
+            "identity": f"{self.params.identity} {self.link.system_id}:{self.link.component_id}",
+            "geofence_reported": bool(self.tel.fence_bits()[0]),
             "bind": f"{self.link.local_address[0]}:{self.link.local_address[1]}",
             "mavlink_rx": self.link.parser.received, "mavlink_tx": self.link.sent,
             "mavlink_invalid": inv, "params_exposed": len(self.table), "mission_items": len(self.missions.items),
@@ -575,6 +720,11 @@ class GcsService(Service):
             values[f"mission_protocol[{k}]"] = n
         for k, n in self.cmds.results.items():
             values[f"command_ack[{k}]"] = n
+        values["command_retransmissions"] = self.cmds.retransmissions
+        values["ignored"] = sum(self.ignored.values())
+        for k, n in self.ignored.items():
+            values[f"ignored[{k}]"] = n
+        values["stalls"] = self.clock.stalls
         level, message = DiagnosticStatus.OK, "ground station connected" if self.gcs_connected else "no ground station"
         if self.tel.vehicle is None:
             level, message = DiagnosticStatus.WARN, f"{message}; no state/vehicle"

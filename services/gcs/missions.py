@@ -9,9 +9,10 @@ Accepted items: NAV_WAYPOINT, NAV_TAKEOFF, NAV_LAND, NAV_RETURN_TO_LAUNCH, DO_CH
 frames GLOBAL[_INT] (AMSL), GLOBAL_RELATIVE_ALT[_INT], LOCAL_NED, LOCAL_ENU. A takeoff item sets
 the mission's takeoff altitude; LAND adds its position (when it has one) and ends the mission;
 RTL flies back above home. Yaw (param4, NED heading deg, NaN = keep) becomes ENU yaw_deg.
-A waypoint at or below home altitude in a global-relative frame (z <= 0) is refused
-(MAV_MISSION_INVALID_PARAM7, naming the item); NAV_LAND and RTL items are exempt, and so are the
-AMSL and local frames (terrain may fall away from home; the operator gave an absolute height).
+A waypoint at or below home altitude is refused (MAV_MISSION_INVALID_PARAM7, naming the item), in
+every frame alike: global-relative z <= 0, AMSL z <= home's altitude (issue 8 #5: an AMSL item at
+home altitude had become a waypoint at ground level), local z at or below home's; NAV_LAND and RTL
+items are exempt. (The mission service's geofence floor applies on top.)
 
 Plan id. `plan_id(items)` is a CRC-32 of the items (never 0: 0 means "no mission"); gcs reports
 it as MISSION_CURRENT.mission_id and in MISSION_ACK / MISSION_COUNT opaque_id (MAVLink extension
@@ -24,8 +25,12 @@ DO_CHANGE_SPEED item before it; None = none yet, leave the planner's speed alone
 it (SpeedSchedule) when the mission starts or resumes at that waypoint and when the previous one
 is reached. Speed types 0 (air) and 1 (ground) both set it (a multicopter in still air); 2/3
 (climb/descent) are accepted and ignored (the planner has one 3-D limit). param2 -1 (or NaN) is
-"no change", -2 "back to the planner's default". The speed stays in force after the mission, as
-PLN_MAX_VELOCITY shows.
+"no change", -2 "back to the planner's default".
+Mission-scoped (issue 9 #7): a speed set for a mission (its DO_CHANGE_SPEED items, or a
+DO_CHANGE_SPEED command while it flies) ends with the mission: the planner's speed from before
+is restored when the mission completes (last waypoint reached), lands (LAND/RTL, aborted or not),
+is IDLE again, or is replaced by another mission. A pause (HOLDING) keeps it. A DO_CHANGE_SPEED
+command outside a mission stays in force (PLN_MAX_VELOCITY / MPC_XY_VEL_MAX show it).
 """
 from __future__ import annotations
 
@@ -258,9 +263,12 @@ def convert_items(items: list[Item], home: Home, mission_id: str = "gcs", defaul
                 seqs.append(it.seq)
             break  # the mission manager lands after the last waypoint
         x, y, z = item_to_enu(it, home)
-        if it.frame in RELATIVE_FRAMES and it.z <= 0:
+        above_home = z - home.local_m[2]
+        if above_home <= 0:
+            amsl = f" ({it.z:.1f} m AMSL, home {home.alt_m:.1f} m)" if it.frame in GLOBAL_FRAMES else ""
             raise MissionConversionError(M.MAV_MISSION_INVALID_PARAM7,
-                                         f"item {it.seq}: waypoint altitude {it.z:.1f} m is at or below home")
+                                         f"item {it.seq}: waypoint altitude {above_home:.1f} m is at or below "
+                                         f"home{amsl}")
         if it.param2 > 0 and radius is None:
             radius = float(it.param2)
         waypoints.append(Waypoint(x=x, y=y, z=z, yaw_deg=last_yaw))
@@ -297,12 +305,44 @@ def waypoint_speeds(items: list[Item], seqs: list[int]) -> list[float | None]:
 class SpeedSchedule:
     """When to change the planner's speed for the loaded mission's DO_CHANGE_SPEED items:
     due(k) is the speed to apply now that the vehicle flies to waypoint k, None if nothing to do
-    (no item before k, or already applied). reset() forgets what was applied (a new start)."""
+    (no item before k, or already applied). reset() forgets what was applied (a new start).
 
-    def __init__(self, speeds: list[float | None] | None = None, mission_id: str = ""):
+    Scope: begin(current) remembers the planner's speed before the mission first changed it;
+    observe(mission/status fields) returns, once the run is over, the speed to restore (and
+    forgets it), else None. A run is over when another mission replaces it, or, after it was seen
+    running (TAKEOFF / EXECUTING / HOLDING), when its last waypoint is reached or it lands or is
+    IDLE; a start that fails ends it too (the caller restores)."""
+
+    RUNNING = ("TAKEOFF", "EXECUTING", "HOLDING")
+
+    def __init__(self, speeds: list[float | None] | None = None, mission_id: str = "",
+                 restore: float | None = None):
         self.speeds = list(speeds or [])
         self.mission_id = mission_id
         self.applied: float | None = None
+        self.restore = restore          # the planner's speed before this mission changed it
+        self.running = False            # the run was seen under way since begin()
+
+    def begin(self, current: float | None) -> None:
+        if self.restore is None and current is not None:
+            self.restore = float(current)
+            self.running = False
+
+    def end(self) -> float | None:
+        """Forget the scope; the speed to restore (None if nothing was changed)."""
+        speed, self.restore, self.running, self.applied = self.restore, None, False, None
+        return speed
+
+    def observe(self, mission_id: str, state: str, active_waypoint: int, total_waypoints: int) -> float | None:
+        if self.restore is None:
+            return None
+        done = total_waypoints > 0 and active_waypoint >= total_waypoints
+        if mission_id == self.mission_id and state in self.RUNNING and not done:
+            self.running = True
+            return None
+        if mission_id != self.mission_id or (self.running and (done or state in ("IDLE", "LAND"))):
+            return self.end()
+        return None
 
     def reset(self) -> None:
         self.applied = None
@@ -339,40 +379,143 @@ def takeoff_seq(items: list[Item]) -> int | None:
 
 
 class Progress:
-    """The item seqs of MISSION_ITEM_REACHED for the stack's progress on the mission our items
-    describe (`mission_id`): a waypoint's item when mission/waypoint_reached says so, and the
-    NAV_TAKEOFF item the mission starts with (if any) once per run when the takeoff is done, i.e.
-    when the mission goes on to its first waypoint (state EXECUTING, or a waypoint reached first).
-    A run ends when the stack is IDLE again (landed)."""
+    """The mission-progress side of the MAVLink mission protocol for the mission our items describe
+    (`mission_id`), from the stack's mission/status and mission/waypoint_reached (issue 9 #2):
+
+    - MISSION_ITEM_REACHED (the seqs returned by on_status / on_reached) for every item, in order,
+      once per run: the NAV_TAKEOFF item when the takeoff is done (the mission goes on to its first
+      waypoint), each waypoint's item when it is reached, the DO items after an item as soon as
+      that item is reached (they run right away), and a terminal NAV_LAND item without a position
+      once the vehicle has landed (IDLE). A NAV_RETURN_TO_LAUNCH item is never reported reached,
+      as PX4 hands the vehicle over to return mode there (MAVSDK counts on that).
+    - MISSION_CURRENT (`current`, `state`, `mode`): the item being flown to, mission_state
+      NOT_STARTED / ACTIVE / PAUSED / COMPLETE, mission_mode 1 (in mission) or 2 (suspended); once
+      complete, seq = total (the number of items), as the spec says ("on last item, sequence ==
+      total") and MAVSDK's progress reaches N/N.
+
+    A run starts when the mission leaves IDLE (or starts again after completing) and ends landed.
+    A run stopped before its end (HOLD, LAND/RTL commanded, landed early) is PAUSED at its item."""
+
+    RUNNING = ("TAKEOFF", "EXECUTING")
 
     def __init__(self) -> None:
         self.mission_id = ""
+        self.items: list[Item] = []
         self.wp_seqs: list[int] = []          # the item seq of each mission waypoint
         self.takeoff_seq: int | None = None
-        self.takeoff_reported = False
+        self.land_seq: int | None = None      # a terminal NAV_LAND without a position: reached when landed
+        self.rtl_seq: int | None = None       # a terminal NAV_RETURN_TO_LAUNCH: never reported reached
+        self.last_seq = -1                    # the last item flown (items after a LAND/RTL are not)
+        self._reset_run()
+        self.current = 0
+        self.prev_state = ""
+
+    def _reset_run(self) -> None:
+        self.upto = -1                        # the highest seq reported reached in this run
+        self.state = M.MISSION_STATE_NOT_STARTED if self.items else M.MISSION_STATE_NO_MISSION
+        self.mode = 0
+        self.started = False
+        self.done = False                     # every waypoint reached (the landing may follow)
 
     def load(self, mission_id: str, items: list[Item], wp_seqs: list[int]) -> None:
-        self.mission_id, self.wp_seqs = mission_id, list(wp_seqs)
-        self.takeoff_seq, self.takeoff_reported = takeoff_seq(items), False
+        self.mission_id, self.items, self.wp_seqs = mission_id, list(items), list(wp_seqs)
+        self.takeoff_seq = takeoff_seq(items)
+        self.land_seq = self.rtl_seq = None
+        self.last_seq = len(items) - 1
+        for it in items:
+            if it.command in (M.MAV_CMD_NAV_LAND, M.MAV_CMD_NAV_RETURN_TO_LAUNCH):
+                self.last_seq = it.seq
+                if it.command == M.MAV_CMD_NAV_RETURN_TO_LAUNCH:
+                    self.rtl_seq = it.seq
+                elif it.seq not in self.wp_seqs:
+                    self.land_seq = it.seq
+                break
+        self._reset_run()
+        self.current = 0
+        self.prev_state = ""
+
+    def set_current(self, seq: int) -> None:
+        self.current = seq
+
+    @property
+    def total(self) -> int:
+        return len(self.items)
+
+    # ------------------------------------------------------------ events
+
+    def _reach(self, seq: int) -> list[int]:
+        """Report every item up to seq (and the DO items right after it)."""
+        end = seq
+        while end + 1 <= self.last_seq and self.items[end + 1].command not in NAV_POSITION | {
+                M.MAV_CMD_NAV_RETURN_TO_LAUNCH}:
+            end += 1
+        out = [s for s in range(self.upto + 1, end + 1) if s != self.rtl_seq]
+        self.upto = max(self.upto, end)
+        if self.upto + 1 <= self.last_seq:
+            self.current = self.upto + 1
+        return out
+
+    def _complete(self) -> list[int]:
+        out = self._reach(self.last_seq)
+        self.state, self.mode, self.current = M.MISSION_STATE_COMPLETE, 2, self.total
+        return out
 
     def _takeoff(self) -> list[int]:
-        if self.takeoff_seq is None or self.takeoff_reported:
+        if self.takeoff_seq is None or self.upto >= self.takeoff_seq:
             return []
-        self.takeoff_reported = True
-        return [self.takeoff_seq]
+        return self._reach(self.takeoff_seq)
 
-    def on_status(self, mission_id: str, state: str) -> list[int]:
-        if state == "IDLE":
-            self.takeoff_reported = False
+    def on_status(self, mission_id: str, state: str, active_waypoint: int = -1, total_waypoints: int = 0) -> list[int]:
+        if not mission_id or mission_id != self.mission_id or not self.items:
+            self.prev_state = ""
             return []
-        if state == "EXECUTING" and mission_id == self.mission_id and mission_id:
-            return self._takeoff()
-        return []
+        prev, self.prev_state = self.prev_state, state
+        complete = self.state == M.MISSION_STATE_COMPLETE
+        if state in self.RUNNING and (prev in ("", "IDLE", "LAND") or (complete and prev == "HOLDING"
+                                                                          and state == "EXECUTING")):
+            self._reset_run()                     # a new run
+            self.started = True
+        if not self.started:
+            return []
+        out: list[int] = []
+        waypoints_done = total_waypoints > 0 and active_waypoint >= total_waypoints
+        if waypoints_done and not self.done:
+            self.done = True
+            out += self._reach(self.wp_seqs[-1]) if self.wp_seqs else []
+        if self.state == M.MISSION_STATE_COMPLETE:
+            return out
+        if self.done:
+            if self.land_seq is None or state == "IDLE":
+                return out + self._complete()
+            self.state, self.mode, self.current = M.MISSION_STATE_ACTIVE, 1, self.land_seq   # landing: its item
+            return out
+        if state == "EXECUTING":
+            out += self._takeoff()
+            self.state, self.mode = M.MISSION_STATE_ACTIVE, 1
+            if 0 <= active_waypoint < len(self.wp_seqs):
+                self.current = self.wp_seqs[active_waypoint]
+        elif state == "TAKEOFF":
+            self.state, self.mode = M.MISSION_STATE_ACTIVE, 1
+            if self.takeoff_seq is not None:
+                self.current = self.takeoff_seq
+        else:                                     # HOLDING, LAND or IDLE before the end: paused
+            self.state, self.mode = M.MISSION_STATE_PAUSED, 2
+        return out
 
     def on_reached(self, mission_id: str, index: int) -> list[int]:
         if not mission_id or mission_id != self.mission_id or not 0 <= index < len(self.wp_seqs):
             return []
-        return self._takeoff() + [self.wp_seqs[index]]
+        if self.state == M.MISSION_STATE_COMPLETE and self.prev_state == "IDLE":
+            self._reset_run()                     # a new run whose first status has not come yet
+        self.started = True
+        out = self._takeoff() + self._reach(self.wp_seqs[index])
+        if index == len(self.wp_seqs) - 1:
+            self.done = True
+            if self.land_seq is None:
+                out += self._complete()
+            else:
+                self.current = self.land_seq
+        return out
 
 
 def mission_to_items(mission: Mission, home: Home) -> list[Item]:

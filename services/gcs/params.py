@@ -7,6 +7,21 @@ mission.takeoff_altitude_m -> MIS_TAKEO_ALTITU). Names are stable for a given de
 unique (a clash gets a numeric suffix). Floats are REAL32; ints and bools are INT32 / UINT8 sent
 byte-wise (PARAM_ENCODE_BYTEWISE, as PX4 does); string parameters have no MAVLink form and are
 not exposed.
+
+PX4 names (issue 9 #3). Ground stations and scripts use PX4's well-known names, so where the
+stack has the setting it is also served under PX4's name (`ALIASES`), mapped to the owning
+services' live parameters: a read shows the service's value, a PARAM_SET goes to every owning
+service's config/<svc>/@set (GF_MAX_HOR_DIST / GF_MAX_VER_DIST to both mission and safety, which
+share services/safety/geofence.py's GEOFENCE_PARAMS) and the reply is the value in force. An
+alias exists only while one of its services has answered @params (safety or the simulator not
+running -> the name is absent, as on a PX4 without that module). A few settings ground stations
+read on connect have no parameter in the stack but a fixed, true answer (`Alias.constant`, read
+only: a set is refused with a STATUSTEXT and the value echoed).
+
+Unknown names, as PX4 answers them: PARAM_REQUEST_READ by name -> no PARAM_VALUE; PARAM_SET ->
+STATUSTEXT "[pm] unknown param: NAME" and no PARAM_VALUE. Beside that, gcs sends MAVLink 2's
+PARAM_ERROR (DOES_NOT_EXIST / READ_ONLY), which ground stations that know it (QGC) show at once
+and others ignore.
 """
 from __future__ import annotations
 
@@ -57,6 +72,41 @@ class Entry:
     min: float | None = None
     max: float | None = None
     default: Any = None
+    targets: tuple[tuple[str, str], ...] = ()   # a PX4-named alias: the (service, name) it reads and sets
+    readonly: str = ""                          # why it cannot be set ("" = settable)
+
+
+ALIAS_SERVICE = "px4"   # Entry.service of a PX4-named alias
+
+
+@dataclass(frozen=True)
+class Alias:
+    """A PX4 parameter name served for the stack's own setting(s)."""
+
+    name: str
+    ptype: int
+    targets: tuple[tuple[str, str], ...] = ()   # read from the first present, set on all present
+    constant: Any = None                        # no parameter in the stack: this fixed, true value
+    why: str = ""                               # what the value means for the stack (docs, read-only reason)
+
+
+_F, _I = M.MAV_PARAM_TYPE_REAL32, M.MAV_PARAM_TYPE_INT32
+ALIASES: tuple[Alias, ...] = (
+    Alias("MIS_TAKEOFF_ALT", _F, (("mission", "takeoff_altitude_m"),)),
+    Alias("MPC_XY_VEL_MAX", _F, (("planner", "max_velocity_mps"),)),
+    Alias("NAV_ACC_RAD", _F, (("planner", "acceptance_radius_m"), ("mission", "acceptance_radius_m")),
+          why="also the acceptance radius of uploaded items without one (param2 0), as in PX4"),
+    Alias("GF_MAX_HOR_DIST", _F, (("mission", "geofence_radius_m"), ("safety", "geofence_radius_m"))),
+    Alias("GF_MAX_VER_DIST", _F, (("mission", "geofence_max_altitude_m"), ("safety", "geofence_max_altitude_m"))),
+    Alias("GF_ACTION", _I, (("safety", "geofence_action"),),
+          why="PX4 enum: 0 none, 1 warning, 2 hold, 3 return, 4 terminate (refused by safety), 5 land"),
+    Alias("RTL_RETURN_ALT", _F, (("sim", "RTL_RETURN_ALT"),),
+          why="the simulated flight controller's; with a real FC it is the FC's own parameter (absent here)"),
+    Alias("COM_RC_IN_MODE", _I, constant=4,
+          why="4 = stick input disabled: MANUAL_CONTROL is republished on gcs/joystick, nothing flies with it"),
+    Alias("NAV_DLL_ACT", _I, constant=1,
+          why="1 = hold: the mission service holds when gcs/link goes from up to down"),
+)
 
 
 def param_type_of(value: Any, declared: str = "") -> int | None:
@@ -126,13 +176,24 @@ def decode_param_id(param_id: Any) -> str:
 
 
 class ParamTable:
-    """Ordered table of exposed parameters; index = position (stable per set of services)."""
+    """Ordered table of exposed parameters; index = position (stable per set of services): each
+    exposed service's parameters under gcs's names, then the PX4-named aliases present."""
 
-    def __init__(self, services: Iterable[str]):
+    def __init__(self, services: Iterable[str], aliases: Iterable[Alias] = ALIASES):
         self.services = [s for s in services if s]
+        self.aliases = tuple(aliases)
         self.by_service: dict[str, list[Entry]] = {}
         self.entries: list[Entry] = []
         self.by_mav: dict[str, Entry] = {}
+        self._rebuild()
+
+    @property
+    def sources(self) -> list[str]:
+        """Every service whose @params we read: the exposed ones and the aliases' owners."""
+        out = list(self.services)
+        for a in self.aliases:
+            out += [svc for svc, _ in a.targets if svc not in out]
+        return out
 
     def update_service(self, service: str, descriptors: Iterable[Any]) -> bool:
         """Replace one service's entries from its ParamDescriptor list; True if the table changed."""
@@ -149,17 +210,49 @@ class ParamTable:
 
     def _rebuild(self) -> None:
         self.entries, self.by_mav = [], {}
+        aliases = [e for e in (self._alias_entry(a) for a in self.aliases) if e is not None]
+        reserved = {e.mav_name for e in aliases}
         for s in self.services:
             for e in self.by_service.get(s, []):
                 name = mavlink_name(s, e.name)
                 n = 2
-                while name in self.by_mav:
+                while name in self.by_mav or name in reserved:
                     suffix = str(n)
                     name = name[: MAX_LEN - len(suffix)] + suffix
                     n += 1
                 e.mav_name = name
                 self.entries.append(e)
                 self.by_mav[name] = e
+        for e in aliases:
+            self.entries.append(e)
+            self.by_mav[e.mav_name] = e
+
+    def _native(self, service: str, name: str) -> Entry | None:
+        for e in self.by_service.get(service, []):
+            if e.name == name:
+                return e
+        return None
+
+    def _alias_entry(self, a: Alias) -> Entry | None:
+        if a.constant is not None:
+            return Entry(ALIAS_SERVICE, a.name, a.name, a.constant, a.ptype, a.constant, a.constant, a.constant,
+                         readonly=a.why)
+        present = [(svc, n, e) for svc, n in a.targets if (e := self._native(svc, n)) is not None]
+        if not present:
+            return None
+        first = present[0][2]
+        lows = [e.min for _, _, e in present if e.min is not None]
+        highs = [e.max for _, _, e in present if e.max is not None]
+        value = first.value if a.ptype != M.MAV_PARAM_TYPE_INT32 else int(first.value)
+        return Entry(ALIAS_SERVICE, a.name, a.name, value, a.ptype, max(lows) if lows else None,
+                     min(highs) if highs else None, first.default, tuple((svc, n) for svc, n, _ in present))
+
+    def set_value(self, service: str, name: str, value: Any) -> None:
+        """A value a service confirmed (its @set reply): the native entry and every alias of it."""
+        e = self._native(service, name)
+        if e is not None and e.value != value:
+            e.value = value
+            self._rebuild()
 
     def __len__(self) -> int:
         return len(self.entries)

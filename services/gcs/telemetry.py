@@ -14,19 +14,24 @@ from typing import Callable
 
 from pymavlink.dialects.v20 import common as M
 
-from aeroperception.schemas import BatteryState, LandedState, MissionStatus, VehicleState
+from aeroperception.schemas import BatteryState, LandedState, MissionStatus, SafetyStatus, VehicleState
 from aeroperception.services.mavlink import frames, px4
 
 from .messages import MissionCurrent
-from .missions import Home
+from .missions import Home, Progress
 
+# What we really support. Not SET_POSITION_TARGET_LOCAL_NED (issue 9 #5): offboard setpoints from a
+# ground station would bypass the mission manager and the planner; such messages are counted as
+# ignored (diagnostics `ignored[SET_POSITION_TARGET_LOCAL_NED]`).
 CAPABILITIES = (M.MAV_PROTOCOL_CAPABILITY_MISSION_INT | M.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
-                | M.MAV_PROTOCOL_CAPABILITY_MAVLINK2 | M.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
-                | M.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED)
+                | M.MAV_PROTOCOL_CAPABILITY_MAVLINK2 | M.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE)
 FLIGHT_SW_VERSION = (1 << 24) | (15 << 16) | (0 << 8) | 255   # reported as PX4 v1.15.0 (official)
 SENSORS = (M.MAV_SYS_STATUS_SENSOR_3D_GYRO | M.MAV_SYS_STATUS_SENSOR_3D_ACCEL | M.MAV_SYS_STATUS_SENSOR_3D_MAG
            | M.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE | M.MAV_SYS_STATUS_SENSOR_GPS
            | M.MAV_SYS_STATUS_SENSOR_BATTERY)
+
+FENCE = M.MAV_SYS_STATUS_GEOFENCE
+SAFETY_STALE_S = 3.0      # safety/status (1 Hz) older than this: the geofence is unknown, not reported
 
 ID = {name: getattr(M, f"MAVLINK_MSG_ID_{name}") for name in (
     "HEARTBEAT", "SYS_STATUS", "LOCAL_POSITION_NED", "ATTITUDE", "GLOBAL_POSITION_INT", "GPS_RAW_INT",
@@ -49,6 +54,10 @@ class TelemetryState:
     mission_seq: int = 0            # MISSION_CURRENT.seq (item index)
     mission_total: int = 0
     mission_id: int = 0             # MISSION_CURRENT.mission_id: the plan's id (missions.plan_id), 0 = none
+    progress: Progress | None = None  # the mission protocol's progress (current item, mission_state)
+    safety: SafetyStatus | None = None
+    safety_rx_s: float = 0.0        # monotonic time safety/status last arrived
+    companion: bool = False         # vehicle profile: we are the FC's onboard computer (heartbeat only)
     boot_s: float = field(default_factory=time.monotonic)
 
     def boot_ms(self) -> int:
@@ -58,6 +67,9 @@ class TelemetryState:
 
     def heartbeat(self):
         v = self.vehicle
+        if self.companion:
+            status = M.MAV_STATE_ACTIVE if v is not None and v.connected else M.MAV_STATE_STANDBY
+            return M.MAVLink_heartbeat_message(M.MAV_TYPE_ONBOARD_CONTROLLER, M.MAV_AUTOPILOT_INVALID, 0, 0, status, 3)
         armed = bool(v and v.armed)
         base = M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | M.MAV_MODE_FLAG_STABILIZE_ENABLED
         mode = (v.flight_mode if v else "") or "HOLD"
@@ -84,11 +96,24 @@ class TelemetryState:
         rem = b.remaining_fraction if b is not None else (v.battery_remaining if v else None)
         return volt, cur, rem
 
+    def fence_bits(self, now_s: float | None = None) -> tuple[int, int, int]:
+        """SYS_STATUS geofence (present, enabled, healthy) from safety/status (issue 9 #8): not
+        present without a fresh safety/status; enabled when safety has a geofence (a distance to
+        it); healthy unless safety reports a violation."""
+        now = time.monotonic() if now_s is None else now_s
+        s = self.safety
+        if s is None or now - self.safety_rx_s > SAFETY_STALE_S:
+            return 0, 0, 0
+        enabled = FENCE if s.distance_to_geofence_m is not None else 0
+        healthy = FENCE if s.geofence_status != SafetyStatus.GEOFENCE_VIOLATION else 0
+        return FENCE, enabled, healthy
+
     def sys_status(self):
         volt, cur, rem = self._battery()
         healthy = SENSORS if self.vehicle is not None and self.vehicle.connected else 0
+        present, enabled, fence_ok = self.fence_bits()
         return M.MAVLink_sys_status_message(
-            SENSORS, SENSORS, healthy, 500,
+            SENSORS | present, SENSORS | enabled, healthy | fence_ok, 500,
             int(volt * 1000) if volt else 0xFFFF, int(cur * 100) if cur is not None else -1,
             int(round(rem * 100)) if rem is not None else -1, 0, 0, 0, 0, 0, 0)
 
@@ -152,6 +177,9 @@ class TelemetryState:
         return M.MAVLink_extended_sys_state_message(M.MAV_VTOL_STATE_UNDEFINED, landed)
 
     def mission_current(self):
+        pr = self.progress
+        if pr is not None and self.mission_total and pr.total == self.mission_total:
+            return MissionCurrent(pr.current, pr.total, pr.state, pr.mode, self.mission_id)
         st = self.mission
         state = M.MISSION_STATE_NO_MISSION if self.mission_total == 0 else M.MISSION_STATE_NOT_STARTED
         if st is not None and self.mission_total:

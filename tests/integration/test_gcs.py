@@ -618,7 +618,7 @@ class Recorder:
 def test_mavsdk_mission_flies_in_sim(stack):
     """MAVSDK uploads takeoff + DO_CHANGE_SPEED + 4 waypoints (a 4 m square at 3 m), arms and
     starts the mission; the speed item sets the planner's speed when the mission starts (not at
-    upload); every waypoint's MISSION_ITEM_REACHED arrives at the ground station in order, the
+    upload) and only for the mission (issue 9 #7: back to 2.0 once it is over); every waypoint's MISSION_ITEM_REACHED arrives at the ground station in order, the
     vehicle lands and disarms (simulator ground truth, fmu's vehicle status), all within 90 s.
     The takeoff item's MISSION_ITEM_REACHED comes first, as PX4 sends it when the takeoff is done."""
     pytest.importorskip("mavsdk.asyncio")
@@ -655,6 +655,7 @@ def test_mavsdk_mission_flies_in_sim(stack):
     reached: list[int] = []
     progress: list[tuple[int, int]] = []
     timing: dict[str, float] = {}
+    planner_speed_seen: list[float] = []
 
     async def collect_reached(direct):
         async for msg in direct.subscribe_message("MISSION_ITEM_REACHED"):
@@ -686,10 +687,19 @@ def test_mavsdk_mission_flies_in_sim(stack):
             try:
                 await asyncio.wait_for(raw.upload_mission(items), 20)
                 timing["speed_after_upload"] = await asyncio.to_thread(planner_speed)
+
+                async def collect_speed():
+                    while True:
+                        v = await asyncio.to_thread(planner_speed)
+                        if v and v != "2.0" and float(v) not in planner_speed_seen:
+                            planner_speed_seen.append(float(v))
+                        await asyncio.sleep(0.3)
+                tasks.append(asyncio.create_task(collect_speed()))
                 t0 = time.monotonic()
                 await asyncio.wait_for(action.arm(), 15)
                 await asyncio.wait_for(raw.start_mission(), 15)
-                await until(lambda: len(reached) >= len(wp_seqs) + 1, 60,
+                await until(lambda: planner_speed_seen, 30, "the mission's speed in force")
+                await until(lambda: len(reached) >= len(rows), 60,
                             "MISSION_ITEM_REACHED for the takeoff and every waypoint")
                 timing["waypoints_s"] = time.monotonic() - t0
                 await until(lambda: armed and not armed[-1], 30, "MAVSDK telemetry: disarmed")
@@ -714,8 +724,11 @@ def test_mavsdk_mission_flies_in_sim(stack):
         rec.close()
     print(f"gcs mission: waypoints after {timing['waypoints_s']:.1f} s, landed+disarmed after "
           f"{timing['flight_s']:.1f} s; reached {reached}; progress {sorted(set(progress))}")
-    assert reached == [0] + wp_seqs             # the takeoff item, then every waypoint, in order, once each
-    assert timing["speed_after_upload"] == "2.0" and planner_speed() == str(speed)
+    # every item, in order, once each: the takeoff, the DO_CHANGE_SPEED after it (issue 9 #2: it runs
+    # once the takeoff is done), then every waypoint including the last
+    assert reached == list(range(len(rows)))
+    assert timing["speed_after_upload"] == "2.0" and planner_speed_seen == [speed]
+    assert wait_until_value(planner_speed, "2.0", timeout_s=5) == "2.0"   # mission-scoped: restored
     assert timing["flight_s"] < 90
     assert truth and truth[-1].position_m.z < 0.2 and max(m.position_m.z for m in truth) > alt - 0.5
     track = np.array([m.position_m.to_array() for m in truth])

@@ -418,7 +418,7 @@ def test_param_names_fit_16_chars_are_stable_and_unique():
     assert mavlink_name("planner", "max_velocity_mps") == "PLN_MAX_VELOCITY"
     assert mavlink_name("planner", "kp") == "PLN_KP"
     assert mavlink_name("mission", "takeoff_altitude_m").startswith("MIS_TAKEO")
-    t = ParamTable(["planner", "mission"])
+    t = ParamTable(["planner", "mission"], aliases=())
     t.update_service("planner", [ParamDescriptor(name=n, value=1.0, type="float") for n in
                                  ("max_velocity_mps", "max_velocity_mps2", "acceptance_radius_m", "kp")]
                      + [ParamDescriptor(name="mode", value="x", type="str"),
@@ -478,16 +478,21 @@ def cmd_long(cmd, *p):
     return from_gcs(M.MAVLink_command_long_message(1, 1, cmd, 0, *p))
 
 
-def test_arm_acks_real_outcome_progress_and_no_double_execution():
+def test_arm_acks_real_outcome_once_and_no_double_execution():
+    """Issue 9 #1: one final ACK, never IN_PROGRESS (MAVSDK takes it as the outcome); a retry while
+    the first runs is neither run again nor answered; a refusal comes with a STATUSTEXT reason."""
     h, sent, ops = handler()
+    notes = []
+    h.notify = lambda text, peer: notes.append((text, peer))
     h.handle(cmd_long(M.MAV_CMD_COMPONENT_ARM_DISARM, 1.0), 0.0)
     assert ops.calls == [("arm", True, False)] and sent == []
     h.tick(0.35)
-    assert sent[-1].result == M.MAV_RESULT_IN_PROGRESS
-    h.handle(cmd_long(M.MAV_CMD_COMPONENT_ARM_DISARM, 1.0), 0.4)      # retransmission
-    assert len(ops.calls) == 1 and sent[-1].result == M.MAV_RESULT_IN_PROGRESS
+    assert sent == []                                                  # no IN_PROGRESS
+    h.handle(cmd_long(M.MAV_CMD_COMPONENT_ARM_DISARM, 1.0), 0.5)      # MAVSDK's retransmission
+    assert len(ops.calls) == 1 and sent == [] and h.retransmissions == 1
     ops.dones[0](False, "pre-arm check failed")
-    assert sent[-1].result == M.MAV_RESULT_DENIED and sent[-1].target_system == 255
+    assert [m.result for m in sent] == [M.MAV_RESULT_DENIED] and sent[-1].target_system == 255
+    assert notes == [("COMPONENT_ARM_DISARM denied: pre-arm check failed", (255, 190))]
     h.handle(cmd_long(M.MAV_CMD_COMPONENT_ARM_DISARM, 1.0, math.nan), 0.9)      # MAVSDK leaves param2 NaN
     assert ops.calls[-1] == ("arm", True, False)
     ops.dones[-1](True, "ok")
@@ -495,6 +500,22 @@ def test_arm_acks_real_outcome_progress_and_no_double_execution():
     assert ops.calls[-1] == ("arm", False, True)
     ops.dones[-1](True, "ok")
     assert sent[-1].result == M.MAV_RESULT_ACCEPTED
+    assert M.MAV_RESULT_IN_PROGRESS not in [m.result for m in sent]
+
+
+def test_mode_change_final_ack_failed_when_the_stack_does_not_answer():
+    h, sent, ops = handler()
+    notes = []
+    h.notify = lambda text, peer: notes.append(text)
+    h.handle(cmd_long(M.MAV_CMD_DO_SET_MODE, M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 3), 0.0)   # POSCTL
+    assert ops.calls == [("set_mode", "POSCTL")]
+    ops.dones[0](False, "timeout calling fmu/srv/set_mode", True)        # the call failed: FAILED
+    assert sent[-1].result == M.MAV_RESULT_FAILED and notes[-1].startswith("DO_SET_MODE failed: timeout")
+    h.handle(cmd_long(M.MAV_CMD_DO_SET_MODE, M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 3), 1.0)
+    h.tick(7.0, timeout_s=5.0)                                            # nothing ever came back
+    assert sent[-1].result == M.MAV_RESULT_FAILED and len(sent) == 2
+    ops.dones[1](True, "late")                                            # too late: not answered twice
+    assert len(sent) == 2
 
 
 def test_do_change_speed_command():
@@ -581,6 +602,8 @@ def test_telemetry_is_ned_and_geodetic_about_home():
     assert tel.extended_sys_state().landed_state == 2
     assert tel.autopilot_version().capabilities == CAPABILITIES
     assert CAPABILITIES & M.MAV_PROTOCOL_CAPABILITY_MISSION_INT and CAPABILITIES & M.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
+    # issue 9 #5: ground-station setpoints are ignored, so not advertised
+    assert not CAPABILITIES & M.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED
     hp = tel.home_position()
     assert hp.latitude == int(round(HOME.lat_deg * 1e7))
 
@@ -681,12 +704,23 @@ def test_waypoint_at_or_below_home_is_refused_naming_the_item():
         assert e.value.result == M.MAV_MISSION_INVALID_PARAM7 and "item 2" in str(e.value)
     lat, lon = HOME.projection.reproject(5, 5)
     rel = M.MAV_FRAME_GLOBAL_RELATIVE_ALT
-    # NAV_LAND and RTL at 0 m are fine; so are AMSL and local frames (not checked)
+    # NAV_LAND and RTL at 0 m are fine
     convert_items([wp_item(0, 5, 5), Item(seq=1, frame=rel, command=M.MAV_CMD_NAV_LAND, x=lat, y=lon, z=0.0)], HOME)
     convert_items([wp_item(0, 5, 5), Item(seq=1, frame=rel, command=M.MAV_CMD_NAV_RETURN_TO_LAUNCH, z=0.0)], HOME)
+    # issue 8 #5: an AMSL item at (or below) home altitude is refused like a relative one, naming it;
+    # so is a local item at or below home; above home both are fine
+    for frame, z in ((M.MAV_FRAME_GLOBAL_INT, HOME.alt_m), (M.MAV_FRAME_GLOBAL, HOME.alt_m - 1.0),
+                     (M.MAV_FRAME_LOCAL_NED, 0.0), (M.MAV_FRAME_LOCAL_ENU, -2.0)):
+        x, y = (lat, lon) if frame in (M.MAV_FRAME_GLOBAL_INT, M.MAV_FRAME_GLOBAL) else (5.0, 5.0)
+        with pytest.raises(MissionConversionError) as e:
+            items_to_mission([wp_item(0, 5, 5), Item(seq=1, frame=frame, command=M.MAV_CMD_NAV_WAYPOINT,
+                                                     x=x, y=y, z=z)], HOME)
+        assert e.value.result == M.MAV_MISSION_INVALID_PARAM7 and str(e.value).startswith("item 1: "), frame
+    assert "m AMSL, home 10.0 m" in str(pytest.raises(MissionConversionError, items_to_mission, [Item(
+        seq=0, frame=M.MAV_FRAME_GLOBAL_INT, command=M.MAV_CMD_NAV_WAYPOINT, x=lat, y=lon, z=HOME.alt_m)], HOME).value)
     m = items_to_mission([Item(seq=0, frame=M.MAV_FRAME_GLOBAL_INT, command=M.MAV_CMD_NAV_WAYPOINT,
-                               x=lat, y=lon, z=HOME.alt_m - 1.0)], HOME)
-    assert m.waypoints[0].z == pytest.approx(-1.0)
+                               x=lat, y=lon, z=HOME.alt_m + 4.0)], HOME)
+    assert m.waypoints[0].z == pytest.approx(4.0)
 
     # over the protocol: a STATUSTEXT naming the item, then the error ACK; nothing loaded
     p, sent = proto(ConvertingLoader())
@@ -775,17 +809,59 @@ def test_takeoff_item_reached_once_per_run_before_the_first_waypoint():
     assert takeoff_seq([wp_item(0, 4, 0), takeoff_item(1)]) is None and takeoff_seq([]) is None
     pr = Progress()
     pr.load("gcs-1", items, [2, 3])
-    assert pr.on_status("gcs-1", "TAKEOFF") == [] and pr.on_status("gcs-1", "HOLDING") == []
-    assert pr.on_status("gcs-1", "EXECUTING") == [0]          # on to the first waypoint: takeoff done
-    assert pr.on_status("gcs-1", "EXECUTING") == []
-    assert pr.on_reached("gcs-1", 0) == [2] and pr.on_reached("gcs-1", 1) == [3]
+    assert pr.on_status("gcs-1", "IDLE", 0, 2) == [] and pr.state == M.MISSION_STATE_NOT_STARTED
+    assert pr.on_status("gcs-1", "TAKEOFF", 0, 2) == [] and pr.state == M.MISSION_STATE_ACTIVE
+    assert pr.on_status("gcs-1", "HOLDING", 0, 2) == [] and pr.state == M.MISSION_STATE_PAUSED
+    assert pr.on_status("gcs-1", "EXECUTING", 0, 2) == [0, 1]   # takeoff done (+ the DO item after it)
+    assert pr.on_status("gcs-1", "EXECUTING", 0, 2) == [] and pr.current == 2
+    assert pr.on_reached("gcs-1", 0) == [2] and pr.current == 3
     assert pr.on_reached("gcs-1", 2) == [] and pr.on_reached("aero-square", 0) == []   # not ours
-    assert pr.on_status("gcs-1", "HOLDING") == [] and pr.on_status("gcs-1", "EXECUTING") == []   # resumed
-    assert pr.on_status("gcs-1", "IDLE") == []                # landed: the next run reports it again
-    assert pr.on_reached("gcs-1", 0) == [0, 2]                # a waypoint before the status: takeoff first
-    assert pr.on_status("aero-square", "EXECUTING") == []
+    assert pr.on_reached("gcs-1", 1) == [3]                      # the last one: complete
+    assert (pr.state, pr.current, pr.total) == (M.MISSION_STATE_COMPLETE, 4, 4)
+    assert pr.on_status("gcs-1", "EXECUTING", 1, 2) == []        # a status that lagged behind: still complete
+    assert pr.on_status("gcs-1", "LAND", 2, 2) == [] and pr.state == M.MISSION_STATE_COMPLETE
+    assert pr.on_status("gcs-1", "IDLE", 2, 2) == [] and pr.state == M.MISSION_STATE_COMPLETE
+    assert pr.on_reached("gcs-1", 0) == [0, 1, 2]                # next run: a waypoint before the status
+    assert pr.on_status("aero-square", "EXECUTING", 0, 5) == []
     pr.load("gcs-2", [wp_item(0, 4, 0), wp_item(1, 4, 4)], [0, 1])   # no takeoff item: nothing for it
-    assert pr.on_status("gcs-2", "EXECUTING") == [] and pr.on_reached("gcs-2", 0) == [0]
+    assert pr.on_status("gcs-2", "TAKEOFF", 0, 2) == [] and pr.on_status("gcs-2", "EXECUTING", 0, 2) == []
+    assert pr.on_reached("gcs-2", 0) == [0]
+
+
+def test_mission_progress_every_item_reached_and_complete_per_mavlink():
+    """Issue 9 #2: a trailing NAV_LAND without a position is reached once landed, then COMPLETE
+    with seq == total; an aborted run is PAUSED; RTL items are never reported reached (PX4)."""
+    land = Item(seq=4, frame=M.MAV_FRAME_MISSION, command=M.MAV_CMD_NAV_LAND)
+    items = [takeoff_item(0), wp_item(1, 4, 0), wp_item(2, 4, 4), speed_item(3, 2.0), land]
+    pr = Progress()
+    pr.load("gcs-1", items, [1, 2])
+    assert (pr.state, pr.mode) == (M.MISSION_STATE_NOT_STARTED, 0)
+    pr.on_status("gcs-1", "IDLE", 0, 2)
+    pr.on_status("gcs-1", "TAKEOFF", 0, 2)
+    assert pr.on_status("gcs-1", "EXECUTING", 0, 2) == [0] and (pr.current, pr.mode) == (1, 1)
+    assert pr.on_reached("gcs-1", 0) == [1]
+    assert pr.on_reached("gcs-1", 1) == [2, 3]                   # + the DO item right after it
+    assert (pr.state, pr.current) == (M.MISSION_STATE_ACTIVE, 4)   # landing: the LAND item is current
+    assert pr.on_status("gcs-1", "LAND", 2, 2) == [] and pr.state == M.MISSION_STATE_ACTIVE
+    assert pr.on_status("gcs-1", "IDLE", 2, 2) == [4]            # landed: the last item reached
+    assert (pr.state, pr.current, pr.total) == (M.MISSION_STATE_COMPLETE, 5, 5)
+
+    # the same mission stopped by an RTL command halfway: PAUSED at its item, nothing reached after
+    pr.on_status("gcs-1", "TAKEOFF", 0, 2)
+    assert pr.state == M.MISSION_STATE_ACTIVE and pr.upto == -1   # a new run
+    pr.on_status("gcs-1", "EXECUTING", 0, 2)
+    assert pr.on_status("gcs-1", "LAND", 0, 2) == [] and (pr.state, pr.current, pr.mode) == (M.MISSION_STATE_PAUSED, 1, 2)
+    assert pr.on_status("gcs-1", "IDLE", 0, 2) == [] and pr.state == M.MISSION_STATE_PAUSED
+
+    rtl = Item(seq=2, frame=M.MAV_FRAME_MISSION, command=M.MAV_CMD_NAV_RETURN_TO_LAUNCH)
+    pr.load("gcs-3", [wp_item(0, 4, 0), wp_item(1, 4, 4), rtl], [0, 1, 2])   # RTL flies back above home
+    pr.on_status("gcs-3", "TAKEOFF", 0, 3)
+    assert pr.on_reached("gcs-3", 0) == [0] and pr.on_reached("gcs-3", 1) == [1]
+    assert pr.on_reached("gcs-3", 2) == [] and (pr.state, pr.current) == (M.MISSION_STATE_COMPLETE, 3)
+
+    tel = TelemetryState(HOME, mission_total=3, mission_id=7, progress=pr)
+    mc = tel.mission_current()
+    assert (mc.seq, mc.total, mc.mission_state, mc.mission_id) == (3, 3, M.MISSION_STATE_COMPLETE, 7)
 
 
 # ---------------------------------------------------------------- several ground stations
@@ -853,17 +929,18 @@ def test_several_ground_stations_telemetry_to_all_alive_replies_to_the_asker():
         assert types(drain(initial, until=1)) == ["HEARTBEAT"]
         assert link.destinations() == [initial.getsockname()] and not link.alive()
 
-        hb_from(a, mav_a)                              # A talks: telemetry to A only
-        link.send(hb)
-        assert types(drain(a, until=1)) == ["HEARTBEAT"] and drain(initial, 0.1) == []
+        hb_from(a, mav_a)                              # A talks: telemetry to A, and still to the
+        link.send(hb)                                  # initial address (a listen-only station, issue 9 #4)
+        assert types(drain(a, until=1)) == ["HEARTBEAT"] and types(drain(initial, until=1)) == ["HEARTBEAT"]
         hb_from(b, mav_b)                              # B too: telemetry to both
         assert {p.address for p in link.alive()} == {a.getsockname(), b.getsockname()}
         link.send(hb)
         assert types(drain(a, until=1)) == ["HEARTBEAT"] and types(drain(b, until=1)) == ["HEARTBEAT"]
+        assert types(drain(initial, until=1)) == ["HEARTBEAT"]
 
         # B asks: only B gets the answer
         b.sendto(M.MAVLink_param_request_read_message(1, 1, b"GCS_X", -1).pack(mav_b), link.local_address)
-        assert types(drain(b, until=1)) == ["PARAM_VALUE"] and drain(a, 0.1) == []
+        assert types(drain(b, until=1)) == ["PARAM_VALUE"] and drain(a, 0.1) == [] and drain(initial, 0.1) == []
         # a later reply with a target goes where that target spoke from
         link.send(M.MAVLink_command_ack_message(M.MAV_CMD_COMPONENT_ARM_DISARM, 0, 0, 0, 255, 190))
         assert types(drain(a, until=1)) == ["COMMAND_ACK"] and drain(b, 0.1) == []
@@ -874,6 +951,7 @@ def test_several_ground_stations_telemetry_to_all_alive_replies_to_the_asker():
         assert types(drain(b, until=1)) == ["STATUSTEXT"] and drain(a, 0.1) == []
         link.send(M.MAVLink_param_value_message(b"GCS_X", 2.0, M.MAV_PARAM_TYPE_REAL32, 1, 0), broadcast=True)
         assert types(drain(a, until=1)) == ["PARAM_VALUE"] and types(drain(b, until=1)) == ["PARAM_VALUE"]
+        assert types(drain(initial, until=1)) == ["PARAM_VALUE"]
 
         # A goes silent: after the timeout only B (still beating) gets telemetry
         clock.t += 2.0
@@ -882,6 +960,7 @@ def test_several_ground_stations_telemetry_to_all_alive_replies_to_the_asker():
         assert [p.address for p in link.alive()] == [b.getsockname()]
         link.send(hb)
         assert types(drain(b, until=1)) == ["HEARTBEAT"] and drain(a, 0.1) == []
+        assert types(drain(initial, until=1)) == ["HEARTBEAT"]
         # nobody left: the initial address and the last ground station heard
         clock.t += 10.0
         assert not link.alive() and link.destinations() == [initial.getsockname(), b.getsockname()]
@@ -1004,3 +1083,101 @@ def test_signing_signed_ground_station_works_unsigned_and_wrongly_signed_are_dro
         for c in (good, plain, wrong):
             c.close()
         raw.close()
+
+
+def test_px4_names_map_to_the_owning_services_parameters():
+    """Issue 9 #3: PX4 names read the services' live values, exist only while an owner answers,
+    and a geofence name covers both mission and safety; fixed answers are read-only."""
+    from aeroperception.services.gcs.params import ALIAS_SERVICE
+    t = ParamTable(["planner", "mission", "gcs"])
+    assert {"sim", "safety"} <= set(t.sources)            # read for their aliases, not exposed natively
+    names = lambda: {e.mav_name for e in t.entries}       # noqa: E731
+    assert names() == {"COM_RC_IN_MODE", "NAV_DLL_ACT"}   # constants only, nobody answered yet
+    t.update_service("mission", [ParamDescriptor(name="takeoff_altitude_m", value=3.0, min=0.5, max=120.0)])
+    t.update_service("planner", [ParamDescriptor(name="max_velocity_mps", value=2.0, default=2.0, min=0.1, max=15.0),
+                                 ParamDescriptor(name="acceptance_radius_m", value=0.5)])
+    assert {"MIS_TAKEOFF_ALT", "MPC_XY_VEL_MAX", "NAV_ACC_RAD"} <= names()
+    assert "GF_MAX_HOR_DIST" not in names() and "GF_ACTION" not in names() and "RTL_RETURN_ALT" not in names()
+    _, e = t.lookup("MPC_XY_VEL_MAX")
+    assert (e.service, e.value, e.min, e.max, e.targets) == (ALIAS_SERVICE, 2.0, 0.1, 15.0, (("planner", "max_velocity_mps"),))
+    t.set_value("planner", "max_velocity_mps", 3.5)        # a confirmed set: native and alias agree
+    assert t.lookup("MPC_XY_VEL_MAX")[1].value == 3.5 and t.find("planner", "max_velocity_mps")[1].value == 3.5
+
+    fence = [ParamDescriptor(name="geofence_radius_m", value=500.0, min=1.0, max=100000.0),
+             ParamDescriptor(name="geofence_max_altitude_m", value=120.0, min=1.0, max=10000.0)]
+    t.update_service("safety", fence + [ParamDescriptor(name="geofence_action", value=2, type="int")])
+    _, gf = t.lookup("GF_MAX_HOR_DIST")
+    assert gf.targets == (("safety", "geofence_radius_m"),) and gf.value == 500.0
+    t.update_service("mission", [ParamDescriptor(name="takeoff_altitude_m", value=3.0)] + fence)
+    assert t.lookup("GF_MAX_HOR_DIST")[1].targets == (("mission", "geofence_radius_m"), ("safety", "geofence_radius_m"))
+    _, act = t.lookup("GF_ACTION")
+    assert act.ptype == M.MAV_PARAM_TYPE_INT32 and act.value == 2
+    t.update_service("sim", [ParamDescriptor(name="RTL_RETURN_ALT", value=60.0)])
+    assert t.lookup("RTL_RETURN_ALT")[1].value == 60.0
+    _, dll = t.lookup("NAV_DLL_ACT")
+    assert dll.value == 1 and dll.readonly and t.lookup("COM_RC_IN_MODE")[1].value == 4
+    assert not any(e.service == "sim" for e in t.entries)  # the sim's own names are not exposed
+    idx, e = t.lookup("MIS_TAKEOFF_ALT")
+    assert t.value_msg(idx, e).param_id == "MIS_TAKEOFF_ALT" and t.lookup(index=idx)[1] is e
+
+
+def test_mission_speed_ends_with_the_mission():
+    """Issue 9 #7: a speed set for a mission is restored when the mission completes, lands, is
+    replaced or fails to start; not while it is only paused, not before it was seen running."""
+    s = SpeedSchedule([5.0, 5.0], "gcs-1")
+    assert s.due(0) == 5.0
+    s.begin(2.0)
+    s.begin(5.0)                                          # later changes keep the speed from before
+    assert s.observe("gcs-1", "IDLE", 0, 2) is None      # the start is still on its way (status lags)
+    assert s.observe("gcs-1", "TAKEOFF", 0, 2) is None
+    assert s.observe("gcs-1", "EXECUTING", 1, 2) is None
+    assert s.observe("gcs-1", "HOLDING", 1, 2) is None   # paused: still the mission's speed
+    assert s.observe("gcs-1", "LAND", 2, 2) == 2.0       # last waypoint reached: restored, once
+    assert s.observe("gcs-1", "IDLE", 2, 2) is None and s.restore is None
+    for over in (("gcs-1", "LAND", 1, 2), ("gcs-1", "IDLE", 1, 2), ("gcs-1", "HOLDING", 2, 2)):
+        s.begin(2.0)
+        s.observe("gcs-1", "EXECUTING", 0, 2)
+        assert s.observe(*over) == 2.0, over             # RTL/LAND mid-mission, landed, complete+hold
+    s.begin(2.0)
+    assert s.observe("other", "IDLE", -1, 3) == 2.0      # replaced, even before it ran
+    s.begin(2.0)
+    assert s.end() == 2.0 and s.end() is None            # a failed start: the caller restores
+
+
+def test_safety_status_fence_bits_and_statustext_once_per_change():
+    """Issue 9 #8: no safety/status -> no fence in SYS_STATUS; then present/enabled/healthy from
+    geofence_status; warnings and errors -> STATUSTEXT once when they appear, INFO when cleared."""
+    from aeroperception.schemas import SafetyStatus
+    from aeroperception.services.gcs.safety_relay import SafetyRelay
+    fence = M.MAV_SYS_STATUS_GEOFENCE
+    tel = TelemetryState(HOME)
+    s = tel.sys_status()
+    assert not (s.onboard_control_sensors_present | s.onboard_control_sensors_enabled) & fence
+    tel.safety, tel.safety_rx_s = SafetyStatus(distance_to_geofence_m=50.0), time.monotonic()
+    s = tel.sys_status()
+    assert s.onboard_control_sensors_present & s.onboard_control_sensors_enabled & s.onboard_control_sensors_health & fence
+    tel.safety = SafetyStatus(geofence_status=SafetyStatus.GEOFENCE_VIOLATION, distance_to_geofence_m=-2.0)
+    assert tel.fence_bits() == (fence, fence, 0)                      # breached: present, enabled, unhealthy
+    tel.safety = SafetyStatus(distance_to_geofence_m=None)
+    assert tel.fence_bits() == (fence, 0, fence)                      # safety runs without a fence
+    assert tel.fence_bits(now_s=tel.safety_rx_s + 10.0) == (0, 0, 0)  # safety gone quiet: unknown
+
+    relay = SafetyRelay()
+    st = SafetyStatus(active_warnings=["battery low"], active_errors=["fmu dead"])
+    assert relay.update(st) == [(M.MAV_SEVERITY_CRITICAL, "Safety: fmu dead"), (M.MAV_SEVERITY_WARNING, "Safety: battery low")]
+    assert relay.update(st) == []                                      # repeated at 1 Hz: once only
+    st = SafetyStatus(active_warnings=["battery low"], active_errors=["fmu dead", "geofence breached"],
+                      safety_level=SafetyStatus.LEVEL_EMERGENCY)
+    assert relay.update(st) == [(M.MAV_SEVERITY_EMERGENCY, "Safety: geofence breached")]
+    assert relay.update(SafetyStatus()) == [(M.MAV_SEVERITY_INFO, "Safety: cleared: battery low"),
+                                            (M.MAV_SEVERITY_INFO, "Safety: cleared: fmu dead"),
+                                            (M.MAV_SEVERITY_INFO, "Safety: cleared: geofence breached")]
+
+
+def test_companion_identity_heartbeat_is_an_onboard_computer():
+    """Issue 9 #6: in the vehicle profile gcs is not a second vehicle."""
+    hb = TelemetryState(HOME, companion=True).heartbeat()
+    assert (hb.type, hb.autopilot, hb.base_mode, hb.custom_mode) == (M.MAV_TYPE_ONBOARD_CONTROLLER,
+                                                                     M.MAV_AUTOPILOT_INVALID, 0, 0)
+    hb = TelemetryState(HOME).heartbeat()
+    assert (hb.type, hb.autopilot) == (M.MAV_TYPE_QUADROTOR, M.MAV_AUTOPILOT_PX4)
