@@ -127,6 +127,10 @@ class LidarService(Service):
             self.gravity = f if self.gravity is None else 0.98 * self.gravity + 0.02 * f
 
     def _on_scan(self, msg: PointCloud) -> None:
+        if len(msg) > self.params.max_points:      # garbage, not load: counted as invalid input
+            self.node.report_bad_input("sensors/lidar/points",
+                                       f"{len(msg)} points is more than max_points {self.params.max_points}")
+            return
         now = time.monotonic()
         if now - self.last_scan_s < 1.0 / self.params.processing_rate_hz * 0.8:
             self.worker.dropped += 1
