@@ -3,6 +3,7 @@ queryables, liveliness, diagnostics, parameters), the action pattern, rate loops
 structured logs and the process shell (`Service`, `run`)."""
 from .actions import ActionClient, ActionServer, GoalHandle
 from .clock import Clock
+from .latest import LatestWorker
 from .log import Logger
 from .node import CallError, Health, Node, Publisher, call
 from .params import Param, ParamError, ParamSet
@@ -10,6 +11,6 @@ from .rate import LoopStats, RateLoop
 from .service import Service, run
 
 __all__ = [
-    "ActionClient", "ActionServer", "GoalHandle", "Clock", "Logger", "CallError", "Health", "Node",
+    "ActionClient", "ActionServer", "GoalHandle", "Clock", "LatestWorker", "Logger", "CallError", "Health", "Node",
     "Publisher", "call", "Param", "ParamError", "ParamSet", "LoopStats", "RateLoop", "Service", "run",
 ]

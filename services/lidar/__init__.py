@@ -1,0 +1,1 @@
+"""LiDAR obstacles and rolling costmap (seed 004)."""

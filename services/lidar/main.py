@@ -1,0 +1,224 @@
+"""Process shell: scans + vehicle pose in, obstacles / ground / costmap out.
+
+Scans are processed on one worker thread, newest wins (runtime LatestWorker): a scan that
+arrives while one is processed replaces the pending one and is counted as dropped, so a slow
+machine lowers the output rate instead of growing a queue.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import threading
+import time
+from collections import deque
+
+import numpy as np
+
+from aeroperception.schemas import (
+    DiagnosticStatus, Header, Imu, NDArray, OccupancyGrid, PointCloud, Pose, Quaternion, SchemaError, Vector3, VehicleState,
+)
+from aeroperception.services.runtime import Health, LatestWorker, Service, run
+from aeroperception.services.runtime.rotations import quat_from_euler, quat_to_rotmat
+
+from . import contract
+from .costmap import CostmapConfig, RollingCostmap
+from .pipeline import ObstaclePipeline, PipelineConfig, ScanError
+
+WORLD_FRAME = "map"
+
+
+def pipeline_config(p) -> PipelineConfig:
+    """The pipeline's settings are parameters of the same names."""
+    return PipelineConfig(**{f.name: p[f.name] for f in dataclasses.fields(PipelineConfig)})
+
+
+def costmap_config(p) -> CostmapConfig:
+    return CostmapConfig(size_m=p["costmap_size_m"], resolution_m=p["costmap_resolution_m"],
+                         obstacle_range_m=p["obstacle_range_m"], raytrace_range_m=p["raytrace_range_m"],
+                         mark_threshold=p["mark_threshold"], inscribed_radius_m=p["inscribed_radius_m"],
+                         inflation_radius_m=p["inflation_radius_m"], cost_scaling_factor=p["cost_scaling_factor"])
+
+
+def gravity_levelling(f_body: np.ndarray) -> np.ndarray:
+    """R_level_body from the measured specific force (points up at rest), yaw left at zero."""
+    fx, fy, fz = f_body
+    roll = math.atan2(fy, fz)
+    pitch = math.atan2(-fx, math.hypot(fy, fz))
+    return quat_to_rotmat(quat_from_euler(roll, pitch, 0.0))
+
+
+class PoseHistory:
+    """The last ~2 s of vehicle poses, to place a scan with the pose at its stamp."""
+
+    def __init__(self, horizon_s: float = 2.0):
+        self._buf: deque[tuple[int, np.ndarray, np.ndarray]] = deque(maxlen=int(horizon_s * 200))
+        self._lock = threading.Lock()
+
+    def add(self, stamp_ns: int, position: np.ndarray, r_world_body: np.ndarray) -> None:
+        with self._lock:
+            self._buf.append((stamp_ns, position, r_world_body))
+
+    def at(self, stamp_ns: int, max_age_s: float) -> tuple[np.ndarray, np.ndarray] | None:
+        with self._lock:
+            if not self._buf:
+                return None
+            best = min(self._buf, key=lambda e: abs(e[0] - stamp_ns))
+        if abs(best[0] - stamp_ns) > max_age_s * 1e9:
+            return None
+        return best[1], best[2]
+
+
+class LidarService(Service):
+    """LiDAR obstacle pipeline and rolling costmap (seed 004)."""
+
+    NAME = contract.NAME
+    PARAMS = contract.PARAMS
+
+    def start(self) -> None:
+        p = self.params
+        self.pipeline = ObstaclePipeline(pipeline_config(p))
+        self.costmap = RollingCostmap(costmap_config(p))
+        self.poses = PoseHistory()
+        self.gravity: np.ndarray | None = None
+        self.refused = 0
+        self.scans = 0
+        self.no_pose = 0
+        self.last_counts: dict[str, int] = {}
+        self.timings: dict[str, deque[float]] = {}
+        self.last_scan_s = 0.0
+        self.last_ground_s = 0.0
+        self.ground_found = False
+        self.last_pose_ok = False
+        self._config_lock = threading.Lock()
+        p.on_change(self._on_param)
+        self.pub_obstacles = self.node.publisher("perception/obstacles", PointCloud)
+        self.pub_ground = self.node.publisher("perception/ground", PointCloud)
+        self.pub_costmap = self.node.publisher("perception/costmap", OccupancyGrid)
+        self.worker = LatestWorker(self._process, "lidar-scan", on_error=self._on_error)
+        self.node.subscribe("state/vehicle", VehicleState, self._on_state)
+        self.node.subscribe("sensors/imu", Imu, self._on_imu)
+        self.node.subscribe("sensors/lidar/points", PointCloud, self._on_scan)
+
+    def stop(self) -> None:
+        self.worker.stop()
+
+    # ------------------------------------------------------------ inputs (node threads)
+
+    def _on_param(self, name, value) -> None:
+        with self._config_lock:
+            self.pipeline.cfg = pipeline_config(self.params)
+            if name.startswith("costmap_") or name in ("obstacle_range_m", "raytrace_range_m", "mark_threshold",
+                                                        "inscribed_radius_m", "inflation_radius_m",
+                                                        "cost_scaling_factor"):
+                cfg = costmap_config(self.params)
+                if (cfg.size_m, cfg.resolution_m) != (self.costmap.cfg.size_m, self.costmap.cfg.resolution_m):
+                    self.costmap = RollingCostmap(cfg)
+                else:
+                    self.costmap.cfg = cfg
+
+    def _on_state(self, msg: VehicleState) -> None:
+        if not msg.connected:
+            return
+        self.poses.add(msg.header.stamp_ns, msg.position_m.to_array(), quat_to_rotmat(msg.orientation.to_array()))
+
+    def _on_imu(self, msg: Imu) -> None:
+        f = msg.linear_acceleration_mps2.to_array()
+        if np.all(np.isfinite(f)):
+            self.gravity = f if self.gravity is None else 0.98 * self.gravity + 0.02 * f
+
+    def _on_scan(self, msg: PointCloud) -> None:
+        if len(msg) > self.params.max_points:      # garbage, not load: counted as invalid input
+            self.node.report_bad_input("sensors/lidar/points",
+                                       f"{len(msg)} points is more than max_points {self.params.max_points}")
+            return
+        now = time.monotonic()
+        if now - self.last_scan_s < 1.0 / self.params.processing_rate_hz * 0.8:
+            self.worker.dropped += 1
+            return
+        self.last_scan_s = now
+        # The decoded arrays are views into Zenoh's buffer: copy before handing to the worker.
+        self.worker.offer((msg.header.stamp_ns, np.array(msg.points.to_numpy())))
+
+    # ------------------------------------------------------------ processing (worker thread)
+
+    def _on_error(self, e: BaseException) -> None:
+        if isinstance(e, (ScanError, SchemaError)):
+            self.node.report_bad_input("sensors/lidar/points", str(e))
+        else:
+            self.node.callback_errors["lidar-scan"] += 1
+            self.log.throttled("error", "scan", "scan_failed", error=f"{type(e).__name__}: {e}")
+
+    def _mount(self) -> tuple[np.ndarray, np.ndarray]:
+        p = self.params
+        r = quat_to_rotmat(quat_from_euler(*np.radians([p.mount_roll_deg, p.mount_pitch_deg, p.mount_yaw_deg])))
+        return r, np.array([p.mount_x_m, p.mount_y_m, p.mount_z_m])
+
+    def _process(self, item: tuple[int, np.ndarray]) -> None:
+        stamp_ns, points = item
+        r_bs, t_bs = self._mount()
+        pose = self.poses.at(stamp_ns, self.params.pose_max_age_s)
+        if pose is not None:
+            pos, r_wb = pose
+            r_level_sensor = r_wb @ r_bs
+            sensor_offset = r_wb @ t_bs            # sensor relative to the vehicle, levelled axes
+        else:
+            self.no_pose += 1
+            if self.gravity is None or not self.params.use_imu_tilt:
+                r_level_body = np.eye(3)
+            else:
+                r_level_body = gravity_levelling(self.gravity)
+            r_level_sensor, sensor_offset, pos = r_level_body @ r_bs, r_level_body @ t_bs, None
+        with self._config_lock:
+            res = self.pipeline.process(points, r_level_sensor, float(sensor_offset[2]))
+            t0 = time.perf_counter()
+            if pos is not None:
+                origin = pos + sensor_offset
+                cm = self.costmap
+                cm.recenter(pos[0], pos[1])
+                cm.update(origin[:2], res.obstacles[:, :2] + origin[:2], res.downsampled[:, :2] + origin[:2],
+                          res.ground[:, :2] + origin[:2])
+                grid = cm.inflated()
+                ox, oy = cm.origin_m
+            res.timings_ms["costmap"] = (time.perf_counter() - t0) * 1e3
+        self.scans += 1
+        self.ground_found = res.plane.found
+        self.last_pose_ok = pos is not None
+        self.last_counts = res.counts
+        for k, v in res.timings_ms.items():
+            self.timings.setdefault(k, deque(maxlen=100)).append(v)
+        self.timings.setdefault("total", deque(maxlen=100)).append(sum(res.timings_ms.values()))
+        if pos is None:
+            hdr = Header(stamp_ns=stamp_ns, frame_id="lidar_level")
+            self.pub_obstacles.publish(PointCloud.from_numpy(res.obstacles, header=hdr))
+            return
+        hdr = Header(stamp_ns=stamp_ns, frame_id=WORLD_FRAME)
+        self.pub_obstacles.publish(PointCloud.from_numpy(res.obstacles + origin.astype(np.float32), header=hdr))
+        self.pub_costmap.publish(OccupancyGrid(
+            header=hdr, resolution_m=cm.cfg.resolution_m, width=cm.n, height=cm.n,
+            origin=Pose(position=Vector3(x=ox, y=oy, z=0.0), orientation=Quaternion()),
+            data=NDArray.from_numpy(grid)))
+        now = time.monotonic()
+        if now - self.last_ground_s >= self.params.ground_publish_period_s:
+            self.last_ground_s = now
+            self.pub_ground.publish(PointCloud.from_numpy(res.ground + origin.astype(np.float32), header=hdr))
+
+    # ------------------------------------------------------------ diagnostics
+
+    def health(self) -> Health:
+        values: dict[str, object] = {"scans": self.scans, "dropped": self.worker.dropped, "no_pose": self.no_pose,
+                                     "ground_found": self.ground_found, **self.last_counts}
+        for k, d in self.timings.items():
+            if d:
+                values[f"{k}_ms_p50"] = round(float(np.percentile(d, 50)), 2)
+                values[f"{k}_ms_p99"] = round(float(np.percentile(d, 99)), 2)
+        if self.scans == 0:
+            return Health(DiagnosticStatus.WARN, "no scan processed yet", values)
+        if not self.last_pose_ok:
+            return Health(DiagnosticStatus.WARN, "no vehicle pose: obstacles in the levelled sensor frame only", values)
+        if not self.ground_found:
+            return Health(DiagnosticStatus.WARN, "no ground plane in the last scan (using the previous one)", values)
+        return Health(DiagnosticStatus.OK, "ok", values)
+
+
+def main(argv=None) -> int:
+    return run(LidarService, argv)
