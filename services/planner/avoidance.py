@@ -1,0 +1,257 @@
+"""Obstacle-aware velocity (seed 000 §5.2's growth hook) over the lidar service's costmap.
+
+The waypoint planner says where to go; this decides how to get there horizontally without
+touching anything the costmap calls inscribed or lethal:
+- a path: Dijkstra from the vehicle's cell over a coarsened copy of the costmap (cells >= 99
+  blocked, inflation costs make it keep its distance), to the reachable cell that minimises
+  path cost + straight distance on to the goal — so a goal outside the window or behind a
+  building is approached around it, and a goal inside an obstacle is reported unreachable;
+- a carrot `lookahead_m` along that path gives the direction; the speed is the waypoint
+  planner's, scaled down as the nearest obstacle ahead comes within `slow_distance_m`;
+- a last check: a velocity whose next `check_horizon_s` crosses a blocked cell becomes zero.
+Boxed in (no path) -> hold, with the reason. Vertical motion is left to the waypoint planner:
+the costmap is 2D at the flight altitude.
+Plain numpy + scipy.sparse.csgraph (Dijkstra in C); replanned per costmap, not per setpoint.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+BLOCKED = 99          # inscribed and lethal cells (OccupancyGrid 0..100)
+GO_WEIGHT = 2.0       # score of a reachable cell = path cost + GO_WEIGHT * straight distance to the goal
+
+
+@dataclass(frozen=True)
+class AvoidanceConfig:
+    cell_m: float = 0.2                 # planning resolution (costmap cells are pooled to this)
+    lookahead_m: float = 1.5
+    slow_distance_m: float = 4.0        # full speed while the nearest obstacle ahead is farther
+    stop_distance_m: float = 0.9        # zero speed this close to a blocked cell ahead
+    cost_weight: float = 4.0            # path cost per metre = 1 + cost_weight * cost / 98
+    check_horizon_s: float = 0.6
+    costmap_timeout_s: float = 0.5
+
+
+@dataclass
+class Avoidance:
+    velocity_mps: np.ndarray            # horizontal part replaced; z kept
+    state: str                          # "clear" | "avoiding" | "blocked" | "unreachable" | "no_costmap"
+    reason: str = ""
+    path_xy: np.ndarray | None = None
+
+
+class CostmapView:
+    """A costmap pooled to the planning resolution (max of each block: conservative)."""
+
+    def __init__(self, data: np.ndarray, origin_xy: tuple[float, float], resolution_m: float,
+                 cell_m: float, stamp_s: float):
+        k = max(1, int(round(cell_m / resolution_m)))
+        h, w = (data.shape[0] // k) * k, (data.shape[1] // k) * k
+        d = data[:h, :w].astype(np.int16)
+        unknown = d < 0
+        d = np.where(unknown, 0, d)
+        self.cost = d.reshape(h // k, k, w // k, k).max(axis=(1, 3))
+        self.origin = np.asarray(origin_xy, dtype=float)
+        self.res = resolution_m * k
+        self.stamp_s = stamp_s
+
+    def cell(self, xy: np.ndarray) -> np.ndarray:
+        return np.floor((np.asarray(xy, float) - self.origin) / self.res).astype(np.int64)
+
+    def centre(self, rc: np.ndarray) -> np.ndarray:
+        return self.origin + (np.asarray(rc)[..., ::-1] + 0.5) * self.res     # (row, col) -> (x, y)
+
+    def inside(self, cxy: np.ndarray) -> bool:
+        h, w = self.cost.shape
+        return 0 <= cxy[0] < w and 0 <= cxy[1] < h
+
+    def cost_at(self, xy: np.ndarray) -> int:
+        c = self.cell(xy)
+        return int(self.cost[c[1], c[0]]) if self.inside(c) else 0
+
+
+class LocalPlanner:
+    def __init__(self, cfg: AvoidanceConfig | None = None):
+        self.cfg = cfg or AvoidanceConfig()
+        self.view: CostmapView | None = None
+        self._plan_key: tuple | None = None
+        self._path: np.ndarray | None = None
+        self._path_goal: np.ndarray | None = None
+        self._state = ("clear", "")
+
+    def set_costmap(self, data: np.ndarray, origin_xy, resolution_m: float, stamp_s: float) -> None:
+        self.view = CostmapView(data, origin_xy, resolution_m, self.cfg.cell_m, stamp_s)
+
+    def needs_plan(self, position_m: np.ndarray, goal_m: np.ndarray) -> bool:
+        """Whether a (slow, ~10-30 ms) replan is worth it: only when the straight way to the goal
+        is not free, and the vehicle, the goal or the costmap moved on since the last plan."""
+        view = self.view
+        if view is None:
+            return False
+        p, g = np.asarray(position_m[:2], float), np.asarray(goal_m[:2], float)
+        to_goal = g - p
+        dist = float(np.hypot(*to_goal))
+        if dist < 1e-3 or self._free_line(p, to_goal / dist, min(dist, self.cfg.slow_distance_m)):
+            return False
+        return (tuple(view.cell(p)), tuple(np.round(g, 1)), view.stamp_s) != self._plan_key
+
+    def replan(self, position_m: np.ndarray, goal_m: np.ndarray) -> None:
+        """Plan on the current costmap (off the setpoint path: the service runs it on a worker)."""
+        if self.view is None:
+            return
+        p, g = np.asarray(position_m[:2], float), np.asarray(goal_m[:2], float)
+        self._plan_key = (tuple(self.view.cell(p)), tuple(np.round(g, 1)), self.view.stamp_s)
+        self._path, self._state = self._plan(p, g)
+        self._path_goal = g
+
+    # ------------------------------------------------------------ per setpoint (cheap)
+
+    def adjust(self, position_m: np.ndarray, goal_m: np.ndarray, velocity_mps: np.ndarray,
+               now_s: float) -> Avoidance:
+        """The velocity to command now: the straight one where the way is free, else along the
+        latest plan, slowed near obstacles, never into a blocked cell. No planning here."""
+        cfg, view = self.cfg, self.view
+        v = np.asarray(velocity_mps, float).copy()
+        if view is None or now_s - view.stamp_s > cfg.costmap_timeout_s:
+            return Avoidance(v, "no_costmap", "no fresh perception/costmap")
+        speed = float(np.hypot(v[0], v[1]))
+        if speed < 1e-3:
+            return Avoidance(v, "clear")
+        p, g = np.asarray(position_m[:2], float), np.asarray(goal_m[:2], float)
+        to_goal = g - p
+        dist_goal = float(np.hypot(*to_goal))
+        straight_dir = to_goal / max(1e-6, dist_goal)
+        state, reason = "clear", ""
+        if self._free_line(p, straight_dir, min(dist_goal, cfg.slow_distance_m)):
+            direction = straight_dir                  # line of sight: no lattice zig-zag
+        elif self._path is None or self._path_goal is None or np.hypot(*(self._path_goal - g)) > 0.1:
+            state, reason = self._state if self._path_goal is not None and self._path is None else (
+                "blocked", "planning a way around an obstacle")
+            v[:2] = 0.0
+            return Avoidance(v, state, reason)
+        else:
+            d = _along(self._path, p, cfg.lookahead_m) - p
+            n = float(np.hypot(*d))
+            direction = d / n if n > 1e-6 else straight_dir
+            state = "avoiding"
+        clearance = self._clearance(p, direction)
+        scale = np.clip((clearance - cfg.stop_distance_m) / (cfg.slow_distance_m - cfg.stop_distance_m), 0.0, 1.0)
+        # Never slower than needed to creep out when the goal itself is close.
+        v[:2] = direction * speed * max(scale, 0.15 if clearance > cfg.stop_distance_m else 0.0)
+        if self._crosses_blocked(p, v[:2]):
+            v[:2] = 0.0
+            return Avoidance(v, "blocked", "obstacle ahead within the check horizon", self._path)
+        if state == "clear" and scale < 1.0:
+            state = "avoiding"
+        return Avoidance(v, state, reason, self._path)
+
+    # ------------------------------------------------------------ planning
+
+    def _plan(self, p: np.ndarray, g: np.ndarray) -> tuple[np.ndarray | None, tuple[str, str]]:
+        from scipy.sparse import csr_matrix
+        from scipy.sparse.csgraph import dijkstra
+
+        view, cfg = self.view, self.cfg
+        cost = view.cost
+        h, w = cost.shape
+        start = view.cell(p)
+        if not view.inside(start):
+            return None, ("blocked", "vehicle outside the costmap")
+        gcell = view.cell(g)
+        if view.inside(gcell) and cost[gcell[1], gcell[0]] >= BLOCKED:
+            return None, ("unreachable", f"goal ({g[0]:.1f}, {g[1]:.1f}) is inside an obstacle")
+        free = cost < BLOCKED
+        # The vehicle may already be inside the inflation of something: let it leave.
+        sr, sc = start[1], start[0]
+        r = max(1, int(math.ceil(0.5 / view.res)))
+        free[max(0, sr - r):sr + r + 1, max(0, sc - r):sc + r + 1] |= cost[max(0, sr - r):sr + r + 1,
+                                                                          max(0, sc - r):sc + r + 1] < 100
+        step_cost = 1.0 + cfg.cost_weight * np.clip(cost, 0, 98) / 98.0
+        idx = np.arange(h * w).reshape(h, w)
+        rows, cols, wts = [], [], []
+        for dr, dc in ((0, 1), (1, 0), (1, 1), (1, -1)):
+            a = idx[max(0, -dr):h - max(0, dr), max(0, -dc):w - max(0, dc)]
+            b = idx[max(0, dr):h - max(0, -dr) or None, max(0, dc):w - max(0, -dc) or None]
+            fa, fb = free.ravel()[a.ravel()], free.ravel()[b.ravel()]
+            ok = fa & fb
+            length = math.hypot(dr, dc) * view.res
+            c = 0.5 * (step_cost.ravel()[a.ravel()] + step_cost.ravel()[b.ravel()]) * length
+            rows += [a.ravel()[ok], b.ravel()[ok]]
+            cols += [b.ravel()[ok], a.ravel()[ok]]
+            wts += [c[ok], c[ok]]
+        graph = csr_matrix((np.concatenate(wts), (np.concatenate(rows), np.concatenate(cols))), shape=(h * w, h * w))
+        s = int(start[1] * w + start[0])
+        dist, pred = dijkstra(graph, indices=s, return_predecessors=True)
+        reach = np.isfinite(dist)
+        if reach.sum() <= 1:
+            return None, ("blocked", "boxed in: no free cell around the vehicle on the costmap")
+        if view.inside(gcell):
+            way_out = reach[gcell[1] * w + gcell[0]]
+        else:
+            border = np.zeros((h, w), bool)
+            border[[0, -1], :] = border[:, [0, -1]] = True
+            way_out = bool(reach[border.ravel()].any())
+        if not way_out:
+            return None, ("blocked", "boxed in: no way to the goal on the costmap")
+        centres = view.centre(np.stack(np.unravel_index(np.arange(h * w), (h, w)), axis=1))
+        to_go = np.hypot(centres[:, 0] - g[0], centres[:, 1] - g[1])
+        # Weighting the distance still to go above the path walked rewards progress, so in free
+        # space the goal (or the window's edge towards it) wins over staying put.
+        score = np.where(reach, dist + GO_WEIGHT * to_go, np.inf)
+        best = int(np.argmin(score))
+        if best == s and to_go[s] > 1.0:
+            return None, ("blocked", "no way towards the goal on the costmap")
+        path = [best]
+        for _ in range(h * w):                                  # bounded walk back to the start
+            if path[-1] == s:
+                break
+            path.append(int(pred[path[-1]]))
+        cells = np.stack(np.unravel_index(np.array(path[::-1]), (h, w)), axis=1)
+        return np.vstack([p, view.centre(cells)[1:]]) if len(cells) > 1 else np.vstack([p, g]), ("avoiding", "")
+
+    def _clearance(self, p: np.ndarray, direction: np.ndarray) -> float:
+        """Distance to the first blocked cell within a vehicle-wide corridor ahead (m)."""
+        view, cfg = self.view, self.cfg
+        ds = np.arange(view.res, cfg.slow_distance_m + view.res, view.res * 0.5)
+        c = view.cell(p + np.outer(ds, direction))
+        h, w = view.cost.shape
+        ok = (c[:, 0] >= 0) & (c[:, 0] < w) & (c[:, 1] >= 0) & (c[:, 1] < h)
+        hit = np.zeros(len(ds), bool)
+        hit[ok] = view.cost[c[ok, 1], c[ok, 0]] >= 100
+        return float(ds[np.argmax(hit)]) if hit.any() else math.inf
+
+    def _free_line(self, p: np.ndarray, direction: np.ndarray, length_m: float) -> bool:
+        view = self.view
+        ds = np.arange(0.0, length_m + 1e-9, 0.5 * view.res)
+        c = view.cell(p + np.outer(ds, direction))
+        h, w = view.cost.shape
+        ok = (c[:, 0] >= 0) & (c[:, 0] < w) & (c[:, 1] >= 0) & (c[:, 1] < h)
+        cost = view.cost[c[ok, 1], c[ok, 0]]
+        here = view.cost_at(p)
+        return bool(np.all(cost < BLOCKED) or (here >= BLOCKED and np.all(cost[1:] <= here)))
+
+    def _crosses_blocked(self, p: np.ndarray, v_xy: np.ndarray) -> bool:
+        """Whether moving at v for check_horizon_s enters a blocked cell (starting outside one)."""
+        view = self.view
+        if view.cost_at(p) >= BLOCKED:
+            return view.cost_at(p + v_xy * self.cfg.check_horizon_s) >= 100
+        n = max(2, int(np.hypot(*v_xy) * self.cfg.check_horizon_s / (0.5 * view.res)) + 1)
+        for t in np.linspace(0, self.cfg.check_horizon_s, n)[1:]:
+            if view.cost_at(p + v_xy * t) >= BLOCKED:
+                return True
+        return False
+
+
+def _along(path: np.ndarray, p: np.ndarray, lookahead_m: float) -> np.ndarray:
+    """The point `lookahead_m` along the path from its point nearest to p."""
+    i = int(np.argmin(np.hypot(*(path - p).T)))
+    left = lookahead_m
+    for a, b in zip(path[i:], path[i + 1:]):
+        seg = float(np.hypot(*(b - a)))
+        if seg >= left:
+            return a + (b - a) * (left / seg)
+        left -= seg
+    return path[-1]

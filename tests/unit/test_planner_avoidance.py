@@ -1,0 +1,108 @@
+"""Obstacle-aware velocity over a costmap (issue 11 item 3): around walls, never into blocked
+cells, stop when boxed in, refuse goals inside obstacles; unchanged in free space."""
+import math
+
+import numpy as np
+import pytest
+
+from aeroperception.services.planner.avoidance import AvoidanceConfig, LocalPlanner
+
+
+def costmap(walls=(), size=200, res=0.1):
+    """A 20 x 20 m grid centred on (0, 0): each wall (x0, y0, x1, y1) lethal, inflated like the
+    lidar service (inscribed 0.4 m, decay to 1.5 m)."""
+    import cv2
+
+    g = np.zeros((size, size), np.int8)
+    o = -size * res / 2
+    for x0, y0, x1, y1 in walls:
+        c0, r0 = int((x0 - o) / res), int((y0 - o) / res)
+        c1, r1 = int((x1 - o) / res), int((y1 - o) / res)
+        g[r0:r1 + 1, c0:c1 + 1] = 100
+    lethal = g == 100
+    d = cv2.distanceTransform((~lethal).astype(np.uint8), cv2.DIST_L2, 5) * res
+    infl = np.where(d <= 0.4, 99, np.floor(98 * np.exp(-3 * (d - 0.4))))
+    infl = np.where(d <= 1.5, infl, 0)
+    g = np.where(lethal, 100, infl).astype(np.int8)
+    return g, (o, o), res
+
+
+def fly(lp, start, goal, speed=2.0, dt=0.1, steps=400):
+    """Integrate the commanded horizontal velocity; returns the track."""
+    p = np.array(start, float)
+    track = [p.copy()]
+    for _ in range(steps):
+        err = np.array(goal, float) - p
+        dist = float(np.hypot(*err))
+        if dist < 0.3:
+            break
+        v = np.array([*(err / dist * min(speed, dist)), 0.0])
+        if lp.needs_plan(p, goal):                         # the service replans on a worker
+            lp.replan(p, goal)
+        out = lp.adjust(np.array([*p, 3.0]), np.array([*goal, 3.0]), v, now_s=0.0)
+        p = p + out.velocity_mps[:2] * dt
+        track.append(p.copy())
+    return np.array(track), out
+
+
+def lethal_distance(track, walls):
+    d = math.inf
+    for x0, y0, x1, y1 in walls:
+        dx = np.maximum(0, np.maximum(x0 - track[:, 0], track[:, 0] - x1))
+        dy = np.maximum(0, np.maximum(y0 - track[:, 1], track[:, 1] - y1))
+        d = min(d, float(np.min(np.hypot(dx, dy))))
+    return d
+
+
+def planner(walls=(), at=(0.0, 0.0), goal=None):
+    lp = LocalPlanner(AvoidanceConfig())
+    lp.set_costmap(*costmap(walls), stamp_s=0.0)
+    if goal is not None and lp.needs_plan(np.array(at), np.array(goal)):
+        lp.replan(np.array(at), np.array(goal))
+    return lp
+
+
+def test_free_space_leaves_the_velocity_alone():
+    lp = planner()
+    out = lp.adjust(np.array([0, 0, 3.0]), np.array([8, 0, 3.0]), np.array([2.0, 0, 0.5]), 0.0)
+    assert out.state == "clear" and out.velocity_mps == pytest.approx([2.0, 0, 0.5], abs=1e-6)
+
+
+def test_goes_around_a_wall_across_the_straight_line_and_keeps_clear():
+    walls = [(3.0, -3.0, 3.4, 3.0)]                        # 6 m wall across the way at x = 3
+    track, out = fly(planner(walls), (-4, 0), (8, 0))
+    assert np.hypot(*(track[-1] - (8, 0))) < 0.3, "goal not reached"
+    assert lethal_distance(track, walls) > 0.4             # never into the inscribed radius
+
+
+def test_goal_inside_an_obstacle_is_unreachable_and_holds():
+    lp = planner([(4.0, -1.0, 6.0, 1.0)], goal=(5, 0))
+    out = lp.adjust(np.array([0, 0, 3.0]), np.array([5, 0, 3.0]), np.array([2.0, 0, 0]), 0.0)
+    assert out.state == "unreachable" and "inside an obstacle" in out.reason
+    assert out.velocity_mps[:2] == pytest.approx([0, 0])
+
+
+def test_boxed_in_holds_with_the_reason():
+    walls = [(-2, -2, 2, -1.8), (-2, 1.8, 2, 2), (-2, -2, -1.8, 2), (1.8, -2, 2, 2)]
+    lp = planner(walls, goal=(8, 0))
+    out = lp.adjust(np.array([0, 0, 3.0]), np.array([8, 0, 3.0]), np.array([2.0, 0, 0]), 0.0)
+    assert out.state == "blocked" and "boxed in" in out.reason and out.velocity_mps[:2] == pytest.approx([0, 0])
+
+
+def test_never_commands_into_a_blocked_cell_even_when_told_to():
+    lp = planner([(1.0, -5, 1.2, 5)], goal=(9, 0))        # a long wall 1 m ahead
+    out = lp.adjust(np.array([0, 0, 3.0]), np.array([9, 0, 3.0]), np.array([2.0, 0, 0]), 0.0)
+    assert out.velocity_mps[0] <= 1e-6 or out.state in ("avoiding", "blocked")
+    p = np.array([0.0, 0.0])
+    for _ in range(100):
+        if lp.needs_plan(p, (9, 0)):
+            lp.replan(p, (9, 0))
+        out = lp.adjust(np.array([*p, 3.0]), np.array([9, 0, 3.0]), np.array([2.0, 0, 0]), 0.0)
+        p = p + out.velocity_mps[:2] * 0.05
+        assert p[0] < 1.0 - 0.4 + 1e-6 or abs(p[1]) > 5.4
+
+
+def test_stale_costmap_is_reported_not_trusted():
+    lp = planner([(3.0, -3.0, 3.4, 3.0)], goal=(8, 0))
+    out = lp.adjust(np.array([0, 0, 3.0]), np.array([8, 0, 3.0]), np.array([2.0, 0, 0]), now_s=5.0)
+    assert out.state == "no_costmap"
