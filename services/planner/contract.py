@@ -1,6 +1,6 @@
 """Contract of the planner: keys in/out (ENU) and parameters."""
 from aeroperception.schemas import (
-    PoseStamped, TrajectorySetpoint, TrajectoryStatus, VehicleState, WaypointReached,
+    OccupancyGrid, PoseStamped, TrajectorySetpoint, TrajectoryStatus, VehicleState, WaypointReached,
 )
 from aeroperception.services.runtime import Param
 
@@ -9,6 +9,8 @@ INPUTS = {
     "state/vehicle": VehicleState,
     # The goal to fly to. header.frame_id == "hold" means: stop and hold where you are.
     "mission/active_goal": PoseStamped,
+    # The lidar service's rolling costmap: obstacle-aware velocity (planner/avoidance.py).
+    "perception/costmap": OccupancyGrid,
 }
 OUTPUTS = {
     "fmu/in/trajectory_setpoint": TrajectorySetpoint,   # 50 Hz, always
@@ -22,4 +24,9 @@ PARAMS = [
     Param("acceptance_radius_m", 0.5, "m", 0.05, 10.0, description="goal counts as reached inside this"),
     Param("rate_hz", 50.0, "Hz", 10.0, 200.0, description="setpoint rate"),
     Param("state_timeout_s", 0.5, "s", 0.05, 5.0, description="older vehicle state -> hold, status ERROR"),
+    Param("obstacle_avoidance", True, description="steer around perception/costmap obstacles (off: straight lines)"),
+    Param("avoid_lookahead_m", 1.5, "m", 0.3, 10.0, description="carrot distance along the planned way"),
+    Param("avoid_slow_distance_m", 4.0, "m", 1.0, 20.0, description="slow down when an obstacle ahead is nearer"),
+    Param("avoid_stop_distance_m", 0.9, "m", 0.3, 5.0, description="zero speed this close to an obstacle ahead"),
+    Param("costmap_timeout_s", 0.5, "s", 0.1, 5.0, description="older costmap -> flown as if none (status says so)"),
 ]

@@ -5,12 +5,18 @@ import math
 import time
 
 from aeroperception.schemas import (
-    DiagnosticStatus, Header, PoseStamped, TrajectoryStatus, VehicleState, WaypointReached,
+    DiagnosticStatus, Header, OccupancyGrid, PoseStamped, TrajectoryStatus, Vector3, VehicleState, WaypointReached,
 )
-from aeroperception.services.runtime import Health, Service, run
+from aeroperception.services.runtime import Health, LatestWorker, Service, run
 
 from . import contract
+from .avoidance import AvoidanceConfig, LocalPlanner
 from .logic import Goal, WaypointPlanner
+
+
+def avoidance_config(p) -> AvoidanceConfig:
+    return AvoidanceConfig(lookahead_m=p.avoid_lookahead_m, slow_distance_m=p.avoid_slow_distance_m,
+                           stop_distance_m=p.avoid_stop_distance_m, costmap_timeout_s=p.costmap_timeout_s)
 
 
 class PlannerService(Service):
@@ -34,11 +40,38 @@ class PlannerService(Service):
         self.pub_reached = self.node.publisher("planner/waypoint_reached", WaypointReached)
         self.node.subscribe("state/vehicle", VehicleState, self._on_state)
         self.node.subscribe("mission/active_goal", PoseStamped, self._on_goal, strict=True)
+        # Obstacles: plans run on their own thread (10-30 ms), the setpoint path only steers.
+        self.avoid = LocalPlanner(avoidance_config(p))
+        self.obstacle_state, self.obstacle_reason = ("off", "") if not p.obstacle_avoidance else ("no_costmap", "")
+        self.replanner = LatestWorker(lambda pg: self.avoid.replan(*pg), "planner-replan",
+                                      on_error=lambda e: self.log.throttled("error", "replan", "replan_failed",
+                                                                            error=f"{type(e).__name__}: {e}"))
+        self.node.subscribe("perception/costmap", OccupancyGrid, self._on_costmap)
         self.last_pub_s = 0.0
         self.loop = self.node.every(1.0 / p.rate_hz, self._tick, name="setpoint")
         self.node.every(0.1, self._publish_status, name="status")
 
+    def stop(self) -> None:
+        self.replanner.stop()
+
+    def _on_costmap(self, msg: OccupancyGrid) -> None:
+        o = msg.origin.position
+        self.avoid.set_costmap(msg.data.to_numpy(), (o.x, o.y), msg.resolution_m, time.monotonic())
+        self._maybe_replan()
+
+    def _maybe_replan(self) -> None:
+        g = self.planner.goal
+        if g is None or not self.state_fresh() or not self.params.obstacle_avoidance:
+            return
+        pos = self.state.position_m.to_array()
+        if self.avoid.needs_plan(pos, g.position_m):
+            self.replanner.offer((pos, g.position_m.copy()))
+
     def _on_param(self, name, value) -> None:
+        if name.startswith("avoid_") or name == "costmap_timeout_s":
+            self.avoid.cfg = avoidance_config(self.params)
+        elif name == "obstacle_avoidance":
+            self.obstacle_state, self.obstacle_reason = ("no_costmap", "") if value else ("off", "")
         if name in ("max_velocity_mps", "kp", "acceptance_radius_m"):
             setattr(self.planner, name, value)
         elif name == "rate_hz":
@@ -73,6 +106,11 @@ class PlannerService(Service):
             return  # no state: send nothing; fmu holds on its own after 100 ms of silence
         st = self.state
         res = self.planner.step(st.position_m.to_array(), st.yaw_rad)
+        if self.params.obstacle_avoidance and self.planner.goal is not None:
+            out = self.avoid.adjust(st.position_m.to_array(), self.planner.goal.position_m,
+                                    res.setpoint.velocity_mps.to_array(), time.monotonic())
+            res.setpoint.velocity_mps = Vector3.from_array(out.velocity_mps)
+            self.obstacle_state, self.obstacle_reason = out.state, out.reason
         res.setpoint.header = Header(stamp_ns=st.header.stamp_ns, frame_id="map")
         self.pub_sp.publish(res.setpoint)
         self.last_pub_s = time.monotonic()
@@ -88,13 +126,18 @@ class PlannerService(Service):
         self.pub_status.publish(TrajectoryStatus(
             header=self.node.header("map"), status=status,
             trajectory_id=f"goal-{self.goals_received}",
-            position_error_m=self.last_distance or 0.0))
+            position_error_m=self.last_distance or 0.0,
+            obstacle_state=self.obstacle_state, message=self.obstacle_reason))
+        self._maybe_replan()   # 10 Hz: the vehicle moved on since the last costmap
 
     def health(self) -> Health:
         if not self.state_fresh():
             return Health(DiagnosticStatus.ERROR, "no fresh state/vehicle: not publishing setpoints")
-        return Health(DiagnosticStatus.OK, "holding" if self.planner.goal is None else "tracking goal",
-                      {"distance_m": self.last_distance if self.last_distance is not None else "n/a"})
+        values = {"distance_m": self.last_distance if self.last_distance is not None else "n/a",
+                  "obstacles": self.obstacle_state, "replans": self.replanner.processed}
+        if self.obstacle_state in ("blocked", "unreachable"):
+            return Health(DiagnosticStatus.WARN, f"holding: {self.obstacle_reason}", values)
+        return Health(DiagnosticStatus.OK, "holding" if self.planner.goal is None else "tracking goal", values)
 
 
 def main(argv=None) -> int:
