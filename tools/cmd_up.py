@@ -56,7 +56,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--scenario", default=None, help="sim: scenario world (open_field, village, slope_forest)")
     p.add_argument("--speed", type=float, default=None, help="sim: run faster than real time (services follow sim/clock)")
     p.add_argument("--seed", type=int, default=None, help="sim: random seed (wind, noise)")
-    p.add_argument("--sensors", default=None, choices=["all", "imu", "none"],
+    p.add_argument("--sensors", default=None, choices=["all", "lidar", "imu", "none"],
                    help="sim: which scenario sensors to render (none: vehicle and truth only, least CPU)")
     p.add_argument("--fcu-url", default=None, help="fmu: MAVLink URL of the flight controller")
     p.add_argument("--arg", action="append", default=[], metavar="SERVICE:FLAG",

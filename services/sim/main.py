@@ -84,8 +84,9 @@ class SimService(Service):
         parser.add_argument("--scenario", default="open_field", help="open_field, village, slope_forest or a YAML path")
         parser.add_argument("--speed", type=float, default=1.0, help="sim seconds per wall second")
         parser.add_argument("--seed", type=int, default=None, help="seed (default: the scenario's)")
-        parser.add_argument("--sensors", default="all", choices=["all", "imu", "none"],
-                            help="which scenario sensors to render (none: vehicle and truth only)")
+        parser.add_argument("--sensors", default="all", choices=["all", "lidar", "imu", "none"],
+                            help="which scenario sensors to render (lidar: IMU + LiDAR, no cameras; "
+                                 "none: vehicle and truth only)")
         parser.add_argument("--target", default="%s:%d" % PX4_SITL_TARGET, help="MAVLink goes to HOST:PORT (fmu)")
         parser.add_argument("--bind", default="%s:%d" % PX4_SITL_BIND, help="MAVLink sent from HOST:PORT")
 
@@ -117,7 +118,7 @@ class SimService(Service):
                     key = f"sensors/camera/{side}/info"
                     self.node.serve(key, None, CameraInfo, lambda _r, i=info: camera_info_msg(i, self.stamp(self.runner.now_ns())))
                 self.node.every(1.0, self._publish_infos, name="camera_info")
-            if a.sensors == "all" and self.sensors.lidar is not None:
+            if a.sensors in ("all", "lidar") and self.sensors.lidar is not None:
                 self.periods_ns["lidar"] = int(1e9 / self.sensors.lidar.info().rate_hz)
                 self.workers.append(RenderProcess("lidar", a.scenario, node_kwargs))
         # Physics steps at a multiple of the IMU rate (>= 250 Hz) so IMU samples are evenly spaced

@@ -388,6 +388,17 @@ class Scene:
         plane = np.take(self.tri_plane, out["primitive_ids"].numpy(), mode="clip")
         return t, plane
 
+    def obstacle_distance_m(self, points_m: np.ndarray) -> np.ndarray:
+        """Distance (m) from each ENU point to the nearest non-ground surface: how close a
+        vehicle there is to hitting something (evaluation and tests; built on first use)."""
+        if not hasattr(self, "_obstacles_rc"):
+            keep = ~np.take(self.plane_ground, self.tri_plane[: len(self.triangles)])
+            self._obstacles_rc = o3d.t.geometry.RaycastingScene()
+            self._obstacles_rc.add_triangles(o3d.core.Tensor(self.vertices),
+                                             o3d.core.Tensor(np.ascontiguousarray(self.triangles[keep])))
+        q = o3d.core.Tensor(np.asarray(points_m, dtype=np.float32).reshape(-1, 3))
+        return self._obstacles_rc.compute_distance(q).numpy()
+
     def cast(self, origin_m, dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Convenience: rays from one origin (3,) or origins (N, 3) along dirs (N, 3) ENU."""
         rays = np.empty((len(dirs), 6), np.float32)
