@@ -57,8 +57,14 @@ def load_profiles() -> dict[str, dict]:
     return out
 
 
+PRIORITIES_ENV = "AERO_PRIORITIES"  # "off": every process at the default (for A/B benchmarks)
+
+
 def load_priorities() -> dict[str, Priority]:
-    """{process: Priority} from the `priorities:` section of profiles.yaml (unlisted: nice 0)."""
+    """{process: Priority} from the `priorities:` section of profiles.yaml (unlisted: nice 0);
+    empty when AERO_PRIORITIES=off."""
+    if os.environ.get(PRIORITIES_ENV, "").lower() in ("off", "0", "no", "false"):
+        return {}
     text = resources.files("aeroperception.tools").joinpath("profiles.yaml").read_text()
     raw = yaml.safe_load(text).get("priorities") or {}
     try:

@@ -774,7 +774,8 @@ import sys  # noqa: E402
 
 from aeroperception.services.runtime import Node  # noqa: E402
 from aeroperception.services.runtime.supervision import (  # noqa: E402
-    SUPERVISOR_ENV, DuplicateInstanceError, Instance, Priority, apply_priority, bind_to_supervisor,
+    EXIT_DUPLICATE, SUPERVISOR_ENV, DuplicateInstanceError, Instance, Priority, apply_priority,
+    bind_to_supervisor,
     duplicate_message, winner,
 )
 
@@ -955,3 +956,30 @@ def test_supervised_process_stops_when_its_supervisor_is_killed(tmp_path):
             os.kill(child_pid, signal.SIGKILL)
         except ProcessLookupError:
             pass
+
+
+def test_profiles_give_the_hot_path_realtime_and_rendering_less(monkeypatch):
+    from aeroperception.tools.cmd_up import PRIORITIES_ENV, load_priorities
+
+    monkeypatch.delenv(PRIORITIES_ENV, raising=False)
+    prio = load_priorities()
+    for hot in ("router", "fmu", "planner"):
+        assert prio[hot].realtime and prio[hot].nice < 0
+    assert prio["sim"].realtime < prio["fmu"].realtime
+    assert all(prio[p].realtime is None and prio[p].nice > 0 for p in ("vio", "lidar", "detector"))
+    monkeypatch.setenv(PRIORITIES_ENV, "off")
+    assert load_priorities() == {}
+
+
+def test_supervisor_holds_a_duplicate_until_the_other_instance_is_gone(tmp_path, capsys):
+    from aeroperception.tools.cmd_up import Child
+
+    c = Child("planner", ["true"], tmp_path / "planner.log")
+    c.last_exit, c.token = 1, True
+    assert not c.held_elsewhere(0.0)           # an ordinary crash: restart as usual
+    c.last_exit = EXIT_DUPLICATE
+    assert c.status() == "duplicate"
+    assert c.held_elsewhere(1.0) and c.held_elsewhere(2.0)
+    assert capsys.readouterr().out.count("planner not started: the same service is already running") == 1
+    c.token = False                             # the other instance stopped
+    assert not c.held_elsewhere(3.0) and c.waiting_since is None
