@@ -983,3 +983,17 @@ def test_supervisor_holds_a_duplicate_until_the_other_instance_is_gone(tmp_path,
     assert capsys.readouterr().out.count("planner not started: the same service is already running") == 1
     c.token = False                             # the other instance stopped
     assert not c.held_elsewhere(3.0) and c.waiting_since is None
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="needs root to drop to an unprivileged user")
+def test_apply_priority_unprivileged_falls_back_and_says_so():
+    """Imports first, then drop to `nobody` with no realtime or nice limits: what a user gets."""
+    code = ("import os, resource\n"
+            "from aeroperception.services.runtime.supervision import Priority, apply_priority\n"
+            "resource.setrlimit(resource.RLIMIT_RTPRIO, (0, 0))\n"
+            "resource.setrlimit(resource.RLIMIT_NICE, (0, 0))\n"
+            "os.setgid(65534); os.setuid(65534)\n"
+            "print(apply_priority(0, Priority(realtime=20, nice=-10)))\n"
+            "print(apply_priority(0, Priority(nice=5)))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=30)
+    assert out.stdout.splitlines() == ["nice 0 (SCHED_RR 20, nice -10 not permitted)", "nice 5"], out.stderr
