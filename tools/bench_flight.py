@@ -133,15 +133,17 @@ def run(duration_s: float = 20.0, sensors: str = "none", priorities: bool = True
     session = None
     try:
         session = open_session(make_config(connect=endpoint), max_wait_s=10)
-        planner_diag: list[DiagnosticStatus] = []
+        last_diag: dict[str, DiagnosticStatus] = {}
 
         def on_diag(s) -> None:
             try:
-                planner_diag.append(decode(s.payload.to_bytes(), DiagnosticStatus))
+                d = decode(s.payload.to_bytes(), DiagnosticStatus)
             except SchemaError:
-                pass
+                return
+            last_diag[d.name] = d
 
         session.declare_subscriber("diagnostics/planner", on_diag)
+        session.declare_subscriber("diagnostics/sim", on_diag)  # render rates: what priorities cost sensors
         # Breakdown: when this process sees the state and the setpoint (same router, so each
         # stamp is one Zenoh hop after the service published it).
         seen: dict[str, list[float]] = {"state": [], "setpoint": []}
@@ -167,7 +169,8 @@ def run(duration_s: float = 20.0, sensors: str = "none", priorities: bool = True
         lat = np.array(tap.latency_ms)
         stages = breakdown(tap, seen)
         gaps = np.diff(np.array(tap.setpoint_t)) * 1e3
-        diag = planner_diag[-1].values if planner_diag else {}
+        diag = last_diag["planner"].values if "planner" in last_diag else {}
+        sim_diag = last_diag["sim"].values if "sim" in last_diag else {}
         sched = scheduling_line(log_dir)
         try:
             call(session, "mission/srv/command", MissionCommand(command="LAND"), Reply, 5.0)
@@ -210,4 +213,7 @@ def run(duration_s: float = 20.0, sensors: str = "none", priorities: bool = True
     print(f"{'planner deadline-loop period error':<44} {diag.get('loop[setpoint].ticks', '-'):>6} "
           f"{float(diag.get('loop[setpoint].period_error_p50_ms', 'nan')):>10.3f} "
           f"{float(diag.get('loop[setpoint].period_error_p99_ms', 'nan')):>8.3f} {'':>7}")
+    rendered = [f"{k.removesuffix('_rate_hz')} {v} Hz" for k, v in sim_diag.items() if k.endswith("_rate_hz")]
+    if rendered:
+        print(f"sensors rendered meanwhile (sim diagnostics): {', '.join(rendered)}")
     return 0
