@@ -126,10 +126,9 @@ class Node:
         token_key = f"{LIVELINESS_ROOT}/{self.vehicle or 'default'}/{self.name}"
         if exclusive:
             self._claim_instance(token_key)
-        self.clock = Clock(self if self._sim_time else None)
-        self._entities.append(self.session.liveliness().declare_token(token_key))
-        if exclusive:
             self._check_simultaneous_start()
+        self.clock = Clock(self if self._sim_time else None)
+        self._entities.append(self.session.liveliness().declare_token(token_key))  # alive only once it is ours
         self._diag_pub = self.publisher("diagnostics/" + self.name, DiagnosticStatus)
         base = self.key(f"config/{self.name}")
         self.subscribe_raw(f"{base}/**", self._on_param_put)
