@@ -86,6 +86,16 @@ class Tap:
                         self.a.sendto(pkt, self.sim_addr)
 
 
+def scheduling_line(log_dir: str) -> str:
+    """What `aero up` printed about the priorities it gave (its "scheduling:" line)."""
+    try:
+        text = open(os.path.join(log_dir, "aero-up.out")).read()
+    except OSError:
+        return "unknown"
+    lines = [ln for ln in text.splitlines() if ln.startswith("aero up: scheduling: ")]
+    return lines[-1].removeprefix("aero up: scheduling: ") if lines else "unknown"
+
+
 def breakdown(tap: Tap, seen: dict[str, list[float]]) -> dict[str, np.ndarray]:
     """Split each hot-path sample at the state/vehicle and setpoint arrivals seen here."""
     ins = np.array(tap.lpn_t)
@@ -107,29 +117,33 @@ def breakdown(tap: Tap, seen: dict[str, list[float]]) -> dict[str, np.ndarray]:
             "setpoint seen -> SET_POSITION_TARGET sent": ms(c)}
 
 
-def run(duration_s: float = 20.0, sensors: str = "none") -> int:
+def run(duration_s: float = 20.0, sensors: str = "none", priorities: bool = True) -> int:
     sys.setswitchinterval(SWITCH_INTERVAL_S)  # the tap must not wait for the GIL either
     router_port, sim_tx, fmu_rx, sim_bind = _free_port(), _free_port(), _free_port(), _free_port()
     tap = Tap(sim_tx, fmu_rx)
     endpoint = f"tcp/127.0.0.1:{router_port}"
     log_dir = tempfile.mkdtemp(prefix="aero-bench-flight-")
+    up_out = open(os.path.join(log_dir, "aero-up.out"), "wb")
     up = subprocess.Popen([sys.executable, "-m", "aeroperception.tools.cli", "up", "--listen", endpoint,
                            "--log-dir", log_dir, "--fcu-url", f"udpin:127.0.0.1:{fmu_rx}",
                            "--arg", f"sim:--target=127.0.0.1:{sim_tx}", "--arg", f"sim:--bind=127.0.0.1:{sim_bind}",
                            "--arg", f"sim:--sensors={sensors}"],
-                          stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                          stdout=up_out, stderr=subprocess.STDOUT,
+                          env=dict(os.environ, AERO_PRIORITIES="on" if priorities else "off"))
     session = None
     try:
         session = open_session(make_config(connect=endpoint), max_wait_s=10)
-        planner_diag: list[DiagnosticStatus] = []
+        last_diag: dict[str, DiagnosticStatus] = {}
 
         def on_diag(s) -> None:
             try:
-                planner_diag.append(decode(s.payload.to_bytes(), DiagnosticStatus))
+                d = decode(s.payload.to_bytes(), DiagnosticStatus)
             except SchemaError:
-                pass
+                return
+            last_diag[d.name] = d
 
         session.declare_subscriber("diagnostics/planner", on_diag)
+        session.declare_subscriber("diagnostics/sim", on_diag)  # render rates: what priorities cost sensors
         # Breakdown: when this process sees the state and the setpoint (same router, so each
         # stamp is one Zenoh hop after the service published it).
         seen: dict[str, list[float]] = {"state": [], "setpoint": []}
@@ -155,7 +169,9 @@ def run(duration_s: float = 20.0, sensors: str = "none") -> int:
         lat = np.array(tap.latency_ms)
         stages = breakdown(tap, seen)
         gaps = np.diff(np.array(tap.setpoint_t)) * 1e3
-        diag = planner_diag[-1].values if planner_diag else {}
+        diag = last_diag["planner"].values if "planner" in last_diag else {}
+        sim_diag = last_diag["sim"].values if "sim" in last_diag else {}
+        sched = scheduling_line(log_dir)
         try:
             call(session, "mission/srv/command", MissionCommand(command="LAND"), Reply, 5.0)
         except CallError:
@@ -168,6 +184,7 @@ def run(duration_s: float = 20.0, sensors: str = "none") -> int:
             up.wait(10)
         except subprocess.TimeoutExpired:
             up.kill()
+        up_out.close()
         tap.stop.set()
     router = make_config(mode="router", listen=[f"tcp/127.0.0.1:{_free_port()}"])
     router.insert_json5("scouting/delay", "0")
@@ -182,6 +199,7 @@ def run(duration_s: float = 20.0, sensors: str = "none") -> int:
     base = 2 * float(np.median(raw))
     print(f"hot path LOCAL_POSITION_NED in -> SET_POSITION_TARGET_LOCAL_NED out, whole sim profile "
           f"(sensors={sensors}), {duration_s:.0f} s hover, {os.cpu_count()} cores")
+    print(f"scheduling: {sched}")
     print(f"{'metric':<44} {'n':>6} {'median_ms':>10} {'p99_ms':>8} {'x_base':>7}")
     print(f"{'hot path latency':<44} {len(lat):>6} {np.median(lat):>10.3f} {np.percentile(lat, 99):>8.3f} "
           f"{np.median(lat) / base:>7.2f}")
@@ -195,4 +213,7 @@ def run(duration_s: float = 20.0, sensors: str = "none") -> int:
     print(f"{'planner deadline-loop period error':<44} {diag.get('loop[setpoint].ticks', '-'):>6} "
           f"{float(diag.get('loop[setpoint].period_error_p50_ms', 'nan')):>10.3f} "
           f"{float(diag.get('loop[setpoint].period_error_p99_ms', 'nan')):>8.3f} {'':>7}")
+    rendered = [f"{k.removesuffix('_rate_hz')} {v} Hz" for k, v in sim_diag.items() if k.endswith("_rate_hz")]
+    if rendered:
+        print(f"sensors rendered meanwhile (sim diagnostics): {', '.join(rendered)}")
     return 0

@@ -20,7 +20,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = bsub.add_parser("flight", help="hot path state -> planner -> fmu -> MAVLink, with the sim profile running")
     p.add_argument("--duration", type=float, default=20.0, help="seconds of hover to measure")
     p.add_argument("--sensors", default="none", choices=["none", "imu", "all"], help="sim sensor load while measuring")
-    p.set_defaults(func=lambda a: importlib.import_module("aeroperception.tools.bench_flight").run(a.duration, a.sensors))
+    p.add_argument("--priorities", default="on", choices=["on", "off"],
+                   help="aero up's scheduling priorities (tools/profiles.yaml); off: all at the default")
+    p.set_defaults(func=lambda a: importlib.import_module("aeroperception.tools.bench_flight").run(
+        a.duration, a.sensors, a.priorities == "on"))
     p = bsub.add_parser("lidar", help="150k-point scan -> obstacles -> costmap per stage vs the Open3D pipeline")
     p.add_argument("-n", type=int, default=20, help="scans per pipeline")
     p.add_argument("--scenario", default="village")

@@ -1,4 +1,7 @@
-"""`aero router`: the stack's Zenoh router, a Python session in router mode."""
+"""`aero router`: the stack's Zenoh router, a Python session in router mode.
+
+`aero up` runs it as a supervised child (so a dead router is noticed and restarted); started
+that way it also exits when `aero up` dies, like every service."""
 from __future__ import annotations
 
 import argparse
@@ -8,6 +11,7 @@ import zenoh
 
 from aeroperception.services.runtime.session import ZenohConfigError, make_config
 from aeroperception.services.runtime.signals import ShutdownFlag
+from aeroperception.services.runtime.supervision import bind_to_supervisor
 
 from .common import CliError
 
@@ -35,8 +39,9 @@ def open_router(zenoh_config: str | None, listen: list[str] | None) -> zenoh.Ses
 
 
 def run(args) -> int:
-    router = open_router(args.zenoh_config, args.listen)
     stop = ShutdownFlag().install().event
+    bind_to_supervisor(stop.set)
+    router = open_router(args.zenoh_config, args.listen)
     print(f"aero router: zid {router.zid()} listening on {', '.join(args.listen or ['zenoh.json5 endpoints'])}",
           file=sys.stderr, flush=True)
     stop.wait()

@@ -1,11 +1,21 @@
 """`aero up`: the router plus a profile's services as supervised child processes.
 
-The supervisor process is the Zenoh router itself (a session in router mode), so one command
-brings the stack up. Each service runs as `python -m aeroperception.services.<name>`, its JSON
-log goes to <log-dir>/<name>.log, a crashed service is restarted with back-off (1 s doubling to
-30 s), and Ctrl-C / SIGTERM stops every child (SIGTERM, then SIGKILL after 3 s).
+The Zenoh router runs as a child too (`aero router`, log <log-dir>/router.log, pid in
+<log-dir>/router.pid): when it dies it is restarted within a second (back-off 0.2 s doubling to
+2 s) and every session reconnects by itself. Each service runs as `python -m
+aeroperception.services.<name>`, its JSON log goes to <log-dir>/<name>.log, a crashed service is
+restarted with back-off (1 s doubling to 30 s), and Ctrl-C / SIGTERM stops every child (SIGTERM,
+then SIGKILL after 3 s), the router last.
 <log-dir>/pids.json maps each running service to its process id (rewritten on every start and
 exit), so scripts and tests can find a service's process without searching by name.
+
+Supervision (ARCHITECTURE §8): children get AERO_SUPERVISOR_PID and exit when `aero up` dies,
+even by kill -9 (runtime/supervision.py), so a new `aero up` never finds the old one's services.
+A service that refuses to start because the same service is already alive for the vehicle
+(exit EXIT_DUPLICATE) is shown as "duplicate" and is not restarted until that other instance's
+liveliness token goes away. Scheduling: `priorities:` in profiles.yaml (SCHED_RR where
+permitted, else nice) keeps the hot path (router, fmu, planner) ahead of rendering and
+perception; what each process got is printed at start.
 """
 from __future__ import annotations
 
@@ -25,10 +35,12 @@ import yaml
 import zenoh
 
 from aeroperception.services.runtime.node import LIVELINESS_ROOT
-
+from aeroperception.services.runtime.session import make_config, open_session
 from aeroperception.services.runtime.signals import ShutdownFlag
+from aeroperception.services.runtime.supervision import (
+    EXIT_DUPLICATE, SUPERVISOR_ENV, Priority, apply_priority,
+)
 
-from .cmd_router import open_router
 from .cmd_topic import decode_sample
 from .common import CliError
 
@@ -43,6 +55,22 @@ def load_profiles() -> dict[str, dict]:
         spec = {"services": spec} if isinstance(spec, list) else dict(spec)
         out[name] = {"services": list(spec["services"]), "args": dict(spec.get("args") or {})}
     return out
+
+
+PRIORITIES_ENV = "AERO_PRIORITIES"  # "off": every process at the default (for A/B benchmarks)
+
+
+def load_priorities() -> dict[str, Priority]:
+    """{process: Priority} from the `priorities:` section of profiles.yaml (unlisted: nice 0);
+    empty when AERO_PRIORITIES=off."""
+    if os.environ.get(PRIORITIES_ENV, "").lower() in ("off", "0", "no", "false"):
+        return {}
+    text = resources.files("aeroperception.tools").joinpath("profiles.yaml").read_text()
+    raw = yaml.safe_load(text).get("priorities") or {}
+    try:
+        return {str(name): Priority.parse(str(name), spec) for name, spec in raw.items()}
+    except ValueError as e:
+        raise CliError(f"tools/profiles.yaml: {e}") from None
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -78,6 +106,10 @@ class Child:
     last_exit: int | None = None
     alive: bool = False
     health: dict = field(default_factory=dict)
+    priority: Priority = field(default_factory=Priority)
+    sched: str = ""             # what the scheduler granted, e.g. "SCHED_RR 20"
+    token: bool = False         # aero/alive/<vehicle>/<name> exists (ours or another instance's)
+    waiting_since: float | None = None  # refused as a duplicate; waiting for the other to stop
 
     def start(self, env: dict[str, str]) -> None:
         log = open(self.log_path, "ab")
@@ -85,8 +117,23 @@ class Child:
                                      start_new_session=True)
         log.close()
         self.started_at = time.monotonic()
+        # Right after exec, before the interpreter starts any thread: later threads inherit it.
+        self.sched = apply_priority(self.proc.pid, self.priority)
+
+    def held_elsewhere(self, now: float) -> bool:
+        """Refused as a duplicate and the other instance is still alive: do not restart yet."""
+        if self.last_exit != EXIT_DUPLICATE or not self.token:
+            self.waiting_since = None
+            return False
+        if self.waiting_since is None:
+            self.waiting_since = now
+            print(f"aero up: {self.name} not started: the same service is already running for this "
+                  f"vehicle (see {self.log_path}); starting it when that one stops", flush=True)
+        return True
 
     def status(self) -> str:
+        if self.proc is None and self.last_exit == EXIT_DUPLICATE:
+            return "duplicate"
         if self.proc is None or self.proc.poll() is not None:
             return "restarting" if self.restarts or self.last_exit is not None else "starting"
         return "alive" if self.alive else "starting"
@@ -136,23 +183,100 @@ def service_argv(name: str, args, endpoint: str, profile_args: list[str] = ()) -
     return argv
 
 
+class RouterChild:
+    """The Zenoh router as a child process (`aero router`): started before the services, restarted
+    at once when it dies; sessions (services, this supervisor's own) reconnect by themselves."""
+
+    BACKOFF_S, MAX_BACKOFF_S = 0.2, 2.0
+
+    def __init__(self, listen: str, log_dir: Path, env: dict[str, str], priority: Priority | None):
+        argv = [sys.executable, "-m", "aeroperception.tools.cli", "router", "--listen", listen]
+        self.child = Child("router", argv, log_dir / "router.log", priority=priority or Priority(),
+                           backoff_s=self.BACKOFF_S)
+        self.pid_path = log_dir / "router.pid"
+        self.env = env
+
+    @property
+    def proc(self) -> subprocess.Popen | None:
+        return self.child.proc
+
+    def start(self, stop: threading.Event, timeout_s: float = 10.0) -> None:
+        """Start it and wait until it listens; a router that cannot start is a CliError with its reason."""
+        log = self.child.log_path
+        offset = log.stat().st_size if log.exists() else 0
+        self._start()
+        deadline = time.monotonic() + timeout_s
+        while not stop.wait(0.05):
+            text = log.read_bytes()[offset:].decode(errors="replace") if log.exists() else ""
+            if "aero router: zid" in text:
+                return
+            if self.proc.poll() is not None:
+                lines = [ln.strip() for ln in text.splitlines() if ln.strip()]
+                why = lines[-1].removeprefix("aero: ") if lines else f"exit code {self.proc.returncode}"
+                raise CliError(why)
+            if time.monotonic() > deadline:
+                self.stop()
+                raise CliError(f"the router did not start within {timeout_s:.0f} s (log: {log})")
+
+    def _start(self) -> None:
+        self.child.start(self.env)
+        tmp = self.pid_path.with_suffix(".tmp")
+        tmp.write_text(f"{self.proc.pid}\n")
+        os.replace(tmp, self.pid_path)
+
+    def supervise(self, now: float) -> None:
+        """Called every loop: notice a dead router and start a new one after a short back-off."""
+        c = self.child
+        code = c.proc.poll() if c.proc else None
+        if c.proc is not None and code is not None:
+            c.last_exit, c.proc = code, None
+            if now - c.started_at > 30:
+                c.backoff_s = self.BACKOFF_S
+            c.next_start = now + c.backoff_s
+            print(f"aero up: router exited with code {code}; restarting in {c.backoff_s:.1f} s "
+                  f"(log: {c.log_path})", flush=True)
+            c.backoff_s = min(c.backoff_s * 2, self.MAX_BACKOFF_S)
+        if c.proc is None and now >= c.next_start:
+            c.restarts += 1
+            self._start()
+            print(f"aero up: router restarted (pid {c.proc.pid}, {c.sched})", flush=True)
+
+    def stop(self) -> None:
+        shutdown([self.child])
+        self.pid_path.unlink(missing_ok=True)
+
+
 def run(args) -> int:
     names = select_services(args)
     log_dir = Path(args.log_dir or Path.home() / ".aero" / "logs" / time.strftime("%Y%m%d-%H%M%S"))
     log_dir.mkdir(parents=True, exist_ok=True)
-    router = open_router(None, [args.listen])
     endpoint = args.listen.replace("0.0.0.0", "127.0.0.1")
-    env = dict(os.environ, AERO_CONNECT=endpoint, PYTHONUNBUFFERED="1")
+    # AERO_SUPERVISOR_PID: every child exits when this process dies (runtime/supervision.py).
+    env = dict(os.environ, AERO_CONNECT=endpoint, PYTHONUNBUFFERED="1", **{SUPERVISOR_ENV: str(os.getpid())})
+    vehicle = os.environ.get("AERO_VEHICLE") or "default"
+    priorities = load_priorities()
     profile_args = load_profiles()[args.profile]["args"]
     children = {n: Child(n, service_argv(n, args, endpoint, [str(a) for a in profile_args.get(n, [])]),
-                         log_dir / f"{n}.log") for n in names}
+                         log_dir / f"{n}.log", priority=priorities.get(n, Priority())) for n in names}
     lock = threading.Lock()
+
+    stop = ShutdownFlag().install().event
+    router = RouterChild(args.listen, log_dir, env, priorities.get("router"))
+    router.start(stop)
+    session = open_session(make_config(None, endpoint, mode="client"), stop, max_wait_s=10)
+    if session is None:
+        router.stop()
+        if stop.is_set():
+            return 0
+        raise CliError(f"cannot connect to the router at {endpoint} (log: {router.child.log_path})")
 
     def on_token(s: zenoh.Sample) -> None:
         name = str(s.key_expr).rsplit("/", 1)[-1]
         with lock:
             if name in children:
-                children[name].alive = s.kind == zenoh.SampleKind.PUT
+                c = children[name]
+                c.token = s.kind == zenoh.SampleKind.PUT
+                c.alive = c.token and c.proc is not None  # not another instance's token
 
     def on_diag(s: zenoh.Sample) -> None:
         try:
@@ -165,23 +289,25 @@ def run(args) -> int:
                 if c:
                     c.health = d
 
-    subs = [router.liveliness().declare_subscriber(f"{LIVELINESS_ROOT}/**", on_token, history=True),
-            router.declare_subscriber("diagnostics/*", on_diag),
-            router.declare_subscriber("*/diagnostics/*", on_diag)]
+    subs = [session.liveliness().declare_subscriber(f"{LIVELINESS_ROOT}/{vehicle}/*", on_token, history=True),
+            session.declare_subscriber("diagnostics/*", on_diag),
+            session.declare_subscriber("*/diagnostics/*", on_diag)]
 
-    stop = ShutdownFlag().install().event
     print(f"aero up: profile {args.profile} ({', '.join(names) or 'no services'}), router on {args.listen}, "
           f"logs in {log_dir}", flush=True)
     pids_path = log_dir / "pids.json"
     for c in children.values():
         c.start(env)
     write_pids(pids_path, children.values())
+    print("aero up: scheduling: " + ", ".join(f"{c.name} {c.sched}" for c in [router.child, *children.values()]),
+          flush=True)
 
     tty = sys.stdout.isatty()
     last_table = ""
     next_table = 0.0
     while not stop.wait(0.2):
         now = time.monotonic()
+        router.supervise(now)
         with lock:
             changed = False
             for c in children.values():
@@ -195,7 +321,7 @@ def run(args) -> int:
                           f"(log: {c.log_path})", flush=True)
                     c.backoff_s = min(c.backoff_s * 2, 30.0)
                     changed = True
-                if c.proc is None and now >= c.next_start:
+                if c.proc is None and now >= c.next_start and not c.held_elsewhere(now):
                     c.restarts += 1
                     c.start(env)
                     changed = True
@@ -213,7 +339,8 @@ def run(args) -> int:
     pids_path.unlink(missing_ok=True)
     for s in subs:
         s.undeclare()
-    router.close()
+    session.close()
+    router.stop()
     return 0
 
 

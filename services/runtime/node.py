@@ -29,6 +29,7 @@ from .log import Logger
 from .params import Param, ParamError, ParamSet
 from .rate import RateLoop
 from .session import make_config, open_session
+from .supervision import INSTANCE_ROOT, DuplicateInstanceError, Instance, this_instance, winner
 
 M = TypeVar("M", bound=Message)
 R = TypeVar("R", bound=Message)
@@ -99,6 +100,7 @@ class Node:
         self._health_fn: Callable[[], Health] = lambda: Health()
         self._diag_pub: Publisher | None = None
         self._closed = False
+        self.instance: Instance | None = None   # set by an exclusive connect()
 
     # ------------------------------------------------------------ lifecycle
 
@@ -106,9 +108,13 @@ class Node:
         """Apply the vehicle prefix (if any) to a stack key."""
         return f"{self.vehicle}/{key}" if self.vehicle else key
 
-    def connect(self, max_wait_s: float | None = None) -> bool:
+    def connect(self, max_wait_s: float | None = None, exclusive: bool = False) -> bool:
         """Open the session (retrying until a router answers), then declare the runtime's own
-        entities: liveliness token, diagnostics, parameter endpoints, clock."""
+        entities: liveliness token, diagnostics, parameter endpoints, clock.
+
+        exclusive: one instance of this service per vehicle (services run by `aero up` / `aero
+        run` are). If the same service is already alive for this vehicle, close and raise
+        DuplicateInstanceError naming it, before declaring anything."""
 
         def waiting(err: Exception, attempt: int) -> None:
             if attempt == 1 or attempt % 10 == 0:
@@ -117,9 +123,12 @@ class Node:
         self.session = open_session(self._conf, self.stop_event, waiting, max_wait_s)
         if self.session is None:
             return False
-        self.clock = Clock(self if self._sim_time else None)
         token_key = f"{LIVELINESS_ROOT}/{self.vehicle or 'default'}/{self.name}"
-        self._entities.append(self.session.liveliness().declare_token(token_key))
+        if exclusive:
+            self._claim_instance(token_key)
+            self._check_simultaneous_start()
+        self.clock = Clock(self if self._sim_time else None)
+        self._entities.append(self.session.liveliness().declare_token(token_key))  # alive only once it is ours
         self._diag_pub = self.publisher("diagnostics/" + self.name, DiagnosticStatus)
         base = self.key(f"config/{self.name}")
         self.subscribe_raw(f"{base}/**", self._on_param_put)
@@ -128,6 +137,62 @@ class Node:
         self.every(1.0, self._publish_diagnostics, name="diagnostics")
         self.log.info("started", zid=str(self.session.zid()), vehicle=self.vehicle or None)
         return True
+
+    def _instances(self, timeout_s: float = 1.0) -> list[Instance]:
+        """Every exclusive instance of this service for this vehicle that answers (ourselves too)."""
+        key = f"{INSTANCE_ROOT}/{self.vehicle or 'default'}/{self.name}"
+        out = []
+        # Every instance replies on the same key: no consolidation, or all but one reply are dropped.
+        for r in self.session.get(key, target=zenoh.QueryTarget.ALL, consolidation=zenoh.ConsolidationMode.NONE,
+                                  timeout=timeout_s):
+            if r.ok is not None and (inst := Instance.from_json(r.ok.payload.to_bytes())) is not None:
+                out.append(inst)
+        return out
+
+    def _claim_instance(self, token_key: str) -> None:
+        """Refuse to start while the same service is alive for this vehicle; otherwise answer
+        "who are you" on INSTANCE_ROOT/<vehicle>/<service> for the next one that asks."""
+        vehicle = self.vehicle or "default"
+        if any(r.ok is not None for r in self.session.liveliness().get(token_key, timeout=1.0)):
+            others = self._instances()
+            self._refuse(DuplicateInstanceError(self.name, vehicle, winner(others)))
+        key = f"{INSTANCE_ROOT}/{vehicle}/{self.name}"
+
+        def whois(q: zenoh.Query) -> None:
+            if self.instance is not None:
+                q.reply(key, self.instance.to_json())
+            q.drop()
+
+        self._entities.append(self.session.declare_queryable(key, whois))
+        # Stamped after declaring: a copy that cannot see us yet gets a later stamp than ours.
+        self.instance = this_instance(self.name, vehicle, str(self.session.zid()))
+
+    def _check_simultaneous_start(self, settle_s: float = 0.1) -> None:
+        """Copies that passed the liveliness check together: the earliest stamp keeps running.
+        Waiting `settle_s` first lets every copy stamped before us become visible (declarations
+        propagate asynchronously), so exactly one sees no earlier copy."""
+        time.sleep(settle_s)
+        others = [i for i in self._instances() if i.zid != self.instance.zid]
+        first = winner(others + [self.instance])
+        if first is not self.instance:
+            self._refuse(DuplicateInstanceError(self.name, self.instance.vehicle, first))
+
+    def _refuse(self, err: DuplicateInstanceError) -> None:
+        """Close quietly (the caller prints the one-line refusal) and raise."""
+        self._closed = True
+        self.stop_event.set()
+        for ent in reversed(self._entities):
+            try:
+                ent.undeclare()
+            except Exception:  # noqa: BLE001 - best effort
+                pass
+        self._entities.clear()
+        try:
+            self.session.close()
+        except Exception:  # noqa: BLE001
+            pass
+        self._pool.shutdown(wait=False, cancel_futures=True)
+        raise err
 
     def close(self) -> None:
         """Stop loops, undeclare everything and close the session (well within 2 s)."""

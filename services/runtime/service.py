@@ -16,6 +16,7 @@ from .node import Health, Node
 from .params import Param, ParamError, parse_overrides
 from .session import ZenohConfigError
 from .signals import ShutdownFlag
+from .supervision import EXIT_DUPLICATE, DuplicateInstanceError, bind_to_supervisor
 
 
 SWITCH_INTERVAL_S = 0.0005
@@ -91,14 +92,22 @@ def run(service_cls: type[Service], argv: Sequence[str] | None = None) -> int:
     # The handler only records the signal (see signals.py): logging or Event.set() in a
     # handler can deadlock against the main thread.
     shutdown = ShutdownFlag(node.stop_event).install()
+    # Started by `aero up`: stop when it dies (kill -9 included) instead of lingering unsupervised.
+    binding = bind_to_supervisor(node.stop_event.set)
+    if binding.orphaned:
+        node.log.warn("supervisor_gone", note=binding.note)
 
     # A thread that becomes runnable waits up to the GIL switch interval (5 ms by default) while
     # another thread computes: that was the p99 of the state -> setpoint hot path. 0.5 ms keeps
     # callbacks responsive at a small throughput cost.
     sys.setswitchinterval(SWITCH_INTERVAL_S)
-    if not node.connect():
-        node.close()
-        return 0
+    try:
+        if not node.connect(exclusive=True):
+            node.close()
+            return 0
+    except DuplicateInstanceError as e:
+        print(f"aero run {service_cls.NAME}: {e}", file=sys.stderr, flush=True)
+        return EXIT_DUPLICATE
     service = service_cls(node, args)
     node.set_health(service.health)
     code = 0

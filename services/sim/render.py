@@ -66,11 +66,17 @@ class _LidarRenderer:
 
 
 RENDERERS = {"camera": _CameraRenderer, "lidar": _LidarRenderer}
+# Rendering must never delay the control hot path: a realtime sim passes its policy to us at
+# spawn, so drop it and run nicer than everything `aero up` starts (tools/profiles.yaml).
+RENDER_NICE = 10
 
 
 def _child_main(sensor: str, scenario_ref: str, node_kwargs: dict, conn) -> None:
     """Entry point of the render process (spawned: no inherited Zenoh state)."""
     from aeroperception.services.runtime import Node
+    from aeroperception.services.runtime.supervision import lower_own_priority
+
+    lower_own_priority(RENDER_NICE)  # before the Zenoh session starts its threads
 
     from .sensors.rig import build_sensors
     from .world.scenario import load_scenario
