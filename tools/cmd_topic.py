@@ -186,8 +186,8 @@ def topic_echo(args) -> int:
         pass
     sub.undeclare()
     session.close()
-    if args.count and count[0] < args.count:
-        print(f"received {count[0]} of {args.count} messages on {args.key} within {args.timeout} s",
+    if (args.count and count[0] < args.count) or (args.timeout and count[0] == 0):
+        print(f"aero: received {count[0]} of {args.count or 'any'} messages on {args.key} within {args.timeout} s",
               file=sys.stderr)
         return 1
     return 0

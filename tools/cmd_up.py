@@ -250,7 +250,7 @@ def run(args) -> int:
                     changed = True
             if changed:
                 write_pids(pids_path, children.values())
-            table = format_table(children.values())
+            table = format_table(children.values(), None if tty else 240)  # logs: long lines are fine
         if now >= next_table and (tty or table != last_table):
             # A reader that went away (`aero up | head`) must not stop the supervision.
             emit(("\x1b[2J\x1b[H" if tty else "") + table)
