@@ -16,7 +16,8 @@ from aeroperception.schemas import SchemaError
 
 from .common import EXIT_BROKEN_PIPE, CliError, silence_stdout, stdout_closed
 
-COMMANDS = ["cmd_up", "cmd_router", "cmd_run", "cmd_topic", "cmd_schema", "cmd_param", "cmd_mission", "cmd_bench", "cmd_snapshot"]
+COMMANDS = ["cmd_up", "cmd_router", "cmd_run", "cmd_topic", "cmd_schema", "cmd_param", "cmd_mission", "cmd_bench", "cmd_snapshot",
+            "cmd_docs"]
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -30,7 +30,8 @@ class Contract:
     outputs: dict[str, str | None] = field(default_factory=dict)
     services: dict[str, tuple[str | None, str | None]] = field(default_factory=dict)
     calls: dict[str, tuple[str | None, str | None]] = field(default_factory=dict)
-    actions: list[str] = field(default_factory=list)
+    actions: list[str] = field(default_factory=list)        # served: <service>/action/<name>
+    action_calls: list[str] = field(default_factory=list)   # used: another service's actions
     notes: dict[str, str] = field(default_factory=dict)   # key -> the comment beside it
 
     def rate(self, key: str) -> str:
@@ -89,8 +90,10 @@ def parse_contract(text: str, service: str, source: str = "") -> Contract:
                     c.notes.setdefault(k.value, note)
         elif name == "ACTIONS" and isinstance(node, (ast.List, ast.Tuple)):
             c.actions = [str(_value(e)) for e in node.elts]
-    # Short action names ("takeoff") are the service's own: <service>/action/<name>.
-    c.actions = [a if "/" in a else f"{c.service}/action/{a}" for a in c.actions]
+    # Short action names ("takeoff") are the service's own, served as <service>/action/<name>;
+    # full keys name another service's actions that this one uses.
+    c.actions, c.action_calls = ([f"{c.service}/action/{a}" for a in c.actions if "/" not in a],
+                                 [a for a in c.actions if "/" in a])
     return c
 
 
