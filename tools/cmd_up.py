@@ -67,6 +67,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--arg", action="append", default=[], metavar="SERVICE:FLAG",
                    help="extra flag for one service, e.g. --arg planner:--param=kp=1.0")
     p.add_argument("--status-interval", type=float, default=2.0, help="seconds between status tables")
+    p.add_argument("--dry-run", action="store_true",
+                   help="validate the arguments and print each service's command line; start nothing")
     p.set_defaults(func=run)
 
 
@@ -185,6 +187,13 @@ def service_argv(name: str, args, endpoint: str, profile_args: list[str] = ()) -
 def run(args) -> int:
     names = select_services(args)
     validate_args(args, names)
+    if args.dry_run:
+        endpoint = args.listen.replace("0.0.0.0", "127.0.0.1")
+        profile_args = load_profiles()[args.profile]["args"]
+        emit(f"aero up: profile {args.profile}, router on {args.listen}; would start:")
+        for n in names:
+            emit(f"  {n:<12} " + " ".join(service_argv(n, args, endpoint, [str(a) for a in profile_args.get(n, [])])))
+        return 0
     log_dir = Path(args.log_dir or Path.home() / ".aero" / "logs" / time.strftime("%Y%m%d-%H%M%S"))
     log_dir.mkdir(parents=True, exist_ok=True)
     router = open_router(None, [args.listen])
