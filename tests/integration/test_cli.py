@@ -18,7 +18,7 @@ import pytest
 
 from aerotest import aero, aero_argv, clean_env, free_port, wait_for_message, zenoh_client
 
-from aeroperception.schemas import Clock, MissionCommand, VehicleState, encode
+from aeroperception.schemas import MissionCommand, VehicleState, encode
 from aeroperception.services.runtime.node import encoding_for
 from aeroperception.tools.cmd_up import MESSAGE_COL, Child, format_table, last_error_line
 

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import pytest
 
-from aerotest import aero, aero_argv, clean_env, free_port, wait_until
+from aerotest import aero, aero_argv, clean_env, free_port, wait_for_message, wait_until
 
 from aeroperception.schemas import VehicleState
 
@@ -138,7 +138,6 @@ def readme_stack(stack_module):
                                stdin=subprocess.DEVNULL)
     try:
         wait_until(lambda: st.alive("planner"), 15, "the foreground planner's liveliness token")
-        from aerotest import wait_for_message
         wait_for_message(st.session, "state/vehicle", VehicleState, lambda m: m.connected, timeout_s=20)
         yield st
     finally:
