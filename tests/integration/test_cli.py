@@ -4,6 +4,7 @@ installed (non-editable) package finding its Zenoh config, number parsing and ra
 Real `aero up` stacks, real routers, real pipes, on 127.0.0.1."""
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import subprocess
@@ -18,7 +19,7 @@ import pytest
 
 from aerotest import aero, aero_argv, clean_env, free_port, wait_for_message, zenoh_client
 
-from aeroperception.schemas import MissionCommand, VehicleState, encode
+from aeroperception.schemas import DiagnosticStatus, MissionCommand, VehicleState, encode
 from aeroperception.services.runtime.node import encoding_for
 from aeroperception.tools.cmd_up import MESSAGE_COL, Child, format_table, last_error_line
 
@@ -352,3 +353,39 @@ def test_topic_list_rate_of_1hz_diagnostics(st):
     assert r.returncode == 0, r.stderr
     row = next(ln.split() for ln in r.stdout.splitlines() if ln.startswith("diagnostics/diagnostics "))
     assert 0.8 <= float(row[1]) <= 1.25, r.stdout
+
+
+@pytest.mark.timeout(90)
+def test_up_piped_into_head_keeps_supervising(tmp_path):
+    """`aero up | head -1`: the reader leaves after one line; the stack must not die or orphan
+    its services because of that (no traceback), and Ctrl-C still stops everything."""
+    port = free_port()
+    up = subprocess.Popen(aero_argv() + ["up", "--only", "diagnostics", "--listen", f"tcp/127.0.0.1:{port}",
+                                         "--log-dir", str(tmp_path), "--status-interval", "0.3"],
+                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=clean_env(), stdin=subprocess.DEVNULL)
+    head = subprocess.Popen(["head", "-1"], stdin=up.stdout, stdout=subprocess.PIPE, text=True)
+    up.stdout.close()
+    try:
+        first, _ = head.communicate(timeout=20)
+        assert first.startswith("aero up: profile sim")
+        session = zenoh_client(f"tcp/127.0.0.1:{port}")
+        try:
+            wait_for_message(session, "diagnostics/diagnostics", DiagnosticStatus, timeout_s=20)
+            time.sleep(1.5)   # several status tables written into the closed pipe meanwhile
+            assert up.poll() is None, "aero up died when its stdout reader left"
+            pid = int(json.loads((tmp_path / "pids.json").read_text())["diagnostics"])
+        finally:
+            session.close()
+        up.send_signal(2)
+        assert up.wait(10) == 141
+        err = up.stderr.read().decode()
+        assert "Traceback" not in err, err
+        time.sleep(0.5)
+        with pytest.raises(ProcessLookupError):
+            os.kill(pid, 0)   # the child was stopped, not orphaned
+    finally:
+        for p in (up, head):
+            if p.poll() is None:
+                p.kill()
+                p.wait(5)
+        up.stderr.close()
