@@ -10,6 +10,7 @@ Decoding failures of any kind raise one error type, `SchemaError`, naming the fi
 """
 from __future__ import annotations
 
+import difflib
 import math
 import threading
 from typing import Any, ClassVar, Iterable, TypeVar
@@ -75,13 +76,22 @@ def schema_id(cls: type[Message]) -> str:
     return f"{cls.__schema_name__}@{cls.__schema_version__}"
 
 
+def _suggest_schemas(base: str) -> str:
+    """"did you mean ..." from spelling (difflib, case-insensitive) and substrings."""
+    lower = {n.lower(): n for n in REGISTRY}
+    near = [lower[n] for n in difflib.get_close_matches(base.lower(), list(lower), n=4, cutoff=0.6)]
+    near += [n for n in sorted(REGISTRY) if base and base.lower() in n.lower() and n not in near]
+    if near:
+        return f"did you mean {', '.join(near[:5])}?"
+    return f"known ones include {', '.join(sorted(REGISTRY)[:8])}"
+
+
 def get_schema(name: str) -> type[Message]:
     """Look a schema up by "Name" or "Name@version"; SchemaError lists close names if unknown."""
     base, _, ver = name.partition("@")
     cls = REGISTRY.get(base)
     if cls is None:
-        close = [n for n in REGISTRY if base.lower() in n.lower()] or sorted(REGISTRY)[:10]
-        raise SchemaError(f"unknown schema {name!r}; known ones include: {', '.join(sorted(close))}")
+        raise SchemaError(f"unknown schema {name!r}; {_suggest_schemas(base)} (`aero schema list` shows all)")
     if ver and int(ver) != cls.__schema_version__:
         raise SchemaError(f"schema {base} is version {cls.__schema_version__}, payload says {ver}")
     return cls

@@ -2,6 +2,8 @@
 
 Every sub-command module exposes `register(subparsers)`; handlers return an exit code. A
 CliError (or a schema/config error) is printed as one line, exit code 2, never a traceback.
+When the reader of stdout goes away (`aero topic echo KEY | head -1`) the command stops quietly
+with exit code 141 (128 + SIGPIPE), like coreutils.
 """
 from __future__ import annotations
 
@@ -12,9 +14,10 @@ from typing import Sequence
 
 from aeroperception.schemas import SchemaError
 
-from .common import CliError
+from .common import EXIT_BROKEN_PIPE, CliError, silence_stdout, stdout_closed
 
-COMMANDS = ["cmd_up", "cmd_router", "cmd_run", "cmd_topic", "cmd_schema", "cmd_param", "cmd_mission", "cmd_bench", "cmd_eval", "cmd_snapshot"]
+COMMANDS = ["cmd_up", "cmd_router", "cmd_run", "cmd_topic", "cmd_schema", "cmd_param", "cmd_mission", "cmd_bench",
+            "cmd_eval", "cmd_snapshot", "cmd_docs"]
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -31,18 +34,25 @@ def main(argv: Sequence[str] | None = None) -> int:
         from .cmd_run import run_service
 
         return _guard(lambda: run_service(argv[1:]))
+    return _guard(lambda: _dispatch(argv))
+
+
+def _dispatch(argv: list[str]) -> int:
     args = build_parser().parse_args(argv)
-    return _guard(lambda: args.func(args))
+    return args.func(args)
 
 
 def _guard(fn) -> int:
     try:
-        return int(fn() or 0)
+        code = int(fn() or 0)
     except (CliError, SchemaError) as e:
         print(f"aero: {e}", file=sys.stderr)
-        return 2
+        code = 2
     except KeyboardInterrupt:
-        return 130
+        code = 130
+    except BrokenPipeError:  # stdout's reader left (`| head`): nothing more to say
+        silence_stdout()
+    return EXIT_BROKEN_PIPE if stdout_closed.is_set() else code
 
 
 if __name__ == "__main__":

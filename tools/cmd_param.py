@@ -62,7 +62,7 @@ def param_set(args) -> int:
     session = open_client(args)
     try:
         reply = call_or_fail(session, full_key(args, f"config/{args.service}/@set"),
-                             ParamSet(name=args.name, value=parse_data(args.value)), ParamSetReply)
+                             ParamSet(name=args.name, value=parse_value(args.value)), ParamSetReply)
     finally:
         session.close()
     if not reply.success:
@@ -70,3 +70,13 @@ def param_set(args) -> int:
         return 1
     print(f"{reply.name} = {reply.value}")
     return 0
+
+
+def parse_value(text: str):
+    """A number as a number ("1e9" too, which YAML 1.1 reads as a string), else YAML/JSON."""
+    for conv in (int, float):
+        try:
+            return conv(text)
+        except ValueError:
+            pass
+    return parse_data(text)

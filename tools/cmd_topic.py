@@ -18,12 +18,19 @@ from aeroperception.schemas import (
 from aeroperception.services.runtime.node import LIVELINESS_ROOT, CallError, encoding_for, schema_of
 from aeroperception.services.runtime.node import call as rpc_call
 
-from .common import CliError, add_session_arguments, dump, full_key, open_client, parse_data, summarize
+from . import contracts
+from .common import (
+    CliError, TrailingPositionalParser, add_session_arguments, dump, emit, full_key, open_client, parse_data,
+    summarize,
+)
+
+SILENCE_HINT_S = 2.5
+"""`topic echo` says on stderr that nothing publishes its key after this long without a sample."""
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     topic = sub.add_parser("topic", help="list, echo, measure and publish keys")
-    tsub = topic.add_subparsers(dest="topic_cmd", required=True)
+    tsub = topic.add_subparsers(dest="topic_cmd", required=True, parser_class=TrailingPositionalParser)
 
     p = tsub.add_parser("list", help="keys seen in a time window, with rate and schema")
     add_session_arguments(p)
@@ -50,18 +57,18 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = tsub.add_parser("pub", help="publish a message, validated against its schema first")
     add_session_arguments(p)
     p.add_argument("key")
-    p.add_argument("data", nargs="?", default="{}", help="message fields as YAML or JSON")
+    p.add_argument("data", nargs="?", default=None, help="message fields as YAML or JSON (before or after the options)")
     p.add_argument("--type", "-t", required=True, dest="type_name", help="schema name (see `aero schema list`)")
     p.add_argument("--rate", type=float, default=0.0, help="repeat at HZ until Ctrl-C (0: once)")
     p.add_argument("--count", "-n", type=int, default=0, help="with --rate: stop after N messages")
     p.set_defaults(func=topic_pub)
 
     svc = sub.add_parser("service", help="call request/response services (queryables)")
-    ssub = svc.add_subparsers(dest="service_cmd", required=True)
+    ssub = svc.add_subparsers(dest="service_cmd", required=True, parser_class=TrailingPositionalParser)
     p = ssub.add_parser("call", help="send a request and print the reply")
     add_session_arguments(p)
     p.add_argument("key")
-    p.add_argument("data", nargs="?", default="", help="request fields as YAML or JSON")
+    p.add_argument("data", nargs="?", default=None, help="request fields as YAML or JSON")
     p.add_argument("--type", "-t", dest="type_name", default=None,
                    help="request schema to validate against before sending")
     p.add_argument("--timeout", type=float, default=5.0)
@@ -104,15 +111,19 @@ def decode_sample(sample: zenoh.Sample) -> tuple[str, object]:
 
 def topic_list(args) -> int:
     session = open_client(args)
-    stats: dict[str, list] = defaultdict(lambda: [0, 0, ""])  # count, bytes, schema
+    stats: dict[str, list] = defaultdict(lambda: [0, 0, "", 0.0, 0.0])  # count, bytes, schema, first, last
     lock = threading.Lock()
 
     def on_sample(s: zenoh.Sample) -> None:
+        now = time.monotonic()
         with lock:
             st = stats[str(s.key_expr)]
+            if st[0] == 0:
+                st[3] = now
             st[0] += 1
             st[1] += len(s.payload)
             st[2] = schema_of(s.encoding) or str(s.encoding)
+            st[4] = now
 
     sub = session.declare_subscriber(full_key(args, args.pattern), on_sample)
     time.sleep(args.duration)
@@ -124,14 +135,23 @@ def topic_list(args) -> int:
     width = max(len(k) for k in stats)
     print(f"{'KEY':<{width}}  {'RATE_HZ':>8}  {'BYTES':>9}  SCHEMA")
     for k in sorted(stats):
-        n, b, sid = stats[k]
-        print(f"{k:<{width}}  {n / args.duration:8.1f}  {b // max(n, 1):9d}  {sid}")
+        n, b, sid, first, last = stats[k]
+        print(f"{k:<{width}}  {rate_text(n, last - first):>8}  {b // max(n, 1):9d}  {sid}")
     return 0
+
+
+def rate_text(count: int, span_s: float) -> str:
+    """Rate from the intervals seen (count - 1 over the first-to-last span), not count / window:
+    a 1 Hz key seen twice in a 2 s window is 1 Hz, not 0.5 (a single sample has no rate: "-")."""
+    if count < 2 or span_s <= 0:
+        return "-"
+    return f"{(count - 1) / span_s:.1f}"
 
 
 def topic_echo(args) -> int:
     session = open_client(args)
     done = threading.Event()
+    got_one = threading.Event()
     count = [0]
     lock = threading.Lock()
 
@@ -141,30 +161,57 @@ def topic_echo(args) -> int:
         except SchemaError as e:
             print(f"# {s.key_expr}: invalid payload: {e}", file=sys.stderr, flush=True)
             return
+        got_one.set()
         with lock:
             if done.is_set():
                 return
             shown = data if args.raw else summarize(data)
             if args.json:
-                print(dump({"key": str(s.key_expr), "schema": sid, "data": shown}, True), flush=True)
+                ok = emit(dump({"key": str(s.key_expr), "schema": sid, "data": shown}, True))
             else:
-                print(f"# {s.key_expr} [{sid}]\n" + dump(shown, False), flush=True)
+                ok = emit(f"# {s.key_expr} [{sid}]\n" + dump(shown, False))
             count[0] += 1
-            if args.count and count[0] >= args.count:
-                done.set()
+            if not ok or (args.count and count[0] >= args.count):
+                done.set()  # enough, or nobody reads stdout any more (`| head -1`)
 
-    sub = session.declare_subscriber(full_key(args, args.key), on_sample)
+    key = full_key(args, args.key)
+    sub = session.declare_subscriber(key, on_sample)
     try:
-        done.wait(args.timeout or None)
+        t_end = time.monotonic() + args.timeout if args.timeout else float("inf")
+        first = min(SILENCE_HINT_S, args.timeout) if args.timeout else SILENCE_HINT_S
+        if not done.wait(first) and not got_one.is_set() and time.monotonic() < t_end:
+            print(silence_hint(session, key, args), file=sys.stderr, flush=True)
+        done.wait(None if t_end == float("inf") else max(0.0, t_end - time.monotonic()))
     except KeyboardInterrupt:
         pass
     sub.undeclare()
     session.close()
-    if args.count and count[0] < args.count:
-        print(f"received {count[0]} of {args.count} messages on {args.key} within {args.timeout} s",
+    if (args.count and count[0] < args.count) or (args.timeout and count[0] == 0):
+        print(f"aero: received {count[0]} of {args.count or 'any'} messages on {args.key} within {args.timeout} s",
               file=sys.stderr)
         return 1
     return 0
+
+
+def silence_hint(session: zenoh.Session, key: str, args, listen_s: float = 1.0) -> str:
+    """Why `topic echo KEY` is silent: nobody declares KEY; the keys that look like it, among
+    those the contracts declare and those published right now."""
+    seen: set[str] = set()
+
+    def on_any(s: zenoh.Sample) -> None:
+        seen.add(str(s.key_expr))
+
+    sub = session.declare_subscriber("**", on_any)
+    time.sleep(listen_s)
+    sub.undeclare()
+    prefix = f"{args.vehicle}/" if getattr(args, "vehicle", "") else ""
+    known = {prefix + k for k in contracts.declared_keys(contracts.load_contracts()) if "*" not in k and "<" not in k}
+    declared = any(contracts.key_matches(key, k) or contracts.key_matches(k, key) for k in known)
+    why = "its publisher is not running" if declared else "no service declares it"
+    near = contracts.close_keys(key, known | seen)
+    hint = f"did you mean {', '.join(near)}?" if near else "`aero topic list` shows what is published."
+    return (f"aero: nothing published on {key} in {SILENCE_HINT_S:.1f} s ({why}); {hint} "
+            "Still waiting (Ctrl-C or --timeout to stop).")
 
 
 def topic_hz(args) -> int:
@@ -188,13 +235,15 @@ def topic_hz(args) -> int:
                     stamps.pop(0)
                 window = list(stamps)
             if len(window) < 2:
-                print(f"{args.key}: no messages in the last {args.window:.0f} s", flush=True)
+                if not emit(f"{args.key}: no messages in the last {args.window:.0f} s"):
+                    break
                 status = 1
                 continue
             gaps = [b - a for a, b in zip(window, window[1:])]
             rate = (len(window) - 1) / (window[-1] - window[0])
-            print(f"{args.key}: rate {rate:.2f} Hz  min {min(gaps)*1e3:.1f} ms  max {max(gaps)*1e3:.1f} ms"
-                  f"  std {statistics.pstdev(gaps)*1e3:.2f} ms  window {len(window)}", flush=True)
+            if not emit(f"{args.key}: rate {rate:.2f} Hz  min {min(gaps)*1e3:.1f} ms  max {max(gaps)*1e3:.1f} ms"
+                        f"  std {statistics.pstdev(gaps)*1e3:.2f} ms  window {len(window)}"):
+                break
             status = 0
     except KeyboardInterrupt:
         pass
@@ -218,8 +267,21 @@ def build_message(type_name: str, text: str, stamp: bool = True) -> Message:
     return msg
 
 
+def check_declared_type(key: str, type_name: str) -> str | None:
+    """A warning when the contracts declare `key` with another schema than `type_name`."""
+    declared = contracts.declared_schemas(key, contracts.load_contracts())
+    if not declared or any(s == type_name for s, _svc, _role in declared):
+        return None
+    schema, svc, role = declared[0]
+    return (f"aero: warning: {key} is declared as {schema} ({svc} {role} it), not {type_name}; "
+            f"its readers will reject or misread this message")
+
+
 def topic_pub(args) -> int:
-    msg = build_message(args.type_name, args.data)
+    msg = build_message(args.type_name, args.data or "{}")
+    warning = check_declared_type(args.key.strip("/"), type(msg).__name__)
+    if warning:
+        print(warning, file=sys.stderr, flush=True)
     session = open_client(args)
     pub = session.declare_publisher(full_key(args, args.key), encoding=encoding_for(type(msg)))
     sent = 0

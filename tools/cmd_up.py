@@ -20,11 +20,16 @@ perception; what each process got is printed at start.
 from __future__ import annotations
 
 import argparse
+import difflib
 import json
+import math
 import os
+import re
+import shutil
 import signal
 import subprocess
 import sys
+import textwrap
 import threading
 import time
 from dataclasses import dataclass, field
@@ -42,7 +47,7 @@ from aeroperception.services.runtime.supervision import (
 )
 
 from .cmd_topic import decode_sample
-from .common import CliError
+from .common import CliError, emit
 
 LEVELS = {0: "OK", 1: "WARN", 2: "ERROR", 3: "STALE"}
 
@@ -90,6 +95,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--arg", action="append", default=[], metavar="SERVICE:FLAG",
                    help="extra flag for one service, e.g. --arg planner:--param=kp=1.0")
     p.add_argument("--status-interval", type=float, default=2.0, help="seconds between status tables")
+    p.add_argument("--dry-run", action="store_true",
+                   help="validate the arguments and print each service's command line; start nothing")
     p.set_defaults(func=run)
 
 
@@ -110,6 +117,7 @@ class Child:
     sched: str = ""             # what the scheduler granted, e.g. "SCHED_RR 20"
     token: bool = False         # aero/alive/<vehicle>/<name> exists (ours or another instance's)
     waiting_since: float | None = None  # refused as a duplicate; waiting for the other to stop
+    last_error: str = ""
 
     def start(self, env: dict[str, str]) -> None:
         log = open(self.log_path, "ab")
@@ -127,8 +135,8 @@ class Child:
             return False
         if self.waiting_since is None:
             self.waiting_since = now
-            print(f"aero up: {self.name} not started: the same service is already running for this "
-                  f"vehicle (see {self.log_path}); starting it when that one stops", flush=True)
+            emit(f"aero up: {self.name} not started: the same service is already running for this "
+                 f"vehicle (see {self.log_path}); starting it when that one stops")
         return True
 
     def status(self) -> str:
@@ -147,19 +155,59 @@ def write_pids(path: Path, children) -> None:
     os.replace(tmp, path)
 
 
+def _did_you_mean(word: str, choices) -> str:
+    near = difflib.get_close_matches(word, list(choices), n=3, cutoff=0.5)
+    return f" (did you mean {', '.join(near)}?)" if near else ""
+
+
 def select_services(args) -> list[str]:
     profiles = load_profiles()
     if args.profile not in profiles:
-        raise CliError(f"unknown profile {args.profile!r}; profiles: {', '.join(profiles)}")
+        raise CliError(f"unknown profile {args.profile!r}{_did_you_mean(args.profile, profiles)}; "
+                       f"profiles: {', '.join(profiles)}")
     names = list(profiles[args.profile]["services"])
+    for flag, text in (("--only", args.only), ("--except", args.exclude)):
+        for s in (s.strip() for s in text.split(",")):
+            if s and s not in names:
+                raise CliError(f"{flag} {s}: not in profile {args.profile}{_did_you_mean(s, names)}; "
+                               f"its services: {', '.join(names)}")
     if args.only:
-        only = [s.strip() for s in args.only.split(",") if s.strip()]
-        unknown = [s for s in only if s not in names]
-        if unknown:
-            raise CliError(f"--only {','.join(unknown)}: not in profile {args.profile} ({', '.join(names)})")
+        only = {s.strip() for s in args.only.split(",") if s.strip()}
         names = [n for n in names if n in only]
     excl = {s.strip() for s in args.exclude.split(",") if s.strip()}
     return [n for n in names if n not in excl]
+
+
+# pymavlink connection strings: udp/udpin/udpout/udpbcast/tcp/tcpin:HOST:PORT, or a serial device
+# with an optional baud rate (/dev/ttyACM0,921600; COM3).
+FCU_URL_RE = re.compile(r"^(?:(?:udp|udpin|udpout|udpbcast|tcp|tcpin):[A-Za-z0-9_.\-]+:(\d{1,5})"
+                        r"|(?:/dev/\S+|COM\d+)(?:,\d+)?)$")
+
+
+def validate_args(args, names: list[str]) -> None:
+    """Refuse, before anything starts, what would only make a child crash-loop."""
+    if args.speed is not None and not (math.isfinite(args.speed) and args.speed > 0):
+        raise CliError(f"--speed {args.speed:g}: must be a number > 0 (1 = real time, 4 = four times faster)")
+    if args.scenario is not None and "sim" in names:
+        from aeroperception.services.sim.world.scenario import ScenarioError, available_scenarios, load_scenario
+
+        try:
+            load_scenario(args.scenario)
+        except ScenarioError as e:
+            raise CliError(f"--scenario: {e}{_did_you_mean(args.scenario, available_scenarios())}") from None
+    if args.fcu_url is not None:
+        m = FCU_URL_RE.match(args.fcu_url)
+        if not m or (m.group(1) and not 0 < int(m.group(1)) < 65536):
+            raise CliError(f"--fcu-url {args.fcu_url!r}: expected udpin:HOST:PORT, udpout:HOST:PORT, "
+                           "tcp:HOST:PORT or a serial device /dev/ttyACM0,921600")
+    everything = load_profiles()[args.profile]["services"]
+    for item in args.arg:
+        svc, sep, flag = item.partition(":")
+        if not sep or not flag:
+            raise CliError(f"--arg {item!r}: expected SERVICE:FLAG, e.g. planner:--param=kp=1.0")
+        if svc not in everything:
+            raise CliError(f"--arg {item!r}: no service {svc!r} in profile {args.profile}"
+                           f"{_did_you_mean(svc, everything)}")
 
 
 def service_argv(name: str, args, endpoint: str, profile_args: list[str] = ()) -> list[str]:
@@ -233,13 +281,13 @@ class RouterChild:
             if now - c.started_at > 30:
                 c.backoff_s = self.BACKOFF_S
             c.next_start = now + c.backoff_s
-            print(f"aero up: router exited with code {code}; restarting in {c.backoff_s:.1f} s "
-                  f"(log: {c.log_path})", flush=True)
+            emit(f"aero up: router exited with code {code}; restarting in {c.backoff_s:.1f} s "
+                 f"(log: {c.log_path})")
             c.backoff_s = min(c.backoff_s * 2, self.MAX_BACKOFF_S)
         if c.proc is None and now >= c.next_start:
             c.restarts += 1
             self._start()
-            print(f"aero up: router restarted (pid {c.proc.pid}, {c.sched})", flush=True)
+            emit(f"aero up: router restarted (pid {c.proc.pid}, {c.sched})")
 
     def stop(self) -> None:
         shutdown([self.child])
@@ -248,6 +296,14 @@ class RouterChild:
 
 def run(args) -> int:
     names = select_services(args)
+    validate_args(args, names)
+    if args.dry_run:
+        endpoint = args.listen.replace("0.0.0.0", "127.0.0.1")
+        profile_args = load_profiles()[args.profile]["args"]
+        emit(f"aero up: profile {args.profile}, router on {args.listen}; would start:")
+        for n in names:
+            emit(f"  {n:<12} " + " ".join(service_argv(n, args, endpoint, [str(a) for a in profile_args.get(n, [])])))
+        return 0
     log_dir = Path(args.log_dir or Path.home() / ".aero" / "logs" / time.strftime("%Y%m%d-%H%M%S"))
     log_dir.mkdir(parents=True, exist_ok=True)
     endpoint = args.listen.replace("0.0.0.0", "127.0.0.1")
@@ -293,14 +349,13 @@ def run(args) -> int:
             session.declare_subscriber("diagnostics/*", on_diag),
             session.declare_subscriber("*/diagnostics/*", on_diag)]
 
-    print(f"aero up: profile {args.profile} ({', '.join(names) or 'no services'}), router on {args.listen}, "
-          f"logs in {log_dir}", flush=True)
+    emit(f"aero up: profile {args.profile} ({', '.join(names) or 'no services'}), router on {args.listen}, "
+         f"logs in {log_dir}")
     pids_path = log_dir / "pids.json"
     for c in children.values():
         c.start(env)
     write_pids(pids_path, children.values())
-    print("aero up: scheduling: " + ", ".join(f"{c.name} {c.sched}" for c in [router.child, *children.values()]),
-          flush=True)
+    emit("aero up: scheduling: " + ", ".join(f"{c.name} {c.sched}" for c in [router.child, *children.values()]))
 
     tty = sys.stdout.isatty()
     last_table = ""
@@ -314,11 +369,13 @@ def run(args) -> int:
                 code = c.proc.poll() if c.proc else 0
                 if c.proc is not None and code is not None:
                     c.last_exit, c.proc, c.alive = code, None, False
+                    c.last_error = last_error_line(c.log_path)
                     if now - c.started_at > 30:
                         c.backoff_s = 1.0
                     c.next_start = now + c.backoff_s
-                    print(f"aero up: {c.name} exited with code {code}; restarting in {c.backoff_s:.0f} s "
-                          f"(log: {c.log_path})", flush=True)
+                    emit(f"aero up: {c.name} exited with code {code}"
+                         + (f" ({c.last_error})" if c.last_error else "")
+                         + f"; restarting in {c.backoff_s:.0f} s (log: {c.log_path})")
                     c.backoff_s = min(c.backoff_s * 2, 30.0)
                     changed = True
                 if c.proc is None and now >= c.next_start and not c.held_elsewhere(now):
@@ -327,14 +384,13 @@ def run(args) -> int:
                     changed = True
             if changed:
                 write_pids(pids_path, children.values())
-            table = format_table(children.values())
+            table = format_table(children.values(), None if tty else 240)  # logs: long lines are fine
         if now >= next_table and (tty or table != last_table):
-            if tty:
-                sys.stdout.write("\x1b[2J\x1b[H")
-            print(table, flush=True)
+            # A reader that went away (`aero up | head`) must not stop the supervision.
+            emit(("\x1b[2J\x1b[H" if tty else "") + table)
             last_table = table
             next_table = now + args.status_interval
-    print("aero up: stopping", flush=True)
+    emit("aero up: stopping")
     shutdown(children.values())
     pids_path.unlink(missing_ok=True)
     for s in subs:
@@ -344,12 +400,53 @@ def run(args) -> int:
     return 0
 
 
-def format_table(children) -> str:
+def last_error_line(log_path: Path, tail_bytes: int = 16384) -> str:
+    """The last error a service wrote before it exited: a JSON log record at level error, or a
+    plain line (a traceback's last line, `aero run X: ...`). "" when there is none."""
+    try:
+        with open(log_path, "rb") as f:
+            f.seek(max(0, f.seek(0, os.SEEK_END) - tail_bytes))
+            lines = f.read().decode(errors="replace").splitlines()
+    except OSError:
+        return ""
+    for line in reversed(lines[-200:]):
+        line = line.strip()
+        if not line:
+            continue
+        try:
+            rec = json.loads(line)
+        except ValueError:
+            return line
+        if not isinstance(rec, dict):
+            return line
+        if rec.get("level") == "error":
+            detail = rec.get("error") or rec.get("message") or ", ".join(
+                f"{k}={v}" for k, v in rec.items() if k not in ("ts", "service", "level", "event"))
+            return f"{rec.get('event', 'error')}: {detail}" if detail else str(rec.get("event", ""))
+    return ""
+
+
+MESSAGE_COL = 13 + 1 + 10 + 1 + 6 + 1 + 8 + 2
+
+
+def format_table(children, width: int | None = None) -> str:
+    """One row per service; the message wraps on word boundaries under its column (at most three
+    lines, then "..."), so a URL or a number is never cut."""
+    width = width or shutil.get_terminal_size((120, 24)).columns
+    msg_width = max(30, width - MESSAGE_COL - 1)
     rows = [f"{'SERVICE':<13} {'STATE':<10} {'HEALTH':<6} {'RESTARTS':>8}  MESSAGE"]
     for c in children:
         lvl = LEVELS.get(c.health.get("level"), "-") if c.alive else "-"
-        msg = c.health.get("message", "") if c.alive else (f"exit {c.last_exit}" if c.last_exit is not None else "")
-        rows.append(f"{c.name:<13} {c.status():<10} {lvl:<6} {c.restarts:>8}  {msg[:60]}")
+        if c.alive:
+            msg = c.health.get("message", "")
+        elif c.last_exit is not None:
+            msg = f"exit {c.last_exit}" + (f": {c.last_error}" if c.last_error else "")
+        else:
+            msg = ""
+        lines = textwrap.wrap(msg, msg_width, break_long_words=False, break_on_hyphens=False,
+                              max_lines=3, placeholder=" ...") or [""]
+        rows.append(f"{c.name:<13} {c.status():<10} {lvl:<6} {c.restarts:>8}  {lines[0]}")
+        rows += [" " * MESSAGE_COL + line for line in lines[1:]]
     return "\n".join(rows)
 
 

@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import sys
+import threading
 from typing import Any
 
 import yaml
@@ -16,6 +18,65 @@ from aeroperception.services.runtime.session import ZenohConfigError, make_confi
 
 class CliError(Exception):
     """A user-facing failure: printed as `aero: <message>` with exit code 2, no traceback."""
+
+
+class TrailingPositionalParser(argparse.ArgumentParser):
+    """A parser whose optional positionals (`DATA` in `topic pub KEY [DATA]`) may also come after
+    the options: `topic pub KEY --type T DATA` as well as `topic pub KEY DATA --type T`.
+
+    argparse fills positionals in one pass over the first run of bare words, so a word that
+    follows an option is otherwise "unrecognized"; and `parse_intermixed_args` cannot be used
+    under sub-commands. Leftover bare words fill the still-unset `?` positionals in order.
+    """
+
+    def parse_known_args(self, args=None, namespace=None):
+        ns, extras = super().parse_known_args(args, namespace)
+        for action in self._positionals._group_actions:
+            if action.nargs != "?" or getattr(ns, action.dest, None) is not action.default:
+                continue
+            word = next((w for w in extras if not w.startswith("-") or w == "-"), None)
+            if word is None:
+                break
+            extras.remove(word)
+            setattr(ns, action.dest, word)
+        return ns, extras
+
+
+# ---------------------------------------------------------------- stdout that may close
+
+_stdout_lock = threading.Lock()
+stdout_closed = threading.Event()
+"""Set once the reader of stdout went away (`aero ... | head -1`): stop producing output."""
+
+EXIT_BROKEN_PIPE = 141
+"""Exit code when stdout's reader went away: 128 + SIGPIPE, what `yes | head` reports."""
+
+
+def emit(text: str) -> bool:
+    """Print `text` (a newline is added) and flush, from any thread. False once stdout's reader
+    has gone; stdout is then pointed at /dev/null so nothing (not even interpreter shutdown's
+    final flush) raises BrokenPipeError again."""
+    with _stdout_lock:
+        if stdout_closed.is_set():
+            return False
+        try:
+            sys.stdout.write(text + "\n")
+            sys.stdout.flush()
+            return True
+        except BrokenPipeError:
+            silence_stdout()
+            return False
+
+
+def silence_stdout() -> None:
+    """The reader of stdout is gone: redirect the fd to /dev/null and remember it."""
+    stdout_closed.set()
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError):
+        pass
 
 
 def add_session_arguments(p: argparse.ArgumentParser) -> None:
@@ -87,5 +148,6 @@ def dump(obj: Any, as_json: bool) -> str:
     return yaml.safe_dump(obj, sort_keys=False, default_flow_style=None, width=120).rstrip() + "\n---"
 
 
-__all__ = ["CliError", "SchemaError", "add_session_arguments", "open_client", "full_key",
+__all__ = ["CliError", "SchemaError", "TrailingPositionalParser", "emit", "silence_stdout", "stdout_closed",
+           "EXIT_BROKEN_PIPE", "add_session_arguments", "open_client", "full_key",
            "parse_data", "summarize", "dump"]

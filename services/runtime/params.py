@@ -44,6 +44,11 @@ class Param:
                 v = yaml.safe_load(v)
             except yaml.YAMLError:
                 pass
+            if isinstance(v, str) and t in (int, float):
+                try:  # YAML 1.1 reads "1e9" (no dot) as a string
+                    v = float(v)
+                except ValueError:
+                    pass
         if t is bool:
             if not isinstance(v, bool):
                 raise ParamError(f"{self.name}: expected true/false, got {value!r}")

@@ -1,7 +1,10 @@
 """Zenoh configuration and session opening, shared by every service and `aero` command.
 
-Precedence: --zenoh-config FILE > $AERO_ZENOH_CONFIG > ./zenoh.json5 > the repository's
-zenoh.json5 > zenoh defaults; then --connect / $AERO_CONNECT replaces connect/endpoints.
+Precedence: --zenoh-config FILE > $AERO_ZENOH_CONFIG > ./zenoh.json5 > the default shipped in
+this package (services/runtime/zenoh.json5; the repository root's zenoh.json5 is a symlink to
+it, so an installed wheel and a checkout read the same file); then --connect / $AERO_CONNECT
+replaces connect/endpoints. Zenoh's own defaults (peer mode, multicast scouting) are never used:
+they would find no router and wait in silence.
 A client opened before its router exists fails at once, so `open_session` retries with
 back-off until connected or told to stop. An open client session reconnects by itself when its
 router restarts (Zenoh re-declares its tokens, subscribers and queryables); RECONNECT makes it
@@ -17,7 +20,7 @@ from pathlib import Path
 
 import zenoh
 
-REPO_CONFIG = Path(__file__).resolve().parents[2] / "zenoh.json5"
+DEFAULT_CONFIG = Path(__file__).resolve().with_name("zenoh.json5")
 RECONNECT = {"period_init_ms": 200, "period_max_ms": 1000, "period_increase_factor": 1.5}
 
 
@@ -25,17 +28,18 @@ class ZenohConfigError(RuntimeError):
     """The Zenoh configuration cannot be read or applied; the message says which part."""
 
 
-def find_config_file(explicit: str | None = None) -> Path | None:
+def find_config_file(explicit: str | None = None) -> Path:
     for candidate in (explicit, os.environ.get("AERO_ZENOH_CONFIG")):
         if candidate:
             p = Path(candidate)
             if not p.is_file():
                 raise ZenohConfigError(f"Zenoh config file {p} does not exist")
             return p
-    for p in (Path.cwd() / "zenoh.json5", REPO_CONFIG):
+    for p in (Path.cwd() / "zenoh.json5", DEFAULT_CONFIG):
         if p.is_file():
             return p
-    return None
+    raise ZenohConfigError(f"the default Zenoh config {DEFAULT_CONFIG} is missing from the installation: "
+                           "reinstall aeroperception, or pass --zenoh-config FILE")
 
 
 def _split_endpoints(connect: str | list[str]) -> list[str]:
@@ -54,7 +58,7 @@ def make_config(zenoh_config: str | None = None, connect: str | list[str] | None
                 mode: str | None = None, listen: list[str] | None = None) -> zenoh.Config:
     path = find_config_file(zenoh_config)
     try:
-        conf = zenoh.Config.from_file(str(path)) if path else zenoh.Config()
+        conf = zenoh.Config.from_file(str(path))
     except zenoh.ZError as e:
         raise ZenohConfigError(f"{path}: {e}") from None
     connect = connect or os.environ.get("AERO_CONNECT")

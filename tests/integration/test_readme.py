@@ -1,0 +1,191 @@
+"""The README's commands, run: every command line of every ```bash block is listed in HOW below,
+and a README line that is not is a test failure, so an example cannot change (or rot) unseen.
+
+- "stack": run against a real `aero up --except planner` stack (sim, fmu, mission, gcs,
+  diagnostics on free ports, no sensor rendering) with `aero run planner --param kp=1.0` in the
+  foreground beside it — the README's own "run one service yourself" pattern — in README order.
+  Commands that would run forever get a bound (`--duration`, `--timeout`); the rest run as written.
+- "dry": `aero up` lines run with `--dry-run`: the arguments are validated and the command line
+  of every service printed, nothing starts (they need a real FC, QGC, or the fixed ports).
+- "skip": what cannot run here (installing with apt, the whole CI, an interactive MAVProxy),
+  with the test that covers it instead, and a syntax or `--help` check where there is one.
+"""
+from __future__ import annotations
+
+import re
+import shlex
+import socket
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+
+from aerotest import aero, aero_argv, clean_env, free_port, wait_for_message, wait_until
+
+from aeroperception.schemas import VehicleState
+
+REPO = Path(__file__).resolve().parents[2]
+
+STACK, DRY, SKIP = "stack", "dry", "skip"
+# README line -> (how, argv to run instead or extra flags, what stdout must contain)
+HOW: dict[str, tuple] = {
+    "deploy/install.sh && aero up": (SKIP, ["bash", "-n", "deploy/install.sh"],
+                                     "installs apt packages and pip: checked for syntax; `aero up` as a dry run below"),
+    ".ci/run": (SKIP, ["bash", "-n", ".ci/run"], "it is this test suite (plus the install): checked for syntax"),
+    "aero mission fly examples/missions/survey_01.json": (
+        STACK, ["aero", "mission", "load", "examples/missions/survey_01.json"],
+        "loaded"),   # flying it takes minutes: test_flight flies missions (slow); here it is validated and loaded
+    "aero node list": (STACK, None, "planner"),
+    "aero topic list": (STACK, None, "state/vehicle"),
+    "aero topic echo state/vehicle -n 1": (STACK, ["--timeout", "15"], "# state/vehicle [VehicleState@"),
+    "aero topic hz fmu/in/trajectory_setpoint": (STACK, ["--duration", "3"], "fmu/in/trajectory_setpoint: rate"),
+    "aero topic pub mission/command --type MissionCommand '{command: HOLD}'": (STACK, None, ""),
+    "aero service call fmu/srv/set_mode '{mode: HOLD}' --type SetModeRequest": (STACK, None, "success: true"),
+    "aero param list planner": (STACK, None, "max_velocity_mps"),
+    "aero param set planner max_velocity_mps 3.0": (STACK, None, "max_velocity_mps = 3.0"),
+    "aero mission command LAND": (STACK, None, None),
+    "aero schema show VehicleState": (STACK, None, "VehicleState@"),
+    "aero schema export --out schema/": (STACK, None, "JSON Schema files"),
+    "aero snapshot --out shots/": (SKIP, ["aero", "snapshot", "--help"],
+                                   "needs the rendered sensors (2 cores): test_sim_sensors_stack runs it"),
+    "aero bench pubsub": (STACK, ["-n", "300", "--port", "{free_port}"], "median"),
+    "aero up --except planner": (STACK, None, None),   # the `readme_stack` fixture itself
+    "aero run planner --param kp=1.0": (STACK, None, None),   # started beside it by the fixture
+    "aero up": (DRY, None, "sim "),
+    "aero up --arg gcs:--gcs-ip=192.168.1.20": (DRY, None, "--gcs-ip=192.168.1.20"),
+    "mavproxy.py --master=udpin:127.0.0.1:14550": (SKIP, None, "interactive ground station: test_gcs drives MAVProxy"),
+    "aero up --arg gcs:--signing-key-file=/etc/aero/gcs.key": (DRY, None, "--signing-key-file=/etc/aero/gcs.key"),
+    "aero up --profile vehicle": (DRY, None, "--param publish_imu=true"),
+    "aero up --profile vehicle --fcu-url udpin:0.0.0.0:14540": (DRY, None, "--fcu-url udpin:0.0.0.0:14540"),
+    "aero up --profile vehicle --fcu-url /dev/ttyACM0,921600": (DRY, None, "--fcu-url /dev/ttyACM0,921600"),
+    "aero up --listen tcp/0.0.0.0:7447 --except planner": (DRY, None, "router on tcp/0.0.0.0:7447"),
+    "aero node list --connect tcp/VEHICLE_IP:7447": (STACK, None, "planner"),
+    "aero run planner --connect tcp/VEHICLE_IP:7447": (STACK, None, None),   # the fixture's planner uses --connect
+}
+
+
+def readme_commands() -> list[str]:
+    """Every command line of the README's ```bash blocks, trailing comments removed, in order."""
+    out = []
+    for block in re.findall(r"```bash\n(.*?)```", (REPO / "README.md").read_text(), re.S):
+        for line in block.splitlines():
+            line = line.strip()
+            if line and not line.startswith("#"):
+                out.append(re.sub(r"\s+#(\s.*)?$", "", line))
+    return out
+
+
+def test_every_readme_command_is_run_or_explained():
+    cmds = readme_commands()
+    missing = [c for c in cmds if c not in HOW]
+    assert not missing, f"README commands this test does not know (add them to HOW): {missing}"
+    stale = [c for c in HOW if c not in cmds]
+    assert not stale, f"HOW lists commands the README no longer has: {stale}"
+
+
+def test_readme_links_the_architecture_doc():
+    text = (REPO / "README.md").read_text()
+    assert "docs/ARCHITECTURE.md" in text and (REPO / "docs/ARCHITECTURE.md").is_file()
+    assert "ARCHITECTURE §" not in text
+
+
+def _argv(line: str) -> list[str]:
+    argv = shlex.split(line)
+    return aero_argv() + argv[1:] if argv[0] == "aero" else argv
+
+
+@pytest.mark.timeout(60)
+@pytest.mark.parametrize("line", [c for c, h in HOW.items() if h[0] == DRY])
+def test_readme_up_lines_validate_as_dry_runs(line):
+    _how, _argv_over, expected = HOW[line]
+    r = subprocess.run(_argv(line) + ["--dry-run"], capture_output=True, text=True, timeout=30,
+                       env=clean_env(), cwd=REPO, stdin=subprocess.DEVNULL)
+    assert r.returncode == 0, r.stderr
+    assert "would start" in r.stdout and expected in r.stdout, r.stdout
+    started = {ln.split()[0] for ln in r.stdout.splitlines()[1:]}
+    assert ("planner" in started) == ("--except planner" not in line)
+
+
+@pytest.mark.timeout(60)
+@pytest.mark.parametrize("line", [c for c, h in HOW.items() if h[0] == SKIP and h[1]])
+def test_readme_skipped_lines_still_checked(line):
+    _how, argv, _why = HOW[line]
+    argv = aero_argv() + argv[1:] if argv[0] == "aero" else argv
+    r = subprocess.run(argv, capture_output=True, text=True, timeout=30, cwd=REPO, env=clean_env(),
+                       stdin=subprocess.DEVNULL)
+    assert r.returncode == 0, r.stderr
+
+
+def _free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture(scope="module")
+def readme_stack(stack_module):
+    """`aero up --except planner` (free ports, no sensor rendering) and, beside it,
+    `aero run planner --param kp=1.0 --connect <router>` in the foreground."""
+    fcu, sim_bind, gcs_local, gcs_remote = (_free_udp_port() for _ in range(4))
+    st = stack_module(["sim", "fmu", "mission", "gcs", "diagnostics"], extra_args=[
+        "--fcu-url", f"udpin:127.0.0.1:{fcu}", "--arg", f"sim:--target=127.0.0.1:{fcu}",
+        "--arg", f"sim:--bind=127.0.0.1:{sim_bind}", "--sensors", "none",
+        "--arg", f"gcs:--local-port={gcs_local}", "--arg", f"gcs:--remote-port={gcs_remote}",
+        "--arg", "gcs:--bind-ip=127.0.0.1"], timeout_s=40)
+    planner = subprocess.Popen(aero_argv() + ["run", "planner", "--param", "kp=1.0", "--connect", st.endpoint],
+                               stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=clean_env(),
+                               stdin=subprocess.DEVNULL)
+    try:
+        wait_until(lambda: st.alive("planner"), 15, "the foreground planner's liveliness token")
+        wait_for_message(st.session, "state/vehicle", VehicleState, lambda m: m.connected, timeout_s=20)
+        yield st
+    finally:
+        planner.send_signal(2)
+        try:
+            code = planner.wait(5)
+        except subprocess.TimeoutExpired:
+            planner.kill()
+            planner.wait(5)
+            code = None
+        err = planner.stderr.read().decode(errors="replace")
+        planner.stderr.close()
+        assert code == 0, f"aero run planner did not stop cleanly on Ctrl-C: {code}\n{err[-2000:]}"
+
+
+@pytest.mark.timeout(240)
+def test_readme_commands_against_a_running_stack(readme_stack, tmp_path):
+    st = readme_stack
+    assert st.aero("param", "get", "planner", "kp").stdout.strip() == "1.0"  # `aero run planner --param kp=1.0`
+    (tmp_path / "examples").symlink_to(REPO / "examples")  # README paths are relative to the checkout
+    failures = []
+    for line in readme_commands():
+        how, extra, expected = HOW[line]
+        if how != STACK or expected is None:
+            continue
+        if extra and extra[0] == "aero":
+            argv = extra
+        else:
+            argv = shlex.split(line.replace("tcp/VEHICLE_IP:7447", st.endpoint))
+            argv += [a.replace("{free_port}", str(free_port())) for a in (extra or [])]
+        t0 = time.monotonic()
+        r = aero(*argv[1:], endpoint=st.endpoint, timeout_s=60, cwd=tmp_path)
+        took = time.monotonic() - t0
+        if r.returncode != 0 or expected not in r.stdout or "Traceback" in r.stderr or "warning" in r.stderr:
+            failures.append(f"{line!r} -> exit {r.returncode} in {took:.1f} s\nstdout: {r.stdout[-800:]}\n"
+                            f"stderr: {r.stderr[-800:]}")
+    assert not failures, "\n\n".join(failures)
+    assert len(list((tmp_path / "schema").glob("*.json"))) > 20   # `aero schema export --out schema/`
+
+
+@pytest.mark.timeout(60)
+def test_readme_mission_command_land_is_answered(readme_stack):
+    """`aero mission command LAND` on a vehicle on the ground: the mission service answers
+    (accepted, or refused with its reason in one line), never silence or a traceback."""
+    r = readme_stack.aero("mission", "command", "LAND")
+    assert "Traceback" not in r.stderr
+    if r.returncode != 0:
+        lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+        assert len(lines) == 1 and lines[0].startswith("aero:"), r.stderr
+    else:
+        assert r.stdout.strip() or r.stderr.strip()
