@@ -441,12 +441,12 @@ class MissionManager:
 
     def goto(self, position_m: np.ndarray, yaw_rad: float | None,
              acceptance_radius_m: float | None = None) -> tuple[bool, str]:
-        if self.state not in (State.HOLDING, State.EXECUTING):
-            return False, f"GOTO needs the vehicle in the air (HOLDING/EXECUTING), now {self.state.value}"
         position_m = np.asarray(position_m, float)
         why = self.limits.check_goto(*position_m, acceptance_radius_m)
         if why:
             return False, f"goto refused: {why}"
+        if self.state not in (State.HOLDING, State.EXECUTING):
+            return False, f"GOTO needs the vehicle in the air (HOLDING/EXECUTING), now {self.state.value}"
         if self.outage:
             return False, f"{self.outage}: holding until fresh vehicle state is back"
         self.goto_target = GoalOut(position_m, yaw_rad, acceptance_radius_m)
