@@ -14,7 +14,7 @@ Fault policy (ARCHITECTURE §8), every automatic transition reported in `message
   own while we think we fly, the mission goes IDLE (mission kept).
 - fmu outage (state/vehicle stale, fmu's liveliness gone, or the FC link lost): HOLDING; when
   fresh state is back the mission resumes only if `resume_after_outage` (default: stay HOLDING
-  until commanded).
+  until commanded) and the FC is holding or in OFFBOARD, never out of a failsafe RTL/LAND.
 - Restart: `restore()` with the persisted mission/progress; the first vehicle state decides:
   flying -> HOLDING ("mission restarted in flight"), LAND/RTL/HOLD/START accepted; on the
   ground -> IDLE with the mission still loaded.
@@ -534,8 +534,11 @@ class MissionManager:
         self.log("outage_over", reason=was, state=self.state.value)
         if self.state != State.HOLDING:
             return
+        mode = self.vehicle.flight_mode if self.vehicle else ""
         if (self.cfg.resume_after_outage and self.outage_from == State.EXECUTING
-                and self.hold_reason == "outage" and self.mission is not None):
+                and self.hold_reason == "outage" and self.mission is not None
+                and mode in ("", "OFFBOARD", "HOLD")):
+            # never out of a failsafe RTL/LAND the FC chose: only from its hold (or our OFFBOARD)
             self.fire(E.OUTAGE_RESUME, "fmu back after an outage: resuming (resume_after_outage)")
         else:
             self.message = "fmu back after an outage: holding until commanded (START resumes)"

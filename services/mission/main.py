@@ -278,10 +278,14 @@ class MissionService(Service):
     def health(self) -> Health:
         v = self.mgr.vehicle
         level = DiagnosticStatus.OK if v is not None and v.connected else DiagnosticStatus.WARN
+        if self.mgr.outage:
+            level = DiagnosticStatus.WARN
         return Health(level, f"{self.mgr.state.value}: {self.mgr.message}",
                       {"state": self.mgr.state.value, "waypoint": self.mgr.wp_index,
                        "perception_healthy": self.mgr.perception_healthy,
-                       "vehicle": "connected" if v is not None and v.connected else "no state"})
+                       "vehicle": "connected" if v is not None and v.connected else "no state",
+                       "fc_mode": v.flight_mode if v is not None else "", "outage": self.mgr.outage or "none",
+                       "safety_action": self.mgr.safety_action, "state_file": str(self.store.path)})
 
 
 def main(argv=None) -> int:

@@ -261,57 +261,57 @@ def test_fmu_killed_mid_mission_holds_and_does_not_resume_by_itself(mstack):
 # ---------------------------------------------------------------- safety/status reactions
 
 
-def publish_safety(st, action: int, reason: str, stop: threading.Event) -> threading.Thread:
-    """safety/status at 1 Hz from this test (as the safety service would), until `stop`."""
-    pub = st.session.declare_publisher("safety/status", encoding=encoding_for(SafetyStatus))
+class SafetyPublisher:
+    """safety/status at 1 Hz from this test, as the safety service would; `recommend()` changes
+    what is published (and publishes it at once, like the service's on-change update)."""
 
-    def run():
-        try:
-            while not stop.is_set():
-                pub.put(encode(SafetyStatus(recommended_action=action, active_errors=[reason] if reason else [])))
-                stop.wait(1.0)
-        finally:
-            pub.undeclare()
+    def __init__(self, st):
+        self.pub = st.session.declare_publisher("safety/status", encoding=encoding_for(SafetyStatus))
+        self.msg = SafetyStatus()
+        self.stop = threading.Event()
+        self.wake = threading.Event()
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
 
-    t = threading.Thread(target=run, daemon=True)
-    t.start()
-    return t
+    def recommend(self, action: int, reason: str = "") -> None:
+        self.msg = SafetyStatus(recommended_action=action, active_errors=[reason] if reason else [])
+        self.wake.set()
+
+    def _run(self) -> None:
+        while not self.stop.is_set():
+            self.pub.put(encode(self.msg))
+            self.wake.wait(1.0)
+            self.wake.clear()
+
+    def close(self) -> None:
+        self.recommend(SafetyStatus.ACTION_NONE)  # later tests start from NONE
+        time.sleep(0.2)
+        self.stop.set()
+        self.wake.set()
+        self.thread.join(3)
+        self.pub.undeclare()
 
 
 @pytest.mark.slow
 def test_safety_hold_acts_once_and_safety_land_lands(mstack):
     st = mstack
     start_survey(st)
-    stop = threading.Event()
-    pubs = [publish_safety(st, SafetyStatus.ACTION_NONE, "", stop)]
+    safety = SafetyPublisher(st)
     try:
-        time.sleep(1.5)
-        stop.set()
-        pubs[0].join(3)
-        stop = threading.Event()
-        pubs = [publish_safety(st, SafetyStatus.ACTION_HOLD, "geofence warning", stop)]
+        time.sleep(1.5)                               # NONE first
+        safety.recommend(SafetyStatus.ACTION_HOLD, "geofence warning")
         s = wait_status(st, lambda m: m.state == "HOLDING", 5, "HOLDING on safety HOLD")
         assert "safety: HOLD (geofence warning)" in s.message, s.message
         r = command(st, "START")                      # the operator acknowledges and resumes
         assert r.success, r.message
         time.sleep(3.0)                               # three more 1 Hz HOLD recommendations
         assert status(st).state == "EXECUTING", "the repeated recommendation overrode the operator"
-        stop.set()
-        pubs[0].join(3)
-        stop = threading.Event()
-        pubs = [publish_safety(st, SafetyStatus.ACTION_LAND, "battery critical", stop)]
+        safety.recommend(SafetyStatus.ACTION_LAND, "battery critical")
         s = wait_status(st, lambda m: m.state == "LAND", 5, "LAND on safety LAND")
         assert "safety: LAND (battery critical)" in s.message, s.message
         wait_until(lambda: landed(st), 60, "landed and disarmed (truth)")
     finally:
-        stop.set()
-        for p in pubs:
-            p.join(3)
-        # clear the recommendation so later tests start from NONE
-        clear = threading.Event()
-        publish_safety(st, SafetyStatus.ACTION_NONE, "", clear)
-        time.sleep(1.2)
-        clear.set()
+        safety.close()
     ensure_landed(st)
 
 

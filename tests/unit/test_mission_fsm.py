@@ -1155,3 +1155,11 @@ def test_limits_take_the_geofence_from_the_shared_parameters():
     assert limits.geofence.radius_m == 50.0
     assert "waypoint 1" in limits.check_mission(mission_with(waypoints=[{"x": 0, "y": 0, "z": 5},
                                                                          {"x": 60, "y": 0, "z": 5}]))
+
+
+def test_resume_after_outage_never_takes_the_vehicle_out_of_a_failsafe_rtl():
+    rig = Rig(Config(resume_after_outage=True))
+    rig.to_executing()
+    rig.tick(1.0, fresh_state=False)
+    rig.feed(fc(mode="RTL"))                          # the FC's offboard-loss failsafe is flying home
+    assert rig.mgr.state == State.HOLDING and "OFFBOARD" not in rig.bridge.modes()[1:]
