@@ -184,6 +184,7 @@ class MissionManager:
         self.takeoff_goal: GoalOut | None = None  # where the takeoff ends: held after ALTITUDE_REACHED
         self.vehicle: VehicleState | None = None
         self.vehicle_rx_s: float | None = None
+        self.last_tick_s: float | None = None
         self.armed_seen = False                 # armed since entering TAKEOFF (FC_LANDED guard)
         self.perception_healthy = False
         self.perception_rx_s: float | None = None
@@ -569,7 +570,10 @@ class MissionManager:
         """Time-driven checks (call at >= 2 Hz): vehicle-state freshness, perception gating and
         its recovery timer."""
         self.now_s = now_s
-        if (self.vehicle_rx_s is not None and not self.outage
+        # A late tick means this process stalled (CPU, GIL): samples may be queued, not missing.
+        stalled = self.last_tick_s is not None and now_s - self.last_tick_s > self.cfg.vehicle_timeout_s
+        self.last_tick_s = now_s
+        if (self.vehicle_rx_s is not None and not self.outage and not stalled
                 and now_s - self.vehicle_rx_s > self.cfg.vehicle_timeout_s):
             self._outage_begins(f"fmu outage (no state/vehicle for {now_s - self.vehicle_rx_s:.1f} s)")
         if self.rebuild_pending and self.restore_deadline_s is not None and now_s >= self.restore_deadline_s:

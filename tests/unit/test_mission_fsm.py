@@ -106,6 +106,11 @@ class Rig:
             self.mgr.on_perception(healthy, self.t)
         self.mgr.tick(self.t)
 
+    def silence(self, seconds: float, step: float = 0.1) -> None:
+        """No state/vehicle for `seconds` while this service ticks on time (fmu silent)."""
+        for _ in range(round(seconds / step)):
+            self.tick(step, fresh_state=False)
+
     def clear(self) -> None:
         self.bridge.calls.clear()
         self.goals.clear()
@@ -954,7 +959,7 @@ def test_stale_vehicle_state_holds_and_waits_for_start_after_it_is_back():
     rig.clear()
     rig.tick(0.3, fresh_state=False)
     assert rig.mgr.state == State.EXECUTING
-    rig.tick(0.3, fresh_state=False)                  # 0.6 s without state/vehicle
+    rig.tick(0.3, fresh_state=False)                  # 0.6 s without state/vehicle (ticks on time)
     assert rig.mgr.state == State.HOLDING
     assert rig.mgr.transitions[-1] == (State.EXECUTING, Event.FMU_OUTAGE, State.HOLDING)
     assert "fmu outage" in rig.mgr.message
@@ -971,7 +976,7 @@ def test_stale_vehicle_state_holds_and_waits_for_start_after_it_is_back():
 def test_resume_after_outage_policy_resumes_by_itself():
     rig = Rig(Config(resume_after_outage=True))
     rig.to_executing()
-    rig.tick(1.0, fresh_state=False)
+    rig.silence(1.0)
     assert rig.mgr.state == State.HOLDING
     rig.feed(flying(0.0, 0.0, 5.0))
     assert rig.mgr.state == State.EXECUTING
@@ -983,7 +988,7 @@ def test_resume_after_outage_does_not_resume_an_operator_hold():
     rig = Rig(Config(resume_after_outage=True))
     rig.to_executing()
     rig.mgr.command("HOLD")
-    rig.tick(1.0, fresh_state=False)
+    rig.silence(1.0)
     rig.feed(flying())
     assert rig.mgr.state == State.HOLDING
 
@@ -1010,7 +1015,7 @@ def test_flight_controller_link_lost_holds():
 def test_outage_during_a_landing_lets_the_fc_land():
     rig = Rig()
     rig.to_land()
-    rig.tick(1.0, fresh_state=False)
+    rig.silence(1.0)
     assert rig.mgr.state == State.LAND and "fmu outage" in rig.mgr.message
     rig.feed(vehicle())
     assert rig.mgr.state == State.IDLE
@@ -1019,7 +1024,7 @@ def test_outage_during_a_landing_lets_the_fc_land():
 def test_outage_then_fc_failsafe_landing_ends_idle():
     rig = Rig()
     rig.to_executing()
-    rig.tick(1.0, fresh_state=False)
+    rig.silence(1.0)
     rig.feed(fc(z=0.0, mode="RTL", armed=False, landed=LandedState.ON_GROUND))  # FC failsafe landed it
     assert rig.mgr.state == State.IDLE and "landed and disarmed on its own" in rig.mgr.message
 
@@ -1030,7 +1035,9 @@ def test_perception_recovery_does_not_resume_during_an_outage():
     rig.tick(healthy=True)
     rig.tick(healthy=False)
     assert rig.mgr.hold_reason == "perception"
-    rig.tick(1.0, healthy=True, fresh_state=False)
+    rig.silence(1.0, step=0.25)                       # perception still unhealthy, then fmu goes silent
+    assert rig.mgr.outage and rig.mgr.state == State.HOLDING
+    rig.tick(0.1, healthy=True, fresh_state=False)    # perception is back, fmu is not
     assert rig.mgr.state == State.HOLDING
 
 
@@ -1160,6 +1167,16 @@ def test_limits_take_the_geofence_from_the_shared_parameters():
 def test_resume_after_outage_never_takes_the_vehicle_out_of_a_failsafe_rtl():
     rig = Rig(Config(resume_after_outage=True))
     rig.to_executing()
-    rig.tick(1.0, fresh_state=False)
+    rig.silence(1.0)
     rig.feed(fc(mode="RTL"))                          # the FC's offboard-loss failsafe is flying home
     assert rig.mgr.state == State.HOLDING and "OFFBOARD" not in rig.bridge.modes()[1:]
+
+
+def test_a_stalled_mission_process_is_not_an_fmu_outage():
+    rig = Rig(Config(vehicle_timeout_s=0.5))
+    rig.to_executing()
+    rig.tick(0.1)
+    rig.tick(2.0, fresh_state=False)                  # our own tick was 2 s late: we stalled, not fmu
+    assert rig.mgr.state == State.EXECUTING and not rig.mgr.outage
+    rig.tick(0.1, fresh_state=False)                  # on time again and still no state: outage
+    assert rig.mgr.state == State.HOLDING and "fmu outage" in rig.mgr.message
