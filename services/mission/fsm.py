@@ -201,6 +201,7 @@ class MissionManager:
         self.safety_action = SafetyStatus.ACTION_NONE
         self.rebuild_pending = False            # restored: the first vehicle state rebuilds us
         self.restored_state = "IDLE"            # the state the previous run persisted
+        self.resume_done: Callable[[bool, str], None] | None = None  # START's outcome (OFFBOARD answer)
         self.restore_deadline_s: float | None = None
         self.message = "ready"
         self.started_s: float | None = None
@@ -224,9 +225,10 @@ class MissionManager:
         self._persist()
         return True
 
-    def _request_mode(self, mode: str) -> None:
+    def _request_mode(self, mode: str, then: Callable[[bool, str], None] | None = None) -> None:
+        """Ask the FC for `mode`; `then(ok, message)` (if given) learns the FC's answer."""
         self.expected_mode, self.mode_confirmed = mode, False
-        self.bridge.set_mode(mode, self._bridge_done(mode))
+        self.bridge.set_mode(mode, self._bridge_done(mode, then))
 
     def _enter_idle(self, prev: State, event: Event) -> None:
         self.start_requested = False
@@ -267,11 +269,14 @@ class MissionManager:
     def _enter_executing(self, prev: State, event: Event) -> None:
         self.hold_reason = ""
         mode = self.vehicle.flight_mode if self.vehicle else ""
+        then, self.resume_done = self.resume_done, None
         if mode and mode != "OFFBOARD":
             # the FC was taken over (or failed over) while we held: resuming asks for OFFBOARD again
-            self._request_mode("OFFBOARD")
+            self._request_mode("OFFBOARD", then)
             if self.state != State.EXECUTING:  # the request failed at once
                 return
+        elif then:
+            then(True, self.message)
         if self.goto_target is not None:
             self.publish_goal(self.goto_target)
             return
@@ -285,14 +290,18 @@ class MissionManager:
         self.disarm_sent = False
         self._request_mode(self.land_mode)
 
-    def _bridge_done(self, what: str) -> Callable[[bool, str], None]:
+    def _bridge_done(self, what: str, then: Callable[[bool, str], None] | None = None) -> Callable[[bool, str], None]:
         def done(ok: bool, message: str) -> None:
             if ok:
+                if then:
+                    then(True, self.message)
                 return
             self.log("bridge_failed", call=what, message=message)
             event = E.BRIDGE_FAILED_AIR if self.in_air() else E.BRIDGE_FAILED_GROUND
             if not self.fire(event, f"{what} failed: {message}"):
                 self.message = f"{what} failed: {message}"
+            if then:
+                then(False, f"{what} failed: {message}")
         return done
 
     # ------------------------------------------------------------ persistence and restart
@@ -387,13 +396,19 @@ class MissionManager:
             if self.outage and self.state == State.HOLDING:
                 return self._refuse(done, f"{self.outage}: holding until fresh vehicle state is back")
             self.goto_target = None
-            if not self.fire(E.START_CMD, "mission started" if self.wp_index <= 0 else
-                             f"mission resumed at waypoint {self.wp_index + 1}/{len(self.mission.waypoints)}"):
+            answered: list[tuple[bool, str]] = []
+
+            def outcome(ok: bool, message: str) -> None:  # when the FC has answered (OFFBOARD)
+                answered.append((ok, message))
+                done(ok, message)
+
+            self.resume_done = outcome
+            fired = self.fire(E.START_CMD, "mission started" if self.wp_index <= 0 else
+                              f"mission resumed at waypoint {self.wp_index + 1}/{len(self.mission.waypoints)}")
+            self.resume_done = None
+            if not fired:
                 return self._refuse(done, f"START not possible in {self.state.value}; TAKEOFF first")
-            if self.state != State.EXECUTING:  # asking for OFFBOARD failed at once
-                return self._refuse(done, self.message)
-            done(True, self.message)
-            return True, self.message
+            return answered[0] if answered else (True, self.message)
         simple = {"HOLD": E.HOLD_CMD, "LAND": E.LAND_CMD, "RTL": E.RTL_CMD}
         if cmd in simple:
             if not self.fire(simple[cmd], f"operator {cmd}"):

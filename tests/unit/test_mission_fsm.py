@@ -1180,3 +1180,27 @@ def test_a_stalled_mission_process_is_not_an_fmu_outage():
     assert rig.mgr.state == State.EXECUTING and not rig.mgr.outage
     rig.tick(0.1, fresh_state=False)                  # on time again and still no state: outage
     assert rig.mgr.state == State.HOLDING and "fmu outage" in rig.mgr.message
+
+
+def test_start_after_a_takeover_answers_with_the_fcs_offboard_outcome():
+    rig = Rig(bridge=FakeBridge(defer=True))
+    rig.to_idle()
+    rig.mgr.command("TAKEOFF", rig.on_result)
+    rig.bridge.answer_pending()                       # arm
+    rig.bridge.answer_pending()                       # OFFBOARD
+    rig.feed(fc())                                    # at 5 m in OFFBOARD: HOLDING
+    rig.mgr.command("START")
+    rig.feed(fc(mode="HOLD"))                         # a pilot/GCS took it: HOLDING
+    rig.results.clear()
+
+    accepted, _ = rig.mgr.command("START", rig.on_result)
+    assert accepted and rig.results == []             # not "started" before the FC said so
+    rig.bridge.fail[("set_mode", "OFFBOARD")] = "RC override"
+    rig.bridge.answer_pending()
+    assert rig.results == [(False, "OFFBOARD failed: RC override")]
+    assert rig.mgr.state == State.HOLDING
+
+    del rig.bridge.fail[("set_mode", "OFFBOARD")]
+    rig.mgr.command("START", rig.on_result)
+    rig.bridge.answer_pending()
+    assert rig.results[-1][0] is True and rig.mgr.state == State.EXECUTING
