@@ -1,17 +1,20 @@
 """Contract of the mission service: keys in/out and parameters."""
 from aeroperception.schemas import (
     ArmReply, ArmRequest, Empty, GetMissionReply, LoadMissionReply, LoadMissionRequest, MissionCommand,
-    MissionStatus, PerceptionHealth, PoseStamped, Reply, SetModeReply, SetModeRequest, VehicleState,
-    WaypointReached,
+    MissionStatus, PerceptionHealth, PoseStamped, Reply, SafetyStatus, SetModeReply, SetModeRequest,
+    VehicleState, WaypointReached,
 )
 from aeroperception.services.runtime import Param
+from aeroperception.services.safety.geofence import GEOFENCE_PARAMS
 
 NAME = "mission"
 INPUTS = {
     "state/vehicle": VehicleState,
     "perception/health": PerceptionHealth,
     "mission/command": MissionCommand,      # fire-and-forget operator command
+    "safety/status": SafetyStatus,          # a rising recommended_action HOLD/RTH/LAND acts once
 }
+LIVELINESS = ["fmu"]                        # fmu's token gone = fmu outage -> HOLDING
 OUTPUTS = {
     "mission/status": MissionStatus,        # 2 Hz
     "mission/active_goal": PoseStamped,     # on change; frame_id "hold" = hold position
@@ -37,4 +40,16 @@ PARAMS = [
     Param("land_on_complete", True, description="land after the last waypoint (else hold)"),
     Param("bridge_timeout_s", 5.0, "s", 0.5, 30.0, description="timeout of fmu/srv/* calls"),
     Param("status_rate_hz", 2.0, "Hz", 0.5, 20.0, description="mission/status rate"),
+    Param("vehicle_timeout_s", 0.5, "s", 0.1, 10.0, description="state/vehicle older than this = fmu outage: hold"),
+    Param("resume_after_outage", False,
+          description="after an fmu outage resume the mission by itself (default: hold until START)"),
+    Param("restore_timeout_s", 5.0, "s", 0.5, 60.0,
+          description="after a restart, wait this long for vehicle state before accepting commands"),
+    Param("state_dir", "", description="where the loaded mission and progress persist; '' = ~/.aero/state/<vehicle>/"),
+    # limits every mission, goto and takeoff is checked against (with the shared geofence)
+    Param("max_takeoff_altitude_m", 50.0, "m", 1.0, 10_000.0,
+          description="highest takeoff altitude accepted (also capped by geofence_max_altitude_m)"),
+    Param("min_acceptance_radius_m", 0.1, "m", 0.01, 100.0, description="smallest waypoint acceptance radius accepted"),
+    Param("max_acceptance_radius_m", 10.0, "m", 0.1, 1000.0, description="largest waypoint acceptance radius accepted"),
+    *GEOFENCE_PARAMS,
 ]

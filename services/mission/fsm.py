@@ -5,6 +5,21 @@ way the state changes is TRANSITIONS[(state, event)]. Side effects (bridge calls
 publication) go through the injected Bridge and `publish_goal`, so tests drive the whole FSM
 with plain objects. A bridge call that fails is the ERROR path of the seed: in the air the
 vehicle holds (planner keeps streaming), on the ground it goes back to IDLE, reason reported.
+
+Fault policy (ARCHITECTURE §8), every automatic transition reported in `message`:
+- The flight controller has the last word. When it leaves the mode we asked for on its own
+  (failsafe, RC pilot, another ground station) the mission goes HOLDING with "flight controller
+  switched to <mode>", stops commanding motion (hold goal) and never asks for OFFBOARD again by
+  itself: only an explicit START (or goto) re-requests OFFBOARD. When it lands and disarms on its
+  own while we think we fly, the mission goes IDLE (mission kept).
+- fmu outage (state/vehicle stale, fmu's liveliness gone, or the FC link lost): HOLDING; when
+  fresh state is back the mission resumes only if `resume_after_outage` (default: stay HOLDING
+  until commanded) and the FC is holding or in OFFBOARD, never out of a failsafe RTL/LAND.
+- Restart: `restore()` with the persisted mission/progress; the first vehicle state decides:
+  flying -> HOLDING ("mission restarted in flight"), LAND/RTL/HOLD/START accepted; on the
+  ground -> IDLE with the mission still loaded.
+- safety/status: a rising recommended_action HOLD / RTH / LAND acts once (SAFETY_REACTIONS);
+  the operator may command afterwards. EMERGENCY_STOP is the safety service's own job.
 """
 from __future__ import annotations
 
@@ -15,7 +30,9 @@ from typing import Callable, Protocol
 
 import numpy as np
 
-from aeroperception.schemas import LandedState, Mission, MissionStatus, VehicleState
+from aeroperception.schemas import LandedState, Mission, MissionStatus, SafetyStatus, VehicleState, parse_mission
+
+from .limits import Limits
 
 
 class State(str, Enum):
@@ -42,6 +59,14 @@ class Event(str, Enum):
     LANDED = "LANDED"
     BRIDGE_FAILED_AIR = "BRIDGE_FAILED_AIR"
     BRIDGE_FAILED_GROUND = "BRIDGE_FAILED_GROUND"
+    FC_MODE_CHANGED = "FC_MODE_CHANGED"    # the FC left the mode we asked for, on its own
+    FC_LANDED = "FC_LANDED"                # the FC landed and disarmed without our LAND
+    FMU_OUTAGE = "FMU_OUTAGE"              # state/vehicle stale, fmu gone or FC link lost
+    OUTAGE_RESUME = "OUTAGE_RESUME"        # fmu back and resume_after_outage set
+    RESTARTED_IN_AIR = "RESTARTED_IN_AIR"  # this service (re)started over a flying vehicle
+    SAFETY_HOLD = "SAFETY_HOLD"            # safety/status recommends HOLD
+    SAFETY_RTH = "SAFETY_RTH"              # ... return home
+    SAFETY_LAND = "SAFETY_LAND"            # ... land here
 
 
 S, E = State, Event
@@ -72,7 +97,40 @@ TRANSITIONS: dict[tuple[State, Event], State] = {
     (S.LAND, E.HOLD_CMD): S.HOLDING,
     (S.LAND, E.BRIDGE_FAILED_AIR): S.HOLDING,
     (S.LAND, E.BRIDGE_FAILED_GROUND): S.IDLE,
+    # the flight controller has the last word
+    (S.TAKEOFF, E.FC_MODE_CHANGED): S.HOLDING,
+    (S.EXECUTING, E.FC_MODE_CHANGED): S.HOLDING,
+    (S.LAND, E.FC_MODE_CHANGED): S.HOLDING,         # a pilot took over the landing
+    (S.TAKEOFF, E.FC_LANDED): S.IDLE,
+    (S.EXECUTING, E.FC_LANDED): S.IDLE,
+    (S.HOLDING, E.FC_LANDED): S.IDLE,
+    # fmu outage and restart
+    (S.TAKEOFF, E.FMU_OUTAGE): S.HOLDING,
+    (S.EXECUTING, E.FMU_OUTAGE): S.HOLDING,
+    (S.HOLDING, E.OUTAGE_RESUME): S.EXECUTING,
+    (S.IDLE, E.RESTARTED_IN_AIR): S.HOLDING,
+    # safety/status recommendations (airborne states only; a landing is never turned into a hold)
+    (S.TAKEOFF, E.SAFETY_HOLD): S.HOLDING,
+    (S.EXECUTING, E.SAFETY_HOLD): S.HOLDING,
+    (S.TAKEOFF, E.SAFETY_RTH): S.LAND,
+    (S.EXECUTING, E.SAFETY_RTH): S.LAND,
+    (S.HOLDING, E.SAFETY_RTH): S.LAND,
+    (S.TAKEOFF, E.SAFETY_LAND): S.LAND,
+    (S.EXECUTING, E.SAFETY_LAND): S.LAND,
+    (S.HOLDING, E.SAFETY_LAND): S.LAND,
 }
+
+# safety/status recommended_action -> the event it fires (on a rising recommendation only).
+SAFETY_REACTIONS: dict[int, Event] = {
+    SafetyStatus.ACTION_HOLD: E.SAFETY_HOLD,
+    SafetyStatus.ACTION_RTH: E.SAFETY_RTH,
+    SafetyStatus.ACTION_LAND: E.SAFETY_LAND,
+}
+SAFETY_ACTION_NAMES = {SafetyStatus.ACTION_NONE: "NONE", SafetyStatus.ACTION_WARN: "WARN",
+                       SafetyStatus.ACTION_HOLD: "HOLD", SafetyStatus.ACTION_RTH: "RTH",
+                       SafetyStatus.ACTION_LAND: "LAND", SafetyStatus.ACTION_EMERGENCY_STOP: "EMERGENCY_STOP"}
+RTL_EVENTS = (E.RTL_CMD, E.PERCEPTION_TIMEOUT, E.SAFETY_RTH)
+AIRBORNE = (S.TAKEOFF, S.EXECUTING, S.HOLDING, S.LAND)
 
 
 class Bridge(Protocol):
@@ -93,6 +151,9 @@ class Config:
     perception_recovery_s: float = 10.0     # seed 000 §4.1: recover within 10 s or RTL
     land_on_complete: bool = True
     disarm_after_landing_s: float = 5.0     # if the FC has not auto-disarmed by then, disarm
+    vehicle_timeout_s: float = 0.5          # state/vehicle older than this = fmu outage
+    resume_after_outage: bool = False       # after an fmu outage: resume EXECUTING by itself?
+    restore_timeout_s: float = 5.0          # after a restart, wait this long for vehicle state
 
 
 @dataclass
@@ -106,10 +167,12 @@ class GoalOut:
 
 class MissionManager:
     def __init__(self, bridge: Bridge, publish_goal: Callable[[GoalOut], None],
-                 config: Config | None = None, log: Callable[..., None] | None = None):
+                 config: Config | None = None, log: Callable[..., None] | None = None,
+                 limits: Limits | None = None):
         self.bridge = bridge
         self.publish_goal = publish_goal
         self.cfg = config or Config()
+        self.limits = limits or Limits()
         self.log = log or (lambda *a, **k: None)
         self.state = State.IDLE
         self.mission: Mission | None = None
@@ -118,7 +181,11 @@ class MissionManager:
         self.takeoff_pending = False            # arming for a takeoff is in flight
         self.goto_target: GoalOut | None = None
         self.takeoff_altitude_m: float | None = None
+        self.takeoff_goal: GoalOut | None = None  # where the takeoff ends: held after ALTITUDE_REACHED
         self.vehicle: VehicleState | None = None
+        self.vehicle_rx_s: float | None = None
+        self.last_tick_s: float | None = None
+        self.armed_seen = False                 # armed since entering TAKEOFF (FC_LANDED guard)
         self.perception_healthy = False
         self.perception_rx_s: float | None = None
         self.hold_reason = ""
@@ -126,12 +193,23 @@ class MissionManager:
         self.land_mode = "LAND"
         self.on_ground_since_s: float | None = None
         self.disarm_sent = False
+        self.expected_mode: str | None = None   # the FC mode we asked for last
+        self.mode_confirmed = False             # ... and the FC has been seen in it
+        self.fmu_alive = True
+        self.outage: str | None = None          # why we are in an fmu outage, None when not
+        self.outage_from: State | None = None
+        self.safety_action = SafetyStatus.ACTION_NONE
+        self.rebuild_pending = False            # restored: the first vehicle state rebuilds us
+        self.restored_state = "IDLE"            # the state the previous run persisted
+        self.resume_done: Callable[[bool, str], None] | None = None  # START's outcome (OFFBOARD answer)
+        self.restore_deadline_s: float | None = None
         self.message = "ready"
         self.started_s: float | None = None
         self.now_s = 0.0
         self.transitions: list[tuple[State, Event, State]] = []
         self.reached_events: list[int] = []
         self.on_waypoint_reached: Callable[[int, np.ndarray], None] = lambda i, p: None
+        self.on_persist: Callable[[dict], None] = lambda snapshot: None
 
     # ------------------------------------------------------------ FSM core
 
@@ -144,12 +222,20 @@ class MissionManager:
         self.message = reason or f"{event.value.lower()}"
         self.log("transition", frm=prev.value, trigger=event.value, to=nxt.value, reason=reason)
         getattr(self, f"_enter_{nxt.value.lower()}")(prev, event)
+        self._persist()
         return True
+
+    def _request_mode(self, mode: str, then: Callable[[bool, str], None] | None = None) -> None:
+        """Ask the FC for `mode`; `then(ok, message)` (if given) learns the FC's answer."""
+        self.expected_mode, self.mode_confirmed = mode, False
+        self.bridge.set_mode(mode, self._bridge_done(mode, then))
 
     def _enter_idle(self, prev: State, event: Event) -> None:
         self.start_requested = False
         self.goto_target = None
         self.takeoff_altitude_m = None
+        self.takeoff_goal = None
+        self.expected_mode = None
         self.publish_goal(GoalOut(None))
 
     def _enter_takeoff(self, prev: State, event: Event) -> None:
@@ -157,24 +243,40 @@ class MissionManager:
         alt = self.takeoff_altitude_m or (self.mission.takeoff_altitude_m if self.mission else self.cfg.takeoff_altitude_m)
         self.takeoff_altitude_m = alt
         self.started_s = self.now_s
-        self.publish_goal(GoalOut(np.array([pos[0], pos[1], alt]), self.vehicle.yaw_rad if self.vehicle else None))
-        self.bridge.set_mode("OFFBOARD", self._bridge_done("OFFBOARD"))
+        self.armed_seen = bool(self.vehicle and self.vehicle.armed)
+        self.takeoff_goal = GoalOut(np.array([pos[0], pos[1], alt]), self.vehicle.yaw_rad if self.vehicle else None)
+        self.publish_goal(self.takeoff_goal)
+        self._request_mode("OFFBOARD")
 
     def _enter_holding(self, prev: State, event: Event) -> None:
         self.hold_since_s = self.now_s
-        self.hold_reason = {E.PERCEPTION_LOST: "perception", E.LINK_LOST: "link"}.get(event, "")
+        self.hold_reason = {E.PERCEPTION_LOST: "perception", E.LINK_LOST: "link", E.FMU_OUTAGE: "outage",
+                            E.FC_MODE_CHANGED: "flight controller", E.RESTARTED_IN_AIR: "restart",
+                            E.SAFETY_HOLD: "safety"}.get(event, "")
         target, self.goto_target = (self.goto_target, None) if event == E.GOTO_DONE else (None, self.goto_target)
+        if target is None and event == E.ALTITUDE_REACHED:
+            target = self.takeoff_goal  # the takeoff target, not where the tolerance was entered
         if target is not None:  # hold at the commanded point, not where the radius was entered
             self.publish_goal(GoalOut(target.position_m, target.yaw_rad))
         else:
             self.publish_goal(GoalOut(None))
-        if prev == State.LAND:  # landing aborted: take control back from AUTO.LAND
-            self.bridge.set_mode("OFFBOARD", self._bridge_done("OFFBOARD"))
+        if prev == State.LAND and event != E.FC_MODE_CHANGED:
+            # landing aborted by us: take control back from AUTO.LAND (never from a pilot)
+            self._request_mode("OFFBOARD")
         elif event == E.ALTITUDE_REACHED and self.start_requested:
             self.fire(E.START_CMD, "takeoff complete, starting mission")
 
     def _enter_executing(self, prev: State, event: Event) -> None:
         self.hold_reason = ""
+        mode = self.vehicle.flight_mode if self.vehicle else ""
+        then, self.resume_done = self.resume_done, None
+        if mode and mode != "OFFBOARD":
+            # the FC was taken over (or failed over) while we held: resuming asks for OFFBOARD again
+            self._request_mode("OFFBOARD", then)
+            if self.state != State.EXECUTING:  # the request failed at once
+                return
+        elif then:
+            then(True, self.message)
         if self.goto_target is not None:
             self.publish_goal(self.goto_target)
             return
@@ -183,29 +285,86 @@ class MissionManager:
         self._publish_waypoint()
 
     def _enter_land(self, prev: State, event: Event) -> None:
-        self.land_mode = "RTL" if event in (E.RTL_CMD, E.PERCEPTION_TIMEOUT) else "LAND"
+        self.land_mode = "RTL" if event in RTL_EVENTS else "LAND"
         self.on_ground_since_s = None
         self.disarm_sent = False
-        self.bridge.set_mode(self.land_mode, self._bridge_done(self.land_mode))
+        self._request_mode(self.land_mode)
 
-    def _bridge_done(self, what: str) -> Callable[[bool, str], None]:
+    def _bridge_done(self, what: str, then: Callable[[bool, str], None] | None = None) -> Callable[[bool, str], None]:
         def done(ok: bool, message: str) -> None:
             if ok:
+                if then:
+                    then(True, self.message)
                 return
             self.log("bridge_failed", call=what, message=message)
             event = E.BRIDGE_FAILED_AIR if self.in_air() else E.BRIDGE_FAILED_GROUND
             if not self.fire(event, f"{what} failed: {message}"):
                 self.message = f"{what} failed: {message}"
+            if then:
+                then(False, f"{what} failed: {message}")
         return done
+
+    # ------------------------------------------------------------ persistence and restart
+
+    def snapshot(self) -> dict:
+        """What a restarted service needs: the mission, its progress and the state we were in."""
+        return {"mission_json": self.mission.to_json() if self.mission else None,
+                "wp_index": self.wp_index, "state": self.state.value,
+                "start_requested": self.start_requested}
+
+    def _persist(self) -> None:
+        self.on_persist(self.snapshot())
+
+    def restore(self, snapshot: dict | None, now_s: float) -> None:
+        """Start from what a previous run persisted; the first connected vehicle state decides
+        the FSM state (see _rebuild). Until then (at most restore_timeout_s) commands wait."""
+        self.now_s = now_s
+        self.rebuild_pending = True
+        self.restore_deadline_s = now_s + self.cfg.restore_timeout_s
+        self.restored_state = (snapshot or {}).get("state", "IDLE")
+        text = (snapshot or {}).get("mission_json")
+        if text:
+            try:
+                self.mission = parse_mission(text)
+                self.wp_index = int(snapshot.get("wp_index", -1))
+            except Exception as e:  # noqa: BLE001 - a bad snapshot must not stop a restart
+                self.log("restore_failed", error=str(e))
+                self.mission, self.wp_index = None, -1
+        self.message = "restarted: waiting for vehicle state to rebuild the mission state"
+
+    def _rebuild(self, st: VehicleState) -> None:
+        self.rebuild_pending = False
+        was = self.restored_state
+        loaded = (f"mission {self.mission.mission_id or '(unnamed)'} loaded at waypoint "
+                  f"{max(self.wp_index, 0) + 1}/{len(self.mission.waypoints)}" if self.mission else "no mission loaded")
+        if self.in_air():
+            mode = st.flight_mode or "unknown mode"
+            self.expected_mode = "OFFBOARD" if st.flight_mode == "OFFBOARD" else None
+            self.mode_confirmed = self.expected_mode is not None
+            self.fire(E.RESTARTED_IN_AIR, f"mission restarted in flight (was {was}, flight controller in {mode}): "
+                                          f"holding; {loaded}; LAND, RTL or START to resume")
+        else:
+            self.message = f"mission restarted on the ground (was {was}); {loaded}"
+            self._persist()
+        self.log("rebuilt", was=was, state=self.state.value, armed=st.armed,
+                 landed_state=st.landed_state, mode=st.flight_mode)
+
+    def restoring(self) -> bool:
+        return self.rebuild_pending and self.restore_deadline_s is not None and self.now_s < self.restore_deadline_s
 
     # ------------------------------------------------------------ inputs
 
     def load(self, mission: Mission) -> tuple[bool, str]:
         if self.state in (State.EXECUTING, State.TAKEOFF, State.LAND):
             return False, f"cannot load a mission while {self.state.value}; HOLD or land first"
+        why = self.limits.check_mission(mission)
+        if why:
+            self.log("mission_refused", reason=why)
+            return False, f"mission refused: {why}"
         self.mission = mission
         self.wp_index = -1
         self.message = f"mission {mission.mission_id or '(unnamed)'} loaded, {len(mission.waypoints)} waypoints"
+        self._persist()
         return True, self.message
 
     def command(self, cmd: str, on_result: Callable[[bool, str], None] | None = None) -> tuple[bool, str]:
@@ -213,6 +372,8 @@ class MissionManager:
         need the flight controller report their outcome through `on_result` as well."""
         done = on_result or (lambda ok, msg: None)
         cmd = cmd.upper()
+        if self.restoring():
+            return self._refuse(done, "restarting: waiting for vehicle state to rebuild the mission state; retry")
         if cmd == "ARM":
             if self.state != State.IDLE:
                 return self._refuse(done, f"ARM only in IDLE (now {self.state.value})")
@@ -232,11 +393,22 @@ class MissionManager:
                 self.start_requested = True
                 done(True, "mission starts when takeoff completes")
                 return True, "mission starts when takeoff completes"
+            if self.outage and self.state == State.HOLDING:
+                return self._refuse(done, f"{self.outage}: holding until fresh vehicle state is back")
             self.goto_target = None
-            if not self.fire(E.START_CMD, "mission started"):
+            answered: list[tuple[bool, str]] = []
+
+            def outcome(ok: bool, message: str) -> None:  # when the FC has answered (OFFBOARD)
+                answered.append((ok, message))
+                done(ok, message)
+
+            self.resume_done = outcome
+            fired = self.fire(E.START_CMD, "mission started" if self.wp_index <= 0 else
+                              f"mission resumed at waypoint {self.wp_index + 1}/{len(self.mission.waypoints)}")
+            self.resume_done = None
+            if not fired:
                 return self._refuse(done, f"START not possible in {self.state.value}; TAKEOFF first")
-            done(True, "mission started")
-            return True, "mission started"
+            return answered[0] if answered else (True, self.message)
         simple = {"HOLD": E.HOLD_CMD, "LAND": E.LAND_CMD, "RTL": E.RTL_CMD}
         if cmd in simple:
             if not self.fire(simple[cmd], f"operator {cmd}"):
@@ -251,10 +423,17 @@ class MissionManager:
 
     def takeoff(self, altitude_m: float | None, done: Callable[[bool, str], None]) -> tuple[bool, str]:
         """Arm if needed, then TAKEOFF. `done` reports the arm/offboard outcome."""
+        if self.restoring():
+            return self._refuse(done, "restarting: waiting for vehicle state; retry")
         if self.state != State.IDLE:
             return self._refuse(done, f"TAKEOFF only from IDLE (now {self.state.value})")
         if self.vehicle is None or not self.vehicle.connected:
             return self._refuse(done, "no vehicle state (is fmu connected to the flight controller?)")
+        if altitude_m is not None:
+            pos = self._position()
+            why = self.limits.check_takeoff(altitude_m, pos[0], pos[1])
+            if why:
+                return self._refuse(done, f"takeoff refused: {why}")
         self.takeoff_altitude_m = altitude_m
         self.takeoff_pending = True
 
@@ -278,26 +457,47 @@ class MissionManager:
 
     def goto(self, position_m: np.ndarray, yaw_rad: float | None,
              acceptance_radius_m: float | None = None) -> tuple[bool, str]:
+        position_m = np.asarray(position_m, float)
+        why = self.limits.check_goto(*position_m, acceptance_radius_m)
+        if why:
+            return False, f"goto refused: {why}"
         if self.state not in (State.HOLDING, State.EXECUTING):
             return False, f"GOTO needs the vehicle in the air (HOLDING/EXECUTING), now {self.state.value}"
-        self.goto_target = GoalOut(np.asarray(position_m, float), yaw_rad, acceptance_radius_m)
+        if self.outage:
+            return False, f"{self.outage}: holding until fresh vehicle state is back"
+        self.goto_target = GoalOut(position_m, yaw_rad, acceptance_radius_m)
         if self.state == State.EXECUTING:
             self.publish_goal(self.goto_target)
-        else:
-            self.fire(E.START_CMD, "goto")
+        elif not self.fire(E.START_CMD, "goto") or self.state != State.EXECUTING:
+            return False, self.message
         return True, "going"
 
     def on_vehicle(self, st: VehicleState, now_s: float) -> None:
         self.vehicle = st
         self.now_s = now_s
+        self.vehicle_rx_s = now_s
+        if not st.connected:
+            self._outage_begins("flight-controller link lost (state/vehicle not connected)")
+            return
+        if self.rebuild_pending and self.state == State.IDLE:
+            self._rebuild(st)
+        if st.armed:
+            self.armed_seen = True
+        if self.outage and self.fmu_alive:
+            self._outage_ends()
+        self._watch_fc_mode(st)
         pos = st.position_m.to_array()
-        if self.state == State.TAKEOFF:
+        on_ground = st.landed_state == LandedState.ON_GROUND
+        if (self.state in (State.TAKEOFF, State.EXECUTING, State.HOLDING) and on_ground and not st.armed
+                and self.armed_seen):
+            self.fire(E.FC_LANDED, f"the flight controller landed and disarmed on its own "
+                                   f"(mode {st.flight_mode or 'unknown'}); mission kept loaded")
+        elif self.state == State.TAKEOFF:
             if abs(pos[2] - self.takeoff_altitude_m) < self.cfg.altitude_tolerance_m:
                 self.fire(E.ALTITUDE_REACHED, "takeoff altitude reached")
         elif self.state == State.EXECUTING:
             self._progress(pos)
         elif self.state == State.LAND:
-            on_ground = st.landed_state == LandedState.ON_GROUND
             if not on_ground:
                 self.on_ground_since_s = None
             elif self.on_ground_since_s is None:
@@ -309,20 +509,98 @@ class MissionManager:
                 self.disarm_sent = True
                 self.bridge.arm(False, lambda ok, m: None)
 
+    def _watch_fc_mode(self, st: VehicleState) -> None:
+        """The FC left the mode we asked for without being asked: never fight it."""
+        mode = st.flight_mode
+        if not mode or self.expected_mode is None:
+            return
+        ours = ("LAND", "RTL") if self.state == State.LAND else (self.expected_mode,)
+        if mode in ours:
+            self.mode_confirmed = True
+            return
+        if not self.mode_confirmed:
+            return  # our request is not confirmed yet (heartbeats lag): nothing to judge
+        self.expected_mode, self.mode_confirmed = None, False
+        reason = f"flight controller switched to {mode}"
+        self.log("fc_mode_changed", mode=mode, state=self.state.value)
+        if not self.fire(E.FC_MODE_CHANGED, f"{reason}: holding, not commanding motion; START resumes"):
+            if self.state == State.HOLDING:
+                self.hold_reason = "flight controller"
+                self.message = f"{reason}; holding, START resumes"
+
+    def on_fmu_alive(self, alive: bool, now_s: float) -> None:
+        """fmu's liveliness token (aero/alive/<vehicle>/fmu) came or went."""
+        self.now_s = now_s
+        self.fmu_alive = alive
+        if not alive:
+            self._outage_begins("fmu outage (fmu not alive)")
+
+    def _outage_begins(self, why: str) -> None:
+        if self.outage:
+            return
+        self.outage, self.outage_from = why, self.state
+        self.log("outage", reason=why, state=self.state.value)
+        if not self.fire(E.FMU_OUTAGE, f"{why}: holding"):
+            if self.state != State.IDLE:
+                self.message = f"{why} ({self.state.value} continues: the flight controller flies on its own)" \
+                    if self.state == State.LAND else f"{why}: holding"
+
+    def _outage_ends(self) -> None:
+        was, self.outage = self.outage, None
+        self.log("outage_over", reason=was, state=self.state.value)
+        if self.state != State.HOLDING:
+            return
+        mode = self.vehicle.flight_mode if self.vehicle else ""
+        if (self.cfg.resume_after_outage and self.outage_from == State.EXECUTING
+                and self.hold_reason == "outage" and self.mission is not None
+                and mode in ("", "OFFBOARD", "HOLD")):
+            # never out of a failsafe RTL/LAND the FC chose: only from its hold (or our OFFBOARD)
+            self.fire(E.OUTAGE_RESUME, "fmu back after an outage: resuming (resume_after_outage)")
+        else:
+            self.message = "fmu back after an outage: holding until commanded (START resumes)"
+
     def on_perception(self, healthy: bool, now_s: float) -> None:
         self.perception_healthy = healthy
         self.perception_rx_s = now_s
 
+    def on_safety(self, action: int, reason: str = "") -> None:
+        """safety/status: act once on a rising recommendation (not on every 1 Hz repeat, so the
+        operator can command after acknowledging it)."""
+        prev, self.safety_action = self.safety_action, action
+        if action <= prev:
+            return
+        name = SAFETY_ACTION_NAMES.get(action, str(action))
+        text = f"safety: {name}" + (f" ({reason})" if reason else "")
+        self.log("safety_recommendation", action=name, reason=reason, state=self.state.value)
+        if action == SafetyStatus.ACTION_EMERGENCY_STOP:
+            self.message = f"{text}: executed by the safety service"
+            return
+        event = SAFETY_REACTIONS.get(action)
+        if event is None or self.state == State.IDLE:
+            return
+        if not self.fire(event, text):
+            self.message = text
+
     def tick(self, now_s: float) -> None:
-        """Time-driven checks (call at >= 2 Hz): perception gating and its recovery timer."""
+        """Time-driven checks (call at >= 2 Hz): vehicle-state freshness, perception gating and
+        its recovery timer."""
         self.now_s = now_s
+        # A late tick means this process stalled (CPU, GIL): samples may be queued, not missing.
+        stalled = self.last_tick_s is not None and now_s - self.last_tick_s > self.cfg.vehicle_timeout_s
+        self.last_tick_s = now_s
+        if (self.vehicle_rx_s is not None and not self.outage and not stalled
+                and now_s - self.vehicle_rx_s > self.cfg.vehicle_timeout_s):
+            self._outage_begins(f"fmu outage (no state/vehicle for {now_s - self.vehicle_rx_s:.1f} s)")
+        if self.rebuild_pending and self.restore_deadline_s is not None and now_s >= self.restore_deadline_s:
+            self.restore_deadline_s = None  # stop refusing commands; rebuild still on the first state
+            self.message = "restarted: no vehicle state yet (is fmu running?)"
         if self.perception_rx_s is not None and now_s - self.perception_rx_s > self.cfg.perception_timeout_s:
             self.perception_healthy = False
         if not self.perception_required():
             return
         if self.state == State.EXECUTING and not self.perception_healthy:
             self.fire(E.PERCEPTION_LOST, "perception unhealthy: holding")
-        elif self.state == State.HOLDING and self.hold_reason == "perception":
+        elif self.state == State.HOLDING and self.hold_reason == "perception" and not self.outage:
             if self.perception_healthy:
                 self.fire(E.PERCEPTION_RECOVERED, "perception recovered: resuming")
             elif now_s - self.hold_since_s > self.cfg.perception_recovery_s:
@@ -367,6 +645,7 @@ class MissionManager:
             self.on_waypoint_reached(self.wp_index, pos)
             self.log("waypoint_reached", index=self.wp_index, error_m=round(float(np.linalg.norm(target - pos)), 3))
             self.wp_index += 1
+            self._persist()
             if self.wp_index >= len(self.mission.waypoints):
                 if self.cfg.land_on_complete:
                     self.fire(E.WAYPOINTS_DONE, "mission complete: landing")

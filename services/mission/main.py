@@ -12,13 +12,17 @@ from aeroperception.schemas import (
     ArmReply, ArmRequest, DiagnosticStatus, GcsLink, Empty, GetMissionReply, GoToPositionFeedback,
     GoToPositionGoal, GoToPositionResult, LandFeedback, LandGoal, LandResult, LoadMissionReply,
     LoadMissionRequest, MissionCommand, PerceptionHealth, Pose, PoseStamped, Quaternion, Reply,
-    SchemaError, SetModeReply, SetModeRequest, TakeoffFeedback, TakeoffGoal, TakeoffResult,
+    SafetyStatus, SchemaError, SetModeReply, SetModeRequest, TakeoffFeedback, TakeoffGoal, TakeoffResult,
     VehicleState, Vector3, WaypointReached, parse_mission,
 )
 from aeroperception.services.runtime import ActionServer, CallError, GoalHandle, Health, Service, run
 
+from aeroperception.services.safety.geofence import GeofenceError
+
 from . import contract
 from .fsm import Config, GoalOut, MissionManager, State
+from .limits import Limits
+from .store import MissionStore, default_state_dir
 
 HOLD_FRAME = "hold"
 
@@ -53,10 +57,22 @@ class MissionService(Service):
     def start(self) -> None:
         p = self.params
         cfg = Config(**{f.name: p[f.name] for f in fields(Config)})  # every FSM setting is a parameter
-        self.mgr = MissionManager(ZenohBridge(self), self._publish_goal, cfg, log=self.log.info)
-        self.params.on_change(lambda n, v: setattr(cfg, n, v) if hasattr(cfg, n) else None)
+        self.mgr = MissionManager(ZenohBridge(self), self._publish_goal, cfg, log=self.log.info,
+                                  limits=Limits.from_params(p))
+        self.params.on_change(self._on_param)
         self.mgr.on_waypoint_reached = self._on_reached
         node = self.node
+        # Restart: the persisted mission/progress now, the vehicle's state decides on its first sample.
+        self.store = MissionStore(p.state_dir or default_state_dir(node.vehicle))
+        try:
+            snapshot = self.store.load()
+        except ValueError as e:
+            self.log.warn("persisted_mission_ignored", error=str(e))
+            snapshot = None
+        self.mgr.restore(snapshot, time.monotonic())
+        self.log.info("restored", path=str(self.store.path), state=(snapshot or {}).get("state"),
+                      mission=bool((snapshot or {}).get("mission_json")))
+        self.mgr.on_persist = self._persist
         self.pub_status = node.publisher("mission/status", contract.OUTPUTS["mission/status"])
         self.pub_goal = node.publisher("mission/active_goal", PoseStamped)
         self.pub_reached = node.publisher("mission/waypoint_reached", WaypointReached)
@@ -64,6 +80,8 @@ class MissionService(Service):
         node.subscribe("perception/health", PerceptionHealth,
                        lambda m: self.mgr.on_perception(m.overall_healthy, time.monotonic()))
         node.subscribe("mission/command", MissionCommand, self._on_command, strict=True)
+        node.subscribe("safety/status", SafetyStatus, self._on_safety)
+        node.on_liveliness("fmu", lambda name, alive: self.mgr.on_fmu_alive(alive, time.monotonic()))
         gcs_up = {"last": None}
 
         def on_gcs_link(m: GcsLink) -> None:
@@ -88,6 +106,25 @@ class MissionService(Service):
         }
         self.last_goal: PoseStamped | None = None
         node.every(1.0 / p.status_rate_hz, self._tick, name="status")
+        node.every(0.1, lambda: self.mgr.tick(time.monotonic()), name="watchdog")  # outage within ~0.1 s
+
+    def _on_param(self, name, value) -> None:
+        if hasattr(self.mgr.cfg, name):
+            setattr(self.mgr.cfg, name, value)
+        try:
+            self.mgr.limits = Limits.from_params(self.params)
+        except GeofenceError as e:
+            self.log.warn("geofence_param_invalid", error=str(e))
+
+    def _persist(self, snapshot: dict) -> None:
+        try:
+            self.store.save(snapshot)
+        except OSError as e:
+            self.log.throttled("error", "persist", "persist_failed", path=str(self.store.path), error=str(e))
+
+    def _on_safety(self, msg: SafetyStatus) -> None:
+        reason = "; ".join(msg.active_errors or msg.active_warnings)
+        self.mgr.on_safety(msg.recommended_action, reason)
 
     # ------------------------------------------------------------ inputs
 
@@ -241,10 +278,14 @@ class MissionService(Service):
     def health(self) -> Health:
         v = self.mgr.vehicle
         level = DiagnosticStatus.OK if v is not None and v.connected else DiagnosticStatus.WARN
+        if self.mgr.outage:
+            level = DiagnosticStatus.WARN
         return Health(level, f"{self.mgr.state.value}: {self.mgr.message}",
                       {"state": self.mgr.state.value, "waypoint": self.mgr.wp_index,
                        "perception_healthy": self.mgr.perception_healthy,
-                       "vehicle": "connected" if v is not None and v.connected else "no state"})
+                       "vehicle": "connected" if v is not None and v.connected else "no state",
+                       "fc_mode": v.flight_mode if v is not None else "", "outage": self.mgr.outage or "none",
+                       "safety_action": self.mgr.safety_action, "state_file": str(self.store.path)})
 
 
 def main(argv=None) -> int:

@@ -83,11 +83,11 @@ def survey(**changes) -> Mission:
 class Rig:
     """A MissionManager with a FakeBridge, every published goal, results and a clock."""
 
-    def __init__(self, config: Config | None = None, bridge: FakeBridge | None = None):
+    def __init__(self, config: Config | None = None, bridge: FakeBridge | None = None, limits=None):
         self.bridge = bridge or FakeBridge()
         self.goals: list[GoalOut] = []
         self.results: list[tuple[bool, str]] = []
-        self.mgr = MissionManager(self.bridge, self.goals.append, config)
+        self.mgr = MissionManager(self.bridge, self.goals.append, config, limits=limits)
         self.t = 100.0
 
     def on_result(self, ok, msg) -> None:
@@ -97,11 +97,19 @@ class Rig:
         self.t += dt
         self.mgr.on_vehicle(st, self.t)
 
-    def tick(self, dt: float = 0.5, healthy: bool | None = None) -> None:
+    def tick(self, dt: float = 0.5, healthy: bool | None = None, fresh_state: bool = True) -> None:
+        """Advance the clock; the vehicle state keeps arriving (as at 50 Hz) unless fresh_state=False."""
         self.t += dt
+        if fresh_state and self.mgr.vehicle is not None:
+            self.mgr.on_vehicle(self.mgr.vehicle, self.t)
         if healthy is not None:
             self.mgr.on_perception(healthy, self.t)
         self.mgr.tick(self.t)
+
+    def silence(self, seconds: float, step: float = 0.1) -> None:
+        """No state/vehicle for `seconds` while this service ticks on time (fmu silent)."""
+        for _ in range(round(seconds / step)):
+            self.tick(step, fresh_state=False)
 
     def clear(self) -> None:
         self.bridge.calls.clear()
@@ -179,16 +187,20 @@ def test_every_table_transition_reaches_its_target_with_entry_side_effects(src, 
         assert rig.bridge.calls == [("set_mode", "OFFBOARD")]
     elif dst == State.HOLDING:
         assert len(rig.goals) == 1
-        assert_hold(rig.goals[0])  # (a finished goto holds at its target: see the goto tests)
-        # leaving AUTO.LAND needs OFFBOARD back; otherwise we are already in OFFBOARD
-        expected = [("set_mode", "OFFBOARD")] if src == State.LAND else []
+        if event == Event.ALTITUDE_REACHED:  # issue 8 item 9: hold the takeoff target itself
+            assert_goal(rig.goals[0], [0.0, 0.0, 5.0])
+        else:
+            assert_hold(rig.goals[0])  # (a finished goto holds at its target: see the goto tests)
+        # leaving AUTO.LAND needs OFFBOARD back, unless a pilot took it (never fight the FC);
+        # otherwise we are already in OFFBOARD
+        expected = [("set_mode", "OFFBOARD")] if src == State.LAND and event != Event.FC_MODE_CHANGED else []
         assert rig.bridge.calls == expected
     elif dst == State.EXECUTING:
         assert len(rig.goals) == 1
         assert_goal(rig.goals[0], SURVEY_WPS[0], yaw=0.0)
         assert rig.bridge.calls == []
     elif dst == State.LAND:
-        mode = "RTL" if event in (Event.RTL_CMD, Event.PERCEPTION_TIMEOUT) else "LAND"
+        mode = "RTL" if event in (Event.RTL_CMD, Event.PERCEPTION_TIMEOUT, Event.SAFETY_RTH) else "LAND"
         assert rig.bridge.calls == [("set_mode", mode)]
         assert rig.mgr.land_mode == mode
         assert rig.goals == []
@@ -680,3 +692,515 @@ def test_goto_uses_the_goals_own_acceptance_radius():
     assert ok and rig.mgr.state == State.EXECUTING
     rig.feed(flying(2.0, 3.0, 5.5))                   # 1.5 m away: inside 2.0, outside the mission's 0.5
     assert rig.mgr.state == State.HOLDING
+
+
+# ================================================================ takeoff holds its target (issue 8 item 9)
+
+def test_takeoff_holds_the_target_altitude_not_where_the_tolerance_was_entered():
+    rig = Rig()
+    rig.to_takeoff()
+    rig.feed(flying(0.1, -0.1, 4.75))                 # inside the 0.3 m tolerance of 5 m
+    assert rig.mgr.state == State.HOLDING
+    assert_goal(rig.goals[-1], [0.0, 0.0, 5.0])       # x, y where it took off, z = the target
+
+
+def test_takeoff_hold_closed_loop_settles_on_the_target():
+    rig = Rig()
+    planner = WaypointPlanner()
+    rig.to_idle()
+    rig.mgr.command("TAKEOFF", rig.on_result)
+    pos, dt, seen = np.zeros(3), 0.02, 0
+    for _ in range(1500):                             # 30 s
+        if len(rig.goals) > seen:
+            seen, g = len(rig.goals), rig.goals[-1]
+            planner.set_goal(None if g.position_m is None else Goal(g.position_m, g.yaw_rad, seen))
+        sp = planner.step(pos, 0.0).setpoint
+        if not sp.position_valid:
+            pos = pos + sp.velocity_mps.to_array() * dt
+        rig.feed(flying(*pos), dt)
+    assert rig.mgr.state == State.HOLDING
+    assert abs(pos[2] - 5.0) < 0.05, pos
+
+
+# ================================================================ restart (issue 8 item 2)
+
+def restarted(snapshot: dict | None, config: Config | None = None) -> Rig:
+    """A fresh manager as a restarted service builds it: restore(snapshot), no vehicle state yet."""
+    rig = Rig(config)
+    rig.mgr.restore(snapshot, rig.t)
+    return rig
+
+
+def snapshot_mid_survey(wp_index: int = 2, state: str = "EXECUTING") -> dict:
+    return {"mission_json": survey().to_json(), "wp_index": wp_index, "state": state, "start_requested": False}
+
+
+def test_restart_in_flight_holds_with_the_reason_and_land_works():
+    rig = restarted(snapshot_mid_survey())
+    rig.feed(flying(6.0, 1.0, 5.0))
+    assert rig.mgr.state == State.HOLDING
+    assert rig.mgr.transitions == [(State.IDLE, Event.RESTARTED_IN_AIR, State.HOLDING)]
+    st = rig.mgr.status()
+    assert "mission restarted in flight" in st.message and "was EXECUTING" in st.message
+    assert st.mission_id == "survey_01" and st.active_waypoint == 2
+    assert_hold(rig.goals[-1])
+    assert rig.bridge.calls == []                     # holds without asking the FC for anything
+    ok, msg = rig.mgr.command("LAND")
+    assert ok, msg
+    assert rig.mgr.state == State.LAND and rig.bridge.modes() == ["LAND"]
+    rig.feed(vehicle(6.0, 1.0, 0.0))                  # landed and disarmed
+    assert rig.mgr.state == State.IDLE and rig.mgr.mission is not None
+
+
+@pytest.mark.parametrize(("cmd", "state", "mode"), [("RTL", State.LAND, "RTL"), ("HOLD", State.HOLDING, None)])
+def test_restart_in_flight_accepts_rtl_and_hold(cmd, state, mode):
+    rig = restarted(snapshot_mid_survey())
+    rig.feed(flying(6.0, 1.0, 5.0))
+    ok, msg = rig.mgr.command(cmd)
+    assert ok or cmd == "HOLD", msg                   # HOLD while HOLDING: already holding
+    assert rig.mgr.state == state
+    assert rig.bridge.modes() == ([mode] if mode else [])
+
+
+def test_restart_in_flight_start_resumes_from_the_persisted_waypoint_and_asks_offboard():
+    rig = restarted(snapshot_mid_survey(wp_index=2))
+    rig.feed(VehicleState(position_m=Vector3(x=6.0, y=1.0, z=5.0), armed=True, landed_state=LandedState.IN_AIR,
+                          connected=True, flight_mode="HOLD"))
+    assert rig.mgr.state == State.HOLDING and "flight controller in HOLD" in rig.mgr.message
+    ok, msg = rig.mgr.command("START")
+    assert ok and "resumed at waypoint 3/4" in msg
+    assert rig.mgr.state == State.EXECUTING
+    assert_goal(rig.goals[-1], SURVEY_WPS[2])
+    assert rig.bridge.modes() == ["OFFBOARD"]         # the FC was not in OFFBOARD: ask again
+
+
+def test_restart_on_the_ground_is_idle_with_the_mission_still_loaded():
+    rig = restarted(snapshot_mid_survey(state="LAND"))
+    rig.feed(vehicle())
+    assert rig.mgr.state == State.IDLE and rig.mgr.transitions == []
+    assert rig.mgr.mission is not None and rig.mgr.mission.mission_id == "survey_01"
+    assert "restarted on the ground" in rig.mgr.message
+    ok, msg = rig.mgr.command("TAKEOFF", rig.on_result)
+    assert ok and rig.mgr.state == State.TAKEOFF
+
+
+def test_restart_without_a_snapshot_over_a_flying_vehicle_still_holds_and_lands():
+    rig = restarted(None)
+    rig.feed(flying(1.0, 2.0, 5.0))
+    assert rig.mgr.state == State.HOLDING and "no mission loaded" in rig.mgr.message
+    assert not rig.mgr.command("START")[0]
+    assert rig.mgr.command("LAND")[0] and rig.mgr.state == State.LAND
+
+
+def test_restart_commands_wait_for_vehicle_state_for_a_bounded_time():
+    rig = restarted(snapshot_mid_survey(), Config(restore_timeout_s=5.0))
+    ok, msg = rig.mgr.command("LAND")
+    assert not ok and "restarting" in msg
+    rig.tick(6.0)                                     # no vehicle state within restore_timeout_s
+    assert "no vehicle state yet" in rig.mgr.message
+    ok, msg = rig.mgr.command("LAND")
+    assert not ok and "not possible in IDLE" in msg   # ordinary IDLE rules now
+    rig.feed(flying(6.0, 1.0, 5.0))                   # the state arrives late: still rebuilt
+    assert rig.mgr.state == State.HOLDING
+
+
+def test_restart_ignores_a_corrupt_mission_in_the_snapshot():
+    rig = restarted({"mission_json": '{"waypoints": []}', "wp_index": 1, "state": "EXECUTING"})
+    rig.feed(flying())
+    assert rig.mgr.mission is None and rig.mgr.state == State.HOLDING
+
+
+def test_every_change_is_persisted_and_a_snapshot_restores_the_progress():
+    rig = Rig()
+    saved: list[dict] = []
+    rig.mgr.on_persist = saved.append
+    rig.to_executing()
+    rig.feed(flying(*SURVEY_WPS[0]))
+    rig.feed(flying(*SURVEY_WPS[1]))                  # two waypoints done, flying to index 2
+    assert [s["state"] for s in saved][:2] == ["IDLE", "TAKEOFF"]   # load, then the first transition
+    assert saved[-1]["wp_index"] == 2 and saved[-1]["state"] == "EXECUTING"
+    assert parse_mission(saved[-1]["mission_json"]) == rig.mgr.mission
+
+    again = restarted(saved[-1])
+    again.feed(flying(*SURVEY_WPS[1]))
+    again.mgr.command("START")
+    assert_goal(again.goals[-1], SURVEY_WPS[2])
+
+
+def test_store_writes_atomically_and_reads_back(tmp_path):
+    from aeroperception.services.mission.store import MissionStore
+    store = MissionStore(tmp_path / "v1")
+    assert store.load() is None
+    store.save(snapshot_mid_survey())
+    store.save(snapshot_mid_survey(wp_index=3))
+    assert store.load()["wp_index"] == 3
+    assert [p.name for p in store.path.parent.iterdir()] == ["mission.json"]  # no temp files left
+    store.path.write_text("{not json")
+    with pytest.raises(ValueError, match="mission.json"):
+        store.load()
+
+
+# ================================================================ the FC has the last word (issue 8 item 3)
+
+def fc(x=0.0, y=0.0, z=5.0, mode="OFFBOARD", armed=True, landed=LandedState.IN_AIR):
+    return VehicleState(position_m=Vector3(x=x, y=y, z=z), armed=armed, landed_state=landed,
+                        connected=True, flight_mode=mode)
+
+
+def test_fc_leaving_offboard_while_executing_holds_and_start_asks_offboard_again():
+    rig = Rig()
+    rig.to_executing()
+    rig.feed(fc(0.0, 0.0, 5.0))                       # OFFBOARD confirmed; waypoint 0 reached
+    rig.feed(fc(4.0, 0.0, 5.0))
+    rig.clear()
+
+    rig.feed(fc(4.5, 0.0, 5.0, mode="HOLD"))          # failsafe / pilot / another GCS
+    assert rig.mgr.state == State.HOLDING
+    assert rig.mgr.transitions[-1] == (State.EXECUTING, Event.FC_MODE_CHANGED, State.HOLDING)
+    assert "flight controller switched to HOLD" in rig.mgr.status().message
+    assert_hold(rig.goals[-1]) and rig.bridge.calls == []   # stops commanding, never fights it
+    rig.feed(fc(10.0, 0.0, 5.0, mode="HOLD"))         # nothing progresses while held
+    assert rig.mgr.reached_events == [0] and rig.mgr.state == State.HOLDING
+
+    ok, msg = rig.mgr.command("START")                 # resume only on command
+    assert ok, msg
+    assert rig.mgr.state == State.EXECUTING and rig.bridge.modes() == ["OFFBOARD"]
+    assert_goal(rig.goals[-1], SURVEY_WPS[1])          # the same waypoint
+    rig.feed(fc(4.5, 0.0, 5.0, mode="HOLD"))          # heartbeat lag: not yet confirmed, no false alarm
+    assert rig.mgr.state == State.EXECUTING
+
+
+def test_fc_mode_change_during_takeoff_holds():
+    rig = Rig()
+    rig.to_takeoff()
+    rig.feed(fc(z=1.0))
+    rig.feed(fc(z=1.5, mode="POSCTL"))
+    assert rig.mgr.state == State.HOLDING and "switched to POSCTL" in rig.mgr.message
+
+
+def test_fc_mode_before_our_request_is_confirmed_is_not_a_takeover():
+    rig = Rig()
+    rig.to_takeoff()
+    rig.feed(fc(z=0.5, mode="HOLD"))                  # OFFBOARD asked, not yet in effect
+    assert rig.mgr.state == State.TAKEOFF
+
+
+def test_pilot_taking_over_a_landing_holds_without_taking_control_back():
+    rig = Rig()
+    rig.to_executing()
+    rig.feed(fc())
+    rig.mgr.command("LAND")
+    rig.feed(fc(mode="OFFBOARD"))                     # LAND not yet confirmed: no verdict
+    assert rig.mgr.state == State.LAND
+    rig.feed(fc(z=4.0, mode="LAND"))
+    rig.clear()
+    rig.feed(fc(z=3.5, mode="POSCTL"))
+    assert rig.mgr.state == State.HOLDING and "switched to POSCTL" in rig.mgr.message
+    assert rig.bridge.calls == []
+
+
+def test_rtl_landing_is_not_mistaken_for_a_takeover():
+    rig = Rig()
+    rig.to_executing()
+    rig.mgr.command("RTL")
+    for mode in ("RTL", "LAND", "RTL"):               # an autopilot may report its land phase as LAND
+        rig.feed(fc(mode=mode))
+    assert rig.mgr.state == State.LAND
+
+
+def test_fc_mode_change_while_holding_is_reported_and_start_resumes():
+    rig = Rig()
+    rig.to_holding()
+    rig.feed(fc())
+    rig.feed(fc(mode="HOLD"))
+    assert rig.mgr.state == State.HOLDING and "switched to HOLD" in rig.mgr.message
+    rig.mgr.command("START")
+    assert rig.bridge.modes()[-1] == "OFFBOARD" and rig.mgr.state == State.EXECUTING
+
+
+def test_offboard_refused_when_resuming_stays_holding_with_the_reason():
+    rig = Rig()
+    rig.to_executing()
+    rig.feed(fc())
+    rig.feed(fc(mode="HOLD"))
+    rig.bridge.fail[("set_mode", "OFFBOARD")] = "denied by pilot"
+    ok, msg = rig.mgr.command("START")
+    assert not ok and "denied by pilot" in msg
+    assert rig.mgr.state == State.HOLDING
+
+
+@pytest.mark.parametrize("src", [State.TAKEOFF, State.EXECUTING, State.HOLDING])
+def test_fc_landed_and_disarmed_on_its_own_goes_idle_with_the_mission_kept(src):
+    rig = Rig()
+    rig.to(src)
+    rig.feed(fc(z=2.0, mode="LAND"))
+    rig.feed(fc(z=0.0, mode="LAND", armed=False, landed=LandedState.ON_GROUND))
+    assert rig.mgr.state == State.IDLE
+    assert rig.mgr.transitions[-1] == (src, Event.FC_LANDED, State.IDLE)
+    assert "landed and disarmed on its own" in rig.mgr.status().message
+    assert rig.mgr.mission is not None
+
+
+def test_takeoff_is_not_ended_by_a_disarmed_state_from_before_arming():
+    rig = Rig(bridge=FakeBridge(defer=True))
+    rig.to_idle()
+    rig.mgr.command("TAKEOFF", rig.on_result)
+    rig.bridge.answer_pending()                       # armed per the FC's ACK -> TAKEOFF
+    rig.feed(vehicle())                               # state/vehicle not yet showing armed
+    assert rig.mgr.state == State.TAKEOFF
+
+
+# ================================================================ fmu outage (issue 8 item 3c)
+
+def test_stale_vehicle_state_holds_and_waits_for_start_after_it_is_back():
+    rig = Rig(Config(vehicle_timeout_s=0.5))
+    rig.to_executing()
+    rig.feed(flying(*SURVEY_WPS[0]))
+    rig.clear()
+    rig.tick(0.3, fresh_state=False)
+    assert rig.mgr.state == State.EXECUTING
+    rig.tick(0.3, fresh_state=False)                  # 0.6 s without state/vehicle (ticks on time)
+    assert rig.mgr.state == State.HOLDING
+    assert rig.mgr.transitions[-1] == (State.EXECUTING, Event.FMU_OUTAGE, State.HOLDING)
+    assert "fmu outage" in rig.mgr.message
+    assert_hold(rig.goals[-1])
+    assert not rig.mgr.command("START")[0]            # nothing to resume against yet
+
+    rig.feed(flying(3.0, 0.0, 5.0))                   # fmu is back
+    assert rig.mgr.state == State.HOLDING            # default policy: hold until commanded
+    assert "holding until commanded" in rig.mgr.message
+    assert rig.mgr.command("START")[0]
+    assert rig.mgr.state == State.EXECUTING and rig.mgr.wp_index == 1
+
+
+def test_resume_after_outage_policy_resumes_by_itself():
+    rig = Rig(Config(resume_after_outage=True))
+    rig.to_executing()
+    rig.silence(1.0)
+    assert rig.mgr.state == State.HOLDING
+    rig.feed(flying(0.0, 0.0, 5.0))
+    assert rig.mgr.state == State.EXECUTING
+    assert rig.mgr.transitions[-1] == (State.HOLDING, Event.OUTAGE_RESUME, State.EXECUTING)
+    assert "resume_after_outage" in rig.mgr.message
+
+
+def test_resume_after_outage_does_not_resume_an_operator_hold():
+    rig = Rig(Config(resume_after_outage=True))
+    rig.to_executing()
+    rig.mgr.command("HOLD")
+    rig.silence(1.0)
+    rig.feed(flying())
+    assert rig.mgr.state == State.HOLDING
+
+
+def test_fmu_liveliness_gone_holds_at_once():
+    rig = Rig()
+    rig.to_executing()
+    rig.mgr.on_fmu_alive(False, rig.t)
+    assert rig.mgr.state == State.HOLDING and "fmu not alive" in rig.mgr.message
+    rig.feed(flying())                                # a last sample in flight: still not alive
+    assert rig.mgr.outage
+    rig.mgr.on_fmu_alive(True, rig.t)
+    rig.feed(flying())
+    assert not rig.mgr.outage and rig.mgr.state == State.HOLDING
+
+
+def test_flight_controller_link_lost_holds():
+    rig = Rig()
+    rig.to_executing()
+    rig.feed(VehicleState(position_m=Vector3(z=5.0), armed=True, landed_state=LandedState.IN_AIR, connected=False))
+    assert rig.mgr.state == State.HOLDING and "link lost" in rig.mgr.message
+
+
+def test_outage_during_a_landing_lets_the_fc_land():
+    rig = Rig()
+    rig.to_land()
+    rig.silence(1.0)
+    assert rig.mgr.state == State.LAND and "fmu outage" in rig.mgr.message
+    rig.feed(vehicle())
+    assert rig.mgr.state == State.IDLE
+
+
+def test_outage_then_fc_failsafe_landing_ends_idle():
+    rig = Rig()
+    rig.to_executing()
+    rig.silence(1.0)
+    rig.feed(fc(z=0.0, mode="RTL", armed=False, landed=LandedState.ON_GROUND))  # FC failsafe landed it
+    assert rig.mgr.state == State.IDLE and "landed and disarmed on its own" in rig.mgr.message
+
+
+def test_perception_recovery_does_not_resume_during_an_outage():
+    rig = Rig()
+    rig.to_executing(survey(require_vio=True))
+    rig.tick(healthy=True)
+    rig.tick(healthy=False)
+    assert rig.mgr.hold_reason == "perception"
+    rig.silence(1.0, step=0.25)                       # perception still unhealthy, then fmu goes silent
+    assert rig.mgr.outage and rig.mgr.state == State.HOLDING
+    rig.tick(0.1, healthy=True, fresh_state=False)    # perception is back, fmu is not
+    assert rig.mgr.state == State.HOLDING
+
+
+# ================================================================ safety/status reactions (issue 8, safety)
+
+from aeroperception.schemas import SafetyStatus  # noqa: E402
+from aeroperception.services.mission.fsm import SAFETY_REACTIONS  # noqa: E402
+
+REACTIONS = [  # (recommended_action, from state, expected state, FC mode asked)
+    (SafetyStatus.ACTION_HOLD, State.EXECUTING, State.HOLDING, None),
+    (SafetyStatus.ACTION_HOLD, State.TAKEOFF, State.HOLDING, None),
+    (SafetyStatus.ACTION_HOLD, State.LAND, State.LAND, None),          # a landing is never turned into a hold
+    (SafetyStatus.ACTION_RTH, State.EXECUTING, State.LAND, "RTL"),
+    (SafetyStatus.ACTION_RTH, State.HOLDING, State.LAND, "RTL"),
+    (SafetyStatus.ACTION_RTH, State.TAKEOFF, State.LAND, "RTL"),
+    (SafetyStatus.ACTION_LAND, State.EXECUTING, State.LAND, "LAND"),
+    (SafetyStatus.ACTION_LAND, State.HOLDING, State.LAND, "LAND"),
+    (SafetyStatus.ACTION_LAND, State.TAKEOFF, State.LAND, "LAND"),
+    (SafetyStatus.ACTION_LAND, State.IDLE, State.IDLE, None),          # only when airborne
+    (SafetyStatus.ACTION_RTH, State.IDLE, State.IDLE, None),
+    (SafetyStatus.ACTION_WARN, State.EXECUTING, State.EXECUTING, None),
+    (SafetyStatus.ACTION_EMERGENCY_STOP, State.EXECUTING, State.EXECUTING, None),  # the safety service acts
+]
+
+
+@pytest.mark.parametrize(("action", "src", "dst", "mode"), REACTIONS,
+                         ids=[f"{a}-{s.value}" for a, s, _, _ in REACTIONS])
+def test_safety_reaction_table(action, src, dst, mode):
+    rig = Rig()
+    rig.to(src)
+    rig.clear()
+    rig.mgr.on_safety(action, "battery critical")
+    assert rig.mgr.state == dst
+    assert rig.bridge.modes() == ([mode] if mode else [])
+    if src != State.IDLE and action != SafetyStatus.ACTION_WARN:
+        assert "safety" in rig.mgr.message and "battery critical" in rig.mgr.message
+    if action == SafetyStatus.ACTION_EMERGENCY_STOP:
+        assert "executed by the safety service" in rig.mgr.message
+
+
+def test_safety_reactions_cover_hold_rth_land():
+    assert set(SAFETY_REACTIONS) == {SafetyStatus.ACTION_HOLD, SafetyStatus.ACTION_RTH, SafetyStatus.ACTION_LAND}
+
+
+def test_safety_acts_once_per_rising_recommendation_so_the_operator_can_command():
+    rig = Rig()
+    rig.to_executing()
+    rig.mgr.on_safety(SafetyStatus.ACTION_HOLD, "geofence warning")
+    assert rig.mgr.state == State.HOLDING
+    assert rig.mgr.command("START")[0]                # the operator acknowledges and resumes
+    for _ in range(5):                                # the same recommendation repeated at 1 Hz
+        rig.mgr.on_safety(SafetyStatus.ACTION_HOLD, "geofence warning")
+    assert rig.mgr.state == State.EXECUTING
+    rig.mgr.on_safety(SafetyStatus.ACTION_RTH, "battery low")   # rising: acts
+    assert rig.mgr.state == State.LAND and rig.mgr.land_mode == "RTL"
+    rig.mgr.on_safety(SafetyStatus.ACTION_HOLD, "")   # falling: nothing
+    assert rig.mgr.state == State.LAND
+    rig.mgr.on_safety(SafetyStatus.ACTION_NONE, "")
+    rig.mgr.command("HOLD")
+    rig.mgr.on_safety(SafetyStatus.ACTION_HOLD, "again")  # cleared, then raised again: acts (already holding)
+    assert rig.mgr.state == State.HOLDING and "again" in rig.mgr.message
+
+
+# ================================================================ limits: geofence and ranges (issue 8 item 5)
+
+from aeroperception.services.mission.limits import Limits  # noqa: E402
+from aeroperception.services.safety.geofence import Geofence  # noqa: E402
+
+
+def mission_with(**changes) -> Mission:
+    data = msgspec.to_builtins(survey())
+    data.update(changes)
+    return msgspec.convert(data, Mission)
+
+
+@pytest.mark.parametrize(("changes", "words"), [
+    ({"waypoints": [{"x": 0, "y": 0, "z": 5}, {"x": 5, "y": 0, "z": -50}]}, ["waypoint 1", "floor"]),
+    ({"waypoints": [{"x": 0, "y": 0, "z": 5}, {"x": 10_000, "y": 0, "z": 5}]}, ["waypoint 1", "radius"]),
+    ({"waypoints": [{"x": 0, "y": 0, "z": 5000}]}, ["waypoint 0", "ceiling"]),
+    ({"takeoff_altitude_m": 1e12}, ["takeoff altitude"]),
+    ({"waypoint_acceptance_radius_m": 1e9}, ["acceptance radius"]),
+    ({"waypoint_acceptance_radius_m": 0.01}, ["acceptance radius"]),
+])
+def test_unsafe_missions_are_refused_naming_the_reason(changes, words):
+    rig = Rig()
+    rig.feed(vehicle())
+    ok, msg = rig.mgr.load(mission_with(**changes))
+    assert not ok and "refused" in msg
+    for w in words:
+        assert w in msg, msg
+    assert rig.mgr.mission is None
+
+
+def test_takeoff_altitude_above_the_limits_is_refused():
+    rig = Rig(limits=Limits(max_takeoff_altitude_m=30.0))
+    rig.to_idle()
+    ok, msg = rig.mgr.takeoff(1e12, rig.on_result)
+    assert not ok and "takeoff" in msg and rig.bridge.calls == []
+    ok, msg = rig.mgr.takeoff(40.0, rig.on_result)
+    assert not ok and "30" in msg
+    assert rig.mgr.takeoff(10.0, rig.on_result)[0]
+
+
+def test_goto_outside_the_geofence_or_with_a_silly_radius_is_refused():
+    rig = Rig(limits=Limits(geofence=Geofence(radius_m=100.0)))
+    rig.to_holding()
+    rig.clear()
+    ok, msg = rig.mgr.goto(np.array([500.0, 0.0, 5.0]), None)
+    assert not ok and "geofence radius" in msg
+    ok, msg = rig.mgr.goto(np.array([5.0, 0.0, 5.0]), None, acceptance_radius_m=1e9)
+    assert not ok and "acceptance radius" in msg
+    assert rig.mgr.state == State.HOLDING and rig.goals == []
+    assert rig.mgr.goto(np.array([5.0, 0.0, 5.0]), None)[0]
+
+
+def test_limits_take_the_geofence_from_the_shared_parameters():
+    from aeroperception.services.mission import contract
+    from aeroperception.services.runtime.params import ParamSet
+    params = ParamSet.from_declarations(contract.PARAMS)
+    params.set("geofence_radius_m", 50.0)
+    limits = Limits.from_params(params)
+    assert limits.geofence.radius_m == 50.0
+    assert "waypoint 1" in limits.check_mission(mission_with(waypoints=[{"x": 0, "y": 0, "z": 5},
+                                                                         {"x": 60, "y": 0, "z": 5}]))
+
+
+def test_resume_after_outage_never_takes_the_vehicle_out_of_a_failsafe_rtl():
+    rig = Rig(Config(resume_after_outage=True))
+    rig.to_executing()
+    rig.silence(1.0)
+    rig.feed(fc(mode="RTL"))                          # the FC's offboard-loss failsafe is flying home
+    assert rig.mgr.state == State.HOLDING and "OFFBOARD" not in rig.bridge.modes()[1:]
+
+
+def test_a_stalled_mission_process_is_not_an_fmu_outage():
+    rig = Rig(Config(vehicle_timeout_s=0.5))
+    rig.to_executing()
+    rig.tick(0.1)
+    rig.tick(2.0, fresh_state=False)                  # our own tick was 2 s late: we stalled, not fmu
+    assert rig.mgr.state == State.EXECUTING and not rig.mgr.outage
+    rig.tick(0.1, fresh_state=False)                  # on time again and still no state: outage
+    assert rig.mgr.state == State.HOLDING and "fmu outage" in rig.mgr.message
+
+
+def test_start_after_a_takeover_answers_with_the_fcs_offboard_outcome():
+    rig = Rig(bridge=FakeBridge(defer=True))
+    rig.to_idle()
+    rig.mgr.command("TAKEOFF", rig.on_result)
+    rig.bridge.answer_pending()                       # arm
+    rig.bridge.answer_pending()                       # OFFBOARD
+    rig.feed(fc())                                    # at 5 m in OFFBOARD: HOLDING
+    rig.mgr.command("START")
+    rig.feed(fc(mode="HOLD"))                         # a pilot/GCS took it: HOLDING
+    rig.results.clear()
+
+    accepted, _ = rig.mgr.command("START", rig.on_result)
+    assert accepted and rig.results == []             # not "started" before the FC said so
+    rig.bridge.fail[("set_mode", "OFFBOARD")] = "RC override"
+    rig.bridge.answer_pending()
+    assert rig.results == [(False, "OFFBOARD failed: RC override")]
+    assert rig.mgr.state == State.HOLDING
+
+    del rig.bridge.fail[("set_mode", "OFFBOARD")]
+    rig.mgr.command("START", rig.on_result)
+    rig.bridge.answer_pending()
+    assert rig.results[-1][0] is True and rig.mgr.state == State.EXECUTING

@@ -1,0 +1,66 @@
+"""What the mission service accepts to fly: every mission, goto goal and takeoff altitude is
+checked here against the shared geofence (services/safety/geofence.py) and the mission's own
+limits before it is accepted, so nothing unsafe ever reaches the planner.
+
+Never a second geofence: the fence comes from the GEOFENCE_PARAMS the contract declares.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+from aeroperception.schemas import Mission
+from aeroperception.services.safety.geofence import Geofence
+
+
+@dataclass(frozen=True)
+class Limits:
+    geofence: Geofence = field(default_factory=Geofence)
+    max_takeoff_altitude_m: float = 120.0
+    min_acceptance_radius_m: float = 0.1
+    max_acceptance_radius_m: float = 10.0
+
+    @classmethod
+    def from_params(cls, params: Mapping[str, Any]) -> "Limits":
+        return cls(geofence=Geofence.from_params(params),
+                   max_takeoff_altitude_m=float(params["max_takeoff_altitude_m"]),
+                   min_acceptance_radius_m=float(params["min_acceptance_radius_m"]),
+                   max_acceptance_radius_m=float(params["max_acceptance_radius_m"]))
+
+    def check_takeoff(self, altitude_m: float, x: float = 0.0, y: float = 0.0) -> str | None:
+        """Why a takeoff to `altitude_m` (ENU z) from (x, y) is refused, or None."""
+        if not math.isfinite(altitude_m):
+            return "takeoff altitude is not finite"
+        ceiling = min(self.max_takeoff_altitude_m, self.geofence.max_altitude_m)
+        if altitude_m > ceiling:
+            return (f"takeoff altitude {altitude_m:g} m is above the limit {ceiling:g} m "
+                    f"(max_takeoff_altitude_m / geofence ceiling)")
+        why = self.geofence.check_waypoint(x, y, altitude_m)
+        return f"takeoff altitude: {why}" if why else None
+
+    def check_acceptance_radius(self, radius_m: float) -> str | None:
+        lo, hi = self.min_acceptance_radius_m, self.max_acceptance_radius_m
+        if not math.isfinite(radius_m) or not lo <= radius_m <= hi:
+            return f"acceptance radius {radius_m:g} m is outside {lo:g}..{hi:g} m"
+        return None
+
+    def check_goto(self, x: float, y: float, z: float, radius_m: float | None) -> str | None:
+        why = self.geofence.check_waypoint(x, y, z)
+        if why:
+            return f"goto target: {why}"
+        return self.check_acceptance_radius(radius_m) if radius_m is not None else None
+
+    def check_mission(self, mission: Mission) -> str | None:
+        """Why `mission` is refused (naming the waypoint index), or None if it may be flown."""
+        why = self.check_takeoff(mission.takeoff_altitude_m)
+        if why:
+            return why
+        why = self.check_acceptance_radius(mission.waypoint_acceptance_radius_m)
+        if why:
+            return f"waypoint_acceptance_radius_m: {why}"
+        for i, wp in enumerate(mission.waypoints):
+            why = self.geofence.check_waypoint(wp.x, wp.y, wp.z)
+            if why:
+                return f"waypoint {i} ({wp.x:g}, {wp.y:g}, {wp.z:g}): {why}"
+        return None

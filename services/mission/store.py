@@ -1,0 +1,59 @@
+"""The mission's memory across restarts: the loaded mission and its progress, in one JSON file
+written atomically (temp file in the same directory, fsync, os.replace), so a restarted mission
+service over a flying vehicle knows what it was flying (ARCHITECTURE §8). A reader sees the old
+or the new file, never half of one; an unreadable file is reported and ignored, never fatal.
+"""
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+FILE_NAME = "mission.json"
+VERSION = 1
+
+
+def default_state_dir(vehicle: str) -> Path:
+    """~/.aero/state/<vehicle>/ (vehicle "" -> "default", as in the liveliness keys)."""
+    return Path.home() / ".aero" / "state" / (vehicle or "default")
+
+
+class MissionStore:
+    def __init__(self, directory: str | Path):
+        self.path = Path(directory).expanduser() / FILE_NAME
+
+    def save(self, snapshot: dict[str, Any]) -> None:
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        data = json.dumps({"version": VERSION, **snapshot}).encode()
+        fd, tmp = tempfile.mkstemp(prefix=".mission-", suffix=".tmp", dir=self.path.parent)
+        try:
+            with os.fdopen(fd, "wb") as f:
+                f.write(data)
+                f.flush()
+                os.fsync(f.fileno())
+            os.replace(tmp, self.path)
+        except BaseException:
+            try:
+                os.unlink(tmp)
+            except OSError:
+                pass
+            raise
+
+    def load(self) -> dict[str, Any] | None:
+        """The last snapshot, None when there is none; ValueError naming the file when it is
+        unreadable (the caller reports it and starts without one)."""
+        try:
+            text = self.path.read_text()
+        except FileNotFoundError:
+            return None
+        except OSError as e:
+            raise ValueError(f"{self.path}: cannot read: {e.strerror}") from None
+        try:
+            data = json.loads(text)
+        except ValueError as e:
+            raise ValueError(f"{self.path}: not valid JSON: {e}") from None
+        if not isinstance(data, dict) or data.get("version") != VERSION:
+            raise ValueError(f"{self.path}: not a version {VERSION} mission snapshot")
+        return data

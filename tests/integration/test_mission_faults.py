@@ -1,0 +1,399 @@
+"""The mission service when things break (issue 8 items 2, 3, 5, 9 and the safety reactions),
+against the real stack: `aero up` with sim (no sensors), fmu, planner, mission and diagnostics as
+separate processes, MAVLink on free UDP ports, Zenoh on a free loopback port. What the vehicle
+did is judged from sim/truth/state, never from the autonomy.
+
+- mission kill -9 mid-flight: `aero up` restarts it; it rebuilds from the vehicle and its
+  persisted mission (HOLDING "mission restarted in flight"), `aero mission fly` keeps waiting
+  (it judges the landing from the vehicle), START resumes at the persisted waypoint, LAND lands.
+- the FC switched to HOLD behind the mission's back (fmu/srv/set_mode, as another GCS would):
+  HOLDING within 1 s, the survey does not continue; START resumes it and it completes.
+- fmu kill -9 mid-mission: HOLDING ("fmu outage"); after fmu is back it stays HOLDING (default
+  resume_after_outage false): no waypoint is flown until commanded.
+- safety/status from a test node (the safety service may not run): HOLD acts once (the
+  operator's START is not overridden by the 1 Hz repeats), LAND lands.
+- unsafe inputs: missions outside the geofence / limits refused naming the waypoint, takeoff to
+  1e12 m and a goto 10 km away refused, garbage of the right shape on mission/action/land/goal
+  refused while the vehicle keeps flying its mission.
+- takeoff settles on the target altitude (truth within 0.1 m), not where the tolerance began.
+"""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import threading
+import time
+
+import msgspec
+import numpy as np
+import pytest
+
+from aerotest import aero_argv, clean_env, is_service_process, wait_until
+from aeroperception.schemas import (
+    GoalReply, GoalStatus, GoToPositionGoal, LandGoal, LoadMissionReply, LoadMissionRequest,
+    MissionCommand, MissionStatus, PoseStamped, Reply, SafetyStatus, SetModeReply, SetModeRequest,
+    TakeoffGoal, Vector3, VehicleState, WaypointReached, decode, encode, load_mission_file,
+)
+from aeroperception.services.runtime import ActionClient
+from aeroperception.services.runtime.node import call, encoding_for
+from test_flight import (  # helpers only (no test functions: they would be collected twice)
+    SURVEY, diag, free_udp_port, latest, recording, truth, wait_at_rest,
+)
+
+SERVICES = ["sim", "fmu", "planner", "mission", "diagnostics"]
+
+
+@pytest.fixture(scope="module")
+def mstack(stack_module, tmp_path_factory):
+    """The flight stack with the mission's state directory in a temp dir (not ~/.aero)."""
+    state_dir = tmp_path_factory.mktemp("mission-state")
+    fcu, sim_bind = free_udp_port(), free_udp_port()
+    st = stack_module(SERVICES, extra_args=[
+        "--speed", "1", "--fcu-url", f"udpin:127.0.0.1:{fcu}",
+        "--arg", f"sim:--target=127.0.0.1:{fcu}", "--arg", f"sim:--bind=127.0.0.1:{sim_bind}",
+        "--arg", "sim:--sensors=none", "--arg", f"mission:--param=state_dir={state_dir}"], timeout_s=30)
+    st.state_dir = state_dir
+    try:
+        wait_until(lambda: latest(st, "state/vehicle", VehicleState, 1.0, lambda m: m.connected),
+                   15, "state/vehicle connected (fmu <-> sim MAVLink)")
+        wait_until(lambda: int(diag(st, "fmu").values.get("setpoints_sent", 0)) > 100, 15,
+                   "planner setpoints streaming through fmu")
+        wait_until(lambda: latest(st, "mission/status", MissionStatus, 1.5, lambda m: "restarting" not in m.message),
+                   15, "mission/status, restore done")
+    except BaseException:
+        print(st.describe())
+        raise
+    return st
+
+
+# ---------------------------------------------------------------- helpers
+
+
+def status(st, pred=None, timeout_s: float = 3.0) -> MissionStatus:
+    s = latest(st, "mission/status", MissionStatus, timeout_s, pred)
+    assert s is not None, "no (matching) mission/status"
+    return s
+
+
+def wait_status(st, pred, timeout_s: float, what: str) -> MissionStatus:
+    return wait_until(lambda: latest(st, "mission/status", MissionStatus, 1.0, pred), timeout_s, what)
+
+
+def command(st, cmd: str, timeout_s: float = 15.0) -> Reply:
+    return call(st.session, "mission/srv/command", MissionCommand(command=cmd), Reply, timeout_s)
+
+
+def load(st, text: str) -> LoadMissionReply:
+    return call(st.session, "mission/srv/load", LoadMissionRequest(mission_json=text), LoadMissionReply, 5.0)
+
+
+def landed(st) -> bool:
+    t = truth(st)
+    return t.position_m.z < 0.2 and not t.armed
+
+
+def ensure_landed(st) -> None:
+    """On the ground, disarmed, mission IDLE (LAND if needed), judged by the truth."""
+    if not landed(st):
+        s = status(st)
+        if s.state not in ("LAND", "IDLE"):
+            r = command(st, "LAND")
+            assert r.success, f"LAND refused: {r.message}"
+        wait_until(lambda: landed(st), 60, "vehicle landed and disarmed (truth)")
+    wait_status(st, lambda m: m.state == "IDLE", 15, "mission IDLE")
+
+
+def start_survey(st) -> None:
+    ensure_landed(st)
+    r = load(st, SURVEY.read_text())
+    assert r.success, r.message
+    for cmd in ("TAKEOFF", "START"):
+        r = command(st, cmd)
+        assert r.success, f"{cmd}: {r.message}"
+    wait_status(st, lambda m: m.state == "EXECUTING", 40, "mission EXECUTING")
+
+
+def first_since(rec, name: str, since: float, pred):
+    """(arrival time, message) of the first recorded `name` message since `since` matching pred."""
+    with rec.lock:
+        return next(((t, m) for t, m in rec.data[name] if t >= since and pred(m)), None)
+
+
+def service_pid(st, name: str) -> int:
+    pid = st.pids().get(name)
+    assert pid is not None and is_service_process(pid, name), f"no running {name} process in pids.json"
+    return pid
+
+
+def kill9(st, name: str) -> int:
+    pid = service_pid(st, name)
+    os.kill(pid, signal.SIGKILL)
+    return pid
+
+
+# ---------------------------------------------------------------- item 2: mission restart
+
+
+@pytest.mark.slow
+def test_mission_killed_mid_flight_restarts_holding_then_resumes_and_lands(mstack):
+    st = mstack
+    ensure_landed(st)
+    out: list[str] = []
+    proc = subprocess.Popen(aero_argv() + ["mission", "fly", str(SURVEY), "--quiet", "--timeout", "150"],
+                            env=clean_env(st.endpoint), stdin=subprocess.DEVNULL,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    reader = threading.Thread(target=lambda: [out.append(line) for line in proc.stdout], daemon=True)
+    reader.start()
+    try:
+        wait_status(st, lambda m: m.state == "EXECUTING" and m.active_waypoint >= 2, 60,
+                    "survey under way to waypoint index 2")
+        persisted = json.loads((st.state_dir / "mission.json").read_text())
+        assert persisted["state"] == "EXECUTING" and persisted["wp_index"] >= 2, persisted
+        old = kill9(st, "mission")
+        t_kill = time.monotonic()
+        wait_until(lambda: st.pids().get("mission") not in (None, old), 20, "aero up restarted mission")
+        s = wait_status(st, lambda m: m.state == "HOLDING", 20, "restarted mission HOLDING")
+        print(f"mission HOLDING {time.monotonic() - t_kill:.1f} s after kill -9: {s.message}")
+        assert "mission restarted in flight" in s.message, s.message
+        assert s.mission_id == "survey_01" and s.active_waypoint == persisted["wp_index"], s
+        t = truth(st)
+        assert t.armed and t.position_m.z > 3.0, f"vehicle not flying: z {t.position_m.z:.2f}"
+        time.sleep(2.0)
+        assert proc.poll() is None, "aero mission fly ended although the vehicle is flying:\n" + "".join(out)
+        assert "landed" not in "".join(out), "".join(out)
+
+        # START resumes from the persisted waypoint
+        r = command(st, "START")
+        assert r.success and "resumed at waypoint" in r.message, r.message
+        s = status(st, lambda m: m.state == "EXECUTING")
+        assert s.active_waypoint == persisted["wp_index"], s
+        # LAND works (the defect: "LAND not possible in IDLE", hovering for 10+ minutes)
+        time.sleep(1.0)
+        r = command(st, "LAND")
+        assert r.success, r.message
+        wait_until(lambda: landed(st), 60, "landed and disarmed (truth)")
+        code = proc.wait(20)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(5)
+        reader.join(5)
+    text = "".join(out)
+    print(text)
+    assert code == 0, text
+    assert "landed and disarmed (vehicle on the ground)" in text
+    wait_status(st, lambda m: m.state == "IDLE", 10, "mission IDLE")
+
+
+# ---------------------------------------------------------------- item 3a: FC leaves OFFBOARD
+
+
+@pytest.mark.slow
+def test_fc_switched_to_hold_mid_mission_holds_and_start_resumes_to_completion(mstack):
+    st = mstack
+    start_survey(st)
+    with recording(st, status=("mission/status", MissionStatus), truth=("sim/truth/state", VehicleState),
+                   reached=("mission/waypoint_reached", WaypointReached),
+                   goal=("mission/active_goal", PoseStamped)) as rec:
+        wait_status(st, lambda m: m.state == "EXECUTING" and m.active_waypoint == 1
+                    and (m.distance_to_goal_m or 0) > 6.0, 40, "flying to waypoint index 1")
+        time.sleep(1.0)
+        t_req = time.monotonic()
+        r = call(st.session, "fmu/srv/set_mode", SetModeRequest(mode="HOLD"), SetModeReply, 5.0)
+        t_fc = time.monotonic()   # fmu answers once the FC's heartbeat confirms HOLD
+        assert r.success, r.message
+        t_hold, s = wait_until(lambda: first_since(rec, "status", t_req, lambda m: m.state == "HOLDING"),
+                               3.0, "mission HOLDING")
+        print(f"FC HOLD confirmed {t_fc - t_req:.2f} s after the request; mission HOLDING "
+              f"{t_hold - t_fc:.2f} s after that: {s.message}")
+        assert t_hold - t_fc < 1.0, f"mission HOLDING {t_hold - t_fc:.2f} s after the FC switched"
+        assert "flight controller switched to HOLD" in s.message, s.message
+        assert rec.last("goal").header.frame_id == "hold", "mission still commanding motion"
+        # the survey does not continue: no waypoint reached, the vehicle stays put
+        held = wait_at_rest(st, 10)
+        n_reached = len(rec.get("reached"))
+        time.sleep(3.0)
+        t = truth(st)
+        assert np.linalg.norm(t.position_m.to_array() - held.position_m.to_array()) < 0.5
+        assert len(rec.get("reached")) == n_reached and status(st).state == "HOLDING"
+        assert t.flight_mode == "HOLD", f"the mission fought the FC: mode {t.flight_mode}"
+
+        # START resumes (asks for OFFBOARD again) and the survey completes
+        r = command(st, "START")
+        assert r.success, r.message
+        wait_until(lambda: truth(st).flight_mode == "OFFBOARD", 5, "FC back in OFFBOARD")
+        wait_status(st, lambda m: m.state == "LAND", 90, "survey complete: LAND")
+        wait_until(lambda: landed(st), 60, "landed and disarmed (truth)")
+        reached = [m.index for m in rec.get("reached")]
+    assert reached[-3:] == [1, 2, 3], f"waypoints reached {reached}"
+
+
+# ---------------------------------------------------------------- item 3c: fmu outage
+
+
+@pytest.mark.slow
+def test_fmu_killed_mid_mission_holds_and_does_not_resume_by_itself(mstack):
+    st = mstack
+    start_survey(st)
+    with recording(st, status=("mission/status", MissionStatus),
+                   reached=("mission/waypoint_reached", WaypointReached)) as rec:
+        wait_status(st, lambda m: m.state == "EXECUTING" and m.active_waypoint == 1, 40, "flying to index 1")
+        old = kill9(st, "fmu")
+        t_kill = time.monotonic()
+        t_hold, s = wait_until(lambda: first_since(rec, "status", t_kill, lambda m: m.state == "HOLDING"),
+                               3.0, "mission HOLDING after fmu kill -9")
+        print(f"mission HOLDING {t_hold - t_kill:.2f} s after fmu kill -9: {s.message}")
+        assert "fmu" in s.message and "outage" in s.message, s.message
+        wait_until(lambda: st.pids().get("fmu") not in (None, old), 20, "aero up restarted fmu")
+        wait_until(lambda: latest(st, "state/vehicle", VehicleState, 1.0, lambda m: m.connected), 20,
+                   "fmu back, FC connected")
+        n_reached = len(rec.get("reached"))
+        time.sleep(5.0)
+        s = status(st)
+        print(f"5 s after fmu is back: {s.state}: {s.message}; truth mode {truth(st).flight_mode}")
+        assert s.state in ("HOLDING", "IDLE"), s  # IDLE only if the FC's failsafe landed it
+        assert len(rec.get("reached")) == n_reached, "the survey carried on after the outage"
+    ensure_landed(st)
+
+
+# ---------------------------------------------------------------- safety/status reactions
+
+
+class SafetyPublisher:
+    """safety/status at 1 Hz from this test, as the safety service would; `recommend()` changes
+    what is published (and publishes it at once, like the service's on-change update)."""
+
+    def __init__(self, st):
+        self.pub = st.session.declare_publisher("safety/status", encoding=encoding_for(SafetyStatus))
+        self.msg = SafetyStatus()
+        self.stop = threading.Event()
+        self.wake = threading.Event()
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def recommend(self, action: int, reason: str = "") -> None:
+        self.msg = SafetyStatus(recommended_action=action, active_errors=[reason] if reason else [])
+        self.wake.set()
+
+    def _run(self) -> None:
+        while not self.stop.is_set():
+            self.pub.put(encode(self.msg))
+            self.wake.wait(1.0)
+            self.wake.clear()
+
+    def close(self) -> None:
+        self.recommend(SafetyStatus.ACTION_NONE)  # later tests start from NONE
+        time.sleep(0.2)
+        self.stop.set()
+        self.wake.set()
+        self.thread.join(3)
+        self.pub.undeclare()
+
+
+@pytest.mark.slow
+def test_safety_hold_acts_once_and_safety_land_lands(mstack):
+    st = mstack
+    start_survey(st)
+    safety = SafetyPublisher(st)
+    try:
+        time.sleep(1.5)                               # NONE first
+        safety.recommend(SafetyStatus.ACTION_HOLD, "geofence warning")
+        s = wait_status(st, lambda m: m.state == "HOLDING", 5, "HOLDING on safety HOLD")
+        assert "safety: HOLD (geofence warning)" in s.message, s.message
+        r = command(st, "START")                      # the operator acknowledges and resumes
+        assert r.success, r.message
+        time.sleep(3.0)                               # three more 1 Hz HOLD recommendations
+        assert status(st).state == "EXECUTING", "the repeated recommendation overrode the operator"
+        safety.recommend(SafetyStatus.ACTION_LAND, "battery critical")
+        s = wait_status(st, lambda m: m.state == "LAND", 5, "LAND on safety LAND")
+        assert "safety: LAND (battery critical)" in s.message, s.message
+        wait_until(lambda: landed(st), 60, "landed and disarmed (truth)")
+    finally:
+        safety.close()
+    ensure_landed(st)
+
+
+# ---------------------------------------------------------------- item 5: unsafe inputs
+
+
+def mission_text(**changes) -> str:
+    data = msgspec.to_builtins(load_mission_file(SURVEY))
+    data.pop("header", None)
+    data.update(changes)
+    return json.dumps(data)
+
+
+@pytest.mark.parametrize(("changes", "words"), [
+    ({"waypoints": [{"x": 0, "y": 0, "z": 5}, {"x": 3, "y": 0, "z": -50}]}, ["waypoint 1", "floor"]),
+    ({"waypoints": [{"x": 10_000, "y": 0, "z": 5}]}, ["waypoint 0", "radius"]),
+    ({"waypoints": [{"x": 0, "y": 0, "z": 5}, {"x": 0, "y": 0, "z": 5}, {"x": 0, "y": 0, "z": 5000}]},
+     ["waypoint 2", "ceiling"]),
+    ({"takeoff_altitude_m": 1e12}, ["takeoff altitude"]),
+    ({"waypoint_acceptance_radius_m": 1e9}, ["acceptance radius"]),
+])
+def test_unsafe_missions_refused_by_the_service(mstack, changes, words):
+    st = mstack
+    ensure_landed(st)
+    text = mission_text(**changes)
+    r = load(st, text)
+    assert not r.success and all(w in r.message for w in words), r.message
+    # the same through mission/srv/command LOAD
+    r2 = call(st.session, "mission/srv/command", MissionCommand(command="LOAD", mission_json=text), Reply, 5.0)
+    assert not r2.success and all(w in r2.message for w in words), r2.message
+    assert status(st).state == "IDLE" and landed(st)
+
+
+def test_unsafe_takeoff_and_goto_goals_refused(mstack):
+    st = mstack
+    ensure_landed(st)
+    takeoff, goto = ActionClient(st.session, "mission/action/takeoff"), ActionClient(st.session, "mission/action/goto")
+    try:
+        g = takeoff.send_goal(TakeoffGoal(target_altitude_m=1e12))
+        assert not g.success and "takeoff" in g.message, g.message
+        g = goto.send_goal(GoToPositionGoal(position_m=Vector3(x=10_000.0, y=0.0, z=5.0)))
+        assert not g.success and "geofence" in g.message, g.message
+    finally:
+        takeoff.close()
+        goto.close()
+    time.sleep(0.5)
+    assert landed(st) and status(st).state == "IDLE"
+
+
+@pytest.mark.slow
+def test_garbage_land_goal_is_refused_and_the_mission_keeps_flying(mstack):
+    st = mstack
+    start_survey(st)
+    # the right schema name on the wire, but nothing but unknown fields (LandGoal's are all optional)
+    replies = st.session.get("mission/action/land/goal", payload=msgspec.msgpack.encode({"bogus": 1, "xyz": [1, 2]}),
+                             encoding=encoding_for(LandGoal), timeout=5.0)
+    got = [decode(r.ok.payload.to_bytes(), GoalReply) for r in replies if r.ok is not None]
+    assert got and not got[0].success and "bogus" in got[0].message, got
+    assert got[0].status in (GoalStatus.REJECTED, GoalStatus.UNKNOWN)
+    time.sleep(2.0)
+    s = status(st)
+    assert s.state == "EXECUTING", f"garbage goal changed the mission: {s.state} {s.message}"
+    t = truth(st)
+    assert t.armed and t.position_m.z > 3.0 and t.flight_mode == "OFFBOARD"
+    ensure_landed(st)
+
+
+# ---------------------------------------------------------------- item 9: takeoff altitude
+
+
+def test_takeoff_settles_on_the_target_altitude(mstack):
+    st = mstack
+    ensure_landed(st)
+    client = ActionClient(st.session, "mission/action/takeoff")
+    try:
+        g = client.send_goal(TakeoffGoal(target_altitude_m=3.0))
+        assert g.success, g.message
+        res = client.result(g.goal_id, 40)
+        assert res.status == GoalStatus.SUCCEEDED, res.message
+    finally:
+        client.close()
+    rest = wait_at_rest(st, 20, speed_mps=0.05, for_s=2.0)
+    print(f"takeoff to 3 m: at rest at z = {rest.position_m.z:.3f} m (truth)")
+    assert abs(rest.position_m.z - 3.0) < 0.1, f"settled at {rest.position_m.z:.2f} m for a 3 m target"
+    ensure_landed(st)
