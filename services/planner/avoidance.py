@@ -27,11 +27,12 @@ GO_WEIGHT = 2.0       # score of a reachable cell = path cost + GO_WEIGHT * stra
 @dataclass(frozen=True)
 class AvoidanceConfig:
     cell_m: float = 0.2                 # planning resolution (costmap cells are pooled to this)
-    lookahead_m: float = 1.5
-    slow_distance_m: float = 4.0        # full speed while the nearest obstacle ahead is farther
-    stop_distance_m: float = 0.9        # zero speed this close to a blocked cell ahead
+    clearance_m: float = 1.5            # plan this far from lethal cells (tracking error included)
+    lookahead_m: float = 1.0
+    slow_distance_m: float = 3.0        # full speed while the clearance zone ahead is farther
+    stop_distance_m: float = 0.2        # zero speed this close to the clearance zone ahead
     cost_weight: float = 4.0            # path cost per metre = 1 + cost_weight * cost / 98
-    check_horizon_s: float = 0.6
+    check_horizon_s: float = 0.3
     costmap_timeout_s: float = 0.5
 
 
@@ -44,19 +45,31 @@ class Avoidance:
 
 
 class CostmapView:
-    """A costmap pooled to the planning resolution (max of each block: conservative)."""
+    """A costmap pooled to the planning resolution (max of each block: conservative), with
+    `blocked` = closer than the clearance to a lethal cell (the planner's own margin, not the
+    costmap's inscribed radius: the vehicle must keep its distance, not just not touch)."""
 
     def __init__(self, data: np.ndarray, origin_xy: tuple[float, float], resolution_m: float,
-                 cell_m: float, stamp_s: float):
+                 cell_m: float, clearance_m: float, stamp_s: float):
+        import cv2
+
         k = max(1, int(round(cell_m / resolution_m)))
         h, w = (data.shape[0] // k) * k, (data.shape[1] // k) * k
         d = data[:h, :w].astype(np.int16)
-        unknown = d < 0
-        d = np.where(unknown, 0, d)
+        d = np.where(d < 0, 0, d)                                   # unknown: optimistic
         self.cost = d.reshape(h // k, k, w // k, k).max(axis=(1, 3))
         self.origin = np.asarray(origin_xy, dtype=float)
         self.res = resolution_m * k
         self.stamp_s = stamp_s
+        lethal = self.cost >= 100
+        # Distance (m) from each cell to the nearest lethal one. Planning keeps `clearance_m`;
+        # looking ahead along straight lines tolerates one cell less, and the last-resort stop
+        # two cells less, so a line grazing the corner of a planning cell does not freeze the
+        # vehicle while it still never gets near an obstacle.
+        self.dist = (cv2.distanceTransform((~lethal).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+                     * self.res if lethal.any() else np.full(lethal.shape, np.inf, np.float32))
+        self.blocked = self.dist < clearance_m
+        self.clearance_m = clearance_m
 
     def cell(self, xy: np.ndarray) -> np.ndarray:
         return np.floor((np.asarray(xy, float) - self.origin) / self.res).astype(np.int64)
@@ -72,6 +85,21 @@ class CostmapView:
         c = self.cell(xy)
         return int(self.cost[c[1], c[0]]) if self.inside(c) else 0
 
+    def distance_along(self, xy: np.ndarray) -> np.ndarray:
+        """Distance to the nearest lethal cell at each point (inf outside the grid)."""
+        c = self.cell(np.atleast_2d(xy))
+        h, w = self.cost.shape
+        ok = (c[:, 0] >= 0) & (c[:, 0] < w) & (c[:, 1] >= 0) & (c[:, 1] < h)
+        out = np.full(len(c), np.inf)
+        out[ok] = self.dist[c[ok, 1], c[ok, 0]]
+        return out
+
+    def blocked_at(self, xy: np.ndarray, slack_cells: int = 0) -> bool:
+        return bool(self.distance_along(xy)[0] < self.clearance_m - slack_cells * self.res)
+
+    def blocked_along(self, xy: np.ndarray, slack_cells: int = 0) -> np.ndarray:
+        return self.distance_along(xy) < self.clearance_m - slack_cells * self.res
+
 
 class LocalPlanner:
     def __init__(self, cfg: AvoidanceConfig | None = None):
@@ -83,7 +111,7 @@ class LocalPlanner:
         self._state = ("clear", "")
 
     def set_costmap(self, data: np.ndarray, origin_xy, resolution_m: float, stamp_s: float) -> None:
-        self.view = CostmapView(data, origin_xy, resolution_m, self.cfg.cell_m, stamp_s)
+        self.view = CostmapView(data, origin_xy, resolution_m, self.cfg.cell_m, self.cfg.clearance_m, stamp_s)
 
     def needs_plan(self, position_m: np.ndarray, goal_m: np.ndarray) -> bool:
         """Whether a (slow, ~10-30 ms) replan is worth it: only when the straight way to the goal
@@ -133,7 +161,7 @@ class LocalPlanner:
             v[:2] = 0.0
             return Avoidance(v, state, reason)
         else:
-            d = _along(self._path, p, cfg.lookahead_m) - p
+            d = self._carrot(p) - p
             n = float(np.hypot(*d))
             direction = d / n if n > 1e-6 else straight_dir
             state = "avoiding"
@@ -163,20 +191,26 @@ class LocalPlanner:
         gcell = view.cell(g)
         if view.inside(gcell) and cost[gcell[1], gcell[0]] >= BLOCKED:
             return None, ("unreachable", f"goal ({g[0]:.1f}, {g[1]:.1f}) is inside an obstacle")
-        free = cost < BLOCKED
-        # The vehicle may already be inside the inflation of something: let it leave.
+        if view.inside(gcell) and view.blocked[gcell[1], gcell[0]]:
+            return None, ("unreachable", f"goal ({g[0]:.1f}, {g[1]:.1f}) is closer than "
+                                         f"{cfg.clearance_m:.1f} m to an obstacle")
+        free = ~view.blocked
+        # The vehicle may already be inside its clearance of something: let it leave (but never
+        # through a lethal cell).
         sr, sc = start[1], start[0]
-        r = max(1, int(math.ceil(0.5 / view.res)))
-        free[max(0, sr - r):sr + r + 1, max(0, sc - r):sc + r + 1] |= cost[max(0, sr - r):sr + r + 1,
-                                                                          max(0, sc - r):sc + r + 1] < 100
+        r = max(1, int(math.ceil(cfg.clearance_m / view.res)))
+        win = (slice(max(0, sr - r), sr + r + 1), slice(max(0, sc - r), sc + r + 1))
+        free[win] |= cost[win] < BLOCKED
         step_cost = 1.0 + cfg.cost_weight * np.clip(cost, 0, 98) / 98.0
         idx = np.arange(h * w).reshape(h, w)
         rows, cols, wts = [], [], []
         for dr, dc in ((0, 1), (1, 0), (1, 1), (1, -1)):
             a = idx[max(0, -dr):h - max(0, dr), max(0, -dc):w - max(0, dc)]
             b = idx[max(0, dr):h - max(0, -dr) or None, max(0, dc):w - max(0, -dc) or None]
-            fa, fb = free.ravel()[a.ravel()], free.ravel()[b.ravel()]
-            ok = fa & fb
+            fr = free.ravel()
+            ok = fr[a.ravel()] & fr[b.ravel()]
+            if dr and dc:                       # no diagonal squeeze between two blocked cells
+                ok &= fr[a.ravel() + dr * w] & fr[a.ravel() + dc]
             length = math.hypot(dr, dc) * view.res
             c = 0.5 * (step_cost.ravel()[a.ravel()] + step_cost.ravel()[b.ravel()]) * length
             rows += [a.ravel()[ok], b.ravel()[ok]]
@@ -213,45 +247,45 @@ class LocalPlanner:
         return np.vstack([p, view.centre(cells)[1:]]) if len(cells) > 1 else np.vstack([p, g]), ("avoiding", "")
 
     def _clearance(self, p: np.ndarray, direction: np.ndarray) -> float:
-        """Distance to the first blocked cell within a vehicle-wide corridor ahead (m)."""
+        """Distance to the first blocked cell (the clearance zone) straight ahead (m)."""
         view, cfg = self.view, self.cfg
-        ds = np.arange(view.res, cfg.slow_distance_m + view.res, view.res * 0.5)
-        c = view.cell(p + np.outer(ds, direction))
-        h, w = view.cost.shape
-        ok = (c[:, 0] >= 0) & (c[:, 0] < w) & (c[:, 1] >= 0) & (c[:, 1] < h)
-        hit = np.zeros(len(ds), bool)
-        hit[ok] = view.cost[c[ok, 1], c[ok, 0]] >= 100
+        ds = np.arange(view.res * 0.5, cfg.slow_distance_m + view.res, view.res * 0.5)
+        if view.blocked_at(p, 1):
+            return math.inf          # already inside: _crosses_blocked keeps it from going deeper
+        hit = view.blocked_along(p + np.outer(ds, direction), 1)
         return float(ds[np.argmax(hit)]) if hit.any() else math.inf
 
+    def _carrot(self, p: np.ndarray) -> np.ndarray:
+        """The farthest point of the plan within lookahead_m that p sees without crossing a
+        blocked cell (a fixed carrot would cut the inside of corners), else the next point."""
+        path, cfg = self._path, self.cfg
+        i = int(np.argmin(np.hypot(*(path - p).T)))
+        best = path[min(i + 1, len(path) - 1)]
+        for q in path[i + 1:]:
+            d = q - p
+            n = float(np.hypot(*d))
+            if n > cfg.lookahead_m:
+                break
+            if n > 1e-6 and self._free_line(p, d / n, n):
+                best = q
+        return best
+
     def _free_line(self, p: np.ndarray, direction: np.ndarray, length_m: float) -> bool:
+        """No blocked cell on the segment (from inside a clearance zone: none deeper in)."""
         view = self.view
         ds = np.arange(0.0, length_m + 1e-9, 0.5 * view.res)
-        c = view.cell(p + np.outer(ds, direction))
-        h, w = view.cost.shape
-        ok = (c[:, 0] >= 0) & (c[:, 0] < w) & (c[:, 1] >= 0) & (c[:, 1] < h)
-        cost = view.cost[c[ok, 1], c[ok, 0]]
-        here = view.cost_at(p)
-        return bool(np.all(cost < BLOCKED) or (here >= BLOCKED and np.all(cost[1:] <= here)))
+        pts = p + np.outer(ds, direction)
+        if not view.blocked_at(p, 1):
+            return not view.blocked_along(pts, 1).any()
+        d = view.distance_along(pts)            # inside the margin: only lines that do not go deeper
+        return bool(np.all(d[1:] >= d[0] - 1e-6))
 
     def _crosses_blocked(self, p: np.ndarray, v_xy: np.ndarray) -> bool:
-        """Whether moving at v for check_horizon_s enters a blocked cell (starting outside one)."""
+        """Whether moving at v for check_horizon_s enters a blocked cell (from outside one), or
+        goes deeper towards a lethal cell (from inside a clearance zone)."""
         view = self.view
-        if view.cost_at(p) >= BLOCKED:
-            return view.cost_at(p + v_xy * self.cfg.check_horizon_s) >= 100
         n = max(2, int(np.hypot(*v_xy) * self.cfg.check_horizon_s / (0.5 * view.res)) + 1)
-        for t in np.linspace(0, self.cfg.check_horizon_s, n)[1:]:
-            if view.cost_at(p + v_xy * t) >= BLOCKED:
-                return True
-        return False
-
-
-def _along(path: np.ndarray, p: np.ndarray, lookahead_m: float) -> np.ndarray:
-    """The point `lookahead_m` along the path from its point nearest to p."""
-    i = int(np.argmin(np.hypot(*(path - p).T)))
-    left = lookahead_m
-    for a, b in zip(path[i:], path[i + 1:]):
-        seg = float(np.hypot(*(b - a)))
-        if seg >= left:
-            return a + (b - a) * (left / seg)
-        left -= seg
-    return path[-1]
+        pts = p + np.outer(np.linspace(0, self.cfg.check_horizon_s, n)[1:], v_xy)
+        if view.blocked_at(p, 2):
+            return bool(view.distance_along(pts).min() < view.distance_along(p)[0] - 1e-6)
+        return bool(view.blocked_along(pts, 2).any())

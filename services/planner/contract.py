@@ -25,8 +25,9 @@ PARAMS = [
     Param("rate_hz", 50.0, "Hz", 10.0, 200.0, description="setpoint rate"),
     Param("state_timeout_s", 0.5, "s", 0.05, 5.0, description="older vehicle state -> hold, status ERROR"),
     Param("obstacle_avoidance", True, description="steer around perception/costmap obstacles (off: straight lines)"),
-    Param("avoid_lookahead_m", 1.5, "m", 0.3, 10.0, description="carrot distance along the planned way"),
-    Param("avoid_slow_distance_m", 4.0, "m", 1.0, 20.0, description="slow down when an obstacle ahead is nearer"),
-    Param("avoid_stop_distance_m", 0.9, "m", 0.3, 5.0, description="zero speed this close to an obstacle ahead"),
+    Param("avoid_clearance_m", 1.5, "m", 0.3, 10.0, description="keep this far from obstacles (plus tracking error)"),
+    Param("avoid_lookahead_m", 1.0, "m", 0.3, 10.0, description="farthest visible point along the planned way"),
+    Param("avoid_slow_distance_m", 3.0, "m", 0.5, 20.0, description="slow down when the clearance zone ahead is nearer"),
+    Param("avoid_stop_distance_m", 0.2, "m", 0.0, 5.0, description="zero speed this close to the clearance zone ahead"),
     Param("costmap_timeout_s", 0.5, "s", 0.1, 5.0, description="older costmap -> flown as if none (status says so)"),
 ]

@@ -15,7 +15,8 @@ from .logic import Goal, WaypointPlanner
 
 
 def avoidance_config(p) -> AvoidanceConfig:
-    return AvoidanceConfig(lookahead_m=p.avoid_lookahead_m, slow_distance_m=p.avoid_slow_distance_m,
+    return AvoidanceConfig(clearance_m=p.avoid_clearance_m, lookahead_m=p.avoid_lookahead_m,
+                           slow_distance_m=p.avoid_slow_distance_m,
                            stop_distance_m=p.avoid_stop_distance_m, costmap_timeout_s=p.costmap_timeout_s)
 
 
