@@ -172,8 +172,10 @@ class Stack:
                               *map(str, extra_args)]
         self._stdout_path = self.log_dir / "aero-up.out"
         with open(self._stdout_path, "wb") as out:
+            # Each stack persists mission state in its own folder (never the user's ~/.aero).
+            env = dict(clean_env(), AERO_STATE_DIR=str(self.log_dir / "state"))
             self.proc = subprocess.Popen(argv, stdout=out, stderr=subprocess.STDOUT,
-                                         stdin=subprocess.DEVNULL, env=clean_env())
+                                         stdin=subprocess.DEVNULL, env=env)
         try:
             self._wait_up(timeout_s)
         except BaseException:

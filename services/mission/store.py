@@ -16,8 +16,10 @@ VERSION = 1
 
 
 def default_state_dir(vehicle: str) -> Path:
-    """~/.aero/state/<vehicle>/ (vehicle "" -> "default", as in the liveliness keys)."""
-    return Path.home() / ".aero" / "state" / (vehicle or "default")
+    """$AERO_STATE_DIR/<vehicle>/, else ~/.aero/state/<vehicle>/ (vehicle "" -> "default", as in
+    the liveliness keys). Tests give each stack its own AERO_STATE_DIR so no run restores another's."""
+    root = os.environ.get("AERO_STATE_DIR")
+    return (Path(root) if root else Path.home() / ".aero" / "state") / (vehicle or "default")
 
 
 class MissionStore:
