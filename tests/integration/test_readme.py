@@ -62,6 +62,13 @@ HOW: dict[str, tuple] = {
     "aero up --listen tcp/0.0.0.0:7447 --except planner": (DRY, None, "router on tcp/0.0.0.0:7447"),
     "aero node list --connect tcp/VEHICLE_IP:7447": (STACK, None, "planner"),
     "aero run planner --connect tcp/VEHICLE_IP:7447": (STACK, None, None),   # the fixture's planner uses --connect
+    "aero topic hz perception/costmap": (SKIP, ["aero", "topic", "hz", "--help"],
+                                         "needs the LiDAR rendered (2 cores): test_lidar_service and test_obstacle_flight"),
+    "aero param set lidar overhead_clearance_m 2.0": (SKIP, ["aero", "param", "set", "--help"],
+                                                     "needs the lidar service: test_lidar_service runs it"),
+    "aero eval lidar": (SKIP, ["aero", "eval", "lidar", "-n", "2", "--scenario", "open_field", "--kitti"],
+                        "the full run renders 60 scans: checked on two"),
+    "aero bench lidar": (SKIP, ["aero", "bench", "lidar", "-n", "1"], "a benchmark: checked with one scan"),
 }
 
 
