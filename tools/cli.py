@@ -14,7 +14,7 @@ from aeroperception.schemas import SchemaError
 
 from .common import CliError
 
-COMMANDS = ["cmd_up", "cmd_router", "cmd_run", "cmd_topic", "cmd_schema", "cmd_param", "cmd_mission", "cmd_bench", "cmd_snapshot"]
+COMMANDS = ["cmd_up", "cmd_router", "cmd_run", "cmd_topic", "cmd_schema", "cmd_param", "cmd_mission", "cmd_bench", "cmd_snapshot", "cmd_eval"]
 
 
 def build_parser() -> argparse.ArgumentParser:

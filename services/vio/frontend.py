@@ -255,7 +255,7 @@ class FrontEnd:
             self._make_keyframe(t_ns, gray, gray_r, np.zeros((0, 2)), timer)
             self.prev_gray = gray
             return FrontEndResult("first", None, None, None, True, FeatureQuality(tracked=len(self.cur_px)),
-                                  len(self.kf_px), timer.ms, "first keyframe")
+                                  len(self.kf_px), timer.ms, "new keyframe, no reference yet")
         ref_t = self.kf_t_ns
         cur, ok = track_klt(self.prev_gray, gray, self.cur_px, cfg.klt_window_px, cfg.klt_levels)
         timer.lap("track")

@@ -1,0 +1,19 @@
+"""`aero eval vio`: accuracy of the VIO against ground truth (ATE, RPE, drift, NEES)."""
+from __future__ import annotations
+
+import argparse
+import importlib
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    ev = sub.add_parser("eval", help="evaluate an estimator against ground truth")
+    esub = ev.add_subparsers(dest="eval_cmd", required=True)
+    p = esub.add_parser("vio", help="VIO offline on an EuRoC/ASL folder: ATE, RPE, drift, NEES; JSON + PNG")
+    p.add_argument("--euroc", metavar="DIR", help="EuRoC/ASL dataset folder (contains mav0/)")
+    p.add_argument("--out", default="vio_eval", metavar="DIR", help="where to write vio_eval.json / .png")
+    p.add_argument("--strategy", default="klt_stereo", help="VioStrategy (klt_stereo, klt_mono)")
+    p.add_argument("--align", default="se3", choices=["se3", "yaw"], help="trajectory alignment for ATE")
+    p.add_argument("--rpe-delta-s", type=float, default=1.0, help="RPE window")
+    p.add_argument("--max-frames", type=int, default=None)
+    p.set_defaults(func=lambda a: importlib.import_module("aeroperception.tools.eval_vio").run(
+        a.euroc, a.out, a.strategy, a.align, a.rpe_delta_s, a.max_frames))
