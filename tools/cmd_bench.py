@@ -1,4 +1,4 @@
-"""`aero bench pubsub|sim|flight`: benchmarks that print median / p99 and the ratio to the raw
+"""`aero bench pubsub|sim|flight|vio`: benchmarks that print median / p99 and the ratio to the raw
 baseline measured in the same run. Tests check correctness; these report speed."""
 from __future__ import annotations
 
@@ -21,3 +21,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--duration", type=float, default=20.0, help="seconds of hover to measure")
     p.add_argument("--sensors", default="none", choices=["none", "imu", "all"], help="sim sensor load while measuring")
     p.set_defaults(func=lambda a: importlib.import_module("aeroperception.tools.bench_flight").run(a.duration, a.sensors))
+    p = bsub.add_parser("vio", help="VIO front end / back end / total per 640x480 stereo frame vs bare OpenCV KLT")
+    p.add_argument("-n", type=int, default=200, help="frames (rendered by the sim's camera; not timed)")
+    p.add_argument("--scenario", default="village")
+    p.add_argument("--strategy", default="klt_stereo")
+    p.set_defaults(func=lambda a: importlib.import_module("aeroperception.tools.bench_vio").run(a.n, a.scenario, a.strategy))

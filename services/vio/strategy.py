@@ -10,8 +10,9 @@ StrategyNotAvailableError listing what exists.
 """
 from __future__ import annotations
 
+import bisect
+import time
 from abc import ABC, abstractmethod
-from collections import deque
 from dataclasses import dataclass, field
 from typing import ClassVar
 
@@ -69,7 +70,7 @@ class KltVio(VioStrategy):
         self.backend = Backend(self.cfg.imu, self.cfg.backend)
         self.calib: CameraCalibration | None = None
         self.frontend: FrontEnd | None = None
-        self.imu: deque[ImuSample] = deque()
+        self.imu: list[ImuSample] = []   # sorted by time, trimmed to imu_buffer_s
         self.health = VioHealth()
         self.warm: WarmStartPose | None = None
         self.last_t_ns: int | None = None
@@ -127,21 +128,19 @@ class KltVio(VioStrategy):
             self.imu.append(ImuSample(int(s.t_ns), g, a))
             last = s.t_ns
         horizon = (last or 0) - int(self.cfg.imu_buffer_s * 1e9)
-        while self.imu and self.imu[0].t_ns < horizon:
-            self.imu.popleft()
+        if self.imu and self.imu[0].t_ns < horizon - int(1e9):   # trim in chunks: O(1) amortised
+            del self.imu[:bisect.bisect_left(self.imu, horizon, key=lambda s: s.t_ns)]
         if self.imu:
             self.last_gyro = self.imu[-1].gyro_radps
 
     def _imu_between(self, t0_ns: int, t1_ns: int) -> tuple[list[ImuSample], float]:
         """Samples covering [t0, t1] (the last one at or before t0 included) and the longest gap (s)."""
-        out = [s for s in self.imu if s.t_ns > t0_ns and s.t_ns <= t1_ns]
-        before = [s for s in self.imu if s.t_ns <= t0_ns]
-        if before:
-            out.insert(0, before[-1])
+        buf = self.imu
+        lo = bisect.bisect_right(buf, t0_ns, key=lambda s: s.t_ns)
+        hi = bisect.bisect_right(buf, t1_ns, key=lambda s: s.t_ns)
+        out = [buf[k] for k in range(max(lo - 1, 0), hi)]
         ts = [t0_ns] + [s.t_ns for s in out if s.t_ns > t0_ns] + [t1_ns]
-        if not before:
-            ts = [t0_ns] + ts[1:]
-        gap = max((b - a) for a, b in zip(ts, ts[1:])) * 1e-9 if len(ts) > 1 else 0.0
+        gap = max(b - a for a, b in zip(ts, ts[1:])) * 1e-9
         return out, gap
 
     def _initialize(self, frame: NavCameraFrame, problem: str | None) -> VioOutput:
@@ -149,7 +148,8 @@ class KltVio(VioStrategy):
         if problem:
             raise VioInitializingError(problem)
         if self.warm is None:
-            win = [s for s in self.imu if t - int(self.cfg.init_imu_s * 1e9) <= s.t_ns <= t + int(0.01e9)]
+            lo = bisect.bisect_left(self.imu, t - int(self.cfg.init_imu_s * 1e9), key=lambda s: s.t_ns)
+            win = self.imu[lo:bisect.bisect_right(self.imu, t + int(0.01e9), key=lambda s: s.t_ns)]
             span = (win[-1].t_ns - win[0].t_ns) * 1e-9 if len(win) > 1 else 0.0
             if span < 0.8 * self.cfg.init_imu_s:
                 raise VioInitializingError(f"waiting for IMU ({span:.2f} of {self.cfg.init_imu_s:.2f} s)")
@@ -200,8 +200,6 @@ class KltVio(VioStrategy):
 
     def process_frame(self, frame: NavCameraFrame, imu: ImuWindow,
                       calibration: CameraCalibration | None) -> VioOutput:
-        import time
-
         t_start = time.perf_counter()
         self.counters["frames"] += 1
         self._add_imu(imu)
