@@ -1,5 +1,7 @@
 """`aero eval vio`: how good the VIO is against ground truth.
 
+Live (`--live --duration S`): records state/visual_odometry from the running vio service and
+sim/truth/state from the simulator for S seconds and pairs them by stamp (both on the sim clock).
 Offline on an EuRoC/ASL folder (`--euroc DIR`): the same strategy the service runs is fed the
 dataset's stereo pairs and IMU (the IMU between frames, as the service does) and its estimates
 are compared with the dataset's ground truth:
@@ -185,13 +187,94 @@ def table(m: dict) -> str:
     return "\n".join(f"  {k:<{w}}  {v}" for k, v in rows)
 
 
-def run(euroc: str | None, out_dir: str, strategy: str = "klt_stereo", align: str = "se3",
-        rpe_delta_s: float = 1.0, max_frames: int | None = None) -> int:
+def _pose(p) -> np.ndarray:
+    from aeroperception.services.runtime.rotations import quat_to_rotmat
+
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = quat_to_rotmat(p.orientation.to_array()), p.position.to_array()
+    return T
+
+
+def collect_live(session, duration_s: float, prefix: str = "") -> tuple[list, list, list]:
+    """(odometry messages, truth stamps, truth 4x4 poses) recorded for duration_s."""
+    import threading
+
+    from aeroperception.schemas import Odometry, Pose, SchemaError, VehicleState, decode
+
+    odom, t_stamps, t_poses, lock = [], [], [], threading.Lock()
+
+    def on_odom(sample) -> None:
+        try:
+            m = decode(sample.payload.to_bytes(), Odometry)
+        except SchemaError:
+            return
+        with lock:
+            odom.append(m)
+
+    def on_truth(sample) -> None:
+        try:
+            m = decode(sample.payload.to_bytes(), VehicleState)
+        except SchemaError:
+            return
+        with lock:
+            t_stamps.append(m.header.stamp_ns)
+            t_poses.append(_pose(Pose(position=m.position_m, orientation=m.orientation)))
+
+    subs = [session.declare_subscriber(prefix + "state/visual_odometry", on_odom),
+            session.declare_subscriber(prefix + "sim/truth/state", on_truth)]
+    try:
+        time.sleep(duration_s)
+    finally:
+        for s in subs:
+            s.undeclare()
+    with lock:
+        return list(odom), list(t_stamps), list(t_poses)
+
+
+def _live_metrics(odom: list, t_stamps: list, t_poses: list, align: str, rpe_delta_s: float) -> dict:
     from .common import CliError
 
+    if not odom:
+        raise CliError("no state/visual_odometry in the window: is the vio service running (aero run vio) "
+                       "and TRACKING (aero topic echo state/vio_health)?")
+    if not t_stamps:
+        raise CliError("no sim/truth/state in the window: live evaluation needs the simulator")
+    ts = np.array(t_stamps)
+    order = np.argsort(ts)
+    ts = ts[order]
+    est, gt, cov, st = [], [], [], []
+    for m in sorted(odom, key=lambda m: m.header.stamp_ns):
+        k = int(np.clip(np.searchsorted(ts, m.header.stamp_ns), 1, len(ts) - 1))
+        k = k if abs(ts[k] - m.header.stamp_ns) < abs(ts[k - 1] - m.header.stamp_ns) else k - 1
+        if abs(ts[k] - m.header.stamp_ns) > 20_000_000:
+            continue   # no truth within 20 ms of this estimate
+        est.append(_pose(m.pose))
+        gt.append(t_poses[order[k]])
+        c = m.pose_covariance.to_numpy()[:3, :3] if m.pose_covariance is not None else np.full((3, 3), np.nan)
+        cov.append(c)
+        st.append(m.header.stamp_ns)
+    if len(est) < 2:
+        raise CliError("odometry and truth stamps do not overlap (is vio following sim/clock?)")
+    return metrics(est, gt, cov, st, align, rpe_delta_s)
+
+
+def run(euroc: str | None, out_dir: str, strategy: str = "klt_stereo", align: str = "se3",
+        rpe_delta_s: float = 1.0, max_frames: int | None = None, live_args=None) -> int:
+    from .common import CliError, open_client
+
+    if live_args is not None:
+        session = open_client(live_args)
+        try:
+            prefix = f"{live_args.vehicle}/" if live_args.vehicle else ""
+            print(f"recording state/visual_odometry and sim/truth/state for {live_args.duration:g} s ...", flush=True)
+            m = _live_metrics(*collect_live(session, live_args.duration, prefix), align, rpe_delta_s)
+        finally:
+            session.close()
+        m.update(source="live")
+        return _report(m, Path(out_dir), "live VIO vs sim truth")
     if not euroc:
-        raise CliError("give a dataset: aero eval vio --euroc DIR (EuRoC/ASL folder with mav0/); "
-                       "live evaluation against sim/truth/state is not available yet")
+        raise CliError("give a source: aero eval vio --euroc DIR (EuRoC/ASL folder with mav0/) or "
+                       "--live (the running vio against sim/truth/state)")
     from aeroperception.services.vio.dto import StrategyNotAvailableError
 
     try:
@@ -211,13 +294,16 @@ def run(euroc: str | None, out_dir: str, strategy: str = "klt_stereo", align: st
     m.update(strategy=strategy, dataset=str(Path(euroc).resolve()), wall_s=r.wall_s,
              frames_fed=len(r.health_states), final_health=r.health_states[-1],
              frame_ms_median=float(np.nanmedian(tim)), errors=r.errors)
-    out = Path(out_dir)
+    print(f"VIO evaluation: {strategy} on {euroc} ({len(r.health_states)} frames fed, "
+          f"final health {r.health_states[-1]}, {m['frame_ms_median']:.1f} ms/frame median)")
+    return _report(m, Path(out_dir), f"{strategy} on {Path(euroc).name}")
+
+
+def _report(m: dict, out: Path, title: str) -> int:
     out.mkdir(parents=True, exist_ok=True)
     series = m.pop("_series")
     (out / "vio_eval.json").write_text(json.dumps({**m, "series": series}, indent=1))
-    how = plot({**m, "_series": series}, out / "vio_eval.png", f"{strategy} on {Path(euroc).name}")
-    print(f"VIO evaluation: {strategy} on {euroc} ({len(r.health_states)} frames fed, "
-          f"final health {r.health_states[-1]}, {m['frame_ms_median']:.1f} ms/frame median)")
+    how = plot({**m, "_series": series}, out / "vio_eval.png", title)
     print(table(m))
     print(f"  wrote {out / 'vio_eval.json'} and {out / 'vio_eval.png'} ({how})")
     return 0

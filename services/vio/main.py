@@ -2,9 +2,8 @@
 
 The strategy runs on a worker thread of its own, not in a subscriber callback: callbacks hold the
 node lock and a 10-20 ms frame would stall the IMU, parameter and diagnostics callbacks. The
-callbacks only pair left/right images by stamp into a one-frame slot (a frame arriving while the
-worker is busy replaces the waiting one: newest wins, the older is counted as dropped) and queue
-IMU samples.
+callbacks only pair left/right images by stamp into a one-frame slot (slot.py: newest wins, the
+replaced frame is counted as dropped) and queue IMU samples.
 """
 from __future__ import annotations
 
@@ -19,6 +18,7 @@ from aeroperception.services.runtime import CallError, Health, Service, run
 
 from . import contract, messages
 from .calibration import CalibrationError, CameraCalibration
+from .slot import FrameSlot
 from .dto import (
     DEGRADED, INIT, LOST, STATE_NAMES, TRACKING, ImuWindow, NavCameraFrame, VioDegradedError,
     VioError, VioFatalError, VioInitializingError,
@@ -42,11 +42,10 @@ class VioService(Service):
         self.infos: dict[str, CameraInfo | None] = {"left": None, "right": None}
         self.calib: CameraCalibration | None = None
         self.calib_error = ""
-        self.io = threading.Condition()
-        self.latest: dict[str, Image | None] = {"left": None, "right": None}
-        self.slot: tuple[Image, Image | None] | None = None
+        self.frames = FrameSlot(self.stereo)
+        self.imu_lock = threading.Lock()
         self.imu_pending: list = []
-        self.counts = {"frames_in": 0, "processed": 0, "dropped_frames": 0, "unpaired": 0, "errors": 0}
+        self.counts = {"processed": 0, "errors": 0}
         self.timings: dict[str, deque] = {}
         self.last_out = None
         self.published_state: int | None = None
@@ -66,8 +65,7 @@ class VioService(Service):
 
     def stop(self) -> None:
         self._stop.set()
-        with self.io:
-            self.io.notify_all()
+        self.frames.wake()
         self.worker.join(1.0)
 
     # ------------------------------------------------------------ inputs (callbacks)
@@ -90,28 +88,11 @@ class VioService(Service):
             self.log.throttled("error", "calib", "calibration_rejected", error=str(e))
 
     def _on_image(self, side: str, msg: Image) -> None:
-        with self.io:
-            if side == "left":
-                self.counts["frames_in"] += 1
-            prev = self.latest[side]
-            if side == "left" and prev is not None:
-                self.counts["unpaired"] += 1      # its right image never came
-            self.latest[side] = msg
-            left, right = self.latest["left"], self.latest["right"]
-            if left is None:
-                return
-            if self.stereo:
-                if right is None or right.header.stamp_ns != left.header.stamp_ns:
-                    return
-            pair = (left, right if self.stereo else None)
-            self.latest = {"left": None, "right": None}
-            if self.slot is not None:
-                self.counts["dropped_frames"] += 1
-            self.slot = pair
-            self.io.notify()
+        if side == "left" or self.stereo:
+            self.frames.put(side, msg, msg.header.stamp_ns)
 
     def _on_imu(self, msg: Imu) -> None:
-        with self.io:
+        with self.imu_lock:
             self.imu_pending.append(messages.imu_sample(msg))
 
     # ------------------------------------------------------------ worker
@@ -119,12 +100,11 @@ class VioService(Service):
     def _work(self) -> None:
         frame_id = 0
         while not self._stop.is_set():
-            with self.io:
-                self.io.wait_for(lambda: self.slot is not None or self._stop.is_set(), timeout=0.2)
-                pair, self.slot = self.slot, None
-                imu, self.imu_pending = self.imu_pending, []
+            pair = self.frames.take(0.2)
             if pair is None:
                 continue
+            with self.imu_lock:
+                imu, self.imu_pending = self.imu_pending, []
             frame_id += 1
             left, right = pair
             t = left.header.stamp_ns
@@ -170,7 +150,9 @@ class VioService(Service):
     def health(self) -> Health:
         snap = self.strategy.health_snapshot()
         values: dict = {"state": STATE_NAMES[snap.state], "strategy": self.params.strategy,
-                        "keyframes": getattr(self.strategy, "keyframes", 0), **self.counts}
+                        "keyframes": getattr(self.strategy, "keyframes", 0), **self.counts,
+                        "frames_in": self.frames.frames_in, "dropped_frames": self.frames.dropped,
+                        "unpaired": self.frames.unpaired}
         values.update(getattr(self.strategy, "counters", {}))
         if self.last_out is not None:
             q = self.last_out.feature_quality

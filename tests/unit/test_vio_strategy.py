@@ -220,3 +220,22 @@ def test_warm_start_restarts_from_the_given_pose():
     assert np.allclose(out.world_T_body[:3, 3], [10.0, -2.0, 3.0], atol=0.01)
     with pytest.raises(VioFatalError):
         f.s.reset_to_warm_start(WarmStartPose(np.full((4, 4), np.nan)))
+
+
+def test_frame_slot_pairs_by_stamp_and_newest_wins_while_busy():
+    from aeroperception.services.vio.slot import FrameSlot
+
+    s = FrameSlot(stereo=True)
+    s.put("left", "L1", 1)
+    assert s.take(0.0) is None                    # no right image yet
+    s.put("right", "R1", 1)
+    s.put("left", "L2", 2)
+    s.put("right", "R2", 2)                       # worker busy: pair 2 replaces pair 1
+    assert s.take(0.0) == ("L2", "R2") and s.dropped == 1
+    s.put("left", "L3", 3)
+    s.put("left", "L4", 4)                        # L3's right never came
+    s.put("right", "R4", 4)
+    assert s.take(0.0) == ("L4", "R4") and s.unpaired == 1 and s.frames_in == 4
+    mono = FrameSlot(stereo=False)
+    mono.put("left", "L", 5)
+    assert mono.take(0.0) == ("L", None)
