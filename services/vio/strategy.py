@@ -194,7 +194,8 @@ class KltVio(VioStrategy):
             imu_bias=est.bias, feature_quality=quality, world_T_body=est.world_T_body,
             velocity_world_mps=est.velocity_world_mps,
             angular_velocity_body_radps=self.last_gyro - est.bias.gyro_radps,
-            twist_covariance_6x6=twist_cov, keyframe=keyframe, timings_ms=dict(timings))
+            twist_covariance_6x6=twist_cov, keyframe=keyframe, timings_ms=dict(timings),
+            emitted_at_ns=time.monotonic_ns())
 
     # ------------------------------------------------------------ per frame
 

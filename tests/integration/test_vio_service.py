@@ -2,11 +2,14 @@
 752x480 at 20 Hz with its radtan calibration as CameraInfo, the 200 Hz IMU) by a small publisher
 in this test: state/visual_odometry arrives at camera rate in odom/base_link with a 6x6 covariance
 and the vehicle's stillness, state/vio_health says TRACKING, and garbage on its inputs is counted
-and survived. Skipped (not failed) only when the shared data folder is absent."""
+and survived. Skipped (not failed) only when the shared data folder is absent.
+Also: an unavailable strategy fails at start naming what exists, and (slow) the service on the
+simulator's own sensors (rgb8 stereo, CameraInfo queryable, sim IMU) tracks the still vehicle."""
 from __future__ import annotations
 
 import json
 import signal
+import socket
 import subprocess
 import threading
 import time
@@ -23,11 +26,9 @@ from aeroperception.schemas import (
 from aeroperception.services.vio.euroc import EurocDataset, default_euroc_dir
 
 EUROC = default_euroc_dir()
-pytestmark = [
-    pytest.mark.timeout(120),
-    pytest.mark.skipif(EUROC is None, reason="EuRoC data not found: expected ../shared/data/euroc/"
-                       "V1_01_easy_start next to the checkout (or set AERO_DATA_DIR)"),
-]
+pytestmark = pytest.mark.timeout(120)
+needs_euroc = pytest.mark.skipif(EUROC is None, reason="EuRoC data not found: expected ../shared/data/euroc/"
+                                 "V1_01_easy_start next to the checkout (or set AERO_DATA_DIR)")
 
 
 class Collector:
@@ -93,6 +94,7 @@ def _publish_euroc(node, ds: EurocDataset, stop: threading.Event, garbage_at: in
             time.sleep(delay)
 
 
+@needs_euroc
 def test_vio_service_tracks_the_real_euroc_start_over_zenoh(zenoh_router, make_node, tmp_path):
     ds = EurocDataset(EUROC)
     watcher = zenoh_client(zenoh_router)
@@ -147,3 +149,67 @@ def test_vio_service_tracks_the_real_euroc_start_over_zenoh(zenoh_router, make_n
         watcher.close()
     events = [json.loads(ln)["event"] for ln in log.read_text().splitlines() if ln.startswith("{")]
     assert "vio_started" in events and events[-1] == "stopped"
+
+
+def _start_vio(endpoint: str, log, *extra: str) -> subprocess.Popen:
+    return subprocess.Popen(aero_argv() + ["run", "vio", *extra], stdout=subprocess.DEVNULL, stderr=log,
+                            stdin=subprocess.DEVNULL, env=clean_env(endpoint))
+
+
+def _stop(proc: subprocess.Popen) -> int | None:
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+        try:
+            return proc.wait(10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(5)
+            return None
+    return proc.returncode
+
+
+def test_unavailable_strategy_fails_at_start_naming_what_exists(zenoh_router, tmp_path):
+    log = tmp_path / "vio.log"
+    with open(log, "wb") as f:
+        proc = _start_vio(zenoh_router, f, "--param", "strategy=okvis2")
+    try:
+        code = proc.wait(30)
+    finally:
+        _stop(proc)
+    assert code == 1
+    fatal = [json.loads(ln) for ln in log.read_text().splitlines() if ln.startswith("{") and '"fatal"' in ln]
+    assert fatal and "okvis2" in fatal[0]["error"] and "klt_stereo, klt_mono" in fatal[0]["error"]
+
+
+def _free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(180)
+def test_vio_service_tracks_on_the_simulators_sensors(stack, tmp_path):
+    """`aero up --only sim --scenario village` + `aero run vio`: the still vehicle on the ground;
+    the VIO initialises from the sim's IMU, reads the calibration from the sim, stays TRACKING and
+    its pose stays with the truth (the vehicle does not move)."""
+    st = stack(["sim"], extra_args=["--scenario", "village",
+                                    "--arg", f"sim:--target=127.0.0.1:{_free_udp_port()}",
+                                    "--arg", f"sim:--bind=127.0.0.1:{_free_udp_port()}"], timeout_s=60)
+    log = tmp_path / "vio.log"
+    with open(log, "wb") as f:
+        proc = _start_vio(st.endpoint, f)
+    odom = Collector(st.session, "state/visual_odometry", Odometry)
+    health = Collector(st.session, "state/vio_health", VioHealth)
+    try:
+        wait_until(lambda: len(odom.all()) >= 60 or proc.poll() is not None, 60, "60 odometry messages")
+        assert proc.poll() is None, log.read_text()[-3000:]
+        wait_until(lambda: health.all() and health.all()[-1].state == VioHealth.TRACKING, 10, "TRACKING")
+        msgs = odom.all()
+        p = np.array([m.pose.position.to_array() for m in msgs])
+        assert np.linalg.norm(p - p[0], axis=1).max() < 0.05
+        q = msgs[-1].pose.orientation
+        assert abs(q.to_euler()[0]) < 0.02 and abs(q.to_euler()[1]) < 0.02   # level on the ground
+        assert health.all()[-1].tracked_features >= 40
+    finally:
+        assert _stop(proc) == 0, log.read_text()[-3000:]
