@@ -1,4 +1,4 @@
-"""`aero bench pubsub|sim|flight|vio`: benchmarks that print median / p99 and the ratio to the raw
+"""`aero bench pubsub|sim|flight`: benchmarks that print median / p99 and the ratio to the raw
 baseline measured in the same run. Tests check correctness; these report speed."""
 from __future__ import annotations
 

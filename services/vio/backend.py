@@ -87,7 +87,8 @@ class Backend:
         return (t_ns - self.t0_ns) * 1e-9
 
     def initialize(self, t_ns: int, world_T_body: np.ndarray, velocity_world_mps: np.ndarray,
-                   bias: ImuBias) -> BackendEstimate:
+                   bias: ImuBias, velocity_sigma_mps: float | None = None) -> BackendEstimate:
+        """Priors at the first state; velocity_sigma_mps overrides the config (unknown motion)."""
         c = self.cfg
         self.reset()
         self.t0_ns, self.i = t_ns, 0
@@ -96,7 +97,7 @@ class Backend:
         g.add(gtsam.PriorFactorPose3(X(0), pose, gtsam.noiseModel.Diagonal.Sigmas(
             np.r_[[c.init_rotation_sigma_rad] * 3, [c.init_position_sigma_m] * 3])))
         g.add(gtsam.PriorFactorVector(V(0), np.asarray(velocity_world_mps, float),
-                                      gtsam.noiseModel.Isotropic.Sigma(3, c.init_velocity_sigma_mps)))
+                                      gtsam.noiseModel.Isotropic.Sigma(3, velocity_sigma_mps or c.init_velocity_sigma_mps)))
         g.add(gtsam.PriorFactorConstantBias(B(0), to_gtsam_bias(bias), gtsam.noiseModel.Diagonal.Sigmas(
             np.r_[[c.init_accel_bias_sigma_mps2] * 3, [c.init_gyro_bias_sigma_radps] * 3])))
         v = gtsam.Values()

@@ -41,6 +41,7 @@ class FrontEndConfig:
     max_depth_m: float = 60.0
     pixel_sigma_px: float = 0.5    # floor of the measured reprojection noise
     covariance_inflation: float = 2.0   # sigma factor: 3D points are treated as exact in the Jacobian
+    translation_sigma_fraction: float = 0.03    # + this fraction of |t| (stereo depth / scale error)
 
 
 @dataclass
@@ -182,6 +183,9 @@ def solve_pnp(points_kf: np.ndarray, rect_px: np.ndarray, calib: CameraCalibrati
     rms = float(np.sqrt(np.mean(err[mask] ** 2)))
     sigma = max(cfg.pixel_sigma_px, rms * np.sqrt(2 * n / max(2 * n - 6, 1))) * cfg.covariance_inflation
     cov = pnp_covariance(pc[mask], calib.f, sigma)
+    # Stereo depth errors act as a scale error on the translation, which the reprojection
+    # Jacobian (points taken as exact) does not see: add it in the keyframe axes.
+    cov[3:, 3:] += (cfg.translation_sigma_fraction * np.linalg.norm(tvec)) ** 2 * np.eye(3)
     T = np.eye(4)
     T[:3, :3], T[:3, 3] = R, tvec.ravel()
     return T, mask, cov, rms

@@ -37,6 +37,7 @@ class VioConfig:
     imu: ImuNoise = field(default_factory=ImuNoise)
     init_imu_s: float = 0.2            # IMU averaged for gravity alignment
     still_accel_std_mps2: float = 0.5  # below: vehicle still, mean gyro = gyro bias
+    moving_init_velocity_sigma_mps: float = 3.0   # velocity prior when starting in motion
     lost_after_frames: int = 10
     imu_gap_warn_s: float = 0.05
     imu_gap_reset_s: float = 1.0
@@ -158,6 +159,7 @@ class KltVio(VioStrategy):
         if len(self.frontend.kf_px) < self.cfg.frontend.good_inliers:
             raise VioInitializingError(f"too few features to start ({len(self.frontend.kf_px)} of "
                                        f"{self.cfg.frontend.good_inliers})")
+        vel_sigma = None
         if self.warm is not None:
             w, self.warm = self.warm, None
             T, vel, bias = np.asarray(w.world_T_body, float), np.asarray(w.velocity_world_mps, float), w.bias
@@ -169,8 +171,10 @@ class KltVio(VioStrategy):
             still = float(np.max(acc.std(axis=0))) < self.cfg.still_accel_std_mps2
             bias = ImuBias(np.zeros(3), gyr.mean(axis=0) if still else np.zeros(3))
             vel = np.zeros(3)
+            # Started in flight (a restart): velocity unknown; stereo + IMU find it within frames.
+            vel_sigma = None if still else self.cfg.moving_init_velocity_sigma_mps
         try:
-            est = self.backend.initialize(t, T, vel, bias)
+            est = self.backend.initialize(t, T, vel, bias, vel_sigma)
         except BackendError as e:
             raise VioInitializingError(str(e)) from None
         self.kf_world_T_body = est.world_T_body
