@@ -9,7 +9,7 @@ import numpy as np
 
 from aeroperception.services.lidar.costmap import CostmapConfig, RollingCostmap
 from aeroperception.services.lidar.pipeline import ObstaclePipeline, PipelineConfig, sanitize
-from aeroperception.tools.shared_data import kitti_scans
+from aeroperception.services.runtime.data import kitti_scans
 
 
 

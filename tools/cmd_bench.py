@@ -28,3 +28,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-n", type=int, default=20, help="scans per pipeline")
     p.add_argument("--scenario", default="village")
     p.set_defaults(func=lambda a: importlib.import_module("aeroperception.tools.bench_lidar").run(a.n, a.scenario))
+    p = bsub.add_parser("vio", help="VIO front end / back end / total per 640x480 stereo frame vs bare OpenCV KLT")
+    p.add_argument("-n", type=int, default=200, help="frames (rendered by the sim's camera; not timed)")
+    p.add_argument("--scenario", default="village")
+    p.add_argument("--strategy", default="klt_stereo")
+    p.set_defaults(func=lambda a: importlib.import_module("aeroperception.tools.bench_vio").run(a.n, a.scenario, a.strategy))

@@ -1,9 +1,11 @@
-"""`aero eval lidar|...`: accuracy of the perception services against truth (simulator truth or
-real recordings), printed as a table and optionally written as JSON."""
+"""`aero eval lidar|vio`: accuracy of the perception services against truth (simulator truth or
+real recordings), printed as a table and written as JSON (+ PNG for vio)."""
 from __future__ import annotations
 
 import argparse
 import importlib
+
+from .common import add_session_arguments
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -18,9 +20,23 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--json", default=None, metavar="FILE", help="write the figures as JSON")
     p.set_defaults(func=_lidar)
 
+    p = esub.add_parser("vio", help="VIO vs ground truth (EuRoC folder or live sim): ATE, RPE, drift, NEES; JSON + PNG")
+    src = p.add_mutually_exclusive_group()
+    src.add_argument("--euroc", metavar="DIR", help="EuRoC/ASL dataset folder (contains mav0/)")
+    src.add_argument("--live", action="store_true", help="the running vio against sim/truth/state")
+    p.add_argument("--duration", type=float, default=60.0, help="--live: seconds to record")
+    add_session_arguments(p)
+    p.add_argument("--out", default="vio_eval", metavar="DIR", help="where to write vio_eval.json / .png")
+    p.add_argument("--strategy", default="klt_stereo", help="VioStrategy (klt_stereo, klt_mono)")
+    p.add_argument("--align", default="se3", choices=["se3", "yaw"], help="trajectory alignment for ATE")
+    p.add_argument("--rpe-delta-s", type=float, default=1.0, help="RPE window")
+    p.add_argument("--max-frames", type=int, default=None)
+    p.set_defaults(func=lambda a: importlib.import_module("aeroperception.tools.eval_vio").run(
+        a.euroc, a.out, a.strategy, a.align, a.rpe_delta_s, a.max_frames, a if a.live else None))
+
 
 def _lidar(a) -> int:
-    from aeroperception.tools.shared_data import kitti_scans
+    from aeroperception.services.runtime.data import kitti_scans
 
     mod = importlib.import_module("aeroperception.tools.eval_lidar")
     scenarios = a.scenario or ["open_field", "village", "slope_forest"]

@@ -9,7 +9,7 @@ from aeroperception.services.lidar.pipeline import (
     ObstaclePipeline, PipelineConfig, ScanError, classify, fit_ground, grid_clusters, sanitize, voxel_downsample,
 )
 from aeroperception.services.runtime.rotations import quat_from_euler, quat_to_rotmat
-from aeroperception.tools.shared_data import kitti_scans
+from aeroperception.services.runtime.data import kitti_scans
 
 RNG = np.random.default_rng(7)
 

@@ -1,5 +1,6 @@
-"""Where the project's real test recordings are: `../shared/data` beside the checkout (CI's
-layout), found by walking up from the repository, or AERO_SHARED_DATA. Never copied in."""
+"""Where the project's real recordings are (EuRoC, KITTI): $AERO_DATA_DIR, else the first
+`shared/data` found walking up from this checkout (in CI the layout is <clone>/ next to
+<clone>/../shared). Tests and eval tools read them by path; they are never copied in."""
 from __future__ import annotations
 
 import os
@@ -7,11 +8,11 @@ from pathlib import Path
 
 
 def shared_data_dir() -> Path | None:
-    env = os.environ.get("AERO_SHARED_DATA")
+    env = os.environ.get("AERO_DATA_DIR")
     if env:
         return Path(env) if Path(env).is_dir() else None
-    for up in Path(__file__).resolve().parents[1:5]:
-        cand = up / "shared" / "data"
+    for parent in Path(__file__).resolve().parents:
+        cand = parent / "shared" / "data"
         if cand.is_dir():
             return cand
     return None

@@ -1,0 +1,49 @@
+"""Contract of vio: keys in/out and parameters (stereo-inertial odometry, seed 003 / 000 §4.1)."""
+from aeroperception.schemas import CameraInfo, Image, Imu, Odometry, VioHealth
+from aeroperception.services.runtime import Param
+
+from .backend import BackendConfig
+from .frontend import FrontEndConfig
+from .imu import ImuNoise
+from .strategy import VioConfig
+
+NAME = "vio"
+INPUTS = {
+    "sensors/camera/left/image": Image,      # mono8 / rgb8, stamped at exposure
+    "sensors/camera/right/image": Image,     # same stamp as its left image (klt_stereo)
+    "sensors/camera/left/info": CameraInfo,  # also queried once at start (latched queryable)
+    "sensors/camera/right/info": CameraInfo,
+    "sensors/imu": Imu,                      # body FLU, specific force incl. gravity, 100-400 Hz
+}
+OUTPUTS = {
+    # Pose of base_link in odom (gravity-aligned, z up, origin/yaw where VIO initialised) with
+    # 6x6 covariances from the smoother's marginals; one per processed frame.
+    "state/visual_odometry": Odometry,
+    "state/vio_health": VioHealth,           # 1 Hz and on every state change
+}
+QUERIES = ("sensors/camera/left/info", "sensors/camera/right/info")
+PARAMS = [
+    Param("strategy", "klt_stereo", description="VioStrategy at start: klt_stereo, klt_mono (okvis2, vins_mono: not built)"),
+    Param("max_features", 150, "", 20, 1000, description="features per keyframe"),
+    Param("keyframe_max_age_s", 0.5, "s", 0.05, 5.0, description="new keyframe at least this often (< 0.9 lag_s)"),
+    Param("ransac_threshold_px", 1.5, "px", 0.3, 10.0, description="PnP RANSAC inlier threshold"),
+    Param("lag_s", 1.5, "s", 0.3, 10.0, description="fixed-lag smoother window"),
+    Param("lost_after_frames", 10, "", 1, 1000, description="frames without a visual fix before LOST"),
+    Param("gyro_noise_density", ImuNoise.gyro_noise_density, "rad/s/sqrt(Hz)", 1e-6, 1.0),
+    Param("accel_noise_density", ImuNoise.accel_noise_density, "m/s^2/sqrt(Hz)", 1e-6, 10.0),
+    Param("gyro_random_walk", ImuNoise.gyro_random_walk, "rad/s^2/sqrt(Hz)", 1e-9, 1.0),
+    Param("accel_random_walk", ImuNoise.accel_random_walk, "m/s^3/sqrt(Hz)", 1e-9, 1.0),
+    Param("imu_gap_warn_s", 0.05, "s", 0.005, 1.0, description="longer IMU gap: DEGRADED for that frame"),
+    Param("imu_gap_reset_s", 1.0, "s", 0.05, 10.0, description="longer IMU gap: re-initialise"),
+]
+
+
+def vio_config(p) -> VioConfig:
+    """The strategy configuration from the parameter values (read at start)."""
+    fe = FrontEndConfig(max_features=p.max_features, keyframe_max_age_s=p.keyframe_max_age_s,
+                        ransac_threshold_px=p.ransac_threshold_px)
+    imu = ImuNoise(gyro_noise_density=p.gyro_noise_density, accel_noise_density=p.accel_noise_density,
+                   gyro_random_walk=p.gyro_random_walk, accel_random_walk=p.accel_random_walk)
+    return VioConfig(frontend=fe, backend=BackendConfig(lag_s=p.lag_s), imu=imu,
+                     lost_after_frames=p.lost_after_frames, imu_gap_warn_s=p.imu_gap_warn_s,
+                     imu_gap_reset_s=p.imu_gap_reset_s)

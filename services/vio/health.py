@@ -1,0 +1,46 @@
+"""VIO health as an explicit transition table (like services/mission/fsm.py): every frame
+produces one event, the table says the next state. `consecutive_lost` counts frames in a row
+without a visual fix; LOST after `lost_after_frames` of them.
+
+    INIT      waiting for IMU, calibration and a first stereo keyframe; no output
+    TRACKING  visual fix on this frame with enough inliers; the output is trustworthy
+    DEGRADED  weak or missing visual fix (few features, bad image, IMU gap): output continues
+              from the IMU with growing covariance; consumers down-weight it
+    LOST      no visual fix for lost_after_frames frames: no output; the mission holds / RTLs
+"""
+from __future__ import annotations
+
+from .dto import DEGRADED, INIT, LOST, TRACKING
+
+# Events of one frame.
+INITIALIZED = "initialized"   # the back end got its first state
+GOOD = "good"                 # visual fix with enough inliers
+WEAK = "weak"                 # visual fix, few inliers (or an input problem this frame)
+MISS = "miss"                 # no visual fix, fewer than lost_after_frames in a row
+MISS_LIMIT = "miss_limit"     # no visual fix, lost_after_frames in a row
+RESET = "reset"               # re-initialise (time jump, long IMU gap, smoother failure, warm start)
+
+TRANSITIONS: dict[tuple[int, str], int] = {
+    (INIT, INITIALIZED): TRACKING,
+    (INIT, RESET): INIT,
+    (TRACKING, GOOD): TRACKING,
+    (TRACKING, WEAK): DEGRADED,
+    (TRACKING, MISS): DEGRADED,
+    (TRACKING, MISS_LIMIT): LOST,
+    (TRACKING, RESET): INIT,
+    (DEGRADED, GOOD): TRACKING,
+    (DEGRADED, WEAK): DEGRADED,
+    (DEGRADED, MISS): DEGRADED,
+    (DEGRADED, MISS_LIMIT): LOST,
+    (DEGRADED, RESET): INIT,
+    (LOST, GOOD): TRACKING,
+    (LOST, WEAK): DEGRADED,
+    (LOST, MISS): LOST,
+    (LOST, MISS_LIMIT): LOST,
+    (LOST, RESET): INIT,
+}
+
+
+def next_state(state: int, event: str) -> int:
+    """The table's answer; events that do not apply in a state (e.g. GOOD while INIT) keep it."""
+    return TRANSITIONS.get((state, event), state)

@@ -1,0 +1,176 @@
+"""Process shell of vio: images + IMU from Zenoh -> strategy -> state/visual_odometry.
+
+The strategy runs on a worker thread of its own, not in a subscriber callback: callbacks hold the
+node lock and a 10-20 ms frame would stall the IMU, parameter and diagnostics callbacks. The
+callbacks only pair left/right images by stamp into a one-frame slot (slot.py: newest wins, the
+replaced frame is counted as dropped) and queue IMU samples.
+"""
+from __future__ import annotations
+
+import threading
+import time
+from collections import deque
+
+import numpy as np
+
+from aeroperception.schemas import CameraInfo, DiagnosticStatus, Image, Imu, Odometry, VioHealth as VioHealthMsg
+from aeroperception.services.runtime import CallError, Health, Service, run
+
+from . import contract, messages
+from .calibration import CalibrationError, CameraCalibration
+from .slot import FrameSlot
+from .dto import (
+    DEGRADED, INIT, LOST, STATE_NAMES, TRACKING, ImuWindow, NavCameraFrame, VioDegradedError,
+    VioError, VioFatalError, VioInitializingError,
+)
+from .strategy import create_strategy
+
+LEVEL = {INIT: DiagnosticStatus.WARN, TRACKING: DiagnosticStatus.OK, DEGRADED: DiagnosticStatus.WARN,
+         LOST: DiagnosticStatus.ERROR}
+
+
+class VioService(Service):
+    """Stereo-inertial visual odometry (KLT + GTSAM fixed-lag smoother)."""
+
+    NAME = contract.NAME
+    PARAMS = contract.PARAMS
+
+    def start(self) -> None:
+        p = self.params
+        self.strategy = create_strategy(p.strategy, contract.vio_config(p))   # unknown name: fails at start
+        self.stereo = getattr(self.strategy, "stereo", True)
+        self.infos: dict[str, CameraInfo | None] = {"left": None, "right": None}
+        self.calib: CameraCalibration | None = None
+        self.calib_error = ""
+        self.frames = FrameSlot(self.stereo)
+        self.imu_lock = threading.Lock()
+        self.imu_pending: list = []
+        self.counts = {"processed": 0, "errors": 0}
+        self.timings: dict[str, deque] = {}
+        self.last_out = None
+        self.published_state: int | None = None
+        self.pub_odom = self.node.publisher("state/visual_odometry", Odometry, express=True)
+        self.pub_health = self.node.publisher("state/vio_health", VioHealthMsg)
+        for side in ("left", "right"):
+            self.node.subscribe(f"sensors/camera/{side}/image", Image, lambda m, s=side: self._on_image(s, m))
+            self.node.subscribe(f"sensors/camera/{side}/info", CameraInfo, lambda m, s=side: self._on_info(s, m))
+            self.node.call_async(f"sensors/camera/{side}/info", None, CameraInfo,
+                                 lambda r, s=side: None if isinstance(r, CallError) else self._on_info(s, r))
+        self.node.subscribe("sensors/imu", Imu, self._on_imu)
+        self.node.every(1.0, self._publish_health, name="health")
+        self._stop = threading.Event()
+        self.worker = threading.Thread(target=self._work, name="vio-worker", daemon=True)
+        self.worker.start()
+        self.log.info("vio_started", strategy=p.strategy, stereo=self.stereo)
+
+    def stop(self) -> None:
+        self._stop.set()
+        self.frames.wake()
+        self.worker.join(1.0)
+
+    # ------------------------------------------------------------ inputs (callbacks)
+
+    def _on_info(self, side: str, msg: CameraInfo) -> None:
+        old = self.infos[side]
+        if old is not None and _same_info(old, msg):
+            return
+        self.infos[side] = msg
+        left, right = self.infos["left"], self.infos["right"]
+        if left is None or (self.stereo and right is None):
+            return
+        try:
+            self.calib = CameraCalibration.from_camera_infos(left, right if self.stereo else None)
+            self.calib_error = ""
+            self.log.info("calibration", width=self.calib.width, height=self.calib.height,
+                          baseline_m=round(self.calib.baseline_m, 4), focal_px=round(self.calib.f, 1))
+        except (CalibrationError, ValueError) as e:
+            self.calib, self.calib_error = None, str(e)
+            self.log.throttled("error", "calib", "calibration_rejected", error=str(e))
+
+    def _on_image(self, side: str, msg: Image) -> None:
+        if side == "left" or self.stereo:
+            self.frames.put(side, msg, msg.header.stamp_ns)
+
+    def _on_imu(self, msg: Imu) -> None:
+        with self.imu_lock:
+            self.imu_pending.append(messages.imu_sample(msg))
+
+    # ------------------------------------------------------------ worker
+
+    def _work(self) -> None:
+        frame_id = 0
+        while not self._stop.is_set():
+            pair = self.frames.take(0.2)
+            if pair is None:
+                continue
+            with self.imu_lock:
+                imu, self.imu_pending = self.imu_pending, []
+            frame_id += 1
+            left, right = pair
+            t = left.header.stamp_ns
+            frame = NavCameraFrame(frame_id, t, messages.pixels(left),
+                                   messages.pixels(right) if right is not None else None)
+            window = ImuWindow(imu[0].t_ns if imu else t, t, imu)
+            try:
+                out = self.strategy.process_frame(frame, window, self.calib)
+            except VioDegradedError as e:
+                out = e.output
+            except (VioInitializingError, VioFatalError):
+                out = None
+            except VioError as e:
+                out = None
+                self.log.throttled("warn", "vio", "vio_error", error=str(e))
+            except Exception as e:  # noqa: BLE001 - a bad frame must never stop the odometry
+                out = None
+                self.counts["errors"] += 1
+                self.log.throttled("error", "vio", "frame_failed", error=f"{type(e).__name__}: {e}")
+            self.counts["processed"] += 1
+            if out is not None:
+                self.last_out = out
+                for k, v in out.timings_ms.items():
+                    self.timings.setdefault(k, deque(maxlen=200)).append(v)
+                self.pub_odom.publish(messages.odometry(out))
+            if self.strategy.health_snapshot().state != self.published_state:
+                self._publish_health()
+
+    def _publish_health(self) -> None:
+        snap = self.strategy.health_snapshot()
+        if self.calib is None:
+            snap.message = self.calib_error or "waiting for camera calibration (sensors/camera/*/info)"
+        out = self.last_out
+        self.pub_health.publish(messages.health(
+            snap, self.params.strategy, self.node.now_ns(), out.feature_quality if out else None,
+            out.imu_bias if out else None))
+        if snap.state != self.published_state:
+            self.log.info("vio_state", state=STATE_NAMES[snap.state], message=snap.message)
+        self.published_state = snap.state
+
+    # ------------------------------------------------------------ diagnostics
+
+    def health(self) -> Health:
+        snap = self.strategy.health_snapshot()
+        values: dict = {"state": STATE_NAMES[snap.state], "strategy": self.params.strategy,
+                        "keyframes": getattr(self.strategy, "keyframes", 0), **self.counts,
+                        "frames_in": self.frames.frames_in, "dropped_frames": self.frames.dropped,
+                        "unpaired": self.frames.unpaired}
+        values.update(getattr(self.strategy, "counters", {}))
+        if self.last_out is not None:
+            q = self.last_out.feature_quality
+            values.update(tracked_features=q.tracked, inliers=q.inliers, consecutive_lost=snap.consecutive_lost,
+                          bias_norm=round(snap.bias_norm, 4))
+        for k, d in list(self.timings.items()):
+            a = np.array(d)
+            values[f"{k}_ms_p50"] = round(float(np.median(a)), 2)
+            if k in ("frontend", "backend", "total"):
+                values[f"{k}_ms_p99"] = round(float(np.percentile(a, 99)), 2)
+        message = snap.message if self.calib is not None else (self.calib_error or "waiting for camera calibration")
+        return Health(LEVEL[snap.state], f"{STATE_NAMES[snap.state]}: {message}", values)
+
+
+def _same_info(a: CameraInfo, b: CameraInfo) -> bool:
+    return (a.width, a.height, a.distortion_model, a.T_body_camera) == (b.width, b.height, b.distortion_model, b.T_body_camera) \
+        and np.array_equal(a.K.to_numpy(), b.K.to_numpy()) and np.array_equal(a.D.to_numpy(), b.D.to_numpy())
+
+
+def main(argv=None) -> int:
+    return run(VioService, argv)
