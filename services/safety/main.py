@@ -76,7 +76,7 @@ class SafetyService(Service):
         if changed or now - self.last_pub_s >= 1.0 / self.params.status_rate_hz:
             if changed and self.last_signature is not None:
                 self.counters["changes"] += 1
-                self.log.info("safety_changed", level=LEVEL_NAMES[status.safety_level],
+                self.log.info("safety_changed", safety_level=LEVEL_NAMES[status.safety_level],
                               action=ACTION_NAMES[status.recommended_action],
                               rules=list(self.monitor.verdict.rules), dead=status.dead_heartbeats,
                               errors=status.active_errors, warnings=status.active_warnings)
