@@ -163,7 +163,7 @@ class SafetyMonitor:
             return "dead", f"{name} not alive"
         silent_since = svc.diag_rx_s if svc.diag_rx_s is not None else svc.alive_since_s
         if now_s - silent_since > self.cfg.diagnostics_timeout_s:
-            return "hung", f"{name} silent for {now_s - silent_since:.1f} s (hung?)"
+            return "hung", f"{name} hung: no diagnostics for over {self.cfg.diagnostics_timeout_s:g} s"
         if svc.diag is not None and svc.diag.level == DiagnosticStatus.ERROR:
             return "error", f"{name} reports ERROR: {svc.diag.message}"
         return "", ""
@@ -196,7 +196,7 @@ class SafetyMonitor:
         if self.perception is None:
             return ""  # optional input: unknown, not unhealthy
         if not self._fresh(self.perception_rx_s, now_s, self.cfg.perception_timeout_s):
-            return f"perception/health silent for {now_s - self.perception_rx_s:.1f} s"
+            return f"perception/health silent for over {self.cfg.perception_timeout_s:g} s"
         if not self.perception.overall_healthy:
             vio = PerceptionHealth.status_name(self.perception.vio_status)
             return f"perception not healthy (VIO {vio}{': ' + self.perception.message if self.perception.message else ''})"

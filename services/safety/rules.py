@@ -4,7 +4,8 @@ RULES is ordered most severe first. Each row: a name, a condition on `Facts`, th
 while airborne, the (level, action) on the ground, and a message. The first matching row decides
 `safety_level` and `recommended_action`; every matching row adds its message (to the errors when
 its level is CAUTION or worse, else to the warnings; " -> HOLD" etc. when the row asks for motion),
-so nothing is hidden behind the winner.
+so nothing is hidden behind the winner. Messages are stable while their condition holds (the
+numbers are in SafetyStatus's fields), so a ground station can forward each one once.
 
 On the ground no row recommends motion (HOLD/RTH/LAND become WARN): the problem is still reported
 (a reason not to take off). A lost flight-controller link ranks above every motion row: nothing
@@ -76,15 +77,6 @@ GROUND_WARN = (L.LEVEL_WARNING, A.ACTION_WARN)
 VIOLATION = SafetyStatus.GEOFENCE_VIOLATION
 
 
-def _pct(f: Facts) -> str:
-    return f"{f.battery_remaining:.0%}" if f.battery_remaining is not None else "unknown"
-
-
-def _fence(f: Facts) -> str:
-    d = f.distance_to_geofence_m
-    return f"{-d:.1f} m outside the geofence" if d is not None and d < 0 else "outside the geofence"
-
-
 def _geofence_breach(action: GeofenceAction) -> Callable[[Facts], bool]:
     return lambda f: f.geofence_status == VIOLATION and f.geofence_action == action
 
@@ -102,31 +94,31 @@ RULES: list[Rule] = [
          lambda f: f.fmu_down + (": the flight controller's offboard-loss failsafe takes over" if f.airborne else "")),
     Rule("battery_emergency", lambda f: f.battery == Battery.EMERGENCY,
          (L.LEVEL_EMERGENCY, A.ACTION_LAND), GROUND_WARN,
-         lambda f: f"battery emergency ({_pct(f)})"),
+         lambda f: "battery emergency"),
     Rule("geofence_land", _geofence_breach(GeofenceAction.LAND),
          (L.LEVEL_EMERGENCY, A.ACTION_LAND), GROUND_WARN,
-         lambda f: f"{_fence(f)} (geofence_action 5: land)"),
+         lambda f: "outside the geofence (geofence_action 5: land)"),
     Rule("battery_critical", lambda f: f.battery == Battery.CRITICAL,
          (L.LEVEL_CAUTION, A.ACTION_RTH), GROUND_WARN,
-         lambda f: f"battery critical ({_pct(f)})"),
+         lambda f: "battery critical"),
     Rule("geofence_return", _geofence_breach(GeofenceAction.RETURN),
          (L.LEVEL_CAUTION, A.ACTION_RTH), GROUND_WARN,
-         lambda f: f"{_fence(f)} (geofence_action 3: return)"),
+         lambda f: "outside the geofence (geofence_action 3: return)"),
     Rule("service_down", lambda f: bool(f.services_down),
          (L.LEVEL_CAUTION, A.ACTION_HOLD), GROUND_WARN,
          lambda f: ", ".join(f.services_down)),
     Rule("geofence_hold", _geofence_breach(GeofenceAction.HOLD),
          (L.LEVEL_CAUTION, A.ACTION_HOLD), GROUND_WARN,
-         lambda f: f"{_fence(f)} (geofence_action 2: hold)"),
+         lambda f: "outside the geofence (geofence_action 2: hold)"),
     Rule("geofence_warn", _geofence_breach(GeofenceAction.WARN),
          GROUND_WARN, GROUND_WARN,
-         lambda f: f"{_fence(f)} (geofence_action 1: warn only)"),
+         lambda f: "outside the geofence (geofence_action 1: warn only)"),
     Rule("battery_low", lambda f: f.battery == Battery.LOW,
          GROUND_WARN, GROUND_WARN,
-         lambda f: f"battery low ({_pct(f)})"),
+         lambda f: "battery low"),
     Rule("geofence_near", lambda f: f.geofence_status == SafetyStatus.GEOFENCE_WARNING,
          GROUND_WARN, GROUND_WARN,
-         lambda f: f"{f.distance_to_geofence_m:.1f} m from the geofence boundary"),
+         lambda f: "near the geofence boundary"),
     Rule("gcs_lost", lambda f: f.gcs_lost,
          GROUND_WARN, GROUND_WARN,
          lambda f: "ground station link lost"),
