@@ -185,7 +185,8 @@ class SafetyMonitor:
         if self.state is None:
             return None
         p = self.state.position_m
-        return self.cfg.geofence.distance_to_boundary_m(p.x, p.y, p.z)
+        d = self.cfg.geofence.distance_to_boundary_m(p.x, p.y, p.z)
+        return d if math.isfinite(d) else None   # a non-finite position: unknown, not "inside"
 
     def airborne(self) -> bool:
         """Armed and not on the ground, from the last state known (kept when the link is lost)."""

@@ -220,6 +220,13 @@ def test_geofence_distance_and_status_follow_the_position():
     assert (s.safety_level, s.recommended_action) == (S.LEVEL_CAUTION, S.ACTION_HOLD)  # default geofence_action 2
 
 
+def test_a_non_finite_position_leaves_the_geofence_unknown():
+    m = healthy_monitor()
+    m.on_vehicle_state(state(xyz=(float("nan"), 0.0, 5.0), battery=0.9), 0.1)
+    s = m.status(0.1)
+    assert (s.geofence_status, s.distance_to_geofence_m) == (S.GEOFENCE_OK, None)
+
+
 def test_gcs_lost_only_after_it_was_heard_and_perception_unknown_until_heard():
     m = healthy_monitor(gcs_timeout_s=3.5, perception_timeout_s=3.0)
     assert not m.facts(0.1).gcs_lost and m.facts(0.1).perception_problem == ""
