@@ -2,8 +2,10 @@
 
 - Standalone (`aero up --only safety`) fed by test nodes that are real Zenoh nodes named like the
   required services (their liveliness tokens and 1 Hz diagnostics come from the runtime): battery
-  levels in the air -> WARN / RTH / LAND, the same on the ground -> WARN only; a refused geofence
-  polygon; the emergency stop refused without confirm or reason, and not executed without fmu.
+  levels in the air -> WARN / RTH / LAND, the same on the ground -> WARN only; FC link silence;
+  GCS loss, perception FAILED, a service gone and a service alive without diagnostics (hung); a
+  refused geofence polygon; the emergency stop refused without confirm or reason, and not
+  executed without fmu.
 - On the sim stack (sim, fmu, planner, mission, diagnostics, safety; no sensors; MAVLink on free
   UDP ports): a planner killed with SIGKILL is listed dead within 1.5 s and the status returns to
   nominal after `aero up` restarts it; the sim's battery drained through its live parameters is
@@ -24,8 +26,8 @@ import pytest
 
 from aerotest import is_service_process, wait_for_message, wait_until
 from aeroperception.schemas import (
-    BatteryState, EmergencyStopReply, EmergencyStopRequest, GoalStatus, GoToPositionGoal, LandedState, LandGoal,
-    ParamSet, ParamSetReply, SafetyStatus, TakeoffGoal, Vector3, VehicleState, decode,
+    BatteryState, EmergencyStopReply, EmergencyStopRequest, GcsLink, GoalStatus, GoToPositionGoal, LandedState, LandGoal,
+    ParamSet, ParamSetReply, PerceptionHealth, SafetyStatus, TakeoffGoal, Vector3, VehicleState, decode,
 )
 from aeroperception.services.runtime import ActionClient, Node
 from aeroperception.services.runtime.node import call
@@ -101,14 +103,14 @@ def lone_safety(stack):
     pub_battery = fmu.publisher("fmu/out/battery_status", BatteryState)
     fmu.every(0.05, lambda: pub_state.publish(vehicle["state"]), name="state")
     try:
-        yield st, vehicle, pub_battery
+        yield st, vehicle, pub_battery, nodes
     finally:
         for n in nodes:
             n.close()
 
 
 def test_battery_levels_recommend_warn_rth_land_in_the_air_and_only_warn_on_the_ground(lone_safety):
-    st, vehicle, pub_battery = lone_safety
+    st, vehicle, pub_battery, _nodes = lone_safety
     s = safety_status(st, lambda m: m.heartbeats_alive == 3 and m.px4_connected, 10)
     assert (s.safety_level, s.recommended_action, s.battery_status) == (S.LEVEL_WARNING, S.ACTION_WARN, S.BATTERY_OK)
     assert s.active_warnings == ["battery state unknown"]
@@ -133,7 +135,7 @@ def test_battery_levels_recommend_warn_rth_land_in_the_air_and_only_warn_on_the_
 
 
 def test_flight_controller_silence_is_an_emergency_without_action_and_a_bad_polygon_is_refused(lone_safety):
-    st, vehicle, pub_battery = lone_safety
+    st, vehicle, pub_battery, _nodes = lone_safety
     pub_battery.publish(BatteryState(voltage_v=15.0, remaining_fraction=0.9))
     safety_status(st, lambda m: m.safety_level == S.LEVEL_NOMINAL, 10)
     reply = set_param(st, "safety", "geofence_polygon", "1,2;3")
@@ -145,7 +147,7 @@ def test_flight_controller_silence_is_an_emergency_without_action_and_a_bad_poly
 
 
 def test_emergency_stop_refused_without_confirm_or_reason_and_not_executed_without_fmu(lone_safety):
-    st, _vehicle, _pub = lone_safety
+    st, _vehicle, _pub, _nodes = lone_safety
     r = estop(st, confirm=False, reason="test")
     assert not r.success and "confirm=true" in r.message
     r = estop(st, confirm=True, reason="   ")
@@ -158,6 +160,43 @@ def test_emergency_stop_refused_without_confirm_or_reason_and_not_executed_witho
     s = safety_status(st, lambda m: m.recommended_action == S.ACTION_EMERGENCY_STOP, 3)
     assert s.safety_level == S.LEVEL_EMERGENCY
     assert s.active_errors[0].startswith("emergency stop NOT executed (integration test)")
+
+
+def test_gcs_loss_perception_and_a_hung_service_are_reported(lone_safety):
+    st, _vehicle, pub_battery, nodes = lone_safety
+    pub_battery.publish(BatteryState(voltage_v=15.0, remaining_fraction=0.9))
+    safety_status(st, lambda m: m.safety_level == S.LEVEL_NOMINAL, 10)
+    pub_gcs = nodes[0].publisher("gcs/link", GcsLink)
+    pub_perception = nodes[0].publisher("perception/health", PerceptionHealth)
+    watch = StatusWatch(st)
+    try:
+        t0 = time.monotonic()
+        pub_gcs.publish(GcsLink(connected=True))
+        s, _ = watch.wait(lambda m: m.gcs_connected, t0, 3)
+        assert s.safety_level == S.LEVEL_NOMINAL
+        t0 = time.monotonic()
+        pub_gcs.publish(GcsLink(connected=False))
+        s, _ = watch.wait(lambda m: not m.gcs_connected, t0, 3)
+        assert (s.recommended_action, s.active_warnings) == (S.ACTION_WARN, ["ground station link lost"])
+        t0 = time.monotonic()
+        pub_perception.publish(PerceptionHealth(vio_status=PerceptionHealth.FAILED, overall_healthy=False))
+        s, _ = watch.wait(lambda m: len(m.active_warnings) == 2, t0, 3)
+        assert s.active_warnings[1] == "perception not healthy (VIO FAILED)"
+        # mission's process goes away: dead at once; a token without diagnostics: hung after 3 s.
+        t0 = time.monotonic()
+        nodes[2].close()
+        s, _ = watch.wait(lambda m: m.dead_heartbeats == ["mission"], t0, 3)
+        assert (s.safety_level, s.recommended_action) == (S.LEVEL_CAUTION, S.ACTION_HOLD)
+        token = st.session.liveliness().declare_token("aero/alive/default/mission")
+        try:
+            t0 = time.monotonic()
+            watch.wait(lambda m: m.dead_heartbeats == [], t0, 3)
+            s, hung_after = watch.wait(lambda m: m.dead_heartbeats == ["mission"], t0, 6)
+            assert 2.5 < hung_after < 4.5 and "mission hung: no diagnostics for over 3 s -> HOLD" in s.active_errors
+        finally:
+            token.undeclare()
+    finally:
+        watch.close()
 
 
 # ---------------------------------------------------------------- on the sim stack
