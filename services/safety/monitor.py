@@ -8,7 +8,7 @@ frame, the same one mission checks waypoints in).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 from aeroperception.schemas import (
     BatteryState, DiagnosticStatus, GcsLink, Header, LandedState, PerceptionHealth, SafetyStatus, VehicleState,
@@ -265,6 +265,3 @@ class SafetyMonitor:
             active_errors=list(v.errors),
             recommended_action=v.action,
         )
-
-    def reconfigure(self, **changes) -> None:
-        self.cfg = replace(self.cfg, **changes)
