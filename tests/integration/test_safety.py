@@ -9,8 +9,8 @@
 - On the sim stack (sim, fmu, planner, mission, diagnostics, safety; no sensors; MAVLink on free
   UDP ports): a planner killed with SIGKILL is listed dead within 1.5 s and the status returns to
   nominal after `aero up` restarts it; the sim's battery drained through its live parameters is
-  seen through fmu; in the air a small geofence -> VIOLATION + the configured action, a dead
-  planner -> HOLD; the emergency stop (last: the sim latches termination until reboot) stops
+  seen through fmu; in the air a small geofence -> VIOLATION + the configured action (hold, then
+  land), a dead planner -> HOLD; the emergency stop (last: the sim latches termination until reboot) stops
   the motors: disarmed, on the ground per sim/truth.
 """
 from __future__ import annotations
@@ -295,7 +295,7 @@ def test_in_the_air_geofence_breach_holds_and_a_dead_planner_holds(sim_stack):
         safety_status(st, lambda m: m.safety_level == S.LEVEL_NOMINAL, 20)
 
         # A 5 m fence (hover at its centre: inside the 5 m warning margin) and a goto 8 m East:
-        # VIOLATION, and the configured action (default 2: hold; then 3: return).
+        # VIOLATION, and the configured action (default 2: hold; then 5: land).
         assert set_param(st, "safety", "geofence_radius_m", 5.0).success
         s = safety_status(st, lambda m: m.geofence_status == S.GEOFENCE_WARNING, 3)
         assert s.active_warnings[0] == "near the geofence boundary"
@@ -305,10 +305,12 @@ def test_in_the_air_geofence_breach_holds_and_a_dead_planner_holds(sim_stack):
         assert s.distance_to_geofence_m < 0
         assert (s.safety_level, s.recommended_action) == (S.LEVEL_CAUTION, S.ACTION_HOLD)
         assert s.active_errors[0] == "outside the geofence (geofence_action 2: hold) -> HOLD"
-        assert set_param(st, "safety", "geofence_action", 3).success
-        s = safety_status(st, lambda m: m.recommended_action == S.ACTION_RTH, 3)
-        assert s.active_errors[0] == "outside the geofence (geofence_action 3: return) -> RTH"
         assert not set_param(st, "safety", "geofence_action", 4).success   # terminate is not offered
+        # 5: land (not 3, return: a mission acting on it would fly PX4's RTL, a 60 m climb first).
+        assert set_param(st, "safety", "geofence_action", 5).success
+        s = safety_status(st, lambda m: m.recommended_action == S.ACTION_LAND, 3)
+        assert s.safety_level == S.LEVEL_EMERGENCY
+        assert s.active_errors[0] == "outside the geofence (geofence_action 5: land) -> LAND"
     finally:
         set_param(st, "safety", "geofence_action", 2)
         set_param(st, "safety", "geofence_radius_m", 500.0)
