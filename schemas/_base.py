@@ -263,7 +263,13 @@ def decode(data: bytes | bytearray | memoryview, cls: type[M], strict: bool = Fa
     except (msgspec.DecodeError, msgspec.ValidationError) as e:
         raise SchemaError(f"{_name(cls)}: {e}") from None
     if strict:
-        check_known_fields(_plain.decode(data), cls)
+        try:
+            plain = _plain.decode(data)
+        except (msgspec.DecodeError, UnicodeDecodeError) as e:
+            # The typed decoder skips unknown keys without reading them; a key that is not
+            # UTF-8 surfaces here (found by tests/unit/test_fuzz_schemas.py).
+            raise SchemaError(f"{_name(cls)}: {e}") from None
+        check_known_fields(plain, cls)
     return msg
 
 

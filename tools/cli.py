@@ -15,6 +15,7 @@ from aeroperception.schemas import SchemaError
 from .common import CliError
 
 COMMANDS = ["cmd_up", "cmd_router", "cmd_run", "cmd_topic", "cmd_schema", "cmd_param", "cmd_mission", "cmd_bench", "cmd_snapshot"]
+COMMANDS += ["cmd_chaos"]  # fault injection (aero chaos)
 
 
 def build_parser() -> argparse.ArgumentParser:
