@@ -40,8 +40,9 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from aeroperception.schemas import (
     Clock, DiagnosticStatus, GcsLink, Header, Imu, LoadMissionReply, LoadMissionRequest, MissionCommand,
-    MissionStatus, Reply, SchemaError, SetModeReply, SetModeRequest, VehicleState, decode, encode,
+    MissionStatus, Reply, SchemaError, SetModeReply, SetModeRequest, Vector3, VehicleState, decode, encode,
 )
+from aeroperception.services.mavlink import frames, px4
 from aeroperception.services.runtime.node import LIVELINESS_ROOT, CallError, call, encoding_for
 from aeroperception.services.runtime.session import make_config, open_session
 from aeroperception.services.safety.geofence import Geofence
@@ -112,6 +113,8 @@ def _msgid(pkt: bytes) -> int | None:
 
 SET_POSITION_TARGET_LOCAL_NED = mavlink.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED
 LOCAL_POSITION_NED = mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED
+COMMAND_ACK = mavlink.MAVLINK_MSG_ID_COMMAND_ACK
+HEARTBEAT = mavlink.MAVLINK_MSG_ID_HEARTBEAT
 _IGNORE = {  # type_mask bit -> field
     mavlink.POSITION_TARGET_TYPEMASK_X_IGNORE: "x", mavlink.POSITION_TARGET_TYPEMASK_Y_IGNORE: "y",
     mavlink.POSITION_TARGET_TYPEMASK_Z_IGNORE: "z", mavlink.POSITION_TARGET_TYPEMASK_VX_IGNORE: "vx",
@@ -162,6 +165,11 @@ class MavlinkTap:
         self.unsafe: list[tuple[float, str]] = []
         self.setpoints_total = 0
         self.stamps: dict[int, list[float]] = {LOCAL_POSITION_NED: []}   # rx time of tracked ids
+        self.acks: list[tuple[float, int, int]] = []   # (time, command, result) the FC sent
+        # The FC's own view (LOCAL_POSITION_NED + HEARTBEAT) as VehicleState: the truth when
+        # Zenoh is down (router kill); in the sim its estimate is the truth plus noise.
+        self.fc_track: list[tuple[float, VehicleState]] = []
+        self._fc_armed, self._fc_mode = False, ""
         self.dropped = 0
         self._parser = mavlink.MAVLink(None)
         self._parser.robust_parsing = True
@@ -194,6 +202,12 @@ class MavlinkTap:
                                 self.stamps[mid].append(now)
                                 if len(self.stamps[mid]) > 20000:
                                     del self.stamps[mid][:10000]
+                        if mid in (LOCAL_POSITION_NED, HEARTBEAT):
+                            self._fc_state(pkt, now)
+                        elif mid == COMMAND_ACK:
+                            for m in self._parse(pkt):
+                                with self.lock:
+                                    self.acks.append((now, m.command, m.result))
                         self.to_fmu.sendto(pkt, self.fmu)
                     else:
                         if _msgid(pkt) == SET_POSITION_TARGET_LOCAL_NED:
@@ -203,15 +217,36 @@ class MavlinkTap:
                 except OSError:
                     pass
 
-    def _check(self, pkt: bytes, now: float) -> None:
+    def _parse(self, pkt: bytes) -> list:
         p = self._parser
         p.buf, p.buf_index, p.expected_length = bytearray(), 0, mavlink.HEADER_LEN_V1 + 2
         try:
             msgs = p.parse_buffer(pkt) or []
-        except Exception:  # noqa: BLE001 - a frame pymavlink cannot parse is not a setpoint
-            return
-        for m in msgs:
-            if m is None or m.get_type() != "SET_POSITION_TARGET_LOCAL_NED":
+        except Exception:  # noqa: BLE001 - a frame pymavlink cannot parse is nothing we track
+            return []
+        return [m for m in msgs if m is not None and m.get_type() != "BAD_DATA"]
+
+    def _fc_state(self, pkt: bytes, now: float) -> None:
+        for m in self._parse(pkt):
+            if m.get_type() == "HEARTBEAT":
+                self._fc_armed = bool(m.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
+                self._fc_mode = px4.decode(m.custom_mode)
+            elif m.get_type() == "LOCAL_POSITION_NED":
+                vs = VehicleState(position_m=Vector3.from_array(frames.ned_to_enu(np.array([m.x, m.y, m.z]))),
+                                  velocity_mps=Vector3.from_array(frames.ned_to_enu(np.array([m.vx, m.vy, m.vz]))),
+                                  armed=self._fc_armed, flight_mode=self._fc_mode, connected=True)
+                with self.lock:
+                    self.fc_track.append((now, vs))
+                    if len(self.fc_track) > 20000:
+                        del self.fc_track[:10000]
+
+    def fc_track_since(self, t: float) -> list[tuple[float, VehicleState]]:
+        with self.lock:
+            return [(ts, m) for ts, m in self.fc_track if ts >= t]
+
+    def _check(self, pkt: bytes, now: float) -> None:
+        for m in self._parse(pkt):
+            if m.get_type() != "SET_POSITION_TARGET_LOCAL_NED":
                 continue
             why = setpoint_problem(m, self.fence)
             with self.lock:
@@ -815,6 +850,7 @@ def _gcs_observe(ctx: Ctx):
     t0 = ctx.t_inject
     down = wait_until(lambda: [t for t, m in ctx.rec.since("gcs_link", t0) if not m.connected], 8.0, 0.05)
     hold = wait_until(lambda: [t for t, m in ctx.rec.since("status", t0) if m.state == "HOLDING"], 3.0, 0.05)
+    time.sleep(4.0)  # braking into the hold
     states = _mission_states(ctx, t0)
     detect = down[0] - t0 if down else None
     ok = bool(down) and bool(hold)
@@ -935,7 +971,8 @@ def _reboot(ctx: Ctx) -> None:
 def _reboot_observe(ctx: Ctx):
     t0 = ctx.t_inject
     tap = ctx.st.tap
-    rebooted = wait_until(lambda: int(ctx.st.diag("sim").values.get("reboots", 0)) > 0, 5.0, 0.2)
+    rebooted = wait_until(lambda: [a for a in tap.acks if a[0] >= t0 and a[1] == mavlink.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN
+                                   and a[2] == mavlink.MAV_RESULT_ACCEPTED], 5.0, 0.1)
     back = wait_until(lambda: tap.rate_hz(LOCAL_POSITION_NED, time.monotonic() - 1.0, time.monotonic()) >= 45.0
                       and time.monotonic() - t0 > 1.5, 10.0, 0.1)
     react = time.monotonic() - t0 if back else None
@@ -1022,10 +1059,16 @@ def run_row(st: SimStack, row: Row, mission_json: str, inject_after_s: float = 2
             row.cleanup(ctx)
         except Exception:  # noqa: BLE001
             pass
-        track = rec.since("truth", ctx.t_inject or t_unsafe)
+        t_from = ctx.t_inject or t_unsafe
+        track = rec.since("truth", t_from)
+        if st.tap and (not track or track[-1][0] < time.monotonic() - 2.0):   # Zenoh gone: the FC's view
+            track = st.tap.fc_track_since(t_from)
+            res.details["safety_from"] = "FC LOCAL_POSITION_NED (no ground truth over Zenoh)"
         status = rec.last("status")
         res.safe, res.safe_why = judge_safety(track, st.tap.unsafe_since(t_unsafe) if st.tap else [], st.fence,
                                               status.state if status else "?")
+        if "safety_from" in res.details:
+            res.safe_why += " (by the FC's own position: no Zenoh)"
         rec.close()
     res.passed = bool(res.passed and res.safe)
     if row.breaks_stack or not st.ensure_ground():
