@@ -47,6 +47,7 @@ from aeroperception.services.runtime.node import LIVELINESS_ROOT, CallError, cal
 from aeroperception.services.runtime.session import make_config, open_session
 from aeroperception.services.safety.geofence import Geofence
 
+from .bench_flight import _msgid
 from .common import CliError
 
 REPO = Path(__file__).resolve().parents[1]
@@ -94,6 +95,33 @@ def clean_env() -> dict[str, str]:
     return env
 
 
+def stop_up(session: zenoh.Session | None, proc: subprocess.Popen | None, children: dict[str, int],
+            timeout_s: float = 8.0) -> int | None:
+    """Stop an `aero up`: close our session, SIGINT it (it stops its children), kill it if it
+    hangs, then SIGKILL any child it left behind (by the pid it recorded; SIGCONT first, in case
+    a fault left it stopped). Returns aero up's exit code."""
+    if session is not None:
+        try:
+            session.close()
+        except Exception:  # noqa: BLE001 - the router may be gone
+            pass
+    if proc is not None and proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(timeout_s)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(5.0)
+    for name, pid in children.items():
+        if is_service_process(pid, name):
+            try:
+                os.kill(pid, signal.SIGCONT)
+                os.kill(pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+    return proc.returncode if proc is not None else None
+
+
 def profile_services(profile: str = "sim") -> list[str]:
     from .cmd_up import load_profiles
 
@@ -101,14 +129,6 @@ def profile_services(profile: str = "sim") -> list[str]:
 
 
 # ---------------------------------------------------------------- MAVLink tap
-
-
-def _msgid(pkt: bytes) -> int | None:
-    if len(pkt) >= 10 and pkt[0] == 0xFD:
-        return pkt[7] | pkt[8] << 8 | pkt[9] << 16
-    if len(pkt) >= 6 and pkt[0] == 0xFE:
-        return pkt[5]
-    return None
 
 
 SET_POSITION_TARGET_LOCAL_NED = mavlink.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED
@@ -411,29 +431,8 @@ class SimStack:
         self.start()
 
     def stop(self) -> None:
-        """Close the session, SIGINT `aero up` (it stops its children), kill it if it hangs, then
-        SIGKILL any child it left behind (by the pid it recorded)."""
-        if self.session is not None:
-            try:
-                self.session.close()
-            except Exception:  # noqa: BLE001
-                pass
-            self.session = None
-        children = self.pids()
-        if self.proc is not None and self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGINT)
-            try:
-                self.proc.wait(8.0)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(5.0)
-        for name, pid in children.items():
-            if is_service_process(pid, name):
-                try:
-                    os.kill(pid, signal.SIGCONT)
-                    os.kill(pid, signal.SIGKILL)
-                except ProcessLookupError:
-                    pass
+        stop_up(self.session, self.proc, self.pids())
+        self.session = None
         if self.tap is not None:
             self.tap.close()
             self.tap = None
@@ -721,21 +720,29 @@ def kill_row(name: str) -> Row:
     return Row(f"kill_{name}", f"kill -9 {name}", expected, lambda c: _kill(c, name), observe)
 
 
+def _held_after(ctx: Ctx, settle_s: float = 6.0, window_s: float = 2.0) -> tuple[bool, str]:
+    """After an outage the mission must have held (HOLDING or LAND among its states since the
+    injection) and the vehicle must not fly on in OFFBOARD while the mission says HOLDING.
+    Ending EXECUTING again is allowed once it held: a resume by policy after the re-check."""
+    time.sleep(settle_s)
+    t_obs = time.monotonic()
+    time.sleep(window_s)
+    status = ctx.rec.last("status")
+    truth = ctx.rec.since("truth", t_obs)
+    moving = any(m.flight_mode == "OFFBOARD" and speed_of(m) > 0.5 for _, m in truth)
+    states = _mission_states(ctx, ctx.t_inject)
+    reacted = any(s in ("HOLDING", "LAND") for s in states)
+    ok = status is not None and reacted and not (status.state == "HOLDING" and moving)
+    fc_modes = sorted({m.flight_mode for _, m in ctx.rec.since("truth", ctx.t_inject)})
+    return ok, (f"FC modes {','.join(fc_modes)}; mission {'->'.join(states)}; "
+                f"{'moving in OFFBOARD' if moving else 'not flying on'} {settle_s + window_s:.0f} s after")
+
+
 def _observe_outage(ctx: Ctx, name: str, back: float):
     """After fmu/planner came back: the vehicle must hold, the mission must not carry on by itself."""
     hold = _first_hold(ctx, ctx.t_inject) if name == "planner" else None
-    time.sleep(6.0)
-    t_obs = time.monotonic()
-    time.sleep(2.0)
-    status = ctx.rec.last("status")
-    truth = ctx.rec.since("truth", t_obs)
-    moving = bool(truth) and max(speed_of(m) for _, m in truth) > 0.5
-    states = _mission_states(ctx, ctx.t_inject)
-    held = status is not None and status.state in ("HOLDING", "LAND", "IDLE") and "HOLDING" in states + [status.state]
-    ok = held and not (status.state == "HOLDING" and moving)
-    fc_modes = sorted({m.flight_mode for _, m in ctx.rec.since("truth", ctx.t_inject)})
-    obs = (f"restarted in {back:.1f} s; FC modes {','.join(fc_modes)}; mission {'->'.join(states)}; "
-           f"{'moving' if moving else 'at rest'} 8 s after")
+    ok, obs = _held_after(ctx)
+    obs = f"restarted in {back:.1f} s; " + obs
     if hold is not None:
         obs = f"fmu hold after {hold:.2f} s; " + obs
     return ok, obs, hold if hold is not None else back
@@ -798,15 +805,10 @@ def _link_observe(ctx: Ctx):
     lost = [t for t, m in ctx.rec.since("state", t0) if not m.connected]
     errs = [t for t, m in ctx.rec.since("fmu_diag", t0) if m.level >= DiagnosticStatus.ERROR]
     detect = min(lost[:1] + errs[:1]) - t0 if lost or errs else None
-    time.sleep(6.0)
-    status = ctx.rec.last("status")
-    fc_modes = sorted({m.flight_mode for _, m in ctx.rec.since("truth", t0)})
-    states = _mission_states(ctx, t0)
-    held = status is not None and status.state in ("HOLDING", "LAND", "IDLE") and len(states) > 1
+    held, obs = _held_after(ctx)
     ok = detect is not None and detect <= 0.6 and held
-    obs = (f"link lost reported after {detect:.2f} s" if detect is not None else "link loss never reported") + \
-          f"; FC modes {','.join(fc_modes)}; mission {'->'.join(states)}"
-    return ok, obs, detect
+    return ok, (f"link lost reported after {detect:.2f} s" if detect is not None
+                else "link loss never reported") + "; " + obs, detect
 
 
 class FakeGcs:
@@ -912,20 +914,9 @@ def _hang_fmu_observe(ctx: Ctx):
 
 
 def _after_fc_failsafe(ctx: Ctx, react: float | None, what: str):
-    time.sleep(6.0)
-    t_obs = time.monotonic()
-    time.sleep(2.0)
-    status = ctx.rec.last("status")
-    truth = ctx.rec.since("truth", t_obs)
-    moving_offboard = any(m.flight_mode == "OFFBOARD" and speed_of(m) > 0.5 for _, m in truth)
-    states = _mission_states(ctx, ctx.t_inject)
-    fc_modes = sorted({m.flight_mode for _, m in ctx.rec.since("truth", ctx.t_inject)})
-    held = status is not None and status.state in ("HOLDING", "LAND", "IDLE") and not moving_offboard
+    held, obs = _held_after(ctx)
     ok = react is not None and react <= 1.5 and held
-    obs = (f"{what} after {react:.2f} s" if react is not None else f"no {what}") + \
-          f"; FC modes {','.join(fc_modes)}; mission {'->'.join(states)}" + \
-          ("; flying on in OFFBOARD" if moving_offboard else "")
-    return ok, obs, react
+    return ok, (f"{what} after {react:.2f} s" if react is not None else f"no {what}") + "; " + obs, react
 
 
 def _clock_jump(ctx: Ctx) -> None:
