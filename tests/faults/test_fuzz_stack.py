@@ -20,7 +20,7 @@ import time
 import msgpack
 import numpy as np
 import pytest
-from hypothesis import strategies as st
+from hypothesis import strategies as hs
 
 from aeroperception.schemas import (
     REGISTRY, GcsLink, MissionStatus, SchemaError, TrajectorySetpoint, Vector3, VehicleState, decode, encode,
@@ -92,7 +92,7 @@ def invalid_for(cls: type, payloads: list[bytes]) -> list[bytes]:
 
 def hostile_payloads(cls: type, n: int) -> list[bytes]:
     pack = lambda v: msgpack.packb(v, use_bin_type=True)  # noqa: E731
-    strategy = st.one_of(garbage(), mutated(cls), schema_maps(cls).map(pack))
+    strategy = hs.one_of(garbage(), mutated(cls), schema_maps(cls).map(pack))
     return invalid_for(cls, collect(strategy, n))
 
 
@@ -176,7 +176,7 @@ def test_garbage_on_every_input_key_queryable_and_mavlink_port_is_counted_and_dr
                 else:
                     refused += 1
         # 3. MAVLink ports: random bytes, and valid frames cut or corrupted.
-        datagrams = collect(st.one_of(st.binary(min_size=1, max_size=280), mavlink_mutations()), PER_PORT)
+        datagrams = collect(hs.one_of(hs.binary(min_size=1, max_size=280), mavlink_mutations()), PER_PORT)
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
             for port in (st.fmu_port, st.gcs_port):
@@ -227,7 +227,7 @@ def test_garbage_on_every_input_key_queryable_and_mavlink_port_is_counted_and_dr
 
 
 def st_bytes():
-    return st.binary(max_size=64)
+    return hs.binary(max_size=64)
 
 
 def mavlink_mutations():
@@ -248,7 +248,7 @@ def mavlink_mutations():
         b[i] = (b[i] + 1 + v) % 256
         return bytes(b[:max(1, len(b) - cut)])
 
-    return st.tuples(st.sampled_from(frames), st.integers(0, 300), st.integers(0, 254), st.integers(0, 3)).map(corrupt)
+    return hs.tuples(hs.sampled_from(frames), hs.integers(0, 300), hs.integers(0, 254), hs.integers(0, 3)).map(corrupt)
 
 
 @pytest.mark.xfail(reason="needs wt/fmu fix (refuse non-finite / out-of-envelope setpoints, issue 8 #5)", strict=False)
