@@ -1035,6 +1035,9 @@ def run_row(st: SimStack, row: Row, mission_json: str, inject_after_s: float = 2
         row.prepare(ctx)
         if row.airborne:
             why = st.start_mission(mission_json)
+            if why:   # a previous row may have left the stack odd: once more on a fresh one
+                st.restart()
+                why = st.start_mission(mission_json)
             if why:
                 res.observed = f"could not start the mission: {why}"
                 return res
@@ -1062,7 +1065,9 @@ def run_row(st: SimStack, row: Row, mission_json: str, inject_after_s: float = 2
             res.safe_why += " (by the FC's own position: no Zenoh)"
         rec.close()
     res.passed = bool(res.passed and res.safe)
-    if row.breaks_stack or not st.ensure_ground():
+    # A failed row leaves the stack in whatever state the fault made (a restarted service that lost
+    # its state, a FC in LAND): the next row starts on a fresh stack.
+    if row.breaks_stack or not res.passed or not st.ensure_ground():
         st.restart()
     res.duration_s = time.monotonic() - t_start
     return res
