@@ -328,6 +328,11 @@ class Recorder:
         with self.lock:
             return [(ts, m) for ts, m in self.data[name] if ts >= t]
 
+    def get(self, name: str, since: float = 0.0) -> list:
+        """The messages (without times) that arrived at or after `since`."""
+        with self.lock:
+            return [m for ts, m in self.data[name] if ts >= since]
+
     def last(self, name: str):
         with self.lock:
             return self.data[name][-1][1] if self.data[name] else None
