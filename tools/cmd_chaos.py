@@ -405,8 +405,9 @@ class SimStack:
                 "--arg", "gcs:--param=bind_ip=127.0.0.1", *self.extra_args]
         self._out_path = run_dir / "aero-up.out"
         with open(self._out_path, "wb") as out:
+            # A private mission state dir: a stack never restores another run's mission.
             self.proc = subprocess.Popen(argv, stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                                         env=clean_env())
+                                         env=dict(clean_env(), AERO_STATE_DIR=str(run_dir / "state")))
         try:
             self._wait_ready()
         except BaseException:
@@ -767,9 +768,12 @@ def _observe_mission_restart(ctx: Ctx, back: float):
 
 
 def _router_kill(ctx: Ctx) -> None:
-    """The router: its own process if aero up records one ("router" in pids.json), else the
-    `aero up` process that hosts it."""
-    pid = ctx.st.pids().get("router") or ctx.st.proc.pid
+    """The router: its own process if aero up runs one as a child (<log-dir>/router.pid), else
+    the `aero up` process that hosts it."""
+    try:
+        pid = int((ctx.st.run_dir / "router.pid").read_text().split()[0])
+    except (OSError, ValueError, IndexError):
+        pid = ctx.st.proc.pid
     ctx.notes["router_pid"] = pid
     ctx.notes["in_supervisor"] = pid == ctx.st.proc.pid
     os.kill(pid, signal.SIGKILL)
