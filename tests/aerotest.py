@@ -21,8 +21,6 @@ from __future__ import annotations
 
 import json
 import os
-import signal
-import socket
 import subprocess
 import sys
 import threading
@@ -34,19 +32,13 @@ import zenoh
 
 from aeroperception.services.runtime.node import LIVELINESS_ROOT
 from aeroperception.services.runtime.session import make_config, open_session
+from aeroperception.tools.cmd_chaos import free_port, is_service_process, stop_up  # noqa: F401 - one home (aero chaos)
 
 STARTUP_TIMEOUT_S = 20.0
 STOP_TIMEOUT_S = 8.0
 
 
 # ---------------------------------------------------------------- helpers
-
-
-def free_port() -> int:
-    """A TCP port on 127.0.0.1 that was free a moment ago (bind to port 0, read it back)."""
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def zenoh_client(endpoint: str, max_wait_s: float = 5.0) -> zenoh.Session:
@@ -123,31 +115,6 @@ def aero(*args: str, endpoint: str | None = None, timeout_s: float = 30.0,
     return subprocess.run(aero_argv() + [str(a) for a in args], env=clean_env(endpoint),
                           cwd=cwd, capture_output=True, text=True, timeout=timeout_s,
                           stdin=subprocess.DEVNULL)
-
-
-def is_service_process(pid: int, name: str) -> bool:
-    """Whether `pid` is (still) the process of service `name` (guards against reused pids)."""
-    try:
-        cmd = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
-    except OSError:
-        return False
-    return f"aeroperception.services.{name}".encode() in cmd
-
-
-def _stop_process(proc: subprocess.Popen, sig: int = signal.SIGINT,
-                  timeout_s: float = STOP_TIMEOUT_S) -> int:
-    """Signal one process by its handle, wait (bounded), kill it if it did not stop."""
-    if proc.poll() is None:
-        try:
-            proc.send_signal(sig)
-        except ProcessLookupError:
-            pass
-        try:
-            proc.wait(timeout_s)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(5.0)
-    return proc.returncode
 
 
 # ---------------------------------------------------------------- aero up
@@ -244,20 +211,8 @@ class Stack:
     def stop(self, timeout_s: float = STOP_TIMEOUT_S) -> int:
         """Close the session, SIGINT `aero up` (which stops its children), kill it if it hangs
         (and then any child it left behind, by the pid it recorded in pids.json)."""
-        if self.session is not None:
-            try:
-                self.session.close()
-            except Exception:  # noqa: BLE001
-                pass
-            self.session = None
-        children = self.pids()
-        code = _stop_process(self.proc, signal.SIGINT, timeout_s)
-        for name, pid in children.items():
-            if is_service_process(pid, name):
-                try:
-                    os.kill(pid, signal.SIGKILL)
-                except ProcessLookupError:
-                    pass
+        code = stop_up(self.session, self.proc, self.pids(), timeout_s)
+        self.session = None
         return code
 
 

@@ -33,3 +33,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--scenario", default="village")
     p.add_argument("--strategy", default="klt_stereo")
     p.set_defaults(func=lambda a: importlib.import_module("aeroperception.tools.bench_vio").run(a.n, a.scenario, a.strategy))
+    p = bsub.add_parser("soak", help="fly missions in a loop for N minutes; RSS/CPU per service process")
+    p.add_argument("--minutes", type=float, default=30.0, help="how long to fly")
+    p.add_argument("--sensors", default="all", choices=["none", "imu", "all"], help="sim sensors rendered meanwhile")
+    p.add_argument("--period", type=float, default=5.0, help="seconds between /proc samples")
+    p.add_argument("--json", default=None, metavar="FILE", help="write the results as JSON too")
+    p.set_defaults(func=lambda a: importlib.import_module("aeroperception.tools.bench_soak").run(
+        a.minutes, a.sensors, a.period, a.json))

@@ -42,6 +42,7 @@ from aeroperception.schemas import (
 )
 from aeroperception.services.runtime import ActionClient
 from aeroperception.services.runtime.node import CallError, call, encoding_for
+from aeroperception.tools.cmd_chaos import Recorder
 
 REPO = Path(__file__).resolve().parents[2]
 SURVEY = REPO / "examples" / "missions" / "survey_01.json"
@@ -78,37 +79,6 @@ def flight_stack(factory, speed: float = SPEED):
         print(st.describe())
         raise
     return st
-
-
-class Recorder:
-    """Every message on some keys, decoded, with the wall time it arrived: {name: [(t, msg)]}."""
-
-    def __init__(self, session: zenoh.Session, keys: dict[str, tuple[str, type]]):
-        self.lock = threading.Lock()
-        self.data: dict[str, list[tuple[float, object]]] = {name: [] for name in keys}
-        self.subs = [session.declare_subscriber(key, self._cb(name, cls)) for name, (key, cls) in keys.items()]
-
-    def _cb(self, name: str, cls: type):
-        def on_sample(sample: zenoh.Sample) -> None:
-            try:
-                msg = decode(sample.payload.to_bytes(), cls)
-            except SchemaError:
-                return
-            with self.lock:
-                self.data[name].append((time.monotonic(), msg))
-        return on_sample
-
-    def get(self, name: str, since: float = 0.0) -> list:
-        with self.lock:
-            return [m for t, m in self.data[name] if t >= since]
-
-    def last(self, name: str):
-        with self.lock:
-            return self.data[name][-1][1] if self.data[name] else None
-
-    def close(self) -> None:
-        for s in self.subs:
-            s.undeclare()
 
 
 @contextmanager
