@@ -59,12 +59,8 @@ AT_REST_MPS = 0.3
 # Rows that fail on this branch until another branch's fix is merged (the lead removes entries).
 EXPECTED_FIXED_BY: dict[str, str] = {
     "kill_fmu": "wt/mission (fmu-outage hold, issue 8 #3c) + wt/fmu (sim RTL failsafe)",
-    "kill_planner": "wt/mission (hold after a planner outage until re-checked, ARCHITECTURE §8)",
-    "kill_mission": "wt/mission (restart rebuilds state, issue 8 #2)",
-    "router_kill": "wt/supervision (router restart, issue 8 #7)",
     "fc_link_loss": "wt/fmu (stale link reported within 0.5 s) + wt/mission (FC-mode watching, #3a)",
     "hang_planner": "wt/fmu (brake to a stop, issue 8 #9)",
-    "hang_fmu": "wt/mission (FC-mode watching, fmu-outage hold, issue 8 #3)",
     "fc_reboot": "wt/fmu (re-request rates after an FC reboot, issue 8 #8)",
 }
 

@@ -105,7 +105,7 @@ TRANSITIONS: dict[tuple[State, Event], State] = {
     (S.EXECUTING, E.FC_LANDED): S.IDLE,
     (S.HOLDING, E.FC_LANDED): S.IDLE,
     # fmu outage and restart
-    (S.TAKEOFF, E.FMU_OUTAGE): S.HOLDING,
+    (S.TAKEOFF, E.FMU_OUTAGE): S.HOLDING,         # fmu or planner outage
     (S.EXECUTING, E.FMU_OUTAGE): S.HOLDING,
     (S.HOLDING, E.OUTAGE_RESUME): S.EXECUTING,
     (S.IDLE, E.RESTARTED_IN_AIR): S.HOLDING,
@@ -196,6 +196,7 @@ class MissionManager:
         self.expected_mode: str | None = None   # the FC mode we asked for last
         self.mode_confirmed = False             # ... and the FC has been seen in it
         self.fmu_alive = True
+        self.planner_alive = True               # unknown until its token is seen: assume up
         self.outage: str | None = None          # why we are in an fmu outage, None when not
         self.outage_from: State | None = None
         self.safety_action = SafetyStatus.ACTION_NONE
@@ -483,7 +484,7 @@ class MissionManager:
             self._rebuild(st)
         if st.armed:
             self.armed_seen = True
-        if self.outage and self.fmu_alive:
+        if self.outage and self.fmu_alive and self.planner_alive:
             self._outage_ends()
         self._watch_fc_mode(st)
         pos = st.position_m.to_array()
@@ -534,6 +535,18 @@ class MissionManager:
         self.fmu_alive = alive
         if not alive:
             self._outage_begins("fmu outage (fmu not alive)")
+
+    def on_planner_alive(self, alive: bool, now_s: float) -> None:
+        """The planner's liveliness token came or went (ARCHITECTURE §8: after a planner outage
+        the vehicle holds until the mission has re-checked it; fmu brakes meanwhile). The same
+        outage path as fmu's: HOLDING, resumed only by START or resume_after_outage."""
+        self.now_s = now_s
+        self.planner_alive = alive
+        if not alive:
+            self._outage_begins("planner outage (planner not alive)")
+        elif self.outage and self.fmu_alive and self.vehicle is not None \
+                and now_s - self.vehicle_rx_s < self.cfg.vehicle_timeout_s:
+            self._outage_ends()
 
     def _outage_begins(self, why: str) -> None:
         if self.outage:

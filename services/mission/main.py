@@ -82,6 +82,7 @@ class MissionService(Service):
         node.subscribe("mission/command", MissionCommand, self._on_command, strict=True)
         node.subscribe("safety/status", SafetyStatus, self._on_safety)
         node.on_liveliness("fmu", lambda name, alive: self.mgr.on_fmu_alive(alive, time.monotonic()))
+        node.on_liveliness("planner", lambda name, alive: self.mgr.on_planner_alive(alive, time.monotonic()))
         gcs_up = {"last": None}
 
         def on_gcs_link(m: GcsLink) -> None:

@@ -1005,6 +1005,24 @@ def test_fmu_liveliness_gone_holds_at_once():
     assert not rig.mgr.outage and rig.mgr.state == State.HOLDING
 
 
+def test_planner_liveliness_gone_holds_until_commanded_or_policy():
+    """ARCHITECTURE §8: after a planner outage the vehicle holds until the mission re-checks it."""
+    rig = Rig()
+    rig.to_executing()
+    rig.mgr.on_planner_alive(False, rig.t)
+    assert rig.mgr.state == State.HOLDING and "planner not alive" in rig.mgr.message
+    rig.feed(flying())
+    assert rig.mgr.outage                              # still gone: the outage goes on
+    rig.mgr.on_planner_alive(True, rig.t)
+    assert not rig.mgr.outage and rig.mgr.state == State.HOLDING   # back, but holds until START
+    rig2 = Rig(Config(resume_after_outage=True))
+    rig2.to_executing()
+    rig2.mgr.on_planner_alive(False, rig2.t)
+    rig2.feed(flying())
+    rig2.mgr.on_planner_alive(True, rig2.t)
+    assert rig2.mgr.state == State.EXECUTING           # by policy
+
+
 def test_flight_controller_link_lost_holds():
     rig = Rig()
     rig.to_executing()
