@@ -69,6 +69,14 @@ HOW: dict[str, tuple] = {
     "aero eval lidar": (SKIP, ["aero", "eval", "lidar", "-n", "2", "--scenario", "open_field", "--kitti"],
                         "the full run renders 60 scans: checked on two"),
     "aero bench lidar": (SKIP, ["aero", "bench", "lidar", "-n", "1"], "a benchmark: checked with one scan"),
+    "aero service call safety/srv/emergency_stop '{confirm: true, reason: \"operator: fly-away\"}' --type EmergencyStopRequest": (
+        SKIP, ["aero", "service", "call", "--help"], "stops the motors: test_safety executes it on a sim stack"),
+    "aero eval vio --euroc ../shared/data/euroc/V1_01_easy_start": (
+        SKIP, ["aero", "eval", "vio", "--help"], "the EuRoC run is test_vio_euroc's (still start, preintegration)"),
+    "aero bench vio": (SKIP, ["aero", "bench", "vio", "--help"], "a benchmark: renders 200 stereo frames"),
+    "aero chaos --list": (SKIP, ["aero", "chaos", "--list"], "lists the rows"),
+    "aero chaos --rows kill_planner,gcs_loss --json chaos.json": (
+        SKIP, ["aero", "chaos", "--help"], "flies a mission per row: tests/faults runs the rows"),
 }
 
 
