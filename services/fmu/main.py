@@ -92,8 +92,10 @@ class FmuService(Service):
 
     def stop(self) -> None:
         self.node.stop_event.set()
-        self.reader.join(1.0)
-        self.conn.close()
+        if hasattr(self, "reader"):   # start() may have failed before (e.g. the FC port was taken)
+            self.reader.join(1.0)
+        if hasattr(self, "conn"):
+            self.conn.close()
 
     # ------------------------------------------------------------ MAVLink in
 
