@@ -61,18 +61,15 @@ class Envelope:
                 return f"position {math.hypot(p[0], p[1]):.0f} m from the origin > max_distance_m {self.max_distance_m:g}"
             if not self.min_altitude_m <= p[2] <= self.max_altitude_m:
                 return f"position z {p[2]:.1f} m outside [{self.min_altitude_m:g}, {self.max_altitude_m:g}] m"
-        if sp.velocity_valid:
-            v = sp.velocity_mps.to_array()
-            if not np.all(np.isfinite(v)):
-                return "non-finite velocity"
-            if np.linalg.norm(v) > self.max_velocity_mps:
-                return f"speed {np.linalg.norm(v):.1f} m/s > max_velocity_mps {self.max_velocity_mps:g}"
-        if sp.acceleration_valid:
-            a = sp.acceleration_mps2.to_array()
-            if not np.all(np.isfinite(a)):
-                return "non-finite acceleration"
-            if np.linalg.norm(a) > self.max_acceleration_mps2:
-                return f"acceleration {np.linalg.norm(a):.1f} m/s^2 > max_acceleration_mps2 {self.max_acceleration_mps2:g}"
+        for valid, vec, what, unit, limit, param in (
+                (sp.velocity_valid, sp.velocity_mps, "velocity", "m/s", self.max_velocity_mps, "max_velocity_mps"),
+                (sp.acceleration_valid, sp.acceleration_mps2, "acceleration", "m/s^2", self.max_acceleration_mps2,
+                 "max_acceleration_mps2")):
+            v = vec.to_array()
+            if valid and not np.all(np.isfinite(v)):
+                return f"non-finite {what}"
+            if valid and np.linalg.norm(v) > limit:
+                return f"{what} {np.linalg.norm(v):.1f} {unit} > {param} {limit:g}"
         if sp.yaw_valid and not math.isfinite(sp.yaw_rad):
             return "non-finite yaw"
         if sp.yaw_rate_valid and not (math.isfinite(sp.yaw_rate_radps) and abs(sp.yaw_rate_radps) <= self.max_yaw_rate_radps):

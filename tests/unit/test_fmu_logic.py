@@ -458,7 +458,7 @@ def following(resume: int = 3) -> tuple[OffboardArbiter, float]:
 @pytest.mark.parametrize(("sp", "why"), [
     (TrajectorySetpoint(velocity_valid=True, velocity_mps=Vector3(x=math.nan)), "non-finite velocity"),
     (TrajectorySetpoint(velocity_valid=True, velocity_mps=Vector3(x=math.inf)), "non-finite velocity"),
-    (TrajectorySetpoint(velocity_valid=True, velocity_mps=Vector3(x=1000.0)), "speed 1000.0 m/s"),
+    (TrajectorySetpoint(velocity_valid=True, velocity_mps=Vector3(x=1000.0)), "velocity 1000.0 m/s"),
     (TrajectorySetpoint(position_valid=True, position_m=Vector3(x=5000.0, z=5.0)), "from the origin"),
     (TrajectorySetpoint(position_valid=True, position_m=Vector3(z=5000.0)), "position z"),
     (TrajectorySetpoint(position_valid=True, position_m=Vector3(z=-50.0)), "position z"),
@@ -518,7 +518,7 @@ def test_hysteresis_streak_restarts_after_a_gap_or_a_rejected_setpoint():
 def test_rejected_setpoint_while_following_is_never_forwarded_and_brakes_at_once():
     a, t = following()
     assert a.on_setpoint(planner_sp(2_000_000_000, vx=1000.0), t + 0.02) is None
-    assert a.phase == BRAKE and "speed 1000.0" in a.reason and a.counters["setpoints_rejected"] == 1
+    assert a.phase == BRAKE and "velocity 1000.0" in a.reason and a.counters["setpoints_rejected"] == 1
     phase, sp = a.tick(t + 0.03, STILL, np.array([2.0, 0, 0]), 0.0)
     assert phase == BRAKE and sp.velocity_valid and not sp.position_valid
     assert sp.velocity_mps.to_array().tolist() == [0.0, 0.0, 0.0]

@@ -46,6 +46,17 @@ def take_off(v: SimVehicle, altitude_m: float = 5.0) -> None:
     fly(v, 3.0)
 
 
+def fly_until_disarmed(v: SimVehicle, max_s: float) -> float:
+    """Step (no offboard input) until disarmed or max_s; returns the highest altitude seen."""
+    max_alt = 0.0
+    for _ in range(int(max_s * 5)):
+        fly(v, 0.2)
+        max_alt = max(max_alt, v.state.position_enu_m[2])
+        if not v.commander.armed:
+            break
+    return max_alt
+
+
 def start_offboard(v: SimVehicle, target_enu, yaw_rad: float = 0.0) -> Setpoint:
     sp = Setpoint.hold(target_enu, yaw_rad)
     fly(v, 1.2, sp)
@@ -204,12 +215,7 @@ def test_rtl_climbs_returns_and_lands_at_home():
     sp = start_offboard(v, [15.0, -10.0, 6.0])
     fly(v, 15.0, sp)
     assert v.commander.set_mode(v.time_s, "RTL").ok
-    max_alt = 0.0
-    for _ in range(120 * 5):
-        fly(v, 0.2)
-        max_alt = max(max_alt, v.state.position_enu_m[2])
-        if not v.commander.armed:
-            break
+    max_alt = fly_until_disarmed(v, 120.0)
     assert not v.commander.armed
     assert max_alt == pytest.approx(12.0, abs=0.5)
     assert np.linalg.norm(v.state.position_enu_m[:2]) < 1.0
@@ -335,12 +341,7 @@ def test_offboard_loss_rtl_lands_at_home_and_disarms_without_setpoints():
     v = SimVehicle({"RTL_RETURN_ALT": 8.0}, seed=1)
     sp = start_offboard(v, [6.0, 4.0, 5.0])
     fly(v, 10.0, sp)
-    max_alt = 0.0
-    for _ in range(60 * 5):
-        fly(v, 0.2)
-        max_alt = max(max_alt, v.state.position_enu_m[2])
-        if not v.commander.armed:
-            break
+    max_alt = fly_until_disarmed(v, 60.0)
     assert not v.commander.armed and max_alt == pytest.approx(8.0, abs=0.5)
     assert np.linalg.norm(v.state.position_enu_m[:2]) < 1.0 and v.state.position_enu_m[2] == 0.0
     fly(v, 1.0, sp)
