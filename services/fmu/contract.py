@@ -10,7 +10,7 @@ INPUTS = {
     "fmu/in/trajectory_setpoint": TrajectorySetpoint,   # from planner, ENU
     "state/visual_odometry": Odometry,                  # from vio, injected as ODOMETRY (VISION)
     "planner/status": TrajectoryStatus,                 # ERROR -> stop following the planner, hold
-    "aero/alive/<vehicle>/planner": None,               # liveliness: gone -> hold at once
+    "aero/alive/<vehicle>/planner": None,               # liveliness: gone -> brake and hold at once
 }
 OUTPUTS = {
     "fmu/out/vehicle_local_position": LocalPosition,    # 50 Hz
@@ -30,7 +30,28 @@ SERVICES = {
 DEFAULT_FCU_URL = "udpin:127.0.0.1:14540"   # PX4 SITL / the built-in sim send here
 PARAMS = [
     Param("offboard_rate_hz", 50.0, "Hz", 20.0, 100.0, description="SET_POSITION_TARGET_LOCAL_NED stream rate"),
-    Param("setpoint_timeout_s", 0.1, "s", 0.02, 1.0, description="planner silent this long -> hold position"),
+    Param("setpoint_timeout_s", 0.3, "s", 0.02, 2.0,
+          description="planner silent this long -> brake and hold (liveliness loss / ERROR: at once)"),
+    Param("resume_setpoints", 5, "", 1, 100,
+          description="consecutive fresh valid setpoints before following the planner again after a hold"),
+    Param("setpoint_max_age_s", 0.5, "s", 0.05, 5.0,
+          description="setpoint stamp older than fmu's newest state by this -> stale, not forwarded"),
+    Param("brake_speed_mps", 0.15, "m/s", 0.02, 2.0,
+          description="brake (zero velocity) until slower than this, then hold where the vehicle is"),
+    Param("brake_timeout_s", 5.0, "s", 0.5, 30.0, description="hold wherever the vehicle is after braking this long"),
+    Param("max_velocity_mps", 15.0, "m/s", 0.5, 50.0, description="envelope: faster setpoints are refused"),
+    Param("max_acceleration_mps2", 10.0, "m/s^2", 0.5, 50.0, description="envelope: acceleration setpoint limit"),
+    Param("max_distance_m", 1000.0, "m", 1.0, 100000.0,
+          description="envelope: position setpoint horizontal distance from the local origin"),
+    Param("max_altitude_m", 500.0, "m", 1.0, 10000.0, description="envelope: position setpoint z (up) above the origin"),
+    Param("min_altitude_m", -10.0, "m", -1000.0, 0.0, description="envelope: position setpoint z (up) lower limit"),
+    Param("max_yaw_rate_radps", 6.0, "rad/s", 0.1, 20.0, description="envelope: yaw rate setpoint limit"),
+    Param("fcu_peer", "", description="udpin: only this HOST:PORT is the flight controller ('' = lock onto the "
+                                      "first autopilot HEARTBEAT)"),
+    Param("fcu_relock_s", 3.0, "s", 0.0, 600.0,
+          description="udpin: locked FC silent this long -> lock onto the next autopilot HEARTBEAT (0: never)"),
+    Param("reboot_gap_s", 2.0, "s", 0.5, 60.0,
+          description="FC heartbeat missing this long (or time_boot_ms going back) -> redo the link set-up"),
     Param("link_timeout_s", 0.5, "s", 0.1, 5.0, description="no MAVLink this long -> link stale, ERROR"),
     Param("vio_timeout_s", 1.0, "s", 0.1, 5.0, description="older VIO is not injected"),
     Param("home_request_period_s", 10.0, "s", 1.0, 120.0,

@@ -20,6 +20,8 @@ from aeroperception.schemas import (
 from aeroperception.services.mavlink import frames
 from aeroperception.services.mavlink.px4 import Autopilot
 
+from .offboard import hold_setpoint
+
 # SET_POSITION_TARGET_LOCAL_NED type_mask bits (1 = ignore)
 IGNORE_POS = 0b0000_0000_0111
 IGNORE_VEL = 0b0000_0011_1000
@@ -190,10 +192,8 @@ def setpoint_target(sp: TrajectorySetpoint) -> dict:
 
 
 def hold_target(position_enu_m: np.ndarray, yaw_enu_rad: float) -> dict:
-    """Hold here: position + zero velocity, as a TrajectorySetpoint would say it."""
-    sp = TrajectorySetpoint(position_valid=True, velocity_valid=True, yaw_valid=True,
-                            position_m=Vector3.from_array(position_enu_m), velocity_mps=Vector3(), yaw_rad=yaw_enu_rad)
-    return setpoint_target(sp)
+    """Hold here: position + zero velocity (offboard.hold_setpoint) as MAVLink fields."""
+    return setpoint_target(hold_setpoint(position_enu_m, yaw_enu_rad))
 
 
 def odometry_fields(odom: Odometry, time_usec: int) -> dict:

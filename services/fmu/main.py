@@ -7,7 +7,6 @@ import time
 from collections import deque
 
 import numpy as np
-from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink
 
 from aeroperception.schemas import (
@@ -16,7 +15,9 @@ from aeroperception.schemas import (
 from aeroperception.services.runtime import Health, Service, run
 
 from . import contract
-from .logic import CommandWaiter, Telemetry, ack_name, highres_imu_to_imu, hold_target, odometry_fields, setpoint_target
+from .link import RebootWatch, open_fcu_link
+from .logic import CommandWaiter, Telemetry, ack_name, highres_imu_to_imu, odometry_fields, setpoint_target
+from .offboard import BRAKE, FOLLOW, Envelope, OffboardArbiter
 
 FORCE_MAGIC = 21196  # COMPONENT_ARM_DISARM param2: force (PX4 and ArduPilot)
 STREAMS_HZ = {  # what we ask the FC for (SET_MESSAGE_INTERVAL); PX4 onboard links honour it
@@ -46,17 +47,23 @@ class FmuService(Service):
         self.tm = Telemetry()
         self.acks = CommandWaiter()
         self.send_lock = threading.Lock()
-        self.counters = {"rx": 0, "bad_packets": 0, "setpoints_sent": 0, "holds_sent": 0, "vio_injected": 0,
-                         "vio_stale_dropped": 0, "setpoints_ignored": 0}
-        self.planner_sp: TrajectorySetpoint | None = None
-        self.planner_sp_rx_s = 0.0
+        self.counters = {"rx": 0, "bad_packets": 0, "setpoints_sent": 0, "holds_sent": 0, "brakes_sent": 0,
+                         "vio_injected": 0, "vio_stale_dropped": 0, "reboots_detected": 0, "link_setups": 0}
+        self.arbiter = OffboardArbiter(
+            Envelope(p.max_velocity_mps, p.max_acceleration_mps2, p.max_distance_m, p.max_altitude_m,
+                     p.min_altitude_m, p.max_yaw_rate_radps),
+            timeout_s=p.setpoint_timeout_s, resume_count=p.resume_setpoints, max_age_s=p.setpoint_max_age_s,
+            brake_speed_mps=p.brake_speed_mps, brake_timeout_s=p.brake_timeout_s)
+        self.params.on_change(self._on_param)
         self.last_target_sent_s = 0.0
-        self.hold: tuple[np.ndarray, float] | None = None
+        self.state_published_s = -math.inf  # last state/vehicle from FC data (new session after a gap)
+        self.reboots = RebootWatch(p.reboot_gap_s)
+        self.last_setup_s = -math.inf
         self.streams_requested = False
         self.home_requested_s = -math.inf    # last MAV_CMD_REQUEST_MESSAGE(HOME_POSITION)
         self.statustexts: deque[tuple[float, int, str]] = deque(maxlen=16)  # (rx time, severity, text)
-        self.conn = mavutil.mavlink_connection(self.args.fcu_url, source_system=p.source_system,
-                                               source_component=p.source_component, autoreconnect=True)
+        # udpin: bound exclusively and locked to the FC (a taken port fails start-up in one line)
+        self.conn = open_fcu_link(self.args.fcu_url, p.source_system, p.source_component, p.fcu_peer, p.fcu_relock_s)
         node = self.node
         pub = node.publisher
         self.pubs = {k: pub(k, cls) for k, cls in contract.OUTPUTS.items()
@@ -65,7 +72,6 @@ class FmuService(Service):
         node.subscribe("fmu/in/trajectory_setpoint", TrajectorySetpoint, self._on_setpoint, strict=True)
         # Stop following the planner at once when it goes away or says it is in ERROR, rather
         # than after setpoint_timeout_s of silence (or never, if it kept sending stale motion).
-        self.planner_ok, self.planner_why = True, ""
         node.on_liveliness("planner", lambda _name, alive: self._planner_health(alive, "planner not alive"))
         node.subscribe("planner/status", TrajectoryStatus,
                        lambda st: self._planner_health(st.status != TrajectoryStatus.STATUS_ERROR, "planner reports ERROR"))
@@ -86,8 +92,10 @@ class FmuService(Service):
 
     def stop(self) -> None:
         self.node.stop_event.set()
-        self.reader.join(1.0)
-        self.conn.close()
+        if hasattr(self, "reader"):   # start() may have failed before (e.g. the FC port was taken)
+            self.reader.join(1.0)
+        if hasattr(self, "conn"):
+            self.conn.close()
 
     # ------------------------------------------------------------ MAVLink in
 
@@ -99,6 +107,10 @@ class FmuService(Service):
                 self.log.throttled("warn", "link", "mavlink_read_error", error=str(e))
                 time.sleep(0.05)
                 continue
+            events = getattr(self.conn, "events", None)
+            while events:  # link lock / rejected sources, logged from the link's own thread
+                event, fields = events.pop(0)
+                self.log.warn(event, **fields)
             if m is None:
                 continue
             self.node.run_callback("mavlink", self._on_mavlink, m)
@@ -119,15 +131,26 @@ class FmuService(Service):
                 return
             self.tm.system_id = m.get_srcSystem()
             self.pubs["fmu/out/vehicle_status"].publish(self.tm.on_heartbeat(m))
+            why = self.reboots.on_heartbeat(time.monotonic())
             if not self.streams_requested:
                 self._request_streams()
+            elif why:
+                self._fc_rebooted(why)
         elif t == "LOCAL_POSITION_NED":
             local = self.tm.on_local_position(m, stamp)
             # connected once the FC has identified itself (heartbeat: mode, armed); hot path first
             self.pubs["state/vehicle"].publish(self.tm.vehicle_state(stamp, connected=self.tm.last_heartbeat_s > 0))
+            now = time.monotonic()
+            new_session = now - self.state_published_s > self.params.link_timeout_s
+            self.state_published_s = now
+            self.arbiter.on_state(stamp, new_session=new_session)
+            if new_session:
+                self.log.info("state_session", stamp_ns=stamp, following=False)
             self.pubs["fmu/out/vehicle_local_position"].publish(local)
+            self._check_boot_time(m.time_boot_ms)
         elif t == "ATTITUDE_QUATERNION":
             self.pubs["fmu/out/vehicle_attitude"].publish(self.tm.on_attitude_quaternion(m, stamp))
+            self._check_boot_time(m.time_boot_ms)
         elif t == "EXTENDED_SYS_STATE":
             self.tm.on_extended_sys_state(m)
         elif t == "SYS_STATUS":
@@ -150,8 +173,26 @@ class FmuService(Service):
         elif t == "TIMESYNC" and m.tc1 == 0:  # PX4 asks the companion; answer so vision fusion works
             self._send(lambda mav: mav.timesync_send(time.time_ns(), m.ts1))
 
+    def _check_boot_time(self, time_boot_ms: int) -> None:
+        why = self.reboots.on_boot_time(time_boot_ms)
+        if why and self.streams_requested:
+            self._fc_rebooted(why)
+
+    def _fc_rebooted(self, why: str) -> None:
+        """The FC restarted (or vanished for reboot_gap_s): it is back at its default stream
+        rates and may have a new home, so redo the link set-up. Once per second at most (a
+        reboot shows as a heartbeat gap and as time_boot_ms going back)."""
+        if time.monotonic() - self.last_setup_s < 1.0:
+            return
+        self.counters["reboots_detected"] += 1
+        self.log.warn("fc_reboot_detected", reason=why, action="re-requesting stream rates and home")
+        self._request_streams()
+        self._request_home()
+
     def _request_streams(self) -> None:
         self.streams_requested = True
+        self.last_setup_s = time.monotonic()
+        self.counters["link_setups"] += 1
         for msg_id, hz in STREAMS_HZ.items():
             self._command_nowait(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, msg_id, 1e6 / hz)
         if self.tm.home is None:
@@ -199,23 +240,45 @@ class FmuService(Service):
     def link_fresh(self) -> bool:
         return time.monotonic() - self.tm.last_rx_s < self.params.link_timeout_s
 
+    def _on_param(self, name: str, value) -> None:
+        a = self.arbiter
+        if name in ("max_velocity_mps", "max_acceleration_mps2", "max_distance_m", "max_altitude_m",
+                    "min_altitude_m", "max_yaw_rate_radps"):
+            setattr(a.envelope, name, value)
+        elif name in ("brake_speed_mps", "brake_timeout_s"):
+            setattr(a, name, value)
+        elif name == "setpoint_timeout_s":
+            a.timeout_s = value
+        elif name == "resume_setpoints":
+            a.resume_count = value
+        elif name == "setpoint_max_age_s":
+            a.max_age_s = value
+        elif name == "reboot_gap_s":
+            self.reboots.gap_s = value
+
     def _planner_health(self, ok: bool, why: str) -> None:
-        if ok == self.planner_ok:
-            return
-        self.planner_ok, self.planner_why = ok, "" if ok else why
-        if not ok:
-            self.planner_sp_rx_s = 0.0  # the next offboard tick freezes a hold here
-            self.log.warn("planner_lost_holding", reason=why)
-        else:
-            self.log.info("planner_back")
+        if self.arbiter.on_planner_health(ok, why):
+            if ok:
+                self.log.info("planner_back")
+            else:
+                self.log.warn("planner_lost_holding", reason=why)
 
     def _on_setpoint(self, sp: TrajectorySetpoint) -> None:
-        if not self.planner_ok:
-            self.counters["setpoints_ignored"] += 1
+        a = self.arbiter
+        was = a.phase
+        rejected, stale = a.counters["setpoints_rejected"], a.counters["setpoints_stale"]
+        out = a.on_setpoint(sp, time.monotonic())
+        if a.counters["setpoints_rejected"] != rejected:
+            self.log.throttled("warn", "sp_rejected", "setpoint_rejected_holding", reason=a.last_rejection,
+                               count=a.counters["setpoints_rejected"])
+        elif a.counters["setpoints_stale"] != stale:
+            self.log.throttled("warn", "sp_stale", "setpoint_stale_not_forwarded", reason=a.last_rejection,
+                               count=a.counters["setpoints_stale"])
+        if out is None:
             return
-        self.planner_sp, self.planner_sp_rx_s = sp, time.monotonic()
-        self.hold = None
-        self._send_target(setpoint_target(sp))  # forward at once: the hot path
+        if was != FOLLOW:
+            self.log.info("planner_following", after=a.resume_count)
+        self._send_target(setpoint_target(out))  # forward at once: the hot path
         self.counters["setpoints_sent"] += 1
 
     def _send_target(self, f: dict) -> None:
@@ -226,21 +289,25 @@ class FmuService(Service):
         self.last_target_sent_s = time.monotonic()
 
     def _offboard_tick(self) -> None:
-        """Keep the stream at 50 Hz; when the planner is silent (> setpoint_timeout_s) hold position."""
+        """Keep the stream at offboard_rate_hz: the planner's setpoint while it is fresh, else
+        brake and hold (OffboardArbiter); never its last motion."""
         if not self.tm.have_position or not self.link_fresh():
             return
         now = time.monotonic()
-        if now - self.planner_sp_rx_s <= self.params.setpoint_timeout_s:
+        a = self.arbiter
+        was = a.phase
+        phase, sp = a.tick(now, self.tm.position_m, self.tm.velocity_mps, self.tm.yaw_rad)
+        if phase != was:  # FOLLOW -> BRAKE (planner lost) -> HOLD (stopped here)
+            (self.log.warn if phase == BRAKE else self.log.info)(
+                "offboard_" + phase, reason=a.reason, position_m=self.tm.position_m.round(2).tolist(),
+                speed_mps=round(float(np.linalg.norm(self.tm.velocity_mps)), 2))
+        if phase == FOLLOW:
             if now - self.last_target_sent_s > 1.25 * self.stream_loop.period_s:
-                self._send_target(setpoint_target(self.planner_sp))
+                self._send_target(setpoint_target(sp))
                 self.counters["setpoints_sent"] += 1
             return
-        if self.hold is None:  # planner went silent: freeze here, never replay its last motion
-            self.hold = (self.tm.position_m.copy(), self.tm.yaw_rad)
-            if self.planner_sp is not None:
-                self.log.warn("planner_silent_holding", position_m=self.hold[0].round(2).tolist())
-        self._send_target(hold_target(*self.hold))
-        self.counters["holds_sent"] += 1
+        self._send_target(setpoint_target(sp))
+        self.counters["brakes_sent" if phase == BRAKE else "holds_sent"] += 1
 
     def _heartbeat_tick(self) -> None:
         self._send(lambda mav: mav.heartbeat_send(mavlink.MAV_TYPE_ONBOARD_CONTROLLER, mavlink.MAV_AUTOPILOT_INVALID, 0, 0,
@@ -338,8 +405,10 @@ class FmuService(Service):
             self.counters["camera_imu_dt_p50_ms"] = round(float(np.nanmedian(dts)), 3)
             self.counters["camera_imu_dt_max_ms"] = round(float(np.nanmax(np.abs(dts))), 3)
         values = dict(self.counters, mode=self.tm.flight_mode, armed=self.tm.armed, autopilot=self.tm.autopilot.name,
-                      planner="streaming" if self.hold is None and self.planner_sp is not None else
-                      f"holding ({self.planner_why})" if self.planner_why else "holding",
+                      **self.arbiter.counters, planner=self.arbiter.label(), offboard=self.arbiter.phase,
+                      hold_reason=self.arbiter.reason,
+                      **getattr(self.conn, "counters", {}),
+                      fcu_peer="%s:%d" % self.conn.peer if getattr(self.conn, "peer", None) else "",
                       home=(f"{self.tm.home.latitude_deg:.7f},{self.tm.home.longitude_deg:.7f},"
                             f"{self.tm.home.altitude_amsl_m:.2f}" if self.tm.home is not None else "unknown"))
         if not self.link_fresh():

@@ -183,8 +183,9 @@ class SimService(Service):
     def health(self) -> Health:
         d = self.runner.diagnostics()
         values = {k: d[k] for k in ("sim_time_s", "realtime_factor", "mode", "armed", "landed_state", "failsafe",
-                                    "battery_remaining", "overruns") if k in d}
-        values.update({k: v for k, v in d.items() if k.startswith(("rx", "tx", "vision", "setpoint", "bad"))})
+                                    "battery_remaining", "overruns", "reboots", "rebooting", "time_boot_ms") if k in d}
+        values.update({k: v for k, v in d.items()
+                       if k.startswith(("rx", "tx", "vision", "setpoint", "bad", "commander_"))})
         level, msgs = DiagnosticStatus.OK, []
         for w in self.workers:
             rated = 1e9 / self.periods_ns[w.name]

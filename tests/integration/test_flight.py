@@ -5,8 +5,8 @@ free loopback port. Ground truth comes from sim/truth/state (ENU), never from th
 - test_survey_01_end_to_end (slow): `aero mission fly examples/missions/survey_01.json`; every
   waypoint reached by the true track in order, landed and disarmed, mission states in order.
 - failure modes and actions on one module-scoped stack: invalid mission, arming refused without
-  a position, planner silent (fmu holds), setpoints stopped (the sim fails over to HOLD like
-  PX4), and the takeoff / goto (cancelled and completed) / land actions through ActionClient.
+  a position, planner silent (fmu holds), setpoints stopped (the sim fails over to RTL like
+  PX4 SITL, and back to OFFBOARD when they resume), and the takeoff / goto (cancelled and completed) / land actions through ActionClient.
 - VIO injection on the same stack: fresh Odometry on state/visual_odometry reaches the sim as
   MAVLink ODOMETRY (counted by fmu and by the sim, at the true position); stale Odometry is
   dropped by fmu and never reaches the sim.
@@ -420,7 +420,7 @@ def test_planner_silent_fmu_holds(fstack):
 
 
 def test_planner_gone_fmu_holds_at_once_and_follows_it_again_after_restart(fstack):
-    """Liveliness, not the 100 ms silence: a planner that exits is dropped at once; `aero up`
+    """Liveliness, not the setpoint_timeout_s silence: a planner that exits is dropped at once; `aero up`
     restarts it and fmu streams its setpoints again."""
     st = fstack
     ensure_hovering(st)
@@ -439,7 +439,10 @@ def test_planner_gone_fmu_holds_at_once_and_follows_it_again_after_restart(fstac
     assert truth(st).flight_mode == "OFFBOARD"
 
 
-def test_setpoints_stop_sim_fails_over_to_hold(fstack):
+def test_setpoints_stop_sim_fails_over_to_rtl_and_back_to_offboard(fstack):
+    """Issue 8 (3c): PX4 SITL's offboard-loss failsafe is RTL (COM_OF_LOSS_T 1 s; no RC ->
+    NAV_RCL_ACT Return), and when setpoints resume PX4 returns to OFFBOARD by itself; the sim
+    does the same (COM_OBL_ACT 2, SIM_OF_RESUME). fmu, back, brakes and holds (never replays)."""
     st = fstack
     ensure_hovering(st)
     try:
@@ -449,18 +452,22 @@ def test_setpoints_stop_sim_fails_over_to_hold(fstack):
             with paused(st, "fmu"):
                 stop_stamp = rec.last("truth").header.stamp_ns
                 t_stop = time.monotonic()
-                hold = wait_until(lambda: next((m for m in rec.get("truth", since=t_stop)
-                                                if m.flight_mode == "HOLD"), None), 3.0, "sim mode HOLD")
+                rtl = wait_until(lambda: next((m for m in rec.get("truth", since=t_stop)
+                                               if m.flight_mode == "RTL"), None), 3.0, "sim mode RTL")
                 wall_s = time.monotonic() - t_stop
-                sim_s = (hold.header.stamp_ns - stop_stamp) / 1e9
-            # diagnostics/sim (1 Hz) says so too (HOLD lasts COM_OBL_HOLD_T = 5 s sim, then LAND)
-            d = wait_until(lambda: next((m for m in rec.get("sim_diag", since=t_stop)
-                                         if m.values.get("mode") == "HOLD"), None), 3.0, "diagnostics/sim mode HOLD")
-        print(f"setpoints stopped: HOLD after {sim_s:.2f} s sim, {wall_s:.2f} s wall")
-        assert 0.9 < sim_s < 1.5, f"HOLD {sim_s:.2f} s (sim) after the setpoints stopped; COM_OF_LOSS_T 1 s"
-        assert wall_s < 1.5 + 0.5, f"HOLD after {wall_s:.2f} s wall"
+                sim_s = (rtl.header.stamp_ns - stop_stamp) / 1e9
+                # diagnostics/sim (1 Hz) says so too, with the failsafe reason
+                d = wait_until(lambda: next((m for m in rec.get("sim_diag", since=t_stop)
+                                             if m.values.get("mode") == "RTL"), None), 3.0, "diagnostics/sim mode RTL")
+            t_cont = time.monotonic()
+            back = wait_until(lambda: next((m for m in rec.get("truth", since=t_cont)
+                                            if m.flight_mode == "OFFBOARD"), None), 5.0, "sim back in OFFBOARD by itself")
+        print(f"setpoints stopped: RTL after {sim_s:.2f} s sim, {wall_s:.2f} s wall; OFFBOARD again "
+              f"{(back.header.stamp_ns - rtl.header.stamp_ns) / 1e9:.2f} s after")
+        assert 0.9 < sim_s < 1.5, f"RTL {sim_s:.2f} s (sim) after the setpoints stopped; COM_OF_LOSS_T 1 s"
+        assert wall_s < 1.5 + 0.5, f"RTL after {wall_s:.2f} s wall"
         assert "offboard" in str(d.values.get("failsafe")), d.values  # the failsafe reason
-        # fmu is back: the operator takes OFFBOARD again (the stream must run COM_OF_WARM_T first).
+        # The operator can still ask for OFFBOARD (accepted at once: the FC is in it already).
         def offboard() -> bool:
             try:
                 return call(st.session, "fmu/srv/set_mode", SetModeRequest(mode="OFFBOARD"), SetModeReply, 5.0).success

@@ -112,7 +112,9 @@ def link():
     port = free_udp_port()
     peer = Peer(port)
     endpoint = MavlinkEndpoint(target=("127.0.0.1", port), bind=("127.0.0.1", 0))
-    runner = SimVehicleRunner(SimVehicle({"COM_OBL_HOLD_T": 2.0}, seed=11), endpoint, speed=SPEED).start()
+    # offboard loss -> HOLD, then LAND after 2 s (the PX4 SITL default, RTL, is tested in test_flight)
+    runner = SimVehicleRunner(SimVehicle({"COM_OBL_ACT": 1, "COM_OBL_HOLD_T": 2.0}, seed=11), endpoint,
+                              speed=SPEED).start()
     try:
         peer.recv("HEARTBEAT", timeout_s=5.0)  # the peer learns the vehicle's address from this
         yield peer, runner
@@ -243,3 +245,26 @@ def test_entry_point_rejects_bad_arguments():
     out = subprocess.run([sys.executable, "-m", "aeroperception.services.sim.vehicle", "--param", "SIM_MASS=-1",
                           "--bind", "127.0.0.1:0"], capture_output=True, text=True, timeout=20)
     assert out.returncode == 2 and "SIM_MASS" in out.stderr
+
+
+def test_reboot_over_udp_goes_silent_and_comes_back_at_default_rates(link):
+    peer, runner = link
+    assert peer.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, M.MAVLINK_MSG_ID_LOCAL_POSITION_NED, 20_000) == M.MAV_RESULT_ACCEPTED
+    before = peer.recv("LOCAL_POSITION_NED", lambda m: m.time_boot_ms > 4000, timeout_s=4000 / 1000 / SPEED + 3).time_boot_ms
+    assert peer.command(M.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, 1) == M.MAV_RESULT_ACCEPTED
+    t0 = time.monotonic()
+    first = peer.recv("HEARTBEAT", timeout_s=runner.vehicle.params.SIM_REBOOT_T / SPEED + 3.0)
+    silent_s = time.monotonic() - t0
+    assert silent_s > 0.8 * runner.vehicle.params.SIM_REBOOT_T / SPEED, f"heartbeat {silent_s:.2f} s after reboot"
+    assert not first.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED
+    lp = peer.recv("LOCAL_POSITION_NED", timeout_s=2.0)
+    assert lp.time_boot_ms < before
+    mark = peer.mark()
+    end = time.monotonic() + 1.0
+    while time.monotonic() < end:  # keep reading: an idle socket buffer overflows at x4
+        peer.drain()
+        time.sleep(0.005)
+    lps = [m for m in peer.log[mark:] if m.get_type() == "LOCAL_POSITION_NED"]
+    hz = (len(lps) - 1) / ((lps[-1].time_boot_ms - lps[0].time_boot_ms) / 1000.0)  # in sim time
+    assert hz == pytest.approx(30.0, rel=0.15), f"LOCAL_POSITION_NED at {hz:.1f} Hz after the reboot (default 30 Hz)"
+    assert runner.vehicle.reboots == 1

@@ -425,3 +425,183 @@ def test_command_waiter_a_new_wait_replaces_the_old_one():
 ])
 def test_ack_names(result, name):
     assert ack_name(result) == name
+
+
+# ================================================================ offboard arbiter (services/fmu/offboard.py)
+
+from aeroperception.schemas import Header  # noqa: E402
+from aeroperception.services.fmu.link import RebootWatch, is_autopilot_heartbeat  # noqa: E402
+from aeroperception.services.fmu.offboard import (  # noqa: E402
+    BRAKE, FOLLOW, HOLD, PLANNER_SILENT, Envelope, OffboardArbiter,
+)
+
+STILL = np.zeros(3)
+
+
+def planner_sp(stamp_ns: int, vx: float = 2.0) -> TrajectorySetpoint:
+    return TrajectorySetpoint(header=Header(stamp_ns=stamp_ns), velocity_valid=True, yaw_valid=True,
+                              velocity_mps=Vector3(x=vx), yaw_rad=0.0)
+
+
+def following(resume: int = 3) -> tuple[OffboardArbiter, float]:
+    """An arbiter that has just started following (state epoch 1 s), and the time."""
+    a = OffboardArbiter(timeout_s=0.3, resume_count=resume)
+    a.on_state(1_000_000_000, new_session=True)
+    t = 0.0
+    for i in range(resume):
+        t += 0.02
+        out = a.on_setpoint(planner_sp(1_000_000_000 + i), t)
+    assert out is not None and a.phase == FOLLOW
+    return a, t
+
+
+@pytest.mark.parametrize(("sp", "why"), [
+    (TrajectorySetpoint(velocity_valid=True, velocity_mps=Vector3(x=math.nan)), "non-finite velocity"),
+    (TrajectorySetpoint(velocity_valid=True, velocity_mps=Vector3(x=math.inf)), "non-finite velocity"),
+    (TrajectorySetpoint(velocity_valid=True, velocity_mps=Vector3(x=1000.0)), "velocity 1000.0 m/s"),
+    (TrajectorySetpoint(position_valid=True, position_m=Vector3(x=5000.0, z=5.0)), "from the origin"),
+    (TrajectorySetpoint(position_valid=True, position_m=Vector3(z=5000.0)), "position z"),
+    (TrajectorySetpoint(position_valid=True, position_m=Vector3(z=-50.0)), "position z"),
+    (TrajectorySetpoint(position_valid=True, position_m=Vector3(y=math.nan)), "non-finite position"),
+    (TrajectorySetpoint(velocity_valid=True, acceleration_valid=True, acceleration_mps2=Vector3(z=1e9)), "acceleration"),
+    (TrajectorySetpoint(velocity_valid=True, yaw_valid=True, yaw_rad=math.nan), "non-finite yaw"),
+    (TrajectorySetpoint(velocity_valid=True, yaw_rate_valid=True, yaw_rate_radps=math.inf), "yaw rate"),
+    (TrajectorySetpoint(), "neither position nor velocity"),
+])
+def test_envelope_refuses_non_finite_and_out_of_envelope_setpoints(sp, why):
+    assert why in Envelope().problem(sp)
+
+
+def test_envelope_ignores_unused_fields_and_accepts_the_planners_setpoints():
+    sp = TrajectorySetpoint(velocity_valid=True, yaw_valid=True, velocity_mps=Vector3(x=2.0),
+                            position_m=Vector3(x=math.nan, y=1e9), yaw_rad=1.0)  # position unused
+    assert Envelope().problem(sp) == ""
+    assert Envelope().problem(TrajectorySetpoint(position_valid=True, velocity_valid=True,
+                                                 position_m=Vector3(x=900.0, z=400.0))) == ""
+
+
+def test_starts_holding_and_follows_only_after_n_fresh_setpoints():
+    a = OffboardArbiter(resume_count=5)
+    phase, sp = a.tick(0.0, STILL, STILL, 0.3)
+    assert phase == HOLD and sp.position_valid and a.reason.startswith("waiting")
+    a.on_state(1_000, new_session=True)
+    outs = [a.on_setpoint(planner_sp(1_000 + i), 0.02 * i) for i in range(5)]
+    assert outs[:4] == [None] * 4 and outs[4] is not None and a.phase == FOLLOW
+    assert a.tick(0.1, STILL, STILL, 0.0)[0] == FOLLOW
+
+
+def test_hysteresis_a_late_setpoint_brakes_and_one_fresh_setpoint_does_not_resume():
+    a, t = following(resume=3)
+    phase, _ = a.tick(t + 0.31, STILL, np.array([2.0, 0, 0]), 0.0)   # 310 ms late
+    assert phase == BRAKE and a.reason == PLANNER_SILENT
+    t += 0.32
+    assert a.on_setpoint(planner_sp(2_000_000_000), t) is None        # 1 of 3
+    assert a.on_setpoint(planner_sp(2_000_000_001), t + 0.02) is None  # 2 of 3
+    assert a.on_setpoint(planner_sp(2_000_000_002), t + 0.04) is not None
+    assert a.phase == FOLLOW and a.counters["follow_resumed"] == 2
+
+
+def test_hysteresis_streak_restarts_after_a_gap_or_a_rejected_setpoint():
+    a, t = following(resume=3)
+    a.tick(t + 0.5, STILL, STILL, 0.0)
+    t += 0.5
+    a.on_setpoint(planner_sp(2_000_000_000), t)
+    a.on_setpoint(planner_sp(2_000_000_001), t + 0.02)
+    a.on_setpoint(planner_sp(2_000_000_002, vx=math.nan), t + 0.04)  # rejected: streak 0
+    assert a.on_setpoint(planner_sp(2_000_000_003), t + 0.06) is None
+    assert a.on_setpoint(planner_sp(2_000_000_004), t + 0.08) is None
+    assert a.on_setpoint(planner_sp(2_000_000_005), t + 0.50) is None  # gap > timeout: streak 1
+    assert a.on_setpoint(planner_sp(2_000_000_006), t + 0.52) is None
+    assert a.on_setpoint(planner_sp(2_000_000_007), t + 0.54) is not None
+
+
+def test_rejected_setpoint_while_following_is_never_forwarded_and_brakes_at_once():
+    a, t = following()
+    assert a.on_setpoint(planner_sp(2_000_000_000, vx=1000.0), t + 0.02) is None
+    assert a.phase == BRAKE and "velocity 1000.0" in a.reason and a.counters["setpoints_rejected"] == 1
+    phase, sp = a.tick(t + 0.03, STILL, np.array([2.0, 0, 0]), 0.0)
+    assert phase == BRAKE and sp.velocity_valid and not sp.position_valid
+    assert sp.velocity_mps.to_array().tolist() == [0.0, 0.0, 0.0]
+
+
+def test_brake_until_slow_then_hold_where_the_vehicle_stopped():
+    a, t = following()
+    a.on_planner_health(False, "planner not alive")
+    assert a.label() == "holding (planner not alive)"
+    pos, vel = np.array([10.0, 0.0, 3.0]), np.array([2.0, 0.0, 0.0])
+    for _ in range(40):  # decelerating at 3 m/s^2, 50 Hz
+        t += 0.02
+        phase, sp = a.tick(t, pos, vel, 0.5)
+        if phase == HOLD:
+            break
+        assert phase == BRAKE and sp.velocity_mps.to_array().tolist() == [0.0, 0.0, 0.0] and sp.yaw_rad == 0.5
+        pos = pos + vel * 0.02
+        vel = np.maximum(vel - 3.0 * 0.02, 0.0)
+    assert phase == HOLD and sp.position_valid
+    np.testing.assert_allclose(sp.position_m.to_array(), pos)          # where it stopped, not where it was lost
+    assert pos[0] > 10.5 and np.linalg.norm(vel) < 0.15
+    assert a.on_setpoint(planner_sp(5_000_000_000), t) is None and a.counters["setpoints_ignored"] == 1
+
+
+def test_brake_gives_up_after_the_timeout_and_holds_anyway():
+    a = OffboardArbiter(brake_timeout_s=1.0)
+    assert a.tick(0.0, STILL, np.array([5.0, 0, 0]), 0.0)[0] == BRAKE
+    assert a.tick(0.9, STILL, np.array([5.0, 0, 0]), 0.0)[0] == BRAKE
+    assert a.tick(1.01, np.ones(3), np.array([5.0, 0, 0]), 0.0)[0] == HOLD
+
+
+def test_setpoints_older_than_this_sessions_first_state_are_stale_never_forwarded():
+    """A restarted fmu (or a planner resumed from SIGSTOP) never replays motion planned before."""
+    a = OffboardArbiter(resume_count=2)
+    a.on_state(10_000_000_000, new_session=True)       # fmu's first state after (re)start
+    for i in range(20):
+        assert a.on_setpoint(planner_sp(9_000_000_000 + i), 0.02 * i) is None
+    assert a.counters["setpoints_stale"] == 20 and a.phase != FOLLOW and "stale" in a.reason
+    a.on_state(10_020_000_000)
+    assert a.on_setpoint(planner_sp(10_000_000_000), 0.5) is None
+    assert a.on_setpoint(planner_sp(10_020_000_000), 0.52) is not None
+    # while following: an old one (> max_age_s behind the newest state) is dropped, not followed
+    a.on_state(11_000_000_000)
+    assert a.on_setpoint(planner_sp(10_400_000_000), 0.54) is None and a.counters["setpoints_stale"] == 21
+    assert a.on_setpoint(planner_sp(10_600_000_000), 0.56) is not None
+
+
+def test_link_regained_stops_following_until_fresh_setpoints():
+    a, t = following()
+    a.on_state(5_000_000_000, new_session=True)
+    assert a.phase == BRAKE and "link" in a.reason
+    assert a.on_setpoint(planner_sp(4_999_999_999), t + 0.02) is None
+
+
+def test_planner_health_back_waits_for_fresh_setpoints():
+    a, t = following(resume=2)
+    a.on_planner_health(False, "planner reports ERROR")
+    a.on_planner_health(True, "")
+    assert a.phase != FOLLOW and a.label() == "holding"
+    assert a.on_setpoint(planner_sp(1_000_000_010), t + 0.02) is None
+    assert a.on_setpoint(planner_sp(1_000_000_011), t + 0.04) is not None
+
+
+# ================================================================ FC reboot and link lock helpers
+
+def test_reboot_watch_heartbeat_gap_and_time_boot_going_back():
+    w = RebootWatch(gap_s=2.0)
+    assert w.on_heartbeat(0.0) == "" and w.on_heartbeat(1.0) == ""
+    assert "no heartbeat for 2.5 s" in w.on_heartbeat(3.5)
+    assert w.on_boot_time(60_000) == "" and w.on_boot_time(60_020) == ""
+    assert w.on_boot_time(59_900) == ""                    # reordered datagram, not a reboot
+    assert "went back" in w.on_boot_time(1_500)
+    assert w.on_boot_time(1_520) == ""
+
+
+@pytest.mark.parametrize(("mav_type", "autopilot", "is_fc"), [
+    (mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_PX4, True),
+    (mavlink.MAV_TYPE_FIXED_WING, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, True),
+    (mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, False),
+    (mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_PX4, False),
+    (mavlink.MAV_TYPE_ONBOARD_CONTROLLER, mavlink.MAV_AUTOPILOT_INVALID, False),
+    (mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_INVALID, False),
+])
+def test_only_an_autopilot_heartbeat_locks_the_link(mav_type, autopilot, is_fc):
+    hb = mavlink.MAVLink(None).decode(bytearray(MAV.heartbeat_encode(mav_type, autopilot, 0, 0, 0).pack(MAV)))
+    assert is_autopilot_heartbeat(hb) == is_fc

@@ -46,6 +46,17 @@ def take_off(v: SimVehicle, altitude_m: float = 5.0) -> None:
     fly(v, 3.0)
 
 
+def fly_until_disarmed(v: SimVehicle, max_s: float) -> float:
+    """Step (no offboard input) until disarmed or max_s; returns the highest altitude seen."""
+    max_alt = 0.0
+    for _ in range(int(max_s * 5)):
+        fly(v, 0.2)
+        max_alt = max(max_alt, v.state.position_enu_m[2])
+        if not v.commander.armed:
+            break
+    return max_alt
+
+
 def start_offboard(v: SimVehicle, target_enu, yaw_rad: float = 0.0) -> Setpoint:
     sp = Setpoint.hold(target_enu, yaw_rad)
     fly(v, 1.2, sp)
@@ -204,12 +215,7 @@ def test_rtl_climbs_returns_and_lands_at_home():
     sp = start_offboard(v, [15.0, -10.0, 6.0])
     fly(v, 15.0, sp)
     assert v.commander.set_mode(v.time_s, "RTL").ok
-    max_alt = 0.0
-    for _ in range(120 * 5):
-        fly(v, 0.2)
-        max_alt = max(max_alt, v.state.position_enu_m[2])
-        if not v.commander.armed:
-            break
+    max_alt = fly_until_disarmed(v, 120.0)
     assert not v.commander.armed
     assert max_alt == pytest.approx(12.0, abs=0.5)
     assert np.linalg.norm(v.state.position_enu_m[:2]) < 1.0
@@ -291,7 +297,7 @@ def test_arming_in_offboard_requires_the_stream():
 
 
 def test_offboard_loss_fails_over_to_hold_then_land():
-    v = SimVehicle({"COM_OBL_HOLD_T": 3.0}, seed=0)
+    v = SimVehicle({"COM_OBL_ACT": 1, "COM_OBL_HOLD_T": 3.0, "SIM_OF_RESUME": False}, seed=0)
     sp = start_offboard(v, [3.0, 0.0, 5.0])
     fly(v, 10.0, sp)
     c = v.commander
@@ -305,9 +311,41 @@ def test_offboard_loss_fails_over_to_hold_then_land():
     t_land = fly(v, 5.0, until=lambda v: v.commander.mode == "LAND")
     assert t_land - t_hold == pytest.approx(3.0, abs=0.02)
     assert np.linalg.norm(v.state.position_enu_m - pos_at_loss) < 0.3  # held position meanwhile
-    # setpoints coming back do not return to OFFBOARD by themselves (PX4 behaviour)
+    # with SIM_OF_RESUME off, setpoints coming back do not return to OFFBOARD by themselves
     fly(v, 2.0, sp)
     assert c.mode == "LAND"
+
+
+def test_offboard_loss_default_is_rtl_like_px4_sitl_and_setpoints_back_resume_offboard():
+    """PX4 SITL defaults: RTL COM_OF_LOSS_T after the last setpoint; the failsafe clears when the
+    stream comes back and the vehicle is in OFFBOARD again (ARCHITECTURE §9)."""
+    v = SimVehicle(seed=0)
+    assert v.params.COM_OBL_ACT == 2 and v.params.SIM_OF_RESUME
+    sp = start_offboard(v, [3.0, 0.0, 5.0])
+    fly(v, 10.0, sp)
+    c = v.commander
+    t_lost = v.time_s
+    t_rtl = fly(v, 1.5, until=lambda v: v.commander.mode == "RTL")
+    assert t_rtl is not None and t_rtl - t_lost == pytest.approx(v.params.COM_OF_LOSS_T, abs=0.02)
+    assert c.failsafe and "offboard" in c.failsafe_reason
+    fly(v, 2.0)
+    assert v.state.position_enu_m[2] > 5.5  # climbing to RTL_RETURN_ALT
+    t_back = fly(v, 1.0, sp, until=lambda v: v.commander.mode == "OFFBOARD")
+    assert t_back is not None and t_back - v.time_s < 0.05 and not c.failsafe
+    assert c.counters["offboard_resumed"] == 1
+    fly(v, 10.0, sp)
+    np.testing.assert_allclose(v.state.position_enu_m, [3.0, 0.0, 5.0], atol=0.3)  # following again
+
+
+def test_offboard_loss_rtl_lands_at_home_and_disarms_without_setpoints():
+    v = SimVehicle({"RTL_RETURN_ALT": 8.0}, seed=1)
+    sp = start_offboard(v, [6.0, 4.0, 5.0])
+    fly(v, 10.0, sp)
+    max_alt = fly_until_disarmed(v, 60.0)
+    assert not v.commander.armed and max_alt == pytest.approx(8.0, abs=0.5)
+    assert np.linalg.norm(v.state.position_enu_m[:2]) < 1.0 and v.state.position_enu_m[2] == 0.0
+    fly(v, 1.0, sp)
+    assert v.commander.mode != "OFFBOARD"  # landed: the failsafe is over, nothing to resume
 
 
 def test_user_mode_change_takes_over_from_failsafe():
@@ -555,8 +593,9 @@ def test_request_message_interval_and_capabilities(mod):
             mod.vehicle.step(DT)
             n += len(by_type(mod.tick(), mtype))
         return n
-    assert count("LOCAL_POSITION_NED") == pytest.approx(100, abs=2)
-    assert count("HIGHRES_IMU") == pytest.approx(200, abs=2)
+    # PX4's onboard defaults: local position 30 Hz, IMU 50 Hz
+    assert count("LOCAL_POSITION_NED") == pytest.approx(60, abs=2)
+    assert count("HIGHRES_IMU") == pytest.approx(100, abs=2)
     mod.handle(cmd(M.MAV_CMD_SET_MESSAGE_INTERVAL, M.MAVLINK_MSG_ID_LOCAL_POSITION_NED, 100_000))
     assert count("LOCAL_POSITION_NED") == pytest.approx(20, abs=1)
     replies = mod.handle(cmd(M.MAV_CMD_GET_MESSAGE_INTERVAL, M.MAVLINK_MSG_ID_LOCAL_POSITION_NED))
@@ -565,7 +604,57 @@ def test_request_message_interval_and_capabilities(mod):
     mod.handle(cmd(M.MAV_CMD_SET_MESSAGE_INTERVAL, M.MAVLINK_MSG_ID_LOCAL_POSITION_NED, -1))
     assert count("LOCAL_POSITION_NED") == 0
     mod.handle(cmd(M.MAV_CMD_SET_MESSAGE_INTERVAL, M.MAVLINK_MSG_ID_LOCAL_POSITION_NED, 0))
-    assert count("LOCAL_POSITION_NED") == pytest.approx(100, abs=2)
+    assert count("LOCAL_POSITION_NED") == pytest.approx(60, abs=2)
+
+
+def run_module(mod, seconds):
+    out = []
+    for _ in range(int(round(seconds * RATE_HZ))):
+        mod.vehicle.step(DT)
+        out += mod.tick()
+    return out
+
+
+def test_reboot_like_px4_silent_then_boot_time_from_zero_and_default_rates(mod):
+    mod.handle(cmd(M.MAV_CMD_SET_MESSAGE_INTERVAL, M.MAVLINK_MSG_ID_LOCAL_POSITION_NED, 20_000))  # 50 Hz
+    out = run_module(mod, 5.0)
+    assert len(by_type(out, "LOCAL_POSITION_NED")[-50:]) == 50
+    before_ms = by_type(out, "LOCAL_POSITION_NED")[-1].time_boot_ms
+    assert before_ms == pytest.approx(5000, abs=30)
+    mod.vehicle.commander.arm(mod.now_s)
+    assert acks(mod.handle(cmd(M.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, 1))) == [
+        (M.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, DENIED)]  # armed: refused, as PX4
+    mod.vehicle.commander.disarm(mod.now_s)
+    assert acks(mod.handle(cmd(M.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, 1))) == [
+        (M.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, ACCEPTED)]  # the ACK goes out before it goes silent
+    assert mod.vehicle.reboots == 1
+    silent = run_module(mod, mod.vehicle.params.SIM_REBOOT_T - 0.1)
+    assert silent == [] and mod.handle(cmd(M.MAV_CMD_REQUEST_MESSAGE, M.MAVLINK_MSG_ID_HOME_POSITION)) == []
+    back = run_module(mod, 2.1)
+    lp = by_type(back, "LOCAL_POSITION_NED")
+    assert len(lp) == pytest.approx(2.0 * 30, abs=3)           # PX4's default rate again, until asked
+    assert lp[0].time_boot_ms < before_ms and lp[0].time_boot_ms == pytest.approx(2000, abs=120)
+    assert by_type(back, "HEARTBEAT")
+    mod.handle(cmd(M.MAV_CMD_SET_MESSAGE_INTERVAL, M.MAVLINK_MSG_ID_LOCAL_POSITION_NED, 20_000))
+    assert len(by_type(run_module(mod, 1.0), "LOCAL_POSITION_NED")) == pytest.approx(50, abs=2)
+
+
+def test_setpoint_truth_counts_non_finite_used_fields_and_the_fastest_velocity(mod):
+    ignore_pos = sum(int(b) for b in (M.POSITION_TARGET_TYPEMASK_X_IGNORE, M.POSITION_TARGET_TYPEMASK_Y_IGNORE,
+                                      M.POSITION_TARGET_TYPEMASK_Z_IGNORE))
+    nan = float("nan")
+
+    def sp(mask, pos, vel):
+        return wire(GCS.set_position_target_local_ned_encode(0, 1, 1, M.MAV_FRAME_LOCAL_NED, mask, *pos, *vel,
+                                                              0, 0, 0, 0, 0))
+    mod.handle(sp(ignore_pos, (nan, nan, nan), (3.0, 4.0, 0.0)))      # NaN only where ignored: fine
+    assert mod.diagnostics()["setpoints_nonfinite"] == 0
+    assert mod.diagnostics()["setpoint_max_speed_mps"] == pytest.approx(5.0)
+    mod.handle(sp(ignore_pos, (0, 0, 0), (nan, 1.0, 0.0)))
+    mod.handle(sp(0, (float("inf"), 0, 0), (0, 0, 0)))
+    mod.handle(sp(ignore_pos, (0, 0, 0), (1000.0, 0.0, 0.0)))
+    d = mod.diagnostics()
+    assert d["setpoints_nonfinite"] == 2 and d["setpoint_max_speed_mps"] == pytest.approx(1000.0)
 
 
 def test_telemetry_is_ned(mod):

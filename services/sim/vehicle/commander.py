@@ -3,8 +3,10 @@
 The Commander turns requests (arm, set mode, takeoff, offboard setpoints, ...) into one Setpoint
 per physics step, with PX4's rules where the stack depends on them:
 - OFFBOARD is accepted only after setpoints have streamed faster than COM_OF_MIN_HZ for
-  COM_OF_WARM_T; when they stop for COM_OF_LOSS_T the vehicle fails over to HOLD, then LAND after
-  COM_OBL_HOLD_T. A user mode change takes over from the failsafe.
+  COM_OF_WARM_T; when they stop for COM_OF_LOSS_T the vehicle fails over to COM_OBL_ACT (default
+  RTL, as PX4 SITL without RC; or HOLD, then LAND after COM_OBL_HOLD_T; or LAND). When setpoints
+  come back during that failsafe the vehicle returns to OFFBOARD (SIM_OF_RESUME, as PX4: its
+  failsafe clears with the condition). A user mode change takes over from the failsafe.
 - Arming is refused without a position, in the air, in OFFBOARD without a stream, or after
   flight termination; force (param2 = 21196) skips the checks except termination.
 - The land detector declares ON_GROUND after LNDMC_TRIG_TIME resting on the ground, and the
@@ -32,6 +34,7 @@ DENIED = mavlink.MAV_RESULT_DENIED
 TEMPORARILY_REJECTED = mavlink.MAV_RESULT_TEMPORARILY_REJECTED
 
 FLYABLE_MODES = ("OFFBOARD", "POSCTL", "HOLD", "LAND", "RTL", "TAKEOFF")
+OFFBOARD_LOSS_MODES = {0: "LAND", 1: "HOLD", 2: "RTL"}   # COM_OBL_ACT
 FS_OFFBOARD_LOST = "offboard setpoints lost"
 FS_NO_POSITION = "position estimate lost"
 FS_BATTERY_CRITICAL = "battery critical"
@@ -69,7 +72,8 @@ class Commander:
         self.landed = True
         self.has_flown = False
         self.last_reason = ""          # why the last request was refused, or the last failsafe
-        self.counters = {"mode_changes": 0, "failsafes": 0, "auto_disarms": 0, "offboard_setpoints": 0}
+        self.counters = {"mode_changes": 0, "failsafes": 0, "auto_disarms": 0, "offboard_setpoints": 0,
+                         "offboard_resumed": 0}
         self._armed_at_s = 0.0
         self._landed_at_s = 0.0
         self._resting_since_s: float | None = -math.inf  # on the ground since boot
@@ -218,7 +222,12 @@ class Commander:
         in_air = not self.landed
         if self.mode == "OFFBOARD" and now_s - self._of_last_s > p.COM_OF_LOSS_T:
             self._set_failsafe(FS_OFFBOARD_LOST)
-            self._enter_mode("HOLD", now_s)
+            self._enter_mode(OFFBOARD_LOSS_MODES[p.COM_OBL_ACT], now_s)
+        elif (self.failsafe_reason == FS_OFFBOARD_LOST and p.SIM_OF_RESUME and self.mode != "OFFBOARD"
+              and now_s - self._of_last_s <= 1.0 / p.COM_OF_MIN_HZ):
+            self._clear_failsafe()
+            self.counters["offboard_resumed"] += 1
+            self._enter_mode("OFFBOARD", now_s)
         elif (self.failsafe_reason == FS_OFFBOARD_LOST and self.mode == "HOLD"
               and p.COM_OBL_HOLD_T >= 0 and now_s - self._mode_since_s >= p.COM_OBL_HOLD_T):
             self._enter_mode("LAND", now_s)

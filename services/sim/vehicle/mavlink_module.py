@@ -32,16 +32,18 @@ log = logging.getLogger("aeroperception.sim.vehicle")
 M = mavlink
 Message = mavlink.MAVLink_message
 
-# Default stream rates (Hz) of the onboard link, in sim time. SET_MESSAGE_INTERVAL changes them.
+# Default stream rates (Hz) of the onboard link, in sim time, as PX4's onboard mode boots with
+# them (lower than a bridge wants: local position 30 Hz, IMU 50 Hz, seen on PX4 SITL). They apply
+# at boot and again after every reboot; SET_MESSAGE_INTERVAL changes them until the next one.
 DEFAULT_RATES_HZ: dict[int, float] = {
     M.MAVLINK_MSG_ID_HEARTBEAT: 1.0,
     M.MAVLINK_MSG_ID_SYS_STATUS: 1.0,
     M.MAVLINK_MSG_ID_BATTERY_STATUS: 1.0,
     M.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 5.0,
-    M.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 50.0,
+    M.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 30.0,
     M.MAVLINK_MSG_ID_ATTITUDE_QUATERNION: 50.0,
     M.MAVLINK_MSG_ID_ATTITUDE: 20.0,
-    M.MAVLINK_MSG_ID_HIGHRES_IMU: 100.0,
+    M.MAVLINK_MSG_ID_HIGHRES_IMU: 50.0,
     M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 10.0,
     M.MAVLINK_MSG_ID_HOME_POSITION: 0.5,
 }
@@ -165,7 +167,11 @@ class MavlinkModule:
         self.rx_types: Counter[str] = Counter()
         self.counters = Counter({k: 0 for k in (
             "commands", "commands_unsupported", "commands_refused", "setpoints", "setpoints_rejected",
-            "vision_odometry", "vision_position", "timesync", "params_sent", "handler_errors", "ignored")})
+            "setpoints_nonfinite", "vision_odometry", "vision_position", "timesync", "params_sent",
+            "handler_errors", "ignored", "ignored_while_rebooting")})
+        self.setpoint_max_speed_mps = 0.0   # fastest velocity setpoint received (truth of what the FC got)
+        self._reboots_seen = vehicle.reboots
+        self._silent_until_ns = -1
         self.vision_error_m: float | None = None  # last vision position vs truth (eval aid)
         self._failsafes_seen = 0
         self._last_error_log_s = 0.0
@@ -182,7 +188,22 @@ class MavlinkModule:
 
     @property
     def time_boot_ms(self) -> int:
-        return (self.vehicle.time_ns // 1_000_000) & 0xFFFFFFFF
+        return (self.vehicle.time_since_boot_ns // 1_000_000) & 0xFFFFFFFF
+
+    @property
+    def time_boot_us(self) -> int:
+        return self.vehicle.time_since_boot_ns // 1000
+
+    @property
+    def rebooting(self) -> bool:
+        """After a reboot the autopilot is silent for SIM_REBOOT_T: it neither sends nor listens."""
+        if self.vehicle.reboots != self._reboots_seen:  # rebooted (by command or directly)
+            self._reboots_seen = self.vehicle.reboots
+            self._silent_until_ns = self.vehicle.time_ns + int(self.vehicle.params.SIM_REBOOT_T * 1e9)
+            self.intervals_ns = {mid: int(1e9 / hz) for mid, hz in DEFAULT_RATES_HZ.items()}
+            self._next_due_ns.clear()
+            self._failsafes_seen = 0
+        return self.vehicle.time_ns < self._silent_until_ns
 
     def _for_us(self, m: Message) -> bool:
         ts, tc = getattr(m, "target_system", 0), getattr(m, "target_component", 0)
@@ -192,6 +213,9 @@ class MavlinkModule:
         """Process one received message; returns the replies. Never raises."""
         mtype = m.get_type()
         self.rx_types[mtype] += 1
+        if self.rebooting:
+            self.counters["ignored_while_rebooting"] += 1
+            return []
         handler = self._handlers.get(mtype)
         if handler is None:
             self.counters["ignored"] += 1
@@ -207,6 +231,8 @@ class MavlinkModule:
 
     def tick(self) -> list[Message]:
         """Telemetry due now (sim time), plus a STATUSTEXT when a failsafe fired."""
+        if self.rebooting:
+            return []
         now = self.vehicle.time_ns
         out = []
         for mid, interval in self.intervals_ns.items():
@@ -342,8 +368,23 @@ class MavlinkModule:
             self.counters["setpoints_rejected"] += 1
             return []
         self.counters["setpoints"] += 1
+        self._record_setpoint_truth(m)
         self.commander.on_offboard_setpoint(self.now_s, sp)
         return []
+
+    def _record_setpoint_truth(self, m) -> None:
+        """What reached the FC, for tests of the sender: used (not type_mask-ignored) fields that
+        are not finite, and the fastest velocity setpoint."""
+        tm = m.type_mask
+        used = [v for v, bit in zip((m.x, m.y, m.z, m.vx, m.vy, m.vz), _IGNORE_POS + _IGNORE_VEL) if not tm & bit]
+        if not tm & M.POSITION_TARGET_TYPEMASK_YAW_IGNORE:
+            used.append(m.yaw)
+        if not tm & M.POSITION_TARGET_TYPEMASK_YAW_RATE_IGNORE:
+            used.append(m.yaw_rate)
+        if not all(math.isfinite(v) for v in used):
+            self.counters["setpoints_nonfinite"] += 1
+        vel = [0.0 if tm & bit or not math.isfinite(v) else v for v, bit in zip((m.vx, m.vy, m.vz), _IGNORE_VEL)]
+        self.setpoint_max_speed_mps = max(self.setpoint_max_speed_mps, math.sqrt(sum(v * v for v in vel)))
 
     def _on_vision(self, m) -> list[Message]:
         """Count what a VIO injects and how far it is from the truth (an end-to-end check)."""
@@ -360,7 +401,7 @@ class MavlinkModule:
         if m.tc1 != 0:
             return []  # a reply to someone else's request
         self.counters["timesync"] += 1
-        return [self.enc.timesync_encode(self.vehicle.time_ns, m.ts1)]
+        return [self.enc.timesync_encode(self.vehicle.time_since_boot_ns, m.ts1)]
 
     # ------------------------------------------------------------------ parameters
 
@@ -529,7 +570,7 @@ class MavlinkModule:
         mag = frames.quat_to_rotmat(self._q_ned_frd()).T @ MAG_NED_GAUSS
         alt_amsl = p.SIM_HOME_ALT + s.position_enu_m[2] + float(self._noise(p.SIM_BARO_NOISE, 1)[0])
         pressure_hpa = 1013.25 * (1.0 - 2.25577e-5 * alt_amsl) ** 5.25588  # ISA
-        return self.enc.highres_imu_encode(self.vehicle.time_ns // 1000, *acc, *gyro, *mag, pressure_hpa, 0.0,
+        return self.enc.highres_imu_encode(self.time_boot_us, *acc, *gyro, *mag, pressure_hpa, 0.0,
                                            alt_amsl, 25.0, 0x1FFF)
 
     def global_position_int(self) -> Message:
@@ -547,7 +588,7 @@ class MavlinkModule:
         p = self.vehicle.params
         return self.enc.home_position_encode(
             int(round(p.SIM_HOME_LAT * 1e7)), int(round(p.SIM_HOME_LON * 1e7)), int(round(p.SIM_HOME_ALT * 1000)),
-            0.0, 0.0, 0.0, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0, self.vehicle.time_ns // 1000)
+            0.0, 0.0, 0.0, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0, self.time_boot_us)
 
     def stream_rates_hz(self) -> dict[str, float]:
         """Current telemetry rates by message name (0: off), in sim time."""
@@ -555,5 +596,7 @@ class MavlinkModule:
 
     def diagnostics(self) -> dict:
         """Flat counters (per-type receive counts are in `rx_types`)."""
-        return {**self.counters, "vision_error_m": self.vision_error_m, "last_reason": self.commander.last_reason}
+        return {**self.counters, "vision_error_m": self.vision_error_m, "last_reason": self.commander.last_reason,
+                "setpoint_max_speed_mps": round(self.setpoint_max_speed_mps, 3), "time_boot_ms": self.time_boot_ms,
+                "rebooting": self.vehicle.time_ns < self._silent_until_ns}
 

@@ -30,6 +30,7 @@ class SimVehicle:
         self.physics_rng = np.random.default_rng(physics_seq)
         self.sensor_rng = np.random.default_rng(sensor_seq)
         self.time_ns = 0
+        self.boot_ns = 0          # sim time of the last (re)boot: time_boot_ms counts from here
         self.reboots = 0
         self._build()
 
@@ -40,13 +41,19 @@ class SimVehicle:
 
     def reboot(self) -> None:
         """Like power-cycling the autopilot: back on the ground at home, disarmed, termination
-        cleared, full battery. The sim clock keeps running (it is the world's clock)."""
+        cleared, full battery. The sim clock keeps running (it is the world's clock); the
+        autopilot's own time since boot (time_boot_ms) starts again from zero."""
         self.reboots += 1
+        self.boot_ns = self.time_ns
         self._build()
 
     @property
     def time_s(self) -> float:
         return self.time_ns * 1e-9
+
+    @property
+    def time_since_boot_ns(self) -> int:
+        return self.time_ns - self.boot_ns
 
     @property
     def state(self):

@@ -44,8 +44,17 @@ PARAMS: tuple[Param, ...] = (
     Param("BAT_EMERGEN_THR", 0.05, "", 0.0, 0.5, description="emergency battery level"),
     # --- commander (arming, failsafes) ---
     Param("COM_OF_LOSS_T", 1.0, "s", 0.0, 60.0, description="offboard setpoints silent this long -> failsafe"),
+    Param("COM_OBL_ACT", 2, "", choices=(0, 1, 2),
+          description="offboard-loss failsafe: 0 LAND, 1 HOLD (then LAND after COM_OBL_HOLD_T), 2 RTL. "
+                      "2 is what PX4 SITL does by default (COM_OBL_RC_ACT with no RC falls back to "
+                      "NAV_RCL_ACT = Return)"),
     Param("COM_OBL_HOLD_T", 5.0, "s", -1.0, 600.0,
-          description="offboard-loss failsafe: HOLD this long, then LAND (-1: hold forever). PX4: COM_OBL_RC_ACT"),
+          description="with COM_OBL_ACT 1: HOLD this long, then LAND (-1: hold forever)"),
+    Param("SIM_OF_RESUME", True,
+          description="setpoints back during the offboard-loss failsafe -> OFFBOARD again (PX4 SITL does: "
+                      "the failsafe clears with its condition)"),
+    Param("SIM_REBOOT_T", 2.0, "s", 0.0, 30.0,
+          description="PREFLIGHT_REBOOT: the autopilot is silent this long, then back at default stream rates"),
     Param("COM_OF_MIN_HZ", 2.0, "Hz", 0.1, 100.0, description="setpoint stream must be faster than this"),
     Param("COM_OF_WARM_T", 1.0, "s", 0.0, 10.0, description="...for this long before OFFBOARD is accepted"),
     Param("COM_DISARM_LAND", 2.0, "s", -1.0, 20.0, description="auto-disarm after landing (-1: never)"),
