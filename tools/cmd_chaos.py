@@ -14,7 +14,7 @@ row can cut the FC link, inject commands to the FC (reboot) and check every
 SET_POSITION_TARGET_LOCAL_NED fmu sends. tests/faults and `aero bench soak` use the same class.
 Every process is stopped by its own pid (from aero up's pids.json), never by name.
 
-Rows whose fix lives on another branch fail until it is merged: EXPECTED_FIXED_BY names it.
+A row whose fix is not in yet can be listed in EXPECTED_FIXED_BY (empty: every row is expected to pass).
 """
 from __future__ import annotations
 
@@ -57,12 +57,7 @@ IMPACT_SPEED_MPS = 1.5               # touching the ground faster than this is a
 AT_REST_MPS = 0.3
 
 # Rows that fail on this branch until another branch's fix is merged (the lead removes entries).
-EXPECTED_FIXED_BY: dict[str, str] = {
-    "kill_fmu": "wt/mission (fmu-outage hold, issue 8 #3c) + wt/fmu (sim RTL failsafe)",
-    "fc_link_loss": "wt/fmu (stale link reported within 0.5 s) + wt/mission (FC-mode watching, #3a)",
-    "hang_planner": "wt/fmu (brake to a stop, issue 8 #9)",
-    "fc_reboot": "wt/fmu (re-request rates after an FC reboot, issue 8 #8)",
-}
+EXPECTED_FIXED_BY: dict[str, str] = {}
 
 
 # ---------------------------------------------------------------- processes

@@ -252,7 +252,6 @@ def mavlink_mutations():
     return hs.tuples(hs.sampled_from(frames), hs.integers(0, 300), hs.integers(0, 254), hs.integers(0, 3)).map(corrupt)
 
 
-@pytest.mark.xfail(reason="needs wt/fmu fix (refuse non-finite / out-of-envelope setpoints, issue 8 #5)", strict=False)
 def test_hostile_setpoints_never_reach_the_fc(hovering):
     """Valid-schema but unsafe TrajectorySetpoints (NaN, inf, 1000 m/s, 10 km away) on
     fmu/in/trajectory_setpoint: fmu must refuse them and hold; the FC sees none."""
