@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 BLOCKED = 99          # inscribed and lethal cells (OccupancyGrid 0..100)
-GO_WEIGHT = 2.0       # score of a reachable cell = path cost + GO_WEIGHT * straight distance to the goal
+GO_WEIGHT = 10.0      # goal outside the window: score = path cost + GO_WEIGHT * straight distance left
 
 
 @dataclass(frozen=True)
@@ -33,6 +33,7 @@ class AvoidanceConfig:
     stop_distance_m: float = 0.2        # zero speed this close to the clearance zone ahead
     cost_weight: float = 4.0            # path cost per metre = 1 + cost_weight * cost / 98
     check_horizon_s: float = 0.3
+    sight_m: float = 9.0                # straight to the goal only if free this far (~half the window)
     costmap_timeout_s: float = 0.5
 
 
@@ -55,9 +56,10 @@ class CostmapView:
 
         k = max(1, int(round(cell_m / resolution_m)))
         h, w = (data.shape[0] // k) * k, (data.shape[1] // k) * k
-        d = data[:h, :w].astype(np.int16)
-        d = np.where(d < 0, 0, d)                                   # unknown: optimistic
-        self.cost = d.reshape(h // k, k, w // k, k).max(axis=(1, 3))
+        pooled = data[:h, :w].astype(np.int16).reshape(h // k, k, w // k, k).max(axis=(1, 3))
+        # Unknown (never seen: occluded, e.g. inside a building, or out of range) is not a way.
+        self.unknown = pooled < 0
+        self.cost = np.maximum(pooled, 0)
         self.origin = np.asarray(origin_xy, dtype=float)
         self.res = resolution_m * k
         self.stamp_s = stamp_s
@@ -122,7 +124,7 @@ class LocalPlanner:
         p, g = np.asarray(position_m[:2], float), np.asarray(goal_m[:2], float)
         to_goal = g - p
         dist = float(np.hypot(*to_goal))
-        if dist < 1e-3 or self._free_line(p, to_goal / dist, min(dist, self.cfg.slow_distance_m)):
+        if dist < 1e-3 or self._free_line(p, to_goal / dist, min(dist, self.cfg.sight_m)):
             return False
         return (tuple(view.cell(p)), tuple(np.round(g, 1)), view.stamp_s) != self._plan_key
 
@@ -153,7 +155,7 @@ class LocalPlanner:
         dist_goal = float(np.hypot(*to_goal))
         straight_dir = to_goal / max(1e-6, dist_goal)
         state, reason = "clear", ""
-        if self._free_line(p, straight_dir, min(dist_goal, cfg.slow_distance_m)):
+        if self._free_line(p, straight_dir, min(dist_goal, cfg.sight_m)):
             direction = straight_dir                  # line of sight: no lattice zig-zag
         elif self._path is None or self._path_goal is None or np.hypot(*(self._path_goal - g)) > 0.1:
             state, reason = self._state if self._path_goal is not None and self._path is None else (
@@ -165,10 +167,14 @@ class LocalPlanner:
             n = float(np.hypot(*d))
             direction = d / n if n > 1e-6 else straight_dir
             state = "avoiding"
-        clearance = self._clearance(p, direction)
-        scale = np.clip((clearance - cfg.stop_distance_m) / (cfg.slow_distance_m - cfg.stop_distance_m), 0.0, 1.0)
-        # Never slower than needed to creep out when the goal itself is close.
-        v[:2] = direction * speed * max(scale, 0.15 if clearance > cfg.stop_distance_m else 0.0)
+        # Free distance ahead: to the clearance zone straight on, but at least to the carrot,
+        # which is visible by construction (the path bends before the zone ahead of it).
+        reach = self._clearance(p, direction)
+        if state == "avoiding":
+            reach = max(reach, n)
+        scale = np.clip((reach - cfg.stop_distance_m) / (cfg.slow_distance_m - cfg.stop_distance_m), 0.0, 1.0)
+        # A minimum creep keeps it moving along a visible way; only a wall right ahead stops it.
+        v[:2] = direction * speed * max(scale, 0.15 if reach > 0.05 else 0.0)
         if self._crosses_blocked(p, v[:2]):
             v[:2] = 0.0
             return Avoidance(v, "blocked", "obstacle ahead within the check horizon", self._path)
@@ -194,14 +200,17 @@ class LocalPlanner:
         if view.inside(gcell) and view.blocked[gcell[1], gcell[0]]:
             return None, ("unreachable", f"goal ({g[0]:.1f}, {g[1]:.1f}) is closer than "
                                          f"{cfg.clearance_m:.1f} m to an obstacle")
-        free = ~view.blocked
+        free = ~view.blocked & ~view.unknown
         # The vehicle may already be inside its clearance of something: let it leave (but never
         # through a lethal cell).
         sr, sc = start[1], start[0]
         r = max(1, int(math.ceil(cfg.clearance_m / view.res)))
         win = (slice(max(0, sr - r), sr + r + 1), slice(max(0, sc - r), sc + r + 1))
         free[win] |= cost[win] < BLOCKED
-        step_cost = 1.0 + cfg.cost_weight * np.clip(cost, 0, 98) / 98.0
+        # Inflation costs, plus a margin term so paths run in the middle of gaps instead of
+        # hugging the clearance boundary (where any tracking error means slowing to a crawl).
+        margin = np.clip((cfg.clearance_m + 1.0 - view.dist) / 1.0, 0.0, 1.0)
+        step_cost = 1.0 + cfg.cost_weight * (np.clip(cost, 0, 98) / 98.0 + margin)
         idx = np.arange(h * w).reshape(h, w)
         rows, cols, wts = [], [], []
         for dr, dc in ((0, 1), (1, 0), (1, 1), (1, -1)):
@@ -222,22 +231,20 @@ class LocalPlanner:
         reach = np.isfinite(dist)
         if reach.sum() <= 1:
             return None, ("blocked", "boxed in: no free cell around the vehicle on the costmap")
-        if view.inside(gcell):
-            way_out = reach[gcell[1] * w + gcell[0]]
-        else:
-            border = np.zeros((h, w), bool)
-            border[[0, -1], :] = border[:, [0, -1]] = True
-            way_out = bool(reach[border.ravel()].any())
-        if not way_out:
+        goal_idx = int(gcell[1] * w + gcell[0]) if view.inside(gcell) else None
+        if goal_idx is not None and reach[goal_idx]:
+            best = goal_idx                          # go there, however long the way
+        elif goal_idx is not None and not view.unknown[gcell[1], gcell[0]]:
             return None, ("blocked", "boxed in: no way to the goal on the costmap")
-        centres = view.centre(np.stack(np.unravel_index(np.arange(h * w), (h, w)), axis=1))
-        to_go = np.hypot(centres[:, 0] - g[0], centres[:, 1] - g[1])
-        # Weighting the distance still to go above the path walked rewards progress, so in free
-        # space the goal (or the window's edge towards it) wins over staying put.
-        score = np.where(reach, dist + GO_WEIGHT * to_go, np.inf)
-        best = int(np.argmin(score))
-        if best == s and to_go[s] > 1.0:
-            return None, ("blocked", "no way towards the goal on the costmap")
+        else:
+            # The goal is outside the window or not seen yet: the reachable cell nearest to it
+            # (the shorter way on ties), then replan from there as the window moves on.
+            centres = view.centre(np.stack(np.unravel_index(np.arange(h * w), (h, w)), axis=1))
+            to_go = np.hypot(centres[:, 0] - g[0], centres[:, 1] - g[1])
+            score = np.where(reach, dist + GO_WEIGHT * to_go, np.inf)
+            best = int(np.argmin(score))
+            if best == s and to_go[s] > 1.0:
+                return None, ("blocked", "no way towards the goal on the costmap")
         path = [best]
         for _ in range(h * w):                                  # bounded walk back to the start
             if path[-1] == s:

@@ -22,9 +22,9 @@ from aeroperception.services.runtime import ActionClient
 from test_flight import diag, ensure_hovering, ensure_landed, free_udp_port, latest, recording  # helpers only
 
 ALT_M = 1.5                       # below a parked car's roof line + margin: the car is in the way
-WAYPOINTS = [(0.0, 7.0), (10.0, 7.0), (22.0, 13.0), (15.0, -3.5), (25.0, -5.5)]
-# (0,7)->(10,7): street-light pole at (5,7); (10,7)->(22,13): the corner of the building at
-# (12,15) 14x10 m; (15,-3.5)->(25,-5.5): the parked car at (20,-5.5).
+WAYPOINTS = [(1.0, 13.0), (9.0, 7.0), (0.0, 7.0), (15.0, -3.5), (25.0, -5.5)]
+# (1,13)->(9,7): the south-west corner (5,10) of the building at (12,15) 14x10 m;
+# (9,7)->(0,7): the street-light pole at (5,7); (15,-3.5)->(25,-5.5): the parked car at (20,-5.5).
 VEHICLE_RADIUS_M = 0.4            # the lidar service's inscribed radius
 CLEARANCE_M = 1.0
 
