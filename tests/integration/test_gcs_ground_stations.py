@@ -24,7 +24,7 @@ from pymavlink.dialects.v20 import common as M  # noqa: E402
 
 from aeroperception.schemas import DiagnosticStatus, GcsLink, SafetyStatus, VehicleStatus  # noqa: E402
 from aeroperception.services.gcs.link import Parser, make_mav  # noqa: E402
-from aerotest import _stop_process, clean_env, wait_for_message, wait_until  # noqa: E402
+from aerotest import clean_env, stop_up, wait_for_message, wait_until  # noqa: E402
 
 
 def free_udp_port() -> int:
@@ -53,7 +53,7 @@ class GcsProcess:
 
     def stop(self) -> None:
         if self.proc is not None:
-            _stop_process(self.proc, signal.SIGTERM)
+            stop_up(None, self.proc, {})          # SIGINT, bounded wait, then kill
             self.proc = None
         self.log.close()
 
