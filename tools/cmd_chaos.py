@@ -684,11 +684,12 @@ def _progressing(ctx: Ctx, window_s: float = 3.0) -> bool:
 
 
 def _first_hold(ctx: Ctx, since: float) -> float | None:
-    """Seconds from `since` to the first zero-velocity position setpoint fmu sent (its hold)."""
+    """Seconds from `since` to the first zero-velocity setpoint fmu sent: its brake (velocity
+    only) or its position hold — fmu brakes to a stop first, then holds where it stopped."""
     with ctx.st.tap.lock:
         sps = [(t, m) for t, m in ctx.st.tap.setpoints if t >= since]
     for t, m in sps:
-        if not m.type_mask & mavlink.POSITION_TARGET_TYPEMASK_X_IGNORE and m.vx == m.vy == m.vz == 0.0:
+        if not m.type_mask & mavlink.POSITION_TARGET_TYPEMASK_VX_IGNORE and m.vx == m.vy == m.vz == 0.0:
             return t - since
     return None
 
@@ -898,7 +899,7 @@ def _hang_planner_observe(ctx: Ctx):
     overshoot, flyback = float(along.max()), float(along.max() - along[-1])
     rest = speed_of(track[-1]) < AT_REST_MPS
     back = wait_until(lambda: "streaming" in ctx.st.diag("fmu").values.get("planner", ""), 5.0, 0.2)
-    ok = hold is not None and hold <= 0.3 and rest and flyback < 0.3 and bool(back)
+    ok = hold is not None and hold <= 0.4 and rest and flyback < 0.3 and bool(back)
     obs = (f"fmu hold after {hold:.2f} s" if hold is not None else "no hold setpoint") + \
           (f"; stopped {overshoot:.2f} m on, flew back {flyback:.2f} m; "
            f"{'at rest' if rest else f'{speed_of(track[-1]):.1f} m/s'} at SIGCONT; "
@@ -996,7 +997,7 @@ def build_rows(services: list[str]) -> dict[str, Row]:
             lambda c: c.notes["gcs"].stop(), _gcs_observe, prepare=_gcs_prepare,
             cleanup=lambda c: c.notes.get("gcs") and c.notes["gcs"].stop()),
         Row("hang_planner", "SIGSTOP planner 3 s, SIGCONT",
-            "fmu holds within 0.3 s (setpoint_timeout_s 0.1), brakes to a stop without flying back; "
+            "fmu brakes within 0.4 s (setpoint_timeout_s 0.3 + a tick), stops without flying back; "
             "planner streams again after SIGCONT",
             _pause("planner", 3.0), _hang_planner_observe, cleanup=_resume),
         Row("hang_fmu", "SIGSTOP fmu 3 s, SIGCONT",

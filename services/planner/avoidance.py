@@ -40,7 +40,7 @@ class AvoidanceConfig:
 @dataclass
 class Avoidance:
     velocity_mps: np.ndarray            # horizontal part replaced; z kept
-    state: str                          # "clear" | "avoiding" | "blocked" | "unreachable" | "no_costmap"
+    state: str                          # "clear" | "avoiding" | "planning" | "blocked" | "unreachable" | "no_costmap"
     reason: str = ""
     path_xy: np.ndarray | None = None
 
@@ -159,7 +159,7 @@ class LocalPlanner:
             direction = straight_dir                  # line of sight: no lattice zig-zag
         elif self._path is None or self._path_goal is None or np.hypot(*(self._path_goal - g)) > 0.1:
             state, reason = self._state if self._path_goal is not None and self._path is None else (
-                "blocked", "planning a way around an obstacle")
+                "planning", "planning a way around an obstacle")
             v[:2] = 0.0
             return Avoidance(v, state, reason)
         else:

@@ -14,7 +14,7 @@ from aeroperception.tools.cmd_chaos import EXPECTED_FIXED_BY, build_rows, profil
 ROWS = build_rows(profile_services("sim"))
 # The rows the default run (and CI) flies: a restart, an outage, a hang and a reboot — one of each
 # kind of fault. Every row runs with `pytest -m chaos_full tests/faults` or `aero chaos` (~15 min).
-CI_ROWS = ("kill_mission", "kill_fmu", "hang_planner", "fc_reboot")
+CI_ROWS = ("kill_mission", "kill_fmu", "hang_fmu", "fc_reboot")
 
 
 def _param(name: str):
