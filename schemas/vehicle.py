@@ -114,6 +114,12 @@ class TrajectorySetpoint(Message, kw_only=True):
     yaw_rad: float = 0.0
     yaw_rate_radps: float = 0.0
 
+    @classmethod
+    def hold(cls, position_m, yaw_rad: float) -> "TrajectorySetpoint":
+        """Hold here: position target with zero velocity (the planner's and fmu's hold)."""
+        return cls(position_valid=True, velocity_valid=True, yaw_valid=True,
+                   position_m=Vector3.from_array(position_m), velocity_mps=Vector3(), yaw_rad=yaw_rad)
+
 
 @schema("ControlOutput", 1)
 class ControlOutput(Message, kw_only=True):

@@ -82,10 +82,7 @@ def brake_setpoint(yaw_rad: float) -> TrajectorySetpoint:
     return TrajectorySetpoint(velocity_valid=True, yaw_valid=True, velocity_mps=Vector3(), yaw_rad=yaw_rad)
 
 
-def hold_setpoint(position_m: np.ndarray, yaw_rad: float) -> TrajectorySetpoint:
-    """Hold here: position target with zero velocity."""
-    return TrajectorySetpoint(position_valid=True, velocity_valid=True, yaw_valid=True,
-                              position_m=Vector3.from_array(position_m), velocity_mps=Vector3(), yaw_rad=yaw_rad)
+hold_setpoint = TrajectorySetpoint.hold   # one home: the schema's hold constructor
 
 
 class OffboardArbiter:
