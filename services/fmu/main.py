@@ -83,6 +83,7 @@ class FmuService(Service):
         node.serve("fmu/srv/arm", ArmRequest, ArmReply, self._srv_arm, locked=False)
         node.serve("fmu/srv/set_mode", SetModeRequest, SetModeReply, self._srv_set_mode, locked=False)
         node.serve("fmu/srv/emergency_stop", EmergencyStopRequest, EmergencyStopReply, self._srv_estop, locked=False)
+        self.stale_published_s = 0.0       # last connected=False on state/vehicle (link stale)
         self.stream_loop = node.every(1.0 / p.offboard_rate_hz, self._offboard_tick, name="offboard")
         node.every(1.0, self._heartbeat_tick, name="heartbeat")
         node.every(1.0, self._home_tick, name="home")
@@ -291,9 +292,17 @@ class FmuService(Service):
     def _offboard_tick(self) -> None:
         """Keep the stream at offboard_rate_hz: the planner's setpoint while it is fresh, else
         brake and hold (OffboardArbiter); never its last motion."""
-        if not self.tm.have_position or not self.link_fresh():
-            return
         now = time.monotonic()
+        if not self.link_fresh():
+            # Stale: say so on state/vehicle within one tick of link_timeout_s (then once a
+            # second) rather than going quiet — consumers detect the loss in <= 0.5 s.
+            if now - self.stale_published_s >= 1.0:
+                self.stale_published_s = now
+                self.pubs["state/vehicle"].publish(self.tm.vehicle_state(self.node.now_ns(), connected=False))
+            return
+        self.stale_published_s = 0.0
+        if not self.tm.have_position:
+            return
         a = self.arbiter
         was = a.phase
         phase, sp = a.tick(now, self.tm.position_m, self.tm.velocity_mps, self.tm.yaw_rad)
@@ -312,8 +321,6 @@ class FmuService(Service):
     def _heartbeat_tick(self) -> None:
         self._send(lambda mav: mav.heartbeat_send(mavlink.MAV_TYPE_ONBOARD_CONTROLLER, mavlink.MAV_AUTOPILOT_INVALID, 0, 0,
                                                   mavlink.MAV_STATE_ACTIVE))
-        if not self.link_fresh():  # stale: say so on state/vehicle rather than going quiet
-            self.pubs["state/vehicle"].publish(self.tm.vehicle_state(self.node.now_ns(), connected=False))
 
     def _on_vio(self, odom: Odometry) -> None:
         age_s = (self.node.now_ns() - odom.header.stamp_ns) / 1e9

@@ -31,6 +31,8 @@ class PlannerService(Service):
         self.planner = WaypointPlanner(p.max_velocity_mps, p.kp, p.acceptance_radius_m)
         self.params.on_change(self._on_param)
         self.state: VehicleState | None = None
+        self.stale_states = 0
+        self.delay_floor_ns: int | None = None
         self.state_rx_s = 0.0
         self.last_distance: float | None = None
         self.goal_msg: PoseStamped | None = None
@@ -79,6 +81,15 @@ class PlannerService(Service):
             self.loop.set_rate(value)
 
     def _on_state(self, msg: VehicleState) -> None:
+        # A backlog delivered after this process was stalled (SIGSTOP, swap) must not be planned
+        # from: it would capture a hold point or a direction from the past and fly back to it.
+        # Judged against the lowest delay seen (creeping up 1 ms a sample), so a constant clock
+        # offset between machines is not mistaken for staleness.
+        delay = self.node.now_ns() - msg.header.stamp_ns
+        self.delay_floor_ns = delay if self.delay_floor_ns is None else min(delay, self.delay_floor_ns + 1_000_000)
+        if (delay - self.delay_floor_ns) * 1e-9 > self.params.state_timeout_s:
+            self.stale_states += 1
+            return
         self.state, self.state_rx_s = msg, time.monotonic()
         self._cycle()  # event-driven: a fresh state goes out as a setpoint at once (hot path)
 
@@ -135,7 +146,8 @@ class PlannerService(Service):
         if not self.state_fresh():
             return Health(DiagnosticStatus.ERROR, "no fresh state/vehicle: not publishing setpoints")
         values = {"distance_m": self.last_distance if self.last_distance is not None else "n/a",
-                  "obstacles": self.obstacle_state, "replans": self.replanner.processed}
+                  "obstacles": self.obstacle_state, "replans": self.replanner.processed,
+                  "stale_states_dropped": self.stale_states}
         if self.obstacle_state in ("blocked", "unreachable"):
             return Health(DiagnosticStatus.WARN, f"holding: {self.obstacle_reason}", values)
         return Health(DiagnosticStatus.OK, "holding" if self.planner.goal is None else "tracking goal", values)
