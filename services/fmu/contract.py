@@ -52,7 +52,7 @@ PARAMS = [
           description="udpin: locked FC silent this long -> lock onto the next autopilot HEARTBEAT (0: never)"),
     Param("reboot_gap_s", 2.0, "s", 0.5, 60.0,
           description="FC heartbeat missing this long (or time_boot_ms going back) -> redo the link set-up"),
-    Param("link_timeout_s", 0.5, "s", 0.1, 5.0, description="no MAVLink this long -> link stale, ERROR"),
+    Param("link_timeout_s", 0.4, "s", 0.1, 5.0, description="no MAVLink this long -> link stale, ERROR (reported within 0.5 s)"),
     Param("vio_timeout_s", 1.0, "s", 0.1, 5.0, description="older VIO is not injected"),
     Param("home_request_period_s", 10.0, "s", 1.0, 120.0,
           description="ask the FC for HOME_POSITION this often until it sends one"),
