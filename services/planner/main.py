@@ -123,6 +123,8 @@ class PlannerService(Service):
                                     res.setpoint.velocity_mps.to_array(), time.monotonic())
             res.setpoint.velocity_mps = Vector3.from_array(out.velocity_mps)
             self.obstacle_state, self.obstacle_reason = out.state, out.reason
+        elif self.params.obstacle_avoidance:
+            self.obstacle_state, self.obstacle_reason = "clear", ""   # holding: no verdict about an old goal
         res.setpoint.header = Header(stamp_ns=st.header.stamp_ns, frame_id="map")
         self.pub_sp.publish(res.setpoint)
         self.last_pub_s = time.monotonic()

@@ -108,10 +108,12 @@ def test_goal_inside_a_building_is_unreachable_and_the_vehicle_holds(ostack, sce
     goto = ActionClient(st.session, "mission/action/goto")
     try:
         inside = Vector3(x=12.0, y=15.0, z=ALT_M)                # the middle of a building
+        sent_ns = time.time_ns()
         g = goto.send_goal(GoToPositionGoal(position_m=inside, acceptance_radius_m=0.5))
         assert g.success, g.message
         status = wait_until(lambda: latest(st, "planner/status", TrajectoryStatus, 1.0,
-                                           lambda m: m.obstacle_state in ("unreachable", "blocked")),
+                                           lambda m: m.header.stamp_ns > sent_ns
+                                           and m.obstacle_state in ("unreachable", "blocked")),
                             60, "planner/status unreachable or blocked")
         assert status.message, "a hold must say why"
         time.sleep(1.0)                                            # braking after the verdict
