@@ -26,7 +26,7 @@ import pytest
 
 from aerotest import is_service_process, wait_for_message, wait_until
 from aeroperception.schemas import (
-    BatteryState, EmergencyStopReply, EmergencyStopRequest, GcsLink, GoalStatus, GoToPositionGoal, LandedState, LandGoal,
+    BatteryState, EmergencyStopReply, EmergencyStopRequest, GcsLink, GoalStatus, GoToPositionGoal, LandedState, LandGoal, MissionStatus,
     ParamSet, ParamSetReply, PerceptionHealth, SafetyStatus, TakeoffGoal, Vector3, VehicleState, decode,
 )
 from aeroperception.services.runtime import ActionClient, Node
@@ -274,6 +274,10 @@ def land_and_wait(st) -> None:
         land.close()
     wait_for_message(st.session, "sim/truth/state", VehicleState,
                      lambda m: m.position_m.z < 0.2 and not m.armed, 60)
+    # The FSM leaves LAND when fmu reports the landing, a beat after the truth: the next test's
+    # TAKEOFF is refused until then ("TAKEOFF only from IDLE (now LAND)" failed CI once).
+    wait_for_message(st.session, "mission/status", MissionStatus,
+                     lambda m: m.state == MissionStatus.STATE_IDLE, 15)
 
 
 def test_in_the_air_geofence_breach_holds_and_a_dead_planner_holds(sim_stack):
