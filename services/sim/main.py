@@ -98,7 +98,9 @@ class SimService(Service):
             raise RuntimeError(str(e)) from None
         seed = a.seed if a.seed is not None else self.scenario.seed
         self.speed = a.speed if a.speed > 0 else 1.0
-        self.vehicle = SimVehicle(self.node.params, seed=seed)
+        # The physics ground is the scenario's (slope_forest's 10 deg slope too), so landing,
+        # take-off and the rendered sensors agree on where the ground is.
+        self.vehicle = SimVehicle(self.node.params, seed=seed, terrain=self.scenario.ground_height_m)
         self.epoch_ns = time.time_ns() - self.vehicle.time_ns
         self.endpoint = MavlinkEndpoint(target=parse_address(a.target), bind=parse_address(a.bind))
         pub = self.node.publisher

@@ -745,3 +745,70 @@ def test_endpoint_counts_and_drops_garbage():
     finally:
         tx.close()
         rx.close()
+
+
+# ---------------------------------------------------------------------------------------------
+# terrain: the physics ground is the scenario's ground (slope_forest's 10 deg slope)
+
+def _slope():
+    from aeroperception.services.sim.world.scenario import load_scenario
+
+    scn = load_scenario("slope_forest")
+    assert scn.ground.slope_deg == 10.0
+    return scn.ground_height_m
+
+
+def test_lands_rests_and_takes_off_on_the_slope_where_the_scenario_ground_is():
+    terrain = _slope()
+    v = SimVehicle({"COM_DISARM_LAND": 2.0, "MIS_TAKEOFF_ALT": 4.0}, seed=6, terrain=terrain)
+    uphill = np.array([25.0, 0.0])
+    ground = terrain(*uphill)
+    assert ground == pytest.approx(25.0 * math.tan(math.radians(10.0)))      # 4.4 m above home
+    # Fly up the slope at 2 m above home: the slope rises above that on the way, so the
+    # vehicle meets it and is held there (flat physics flew through it); the land detector
+    # fires on the slope and it auto-disarms, as PX4 does.
+    sp = start_offboard(v, [uphill[0], uphill[1], 2.0])
+    fly(v, 25.0, sp, until=lambda v: not v.commander.armed)
+    s = v.state
+    assert not v.commander.armed and v.commander.landed
+    assert 2.0 < s.position_enu_m[0] < uphill[0] and s.resting
+    assert s.position_enu_m[2] == pytest.approx(terrain(*s.position_enu_m[:2]), abs=1e-9)
+    assert s.ground_z_m == pytest.approx(terrain(*s.position_enu_m[:2]))
+    # Resting on the slope: still, level, an accelerometer reading 1 g up.
+    fly(v, 2.0)
+    np.testing.assert_allclose(v.state.velocity_enu_mps, 0.0)
+    np.testing.assert_allclose(v.state.specific_force_flu_mps2(), [0, 0, 9.80665], atol=1e-9)
+    # Take-off from there climbs MIS_TAKEOFF_ALT above the slope, not above home.
+    here = v.state.position_enu_m.copy()
+    assert v.commander.takeoff(v.time_s).ok
+    assert v.commander.arm(v.time_s).ok
+    assert fly(v, 20.0, until=lambda v: v.commander.mode == "HOLD") is not None
+    assert not v.commander.landed
+    assert v.state.height_agl_m == pytest.approx(v.params.MIS_TAKEOFF_ALT, abs=0.3)
+    assert v.state.position_enu_m[2] > here[2] + 2.0
+    # LAND: descends at MPC_LAND_SPEED (4 m above the slope is below MPC_LAND_ALT2, though
+    # higher than that above home), touches down on the slope, lands, disarms.
+    assert v.state.position_enu_m[2] > v.params.MPC_LAND_ALT2
+    assert v.commander.set_mode(v.time_s, "LAND").ok
+    seen = []
+    fly(v, 30.0, until=lambda v: seen.append(v.state.velocity_enu_mps[2]) or not v.commander.armed)
+    assert not v.commander.armed and v.commander.landed
+    assert min(seen) > -v.params.MPC_LAND_SPEED - 0.15
+    assert v.state.position_enu_m[2] == pytest.approx(terrain(*v.state.position_enu_m[:2]), abs=1e-9)
+    assert np.hypot(*(v.state.position_enu_m[:2] - here[:2])) < 0.5
+
+
+def test_an_explicit_takeoff_altitude_under_the_terrain_is_raised_above_it():
+    terrain = _slope()
+    v = SimVehicle(seed=6, terrain=terrain)
+    v.airframe.terrain = lambda x, y: 3.0 + terrain(x, y)      # home itself is on a 3 m step
+    v.airframe.state.position_enu_m[2] = v.airframe.state.ground_z_m = 3.0
+    assert v.commander.arm(v.time_s).ok
+    assert v.commander.takeoff(v.time_s, 2.0).ok               # 2 m above home: under this ground
+    assert fly(v, 20.0, until=lambda v: v.commander.mode == "HOLD") is not None
+    assert v.state.height_agl_m == pytest.approx(1.0, abs=0.3)
+
+
+def test_flat_by_default():
+    v = SimVehicle(seed=1)
+    assert v.airframe.terrain(100.0, -50.0) == 0.0

@@ -14,7 +14,9 @@ per physics step, with PX4's rules where the stack depends on them:
 - TAKEOFF climbs to the target then switches to HOLD; RTL climbs to RTL_RETURN_ALT, returns and
   lands; LAND descends at PX4's landing speeds.
 Results are MAVLink MAV_RESULT values, as PX4's commander acks vehicle commands.
-Everything is ENU; home is the local origin at ground level (z = 0).
+Everything is ENU; home is the local origin at ground level (z = 0). Over sloped terrain the
+ground under the vehicle is `state.ground_z_m`: landing slows down by height above it, and a
+take-off climbs MIS_TAKEOFF_ALT above it (PX4 sets home where it arms; here home stays the origin).
 """
 from __future__ import annotations
 
@@ -41,6 +43,7 @@ FS_BATTERY_CRITICAL = "battery critical"
 FS_BATTERY_EMERGENCY = "battery emergency"
 FS_TERMINATION = "flight termination"
 _TAKEOFF_DONE_M = 0.2
+_TAKEOFF_MIN_AGL_M = 1.0   # an explicit take-off altitude under the terrain here is raised to this above it
 
 
 @dataclass(frozen=True)
@@ -173,7 +176,7 @@ class Commander:
         ack = self.set_mode(now_s, "TAKEOFF")
         if ack.ok:
             if math.isfinite(altitude_m):
-                self._takeoff_alt_m = altitude_m
+                self._takeoff_alt_m = max(altitude_m, self.state.ground_z_m + _TAKEOFF_MIN_AGL_M)
             if math.isfinite(yaw_rad):
                 self._hold_yaw = yaw_rad
         return ack
@@ -266,14 +269,14 @@ class Commander:
         # Brake like PX4's HOLD: stop where a constant MPC_ACC_HOR deceleration gets us.
         self._hold_pos = pos + np.array([vel[0], vel[1], 0.0]) * math.hypot(vel[0], vel[1]) / (2.0 * p.MPC_ACC_HOR)
         if mode == "TAKEOFF":
-            self._takeoff_alt_m = p.MIS_TAKEOFF_ALT
+            self._takeoff_alt_m = s.ground_z_m + p.MIS_TAKEOFF_ALT
         elif mode == "RTL":
             self._rtl_alt_m = max(pos[2], p.RTL_RETURN_ALT)
             self._rtl_phase = "LAND" if self.landed else "CLIMB"
 
     def _land_setpoint(self, xy) -> Setpoint:
         p = self.p
-        alt = self.state.position_enu_m[2]
+        alt = self.state.height_agl_m
         # PX4: fast above MPC_LAND_ALT1, MPC_LAND_SPEED below MPC_LAND_ALT2, linear between.
         span = max(p.MPC_LAND_ALT1 - p.MPC_LAND_ALT2, 1e-6)
         frac = min(max((alt - p.MPC_LAND_ALT2) / span, 0.0), 1.0)

@@ -1,15 +1,21 @@
-"""Multirotor physics: point mass with a first-order attitude response, on flat ground at z=0.
+"""Multirotor physics: point mass with a first-order attitude response, over the scenario's terrain.
 
 Deliberately simple (the autonomy stack only needs PX4-like closed-loop behaviour, not rotor
 aerodynamics): thrust along body +z with a motor lag, linear drag against the air, constant wind
 plus Ornstein-Uhlenbeck gusts, an attitude that converges to its setpoint with one time constant
 (what PX4's rate/attitude loops look like from outside), ground contact, and a battery whose
 current follows thrust. ENU world, FLU body, SI units. Deterministic for a given RNG.
+
+The ground is a height field z = terrain(x, y) (ENU m; flat z = 0 by default, the scenario's
+ground plane in the simulator), so touchdown, resting and take-off happen on a slope where the
+rendered sensors see it. A vehicle resting on a slope keeps a level frame (its legs take the
+slope), as it did on flat ground.
 """
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 
@@ -24,6 +30,12 @@ from .control import GRAVITY_MPS2, AttitudeThrust
 
 _GRAVITY_ENU = np.array([0.0, 0.0, -GRAVITY_MPS2])
 
+Terrain = Callable[[float, float], float]   # ground z (ENU m) under (x, y)
+
+
+def flat_ground(x_m: float, y_m: float) -> float:
+    return 0.0
+
 
 @dataclass
 class RigidBodyState:
@@ -35,6 +47,12 @@ class RigidBodyState:
     thrust_n: float = 0.0
     on_ground: bool = True        # touching the ground
     resting: bool = True          # on the ground and not lifting off (held by the ground)
+    ground_z_m: float = 0.0       # terrain height under the vehicle (ENU z)
+
+    @property
+    def height_agl_m(self) -> float:
+        """Height of the vehicle above the terrain under it."""
+        return float(self.position_enu_m[2]) - self.ground_z_m
 
     @property
     def yaw_rad(self) -> float:
@@ -74,10 +92,14 @@ class Battery:
 class Multirotor:
     """The airframe. `step(dt, command)`; command None means motors stopped (disarmed)."""
 
-    def __init__(self, params: ParamSet, rng: np.random.Generator, yaw_rad: float = 0.0):
+    def __init__(self, params: ParamSet, rng: np.random.Generator, yaw_rad: float = 0.0,
+                 terrain: Terrain | None = None):
         self.p = params
         self.rng = rng
+        self.terrain = terrain or flat_ground
         self.state = RigidBodyState(q_enu_flu=quat_from_euler(0.0, 0.0, yaw_rad))
+        self.state.ground_z_m = float(self.terrain(0.0, 0.0))
+        self.state.position_enu_m[2] = self.state.ground_z_m   # starts resting on the ground
         self.battery = Battery(params)
         self.gust_enu_mps = np.zeros(3)
 
@@ -123,7 +145,7 @@ class Multirotor:
 
         # Ground: it pushes back when we press into it, and holds us (friction, level frame)
         # until thrust exceeds weight.
-        s.on_ground = s.position_enu_m[2] <= 1e-6
+        s.on_ground = s.position_enu_m[2] <= s.ground_z_m + 1e-6
         s.resting = s.on_ground and accel[2] <= 0.0
         if s.resting:
             accel = np.zeros(3)
@@ -133,8 +155,9 @@ class Multirotor:
         v_prev = s.velocity_enu_mps
         s.velocity_enu_mps = v_prev + accel * dt_s
         s.position_enu_m = s.position_enu_m + s.velocity_enu_mps * dt_s
-        if s.position_enu_m[2] < 0.0:  # touchdown this step: stop on the surface
-            s.position_enu_m[2] = 0.0
+        s.ground_z_m = float(self.terrain(s.position_enu_m[0], s.position_enu_m[1]))
+        if s.position_enu_m[2] < s.ground_z_m:  # touchdown this step: stop on the surface
+            s.position_enu_m[2] = s.ground_z_m
             s.velocity_enu_mps = np.array([s.velocity_enu_mps[0], s.velocity_enu_mps[1], 0.0])
         s.accel_enu_mps2 = (s.velocity_enu_mps - v_prev) / dt_s
 

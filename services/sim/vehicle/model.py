@@ -16,15 +16,19 @@ from aeroperception.services.sim.truth import VehicleTruth
 
 from .commander import Commander
 from .control import PositionController
-from .dynamics import Multirotor
+from .dynamics import Multirotor, Terrain
 from .params import make_params
 
 DEFAULT_PHYSICS_RATE_HZ = 250.0
 
 
 class SimVehicle:
-    def __init__(self, params: ParamSet | Mapping[str, Any] | None = None, seed: int = 0):
+    def __init__(self, params: ParamSet | Mapping[str, Any] | None = None, seed: int = 0,
+                 terrain: Terrain | None = None):
+        """`terrain(x, y)`: ground z (ENU m) under (x, y), the scenario's ground; flat by default.
+        Home (the local origin) is on the ground at (0, 0)."""
         self.params = params if isinstance(params, ParamSet) else make_params(params)
+        self.terrain = terrain
         self.seed = seed
         physics_seq, sensor_seq = np.random.SeedSequence(seed).spawn(2)
         self.physics_rng = np.random.default_rng(physics_seq)
@@ -35,7 +39,7 @@ class SimVehicle:
         self._build()
 
     def _build(self) -> None:
-        self.airframe = Multirotor(self.params, self.physics_rng)
+        self.airframe = Multirotor(self.params, self.physics_rng, terrain=self.terrain)
         self.controller = PositionController(self.params)
         self.commander = Commander(self.params, self.airframe.state, lambda: self.airframe.battery.remaining)
 
