@@ -79,7 +79,7 @@ class TrajectoryStatus(Message, kw_only=True):
     current_setpoint: TrajectorySetpoint = msgspec.field(default_factory=TrajectorySetpoint)
     position_error_m: float = 0.0
     velocity_error_mps: float = 0.0
-    # Obstacle handling: "off", "no_costmap", "clear", "avoiding", "planning", "blocked", "unreachable"; why.
+    # Obstacle handling: "off", "no_costmap", "stale_costmap", "clear", "avoiding", "planning", "blocked", "unreachable"; why.
     obstacle_state: str = ""
     message: str = ""
 

@@ -15,7 +15,7 @@ from collections import deque
 import numpy as np
 
 from aeroperception.schemas import (
-    DiagnosticStatus, Header, Imu, NDArray, OccupancyGrid, PointCloud, Pose, Quaternion, SchemaError, Vector3, VehicleState,
+    DiagnosticStatus, Header, Imu, LandedState, NDArray, OccupancyGrid, PointCloud, Pose, Quaternion, SchemaError, Vector3, VehicleState,
 )
 from aeroperception.services.runtime import Health, LatestWorker, Service, run
 from aeroperception.services.runtime.rotations import quat_from_euler, quat_to_rotmat
@@ -83,6 +83,8 @@ class LidarService(Service):
         self.refused = 0
         self.scans = 0
         self.no_pose = 0
+        self.on_ground = False
+        self.scans_on_ground = 0
         self.last_counts: dict[str, int] = {}
         self.timings: dict[str, deque[float]] = {}
         self.last_scan_s = 0.0
@@ -119,6 +121,7 @@ class LidarService(Service):
     def _on_state(self, msg: VehicleState) -> None:
         if not msg.connected:
             return
+        self.on_ground = msg.landed_state == LandedState.ON_GROUND
         self.poses.add(msg.header.stamp_ns, msg.position_m.to_array(), quat_to_rotmat(msg.orientation.to_array()))
 
     def _on_imu(self, msg: Imu) -> None:
@@ -175,8 +178,14 @@ class LidarService(Service):
                 origin = pos + sensor_offset
                 cm = self.costmap
                 cm.recenter(pos[0], pos[1])
-                cm.update(origin[:2], res.obstacles[:, :2] + origin[:2], res.downsampled[:, :2] + origin[:2],
-                          res.ground[:, :2] + origin[:2])
+                # On the ground the sensor is ~0.1 m above it: every return grazes the ground and
+                # range noise reads as obstacles all around (6k false points per scan in the
+                # village). The costmap is for flying: a landed vehicle's scans only clear.
+                marks = res.obstacles[:, :2] + origin[:2]
+                if self.on_ground:
+                    self.scans_on_ground += 1
+                    marks = marks[:0]
+                cm.update(origin[:2], marks, res.downsampled[:, :2] + origin[:2], res.ground[:, :2] + origin[:2])
                 grid = cm.inflated()
                 ox, oy = cm.origin_m
             res.timings_ms["costmap"] = (time.perf_counter() - t0) * 1e3
@@ -206,6 +215,7 @@ class LidarService(Service):
 
     def health(self) -> Health:
         values: dict[str, object] = {"scans": self.scans, "dropped": self.worker.dropped, "no_pose": self.no_pose,
+                                     "scans_on_ground": self.scans_on_ground,
                                      "ground_found": self.ground_found, **self.last_counts}
         for k, d in self.timings.items():
             if d:

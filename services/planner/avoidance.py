@@ -6,10 +6,16 @@ touching anything the costmap calls inscribed or lethal:
   blocked, inflation costs make it keep its distance), to the reachable cell that minimises
   path cost + straight distance on to the goal — so a goal outside the window or behind a
   building is approached around it, and a goal inside an obstacle is reported unreachable;
+- a goal nearer to an obstacle than the clearance (a waypoint 1.3 m from a parked car) is still
+  a goal: near it the clearance is relaxed to the goal's own distance from the obstacle, never
+  below `goal_clearance_m` (nearer than that: unreachable) — judging it by the full clearance
+  held the vehicle short of waypoints whenever LiDAR noise put a mark a few cm closer;
 - a carrot `lookahead_m` along that path gives the direction; the speed is the waypoint
   planner's, scaled down as the nearest obstacle ahead comes within `slow_distance_m`;
 - a last check: a velocity whose next `check_horizon_s` crosses a blocked cell becomes zero.
-Boxed in (no path) -> hold, with the reason. Vertical motion is left to the waypoint planner:
+Boxed in (no path) -> hold, with the reason. A costmap that stops coming (the lidar service
+died) -> hold until it is fresh again: flying on would be flying blind into what was just seen.
+Never had one (a stack without LiDAR) -> the velocity is left alone (`no_costmap`). Vertical motion is left to the waypoint planner:
 the costmap is 2D at the flight altitude.
 Plain numpy + scipy.sparse.csgraph (Dijkstra in C); replanned per costmap, not per setpoint.
 """
@@ -21,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 BLOCKED = 99          # inscribed and lethal cells (OccupancyGrid 0..100)
+_EPS_M = 1e-3        # float32 distances: 1.0 m is sometimes 0.99999994
 GO_WEIGHT = 10.0      # goal outside the window: score = path cost + GO_WEIGHT * straight distance left
 
 
@@ -28,6 +35,7 @@ GO_WEIGHT = 10.0      # goal outside the window: score = path cost + GO_WEIGHT *
 class AvoidanceConfig:
     cell_m: float = 0.2                 # planning resolution (costmap cells are pooled to this)
     clearance_m: float = 1.5            # plan this far from lethal cells (tracking error included)
+    goal_clearance_m: float = 1.0       # a goal nearer than this to a lethal cell is unreachable
     lookahead_m: float = 1.0
     slow_distance_m: float = 3.0        # full speed while the clearance zone ahead is farther
     stop_distance_m: float = 0.2        # zero speed this close to the clearance zone ahead
@@ -40,7 +48,8 @@ class AvoidanceConfig:
 @dataclass
 class Avoidance:
     velocity_mps: np.ndarray            # horizontal part replaced; z kept
-    state: str                          # "clear" | "avoiding" | "planning" | "blocked" | "unreachable" | "no_costmap"
+    state: str                          # "clear" | "avoiding" | "planning" | "blocked" | "unreachable" |
+                                        # "no_costmap" (never had one) | "stale_costmap" (holding)
     reason: str = ""
     path_xy: np.ndarray | None = None
 
@@ -72,6 +81,36 @@ class CostmapView:
                      * self.res if lethal.any() else np.full(lethal.shape, np.inf, np.float32))
         self.blocked = self.dist < clearance_m
         self.clearance_m = clearance_m
+        self.relief: tuple[np.ndarray, float, float] | None = None   # (goal xy, clearance there, radius)
+        self._goal_key: tuple | None = None
+
+    def set_goal(self, goal_xy: np.ndarray, goal_clearance_m: float) -> None:
+        """Relax the clearance around a goal that is nearer than it to an obstacle (but not
+        nearer than goal_clearance_m): within `clearance_m` of the goal, cells as far from
+        obstacles as the goal itself (less a cell) are free, so the way in exists and never
+        gets closer than the goal does. Cached per goal; replaces arrays, never mutates them
+        (the setpoint thread and the replan worker share the view)."""
+        g = np.asarray(goal_xy, float)[:2]
+        key = (round(float(g[0]), 2), round(float(g[1]), 2), goal_clearance_m)
+        if key == self._goal_key:
+            return
+        c = self.cell(g)
+        relief = None
+        if self.inside(c):
+            dg = float(self.dist[c[1], c[0]]) + _EPS_M
+            if goal_clearance_m <= dg < self.clearance_m:
+                relief = (g, max(goal_clearance_m, dg - self.res) - _EPS_M, self.clearance_m)
+        blocked = self.dist < clearance_grid(self, relief)
+        self.relief, self.blocked, self._goal_key = relief, blocked, key
+
+    def threshold(self, xy: np.ndarray, relief=False) -> np.ndarray:
+        """Clearance required at each point (relaxed near a goal inside the clearance)."""
+        relief = self.relief if relief is False else relief
+        thr = np.full(len(xy), self.clearance_m)
+        if relief is not None:
+            g, floor, radius = relief
+            thr[np.hypot(xy[:, 0] - g[0], xy[:, 1] - g[1]) <= radius] = floor
+        return thr
 
     def cell(self, xy: np.ndarray) -> np.ndarray:
         return np.floor((np.asarray(xy, float) - self.origin) / self.res).astype(np.int64)
@@ -96,29 +135,59 @@ class CostmapView:
         out[ok] = self.dist[c[ok, 1], c[ok, 0]]
         return out
 
+    def nearest_lethal(self, xy: np.ndarray) -> str:
+        """Where the lethal cell nearest to xy is, for messages."""
+        cells = np.argwhere(self.cost >= 100)
+        if not len(cells):
+            return "none"
+        c = self.centre(cells)
+        k = int(np.argmin(np.hypot(c[:, 0] - xy[0], c[:, 1] - xy[1])))
+        return f"at ({c[k, 0]:.1f}, {c[k, 1]:.1f})"
+
     def blocked_at(self, xy: np.ndarray, slack_cells: int = 0) -> bool:
-        return bool(self.distance_along(xy)[0] < self.clearance_m - slack_cells * self.res)
+        return bool(self.blocked_along(xy, slack_cells)[0])
 
     def blocked_along(self, xy: np.ndarray, slack_cells: int = 0) -> np.ndarray:
-        return self.distance_along(xy) < self.clearance_m - slack_cells * self.res
+        xy = np.atleast_2d(np.asarray(xy, float))
+        return self.distance_along(xy) < self.threshold(xy) - slack_cells * self.res
+
+
+def clearance_grid(view: CostmapView, relief) -> np.ndarray | float:
+    """Required clearance per planning cell (a scalar when nothing is relaxed)."""
+    if relief is None:
+        return view.clearance_m
+    h, w = view.dist.shape
+    rc = np.stack(np.meshgrid(np.arange(h), np.arange(w), indexing="ij"), axis=-1).reshape(-1, 2)
+    return view.threshold(view.centre(rc), relief).reshape(h, w)
 
 
 class LocalPlanner:
     def __init__(self, cfg: AvoidanceConfig | None = None):
         self.cfg = cfg or AvoidanceConfig()
         self.view: CostmapView | None = None
+        self._goal: np.ndarray | None = None
         self._plan_key: tuple | None = None
         self._path: np.ndarray | None = None
         self._path_goal: np.ndarray | None = None
         self._state = ("clear", "")
 
     def set_costmap(self, data: np.ndarray, origin_xy, resolution_m: float, stamp_s: float) -> None:
-        self.view = CostmapView(data, origin_xy, resolution_m, self.cfg.cell_m, self.cfg.clearance_m, stamp_s)
+        view = CostmapView(data, origin_xy, resolution_m, self.cfg.cell_m, self.cfg.clearance_m, stamp_s)
+        if self._goal is not None:          # ready for the current goal before anyone sees it
+            view.set_goal(self._goal, self.cfg.goal_clearance_m)
+        self.view = view
+
+    def _view_for(self, goal_m) -> CostmapView | None:
+        self._goal = np.asarray(goal_m, float)[:2].copy()
+        view = self.view
+        if view is not None:
+            view.set_goal(self._goal, self.cfg.goal_clearance_m)
+        return view
 
     def needs_plan(self, position_m: np.ndarray, goal_m: np.ndarray) -> bool:
         """Whether a (slow, ~10-30 ms) replan is worth it: only when the straight way to the goal
         is not free, and the vehicle, the goal or the costmap moved on since the last plan."""
-        view = self.view
+        view = self._view_for(goal_m)
         if view is None:
             return False
         p, g = np.asarray(position_m[:2], float), np.asarray(goal_m[:2], float)
@@ -130,7 +199,7 @@ class LocalPlanner:
 
     def replan(self, position_m: np.ndarray, goal_m: np.ndarray) -> None:
         """Plan on the current costmap (off the setpoint path: the service runs it on a worker)."""
-        if self.view is None:
+        if self._view_for(goal_m) is None:
             return
         p, g = np.asarray(position_m[:2], float), np.asarray(goal_m[:2], float)
         self._plan_key = (tuple(self.view.cell(p)), tuple(np.round(g, 1)), self.view.stamp_s)
@@ -143,10 +212,15 @@ class LocalPlanner:
                now_s: float) -> Avoidance:
         """The velocity to command now: the straight one where the way is free, else along the
         latest plan, slowed near obstacles, never into a blocked cell. No planning here."""
-        cfg, view = self.cfg, self.view
+        cfg, view = self.cfg, self._view_for(goal_m)
         v = np.asarray(velocity_mps, float).copy()
-        if view is None or now_s - view.stamp_s > cfg.costmap_timeout_s:
-            return Avoidance(v, "no_costmap", "no fresh perception/costmap")
+        if view is None:
+            return Avoidance(v, "no_costmap", "no perception/costmap yet: flying without obstacle handling")
+        age = now_s - view.stamp_s
+        if age > cfg.costmap_timeout_s:
+            v[:2] = 0.0
+            return Avoidance(v, "stale_costmap", f"perception/costmap {age:.1f} s old: holding until it is "
+                                                 f"fresh (obstacle_avoidance=false flies without it)")
         speed = float(np.hypot(v[0], v[1]))
         if speed < 1e-3:
             return Avoidance(v, "clear")
@@ -197,9 +271,10 @@ class LocalPlanner:
         gcell = view.cell(g)
         if view.inside(gcell) and cost[gcell[1], gcell[0]] >= BLOCKED:
             return None, ("unreachable", f"goal ({g[0]:.1f}, {g[1]:.1f}) is inside an obstacle")
-        if view.inside(gcell) and view.blocked[gcell[1], gcell[0]]:
-            return None, ("unreachable", f"goal ({g[0]:.1f}, {g[1]:.1f}) is closer than "
-                                         f"{cfg.clearance_m:.1f} m to an obstacle")
+        if view.inside(gcell) and view.dist[gcell[1], gcell[0]] + _EPS_M < cfg.goal_clearance_m:
+            return None, ("unreachable", f"goal ({g[0]:.1f}, {g[1]:.1f}) is {view.dist[gcell[1], gcell[0]]:.2f} m "
+                                         f"from an obstacle ({view.nearest_lethal(g)}), closer than "
+                                         f"{cfg.goal_clearance_m:.1f} m")
         free = ~view.blocked & ~view.unknown
         # The vehicle may already be inside its clearance of something: let it leave (but never
         # through a lethal cell).

@@ -26,8 +26,11 @@ PARAMS = [
     Param("state_timeout_s", 0.5, "s", 0.05, 5.0, description="older vehicle state -> hold, status ERROR"),
     Param("obstacle_avoidance", True, description="steer around perception/costmap obstacles (off: straight lines)"),
     Param("avoid_clearance_m", 1.5, "m", 0.3, 10.0, description="keep this far from obstacles (plus tracking error)"),
+    Param("avoid_goal_clearance_m", 1.0, "m", 0.1, 10.0,
+          description="a goal nearer than this to an obstacle is unreachable; nearer than avoid_clearance_m "
+                      "it is approached no closer than the goal itself"),
     Param("avoid_lookahead_m", 1.0, "m", 0.3, 10.0, description="farthest visible point along the planned way"),
     Param("avoid_slow_distance_m", 3.0, "m", 0.5, 20.0, description="slow down when the clearance zone ahead is nearer"),
     Param("avoid_stop_distance_m", 0.2, "m", 0.0, 5.0, description="zero speed this close to the clearance zone ahead"),
-    Param("costmap_timeout_s", 0.5, "s", 0.1, 5.0, description="older costmap -> flown as if none (status says so)"),
+    Param("costmap_timeout_s", 0.5, "s", 0.1, 5.0, description="an older costmap -> hold until fresh (stale_costmap); none ever -> straight lines"),
 ]

@@ -15,7 +15,8 @@ from .logic import Goal, WaypointPlanner
 
 
 def avoidance_config(p) -> AvoidanceConfig:
-    return AvoidanceConfig(clearance_m=p.avoid_clearance_m, lookahead_m=p.avoid_lookahead_m,
+    return AvoidanceConfig(clearance_m=p.avoid_clearance_m, goal_clearance_m=p.avoid_goal_clearance_m,
+                           lookahead_m=p.avoid_lookahead_m,
                            slow_distance_m=p.avoid_slow_distance_m,
                            stop_distance_m=p.avoid_stop_distance_m, costmap_timeout_s=p.costmap_timeout_s)
 
@@ -150,7 +151,7 @@ class PlannerService(Service):
         values = {"distance_m": self.last_distance if self.last_distance is not None else "n/a",
                   "obstacles": self.obstacle_state, "replans": self.replanner.processed,
                   "stale_states_dropped": self.stale_states}
-        if self.obstacle_state in ("blocked", "unreachable"):
+        if self.obstacle_state in ("blocked", "unreachable", "stale_costmap"):
             return Health(DiagnosticStatus.WARN, f"holding: {self.obstacle_reason}", values)
         return Health(DiagnosticStatus.OK, "holding" if self.planner.goal is None else "tracking goal", values)
 

@@ -101,7 +101,6 @@ class SimService(Service):
         # The physics ground is the scenario's (slope_forest's 10 deg slope too), so landing,
         # take-off and the rendered sensors agree on where the ground is.
         self.vehicle = SimVehicle(self.node.params, seed=seed, terrain=self.scenario.ground_height_m)
-        self.epoch_ns = time.time_ns() - self.vehicle.time_ns
         self.endpoint = MavlinkEndpoint(target=parse_address(a.target), bind=parse_address(a.bind))
         pub = self.node.publisher
         self.pubs = {k: pub(k, cls, **_qos(k)) for k, cls in OUTPUTS.items()}
@@ -134,9 +133,9 @@ class SimService(Service):
                       mavlink_target=a.target, sensors=a.sensors)
 
     def stamp(self, sim_ns: int) -> int:
-        """Stamps on Zenoh: sim time anchored at the wall-clock epoch when the sim started, so at
-        1x they agree with services on wall time, and at other speeds services follow sim/clock."""
-        return self.epoch_ns + sim_ns
+        """Stamps on Zenoh: sim time anchored at the wall clock by the runner (at 1x they agree
+        with services on wall time; at other speeds services follow sim/clock)."""
+        return self.runner.epoch_ns + sim_ns
 
     def stop(self) -> None:
         if hasattr(self, "runner"):   # start() may have failed (bad --scenario) before it existed

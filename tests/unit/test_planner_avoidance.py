@@ -102,7 +102,38 @@ def test_never_commands_into_a_blocked_cell_even_when_told_to():
         assert p[0] < 1.0 - 0.4 + 1e-6 or abs(p[1]) > 5.4
 
 
-def test_stale_costmap_is_reported_not_trusted():
+def test_stale_costmap_holds_instead_of_flying_blind():
+    """The lidar service died mid-flight: the last costmap ages out and the vehicle holds
+    (horizontally; vertical motion is the waypoint planner's) until a fresh one arrives."""
     lp = planner([(3.0, -3.0, 3.4, 3.0)], goal=(8, 0))
+    out = lp.adjust(np.array([0, 0, 3.0]), np.array([8, 0, 3.0]), np.array([2.0, 0, 0.5]), now_s=5.0)
+    assert out.state == "stale_costmap" and "5.0 s old" in out.reason
+    assert out.velocity_mps == pytest.approx([0, 0, 0.5])
+    lp.set_costmap(*costmap([(3.0, -3.0, 3.4, 3.0)]), stamp_s=5.0)          # fresh again: flies on
+    out = lp.adjust(np.array([-4, 0, 3.0]), np.array([-8, 0, 3.0]), np.array([-2.0, 0, 0]), now_s=5.1)
+    assert out.state == "clear" and out.velocity_mps[0] == pytest.approx(-2.0)
+
+
+def test_no_costmap_ever_leaves_the_velocity_alone():
+    lp = LocalPlanner(AvoidanceConfig())
     out = lp.adjust(np.array([0, 0, 3.0]), np.array([8, 0, 3.0]), np.array([2.0, 0, 0]), now_s=5.0)
-    assert out.state == "no_costmap"
+    assert out.state == "no_costmap" and out.velocity_mps == pytest.approx([2.0, 0, 0])
+
+
+def test_goal_nearer_than_the_clearance_is_reached_without_getting_closer_than_it():
+    """A waypoint 1.2 m from a parked car (clearance 1.5 m): reached, from around the car, and
+    the way in never gets nearer to it than the goal itself (less a planning cell)."""
+    walls = [(2.0, -1.0, 6.0, 1.0)]                         # a car across the straight way
+    goal = (7.2, 0.0)                                      # 1.2 m behind it
+    track, out = fly(planner(walls, at=(-4, 0), goal=goal), (-4, 0), goal)
+    assert np.hypot(*(track[-1] - goal)) < 0.3, f"goal not reached: {out.state} {out.reason}"
+    assert lethal_distance(track, walls) >= 1.2 - 0.2 - 0.05
+    far = track[np.hypot(track[:, 0] - goal[0], track[:, 1] - goal[1]) > 1.5]
+    assert lethal_distance(far, walls) >= 1.5 - 0.2        # full clearance away from the goal
+
+
+def test_goal_nearer_than_goal_clearance_is_unreachable_with_the_distance():
+    lp = planner([(2.0, -1.0, 6.0, 1.0)], at=(-4, 0), goal=(6.7, 0.0))   # 0.7 m from the car
+    out = lp.adjust(np.array([-4, 0, 3.0]), np.array([6.7, 0, 3.0]), np.array([2.0, 0, 0]), 0.0)
+    assert out.state == "unreachable" and out.velocity_mps[:2] == pytest.approx([0, 0])
+    assert "m from an obstacle" in out.reason and "closer than 1.0 m" in out.reason

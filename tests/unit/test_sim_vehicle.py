@@ -812,3 +812,21 @@ def test_an_explicit_takeoff_altitude_under_the_terrain_is_raised_above_it():
 def test_flat_by_default():
     v = SimVehicle(seed=1)
     assert v.airframe.terrain(100.0, -50.0) == 0.0
+
+
+def test_stamps_epoch_is_taken_when_the_paced_loop_starts_not_when_the_runner_was_built():
+    """Sensor stamps (epoch_ns + sim time) must match wall-clock stamps of services at 1x: an
+    epoch taken while renderers were still being set up put every scan ~0.5 s in the past."""
+    import time
+
+    runner = SimVehicleRunner(SimVehicle(seed=0), speed=1.0)
+    built = runner.epoch_ns
+    time.sleep(0.3)                        # setting up renderers, spawning processes...
+    runner.start()
+    try:
+        time.sleep(0.2)
+        lag_s = (time.time_ns() - (runner.epoch_ns + runner.now_ns())) * 1e-9
+    finally:
+        runner.stop()
+    assert runner.epoch_ns - built >= 0.25e9
+    assert abs(lag_s) < 0.1, f"stamps {lag_s:.3f} s behind the wall clock"

@@ -7,7 +7,7 @@ it runs as fast as the CPU allows. All rates (streams, failsafe timers) are in s
 PX4 lockstep SITL.
 
 The Zenoh shell uses: `on_truth` (VehicleTruth per physics step or at `truth_rate_hz`),
-`now_ns()` for sim/clock, `diagnostics()` for its health, `vehicle.params` for live parameters,
+`now_ns()` for sim/clock, `epoch_ns` for stamps on Zenoh, `diagnostics()` for its health, `vehicle.params` for live parameters,
 and `start()` / `stop()`.
 """
 from __future__ import annotations
@@ -55,6 +55,13 @@ class SimVehicleRunner:
         self._stop = threading.Event()
         self._wall_start = wall_clock()
         self._sim_start_ns = self.vehicle.time_ns
+        # Wall-clock time (ns since the Unix epoch) of sim time 0: stamp = epoch_ns + sim ns. Set
+        # when the paced loop starts and, at 1x, again whenever it re-anchors after falling
+        # behind, so at 1x a stamp is the wall time its sim instant happened at — what services
+        # on wall time stamp with (the fmu's state/vehicle). A fixed epoch taken before the
+        # renderers were set up put every sensor stamp ~0.5 s behind state/vehicle, and the
+        # lidar placed scans with where the vehicle had been half a second earlier.
+        self.epoch_ns = time.time_ns() - self.vehicle.time_ns
 
     def now_ns(self) -> int:
         """Sim time since the vehicle booted (what it puts in time_boot_ms / TIMESYNC)."""
@@ -93,7 +100,7 @@ class SimVehicleRunner:
         """Paced loop until `stop` is set."""
         stop = stop or self._stop
         dt_ns = int(round(self.dt_s * 1e9))
-        self._wall_start, self._sim_start_ns = self._wall_clock(), self.vehicle.time_ns
+        self._anchor(epoch=True)
         while not stop.is_set():
             if self.speed == 0:
                 self.step()
@@ -105,10 +112,16 @@ class SimVehicleRunner:
                 n += 1
             if n == _MAX_CATCHUP_STEPS:
                 self.overruns += 1
-                self._wall_start, self._sim_start_ns = self._wall_clock(), self.vehicle.time_ns
+                self._anchor(epoch=self.speed == 1.0)
                 continue
             wait_s = (self.vehicle.time_ns + dt_ns - target_ns) / 1e9 / self.speed
             self._sleep(min(max(wait_s, 0.0), 0.05))
+
+    def _anchor(self, epoch: bool) -> None:
+        """Pace from here: sim time now <-> wall time now (and the stamps' epoch with it)."""
+        self._wall_start, self._sim_start_ns = self._wall_clock(), self.vehicle.time_ns
+        if epoch:
+            self.epoch_ns = max(self.epoch_ns, time.time_ns() - self.vehicle.time_ns)   # stamps never go back
 
     def start(self) -> "SimVehicleRunner":
         """Run in a daemon thread."""
