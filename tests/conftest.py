@@ -15,6 +15,9 @@ Fixtures:
                     A start-up failure raises StackStartError carrying aero up's output and
                     every service log. Teardown: SIGINT to `aero up`, bounded wait, then kill.
     stack_module    the same factory, module-scoped (one stack shared by a test module)
+    lan             factory: lan(["vehicle", "ground"]) -> netns.Lan, hosts as network namespaces
+                    on one switch (10.77.0.0/24 inside them only); skips when namespaces cannot
+                    be made (not root). Teardown stops their processes and deletes them.
 """
 from __future__ import annotations
 
@@ -60,6 +63,31 @@ def make_node(zenoh_router):
     yield make
     for n in reversed(nodes):
         n.close()
+
+
+# ---------------------------------------------------------------- several machines
+
+
+@pytest.fixture
+def lan():
+    """Factory: `lan(["vehicle", "ground"])` -> a netns.Lan (see tests/netns.py); every Lan made
+    is closed at teardown (processes stopped, namespaces deleted), also after a failure."""
+    from netns import Lan, netns_unavailable
+
+    why = netns_unavailable()
+    if why:
+        pytest.skip(why)
+    made: list[Lan] = []
+
+    def make(names):
+        made.append(Lan(names))
+        return made[-1]
+
+    try:
+        yield make
+    finally:
+        for n in reversed(made):
+            n.close()
 
 
 # ---------------------------------------------------------------- aero up
