@@ -987,13 +987,13 @@ def _lidar_observe(ctx: Ctx):
     t0 = ctx.t_inject
     stale = wait_until(lambda: next((t for t, m in ctx.rec.since("planner", t0) if m.obstacle_state == "stale_costmap"),
                                     None), 5.0)
+    back = _restarted(ctx, "lidar", 30.0)
     with ctx.st.tap.lock:
         sps = [(t, m) for t, m in ctx.st.tap.setpoints if t >= t0]
     hold = next((t - t0 for t, m in sps if not m.type_mask & mavlink.POSITION_TARGET_TYPEMASK_VX_IGNORE
                  and m.vx == 0.0 and m.vy == 0.0), None)
-    back = _restarted(ctx, "lidar", 30.0)
     if back is None:
-        return False, "lidar not restarted within 30 s", None
+        return False, "lidar not restarted within 30 s", hold
     fresh = wait_until(lambda: any(t > t0 + back and m.obstacle_state != "stale_costmap"
                                    for t, m in ctx.rec.since("planner", t0)), 20.0)
     flying = _progressing(ctx) or ctx.rec.last("status").state in ("LAND", "IDLE")
