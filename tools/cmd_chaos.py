@@ -40,7 +40,8 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from aeroperception.schemas import (
     Clock, DiagnosticStatus, GcsLink, Header, Imu, LoadMissionReply, LoadMissionRequest, MissionCommand,
-    MissionStatus, Reply, SchemaError, SetModeReply, SetModeRequest, Vector3, VehicleState, decode, encode,
+    MissionStatus, Reply, SchemaError, SetModeReply, SetModeRequest, TrajectoryStatus, Vector3, VehicleState,
+    decode, encode,
 )
 from aeroperception.services.mavlink import frames, px4
 from aeroperception.services.runtime.node import LIVELINESS_ROOT, CallError, call, encoding_for
@@ -650,6 +651,7 @@ class Row:
     cleanup: Callable[[Ctx], None] = lambda c: None
     breaks_stack: bool = False     # restart the stack afterwards
     prepare: Callable[[Ctx], None] = lambda c: None
+    sensors: str = "none"          # the sim's --sensors this row needs (the stack restarts to change it)
 
 
 def _kill(ctx: Ctx, name: str) -> None:
@@ -978,6 +980,35 @@ def _reboot_observe(ctx: Ctx):
     return ok, obs, react
 
 
+def _lidar_observe(ctx: Ctx):
+    """kill -9 lidar mid-flight: the costmap stops; the planner must not fly on blind. It holds
+    (zero horizontal velocity at the FC, planner/status stale_costmap) within costmap_timeout_s,
+    and once aero up has restarted lidar and a fresh costmap arrives the mission flies on."""
+    t0 = ctx.t_inject
+    stale = wait_until(lambda: next((t for t, m in ctx.rec.since("planner", t0) if m.obstacle_state == "stale_costmap"),
+                                    None), 5.0)
+    back = _restarted(ctx, "lidar", 30.0)
+    with ctx.st.tap.lock:
+        sps = [(t, m) for t, m in ctx.st.tap.setpoints if t >= t0]
+    hold = next((t - t0 for t, m in sps if not m.type_mask & mavlink.POSITION_TARGET_TYPEMASK_VX_IGNORE
+                 and m.vx == 0.0 and m.vy == 0.0), None)
+    if back is None:
+        return False, "lidar not restarted within 30 s", hold
+    fresh = wait_until(lambda: any(t > t0 + back and m.obstacle_state != "stale_costmap"
+                                   for t, m in ctx.rec.since("planner", t0)), 20.0)
+    flying = _progressing(ctx) or ctx.rec.last("status").state in ("LAND", "IDLE")
+    states = _mission_states(ctx, t0)
+    # While lidar was down, the vehicle slowed to a stop or was stopping (not cruising on).
+    down = [m for t, m in ctx.rec.since("truth", t0 + (stale - t0 if stale else 0) + 2.0) if t < t0 + back]
+    cruising = any(speed_of(m) > 1.0 for m in down)
+    ok = bool(stale and hold is not None and hold < 1.0 and fresh and flying and not cruising)
+    detail = (f"planner stale_costmap after {stale - t0:.2f} s, " if stale else "no stale_costmap verdict, ") + \
+        (f"FC zero horizontal velocity after {hold:.2f} s; " if hold is not None else "never a zero-velocity setpoint; ")
+    return ok, (detail + f"lidar restarted in {back:.1f} s; costmap {'fresh again' if fresh else 'NOT back'}; "
+                f"{'cruised on blind; ' if cruising else ''}mission {'->'.join(states)}"
+                f"{'' if flying else ', not progressing'}"), hold
+
+
 def _safety_row_if_present(services: list[str]) -> list[str]:
     return [s for s in ("fmu", "planner", "mission", "gcs", "diagnostics", "safety") if s in services]
 
@@ -1012,6 +1043,12 @@ def build_rows(services: list[str]) -> dict[str, Row]:
             "fmu detects the reboot and re-requests its rates: state/vehicle >= 45 Hz, IMU >= 90 Hz",
             _reboot, _reboot_observe, airborne=False),
     ]
+    if "lidar" in services:   # last: it needs a stack rendering the LiDAR (a restart to switch)
+        rows.append(Row("kill_lidar", "kill -9 lidar mid-flight (LiDAR rendered)",
+                        "planner holds within costmap_timeout_s (0.5 s) + a tick: stale_costmap, zero horizontal "
+                        "velocity at the FC, never flies on blind; lidar restarted; the mission flies on once "
+                        "the costmap is fresh",
+                        lambda c: _kill(c, "lidar"), _lidar_observe, sensors="lidar"))
     return {r.name: r for r in rows}
 
 
@@ -1020,14 +1057,18 @@ def build_rows(services: list[str]) -> dict[str, Row]:
 
 RECORDED = dict(truth=("sim/truth/state", VehicleState), status=("mission/status", MissionStatus),
                 state=("state/vehicle", VehicleState), fmu_diag=("diagnostics/fmu", DiagnosticStatus),
-                gcs_link=("gcs/link", GcsLink), imu=("fmu/out/sensor_combined", Imu))
+                gcs_link=("gcs/link", GcsLink), imu=("fmu/out/sensor_combined", Imu),
+                planner=("planner/status", TrajectoryStatus))
 
 
 def run_row(st: SimStack, row: Row, mission_json: str, inject_after_s: float = 2.5) -> RowResult:
     """Fly, inject, observe, judge. Leaves the stack on the ground (restarted if it had to be)."""
     res = RowResult(row.name, row.injected, row.expected, fixed_by=EXPECTED_FIXED_BY.get(row.name, ""))
     t_start = time.monotonic()
-    if not st.ensure_ground():
+    if st.sensors != row.sensors:
+        st.sensors = row.sensors
+        st.restart()
+    elif not st.ensure_ground():
         st.restart()
     rec = st.recorder(**RECORDED)
     ctx = Ctx(st, rec)
@@ -1112,7 +1153,7 @@ def run(args) -> int:
         raise CliError(f"cannot read mission {args.mission}: {e.strerror}") from None
     print(f"aero chaos: {len(names)} rows on the sim profile ({', '.join(services)})", flush=True)
     try:
-        st = SimStack(args.log_dir)
+        st = SimStack(args.log_dir, sensors=rows[names[0]].sensors)
     except StackError as e:
         raise CliError(f"the sim stack did not come up: {str(e).splitlines()[0]}") from None
     print(f"stack up (router {st.endpoint}, logs {st.log_dir})", flush=True)

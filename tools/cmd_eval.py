@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import importlib
 
-from .common import add_session_arguments
+from .common import CliError, add_session_arguments
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -17,6 +17,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--kitti", nargs="*", default=None, metavar="BIN",
                    help="SemanticKITTI .bin scans (default: ../shared/data/kitti when present)")
     p.add_argument("-n", type=int, default=20, help="scans per scenario")
+    p.add_argument("--altitude", type=float, action="append", default=None, metavar="M",
+                   help="flight height above the terrain (repeatable; default 4 m)")
     p.add_argument("--json", default=None, metavar="FILE", help="write the figures as JSON")
     p.set_defaults(func=_lidar)
 
@@ -41,4 +43,6 @@ def _lidar(a) -> int:
     mod = importlib.import_module("aeroperception.tools.eval_lidar")
     scenarios = a.scenario or ["open_field", "village", "slope_forest"]
     kitti = a.kitti if a.kitti is not None else [str(p) for p in kitti_scans()]
-    return mod.run(scenarios, kitti, a.n, a.json)
+    if any(not 0.3 <= h <= 100.0 for h in a.altitude or ()):
+        raise CliError("--altitude: give a height above the terrain between 0.3 and 100 m")
+    return mod.run(scenarios, kitti, a.n, a.json, a.altitude or [4.0])

@@ -72,8 +72,9 @@ class Counts:
 
 
 def sim_scans(scenario: str, n: int = 20, altitude_m: float = 4.0, seed: int = 0) -> list[Scan]:
-    """`n` scans on a loop around the scenario's start at `altitude_m` above it, with the
-    attitude oscillations of a flying vehicle (the sim's orbit trajectory)."""
+    """`n` scans on a loop around the scenario's start at `altitude_m` above the terrain under
+    each pose (on slope_forest's 10 deg slope a fixed height above the start would dip under
+    the ground uphill), with the attitude oscillations of a flying vehicle (the sim's orbit)."""
     from aeroperception.services.sim.sensors.lidar import Lidar
     from aeroperception.services.sim.sensors.synthetic import orbit_truth
     from aeroperception.services.sim.world.scenario import load_scenario
@@ -87,6 +88,8 @@ def sim_scans(scenario: str, n: int = 20, altitude_m: float = 4.0, seed: int = 0
     for i in range(n):
         truth = orbit_truth(int(i * 0.5e9), center_enu_m=(x + 6.0, y, z + altitude_m), radius_m=6.0,
                             period_s=n * 0.5, roll_amp_rad=0.08, pitch_amp_rad=0.08)
+        px, py = truth.position_enu_m[:2]
+        truth.position_enu_m[2] = scn.ground_height_m(px, py) + altitude_m
         scan = lidar.scan(truth)
         r_wb = quat_to_rotmat(truth.q_enu_flu)
         r_ws = r_wb @ lidar.r_body_lidar
@@ -152,11 +155,14 @@ def compare_patchwork(scans: list[Scan], cfg: PipelineConfig | None = None) -> d
             "ours_ms_median": float(np.median(ours_ms)), "patchwork_ms_median": float(np.median(pw_ms))}
 
 
-def run(scenarios: list[str], kitti: list[str], n: int, json_out: str | None) -> int:
+def run(scenarios: list[str], kitti: list[str], n: int, json_out: str | None,
+        altitudes: list[float] = (4.0,)) -> int:
     report: dict[str, dict] = {}
     print(f"{'data':<22} {'ground P':>9} {'R':>7} {'F1':>7} {'obst FP':>8} {'obst FN':>8} {'ms':>7}")
-    for name in scenarios:
-        m = evaluate(sim_scans(name, n))
+    for name, alt in [(s, h) for s in scenarios for h in altitudes]:
+        m = evaluate(sim_scans(name, n, altitude_m=alt))
+        if len(altitudes) > 1:
+            name = f"{name} @{alt:g} m"
         report[name] = m
         print(f"{name:<22} {m['ground_precision']:>9.3f} {m['ground_recall']:>7.3f} {m['ground_f1']:>7.3f} "
               f"{m['obstacle_fp_rate']:>8.3f} {m['obstacle_fn_rate']:>8.3f} {m['pipeline_ms_median']:>7.1f}")

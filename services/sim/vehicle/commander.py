@@ -43,7 +43,7 @@ FS_BATTERY_CRITICAL = "battery critical"
 FS_BATTERY_EMERGENCY = "battery emergency"
 FS_TERMINATION = "flight termination"
 _TAKEOFF_DONE_M = 0.2
-_TAKEOFF_MIN_AGL_M = 1.0   # an explicit take-off altitude under the terrain here is raised to this above it
+_TAKEOFF_MIN_AGL_M = 1.0   # an explicit take-off target is at least min(this, itself) above the terrain here
 
 
 @dataclass(frozen=True)
@@ -176,7 +176,8 @@ class Commander:
         ack = self.set_mode(now_s, "TAKEOFF")
         if ack.ok:
             if math.isfinite(altitude_m):
-                self._takeoff_alt_m = max(altitude_m, self.state.ground_z_m + _TAKEOFF_MIN_AGL_M)
+                # Above home, as PX4; but never into (or just over) terrain higher than home.
+                self._takeoff_alt_m = max(altitude_m, self.state.ground_z_m + min(altitude_m, _TAKEOFF_MIN_AGL_M))
             if math.isfinite(yaw_rad):
                 self._hold_yaw = yaw_rad
         return ack
