@@ -308,8 +308,10 @@ class YoloModel:
         p = Path(path)
         if not p.is_file():
             raise ModelError(f"model file not found: {p}")
-        import onnxruntime as ort
-
+        try:
+            import onnxruntime as ort
+        except ImportError:
+            raise ModelError("onnxruntime is not installed: run deploy/install.sh with the perception extra") from None
         so = ort.SessionOptions()
         so.intra_op_num_threads = int(threads)
         so.inter_op_num_threads = 1
