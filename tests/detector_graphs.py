@@ -19,7 +19,8 @@ from onnx import TensorProto, helper, numpy_helper
 OPSET = 13
 
 
-def _save(graph: onnx.GraphProto, path: Path, names: Sequence[str] | None, stride: int | None = None) -> Path:
+def _save(graph: onnx.GraphProto, path: Path, names: Sequence[str] | None, stride: int | None = None,
+          imgsz: tuple[int, int] | None = None) -> Path:
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", OPSET)])
     model.ir_version = 8
     meta = {}
@@ -27,6 +28,8 @@ def _save(graph: onnx.GraphProto, path: Path, names: Sequence[str] | None, strid
         meta["names"] = repr({i: n for i, n in enumerate(names)})
     if stride is not None:
         meta["stride"] = str(stride)
+    if imgsz is not None:
+        meta["imgsz"] = str(list(imgsz))
     helper.set_model_props(model, meta)
     onnx.checker.check_model(model)
     path = Path(path)
@@ -60,8 +63,9 @@ def planted_model(path: Path, rows: np.ndarray, layout: str = "channels_first",
 
 def box_finder_model(path: Path, input_hw: tuple[int, int] | None = (640, 640), layout: str = "channels_first",
                      names: Sequence[str] | None = ("red", "green", "blue"), anchors: int = 8,
-                     stride: int | None = None) -> Path:
-    """See the module docstring. input_hw None: dynamic height/width axes."""
+                     stride: int | None = None, imgsz: tuple[int, int] | None = None) -> Path:
+    """See the module docstring. input_hw None: dynamic height/width axes (imgsz: the size
+    Ultralytics records in the metadata of such an export)."""
     assert anchors >= 3
     f = TensorProto.FLOAT
     nodes = [
@@ -109,7 +113,7 @@ def box_finder_model(path: Path, input_hw: tuple[int, int] | None = (640, 640), 
     ]
     graph = helper.make_graph(nodes, "box_finder", [_input(input_hw)],
                               [helper.make_tensor_value_info("output0", f, out_shape)], initializer=init)
-    return _save(graph, path, names, stride)
+    return _save(graph, path, names, stride, imgsz)
 
 
 def classifier_model(path: Path, classes: int = 1000) -> Path:

@@ -8,6 +8,7 @@ what the detector's own code adds around inference. The frame is a village rende
 """
 from __future__ import annotations
 
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -73,22 +74,24 @@ def _quantize(src: Path, dst: Path) -> Path:
     return dst
 
 
-def _models(tmp: Path, image: np.ndarray, sizes: list[int]) -> list[tuple[str, Path, tuple[int, int] | None]]:
+def _models(tmp: Path, image: np.ndarray, sizes: list[int],
+            extra: list[Path]) -> list[tuple[str, Path, tuple[int, int] | None]]:
     """(label, path, input size or None for the model's own) for every model to bench."""
     from .yolov8n_graph import build, calibrate_scores
 
     out = []
     bundled = resolve_model_path(contract.BUNDLED_MODEL)
-    if bundled.is_file():
-        q = _quantize(bundled, tmp / "bundled_int8.onnx")
-        for prec, p in (("fp32", bundled), ("int8", q)):
+    if not bundled.is_file():
+        print(f"(no bundled model at {bundled})")
+    given = [("bundled", bundled)] * bundled.is_file() + [(p.stem[:10], p) for p in extra]
+    for i, (name, path) in enumerate(given):
+        q = _quantize(path, tmp / f"{i}_int8.onnx")
+        for prec, p in (("fp32", path), ("int8", q)):
             try:
                 YoloModel.load(p, input_hw=(sizes[0], sizes[0]))
-                out += [(f"bundled {prec}", p, (s, s)) for s in sizes]
+                out += [(f"{name} {prec}", p, (s, s)) for s in sizes]
             except ModelError:                                  # fixed input size: its own only
-                out.append((f"bundled {prec}", p, None))
-    else:
-        print(f"(no bundled model at {bundled}: only the YOLOv8n-sized graph is measured)")
+                out.append((f"{name} {prec}", p, None))
     for s in sizes:
         fp32 = tmp / f"yolov8n_{s}.onnx"
         info = build(fp32, (s, s), cls_bias=0.0)
@@ -101,11 +104,18 @@ def _models(tmp: Path, image: np.ndarray, sizes: list[int]) -> list[tuple[str, P
 
 
 def run(n: int = 30, scenario: str = "village", sizes: tuple[int, ...] = (640, 320),
-        threads: tuple[int, ...] = (1, 2)) -> int:
+        threads: tuple[int, ...] = (1, 2), models: tuple[str, ...] = ()) -> int:
+    extra = [Path(m).expanduser() for m in models]
+    for m in extra:
+        try:
+            YoloModel.load(m)
+        except ModelError as e:
+            print(f"aero bench detector: {e}", file=sys.stderr)
+            return 2
     image = village_frame(scenario)
     rows = []
     with tempfile.TemporaryDirectory(prefix="aero-bench-detector-") as d:
-        for label, path, hw in _models(Path(d), image, list(sizes)):
+        for label, path, hw in _models(Path(d), image, list(sizes), extra):
             for t in threads:
                 r = bench_model(path, t, hw, image, n)
                 rows.append((label, r, t))

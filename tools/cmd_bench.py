@@ -39,8 +39,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--scenario", default="village", help="the rendered frame's scenario")
     p.add_argument("--sizes", default="640,320", help="input sizes (square), comma-separated")
     p.add_argument("--threads", default="1,2", help="onnxruntime intra-op thread counts, comma-separated")
+    p.add_argument("--model", action="append", default=[], metavar="ONNX", help="also bench this YOLOv8 export (repeatable)")
     p.set_defaults(func=lambda a: importlib.import_module("aeroperception.tools.bench_detector").run(
-        a.n, a.scenario, tuple(int(s) for s in a.sizes.split(",")), tuple(int(t) for t in a.threads.split(","))))
+        a.n, a.scenario, tuple(int(s) for s in a.sizes.split(",")), tuple(int(t) for t in a.threads.split(",")),
+        tuple(a.model)))
     p = bsub.add_parser("soak", help="fly missions in a loop for N minutes; RSS/CPU per service process")
     p.add_argument("--minutes", type=float, default=30.0, help="how long to fly")
     p.add_argument("--sensors", default="all", choices=["none", "imu", "all"], help="sim sensors rendered meanwhile")

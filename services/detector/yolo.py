@@ -308,8 +308,10 @@ class YoloModel:
         p = Path(path)
         if not p.is_file():
             raise ModelError(f"model file not found: {p}")
-        import onnxruntime as ort
-
+        try:
+            import onnxruntime as ort
+        except ImportError:
+            raise ModelError("onnxruntime is not installed: run deploy/install.sh with the perception extra") from None
         so = ort.SessionOptions()
         so.intra_op_num_threads = int(threads)
         so.inter_op_num_threads = 1
@@ -344,7 +346,8 @@ class YoloModel:
                                  f"{input_hw[0]}x{input_hw[1]} needs a model exported with dynamic axes")
             hw = (int(input_hw[0]), int(input_hw[1]))
         else:
-            hw = (fixed[0] or DEFAULT_INPUT_HW[0], fixed[1] or DEFAULT_INPUT_HW[1])
+            exported = _imgsz(meta.get("imgsz", "")) or DEFAULT_INPUT_HW     # dynamic axes: the export's size
+            hw = (fixed[0] or exported[0], fixed[1] or exported[1])
         if hw[0] % stride or hw[1] % stride:
             raise ModelError(f"{p}: input size {hw[0]}x{hw[1]} is not a multiple of the stride {stride}")
         dummy = np.full((1, 3, *hw), PAD_VALUE / 255.0, dtypes[inp.type])
@@ -388,6 +391,19 @@ class YoloModel:
         dets = self.postprocess(out, info, image.shape[:2], conf_thresh, nms_thresh, max_det)
         t3 = time.perf_counter()
         return dets, {"pre": (t1 - t0) * 1e3, "infer": (t2 - t1) * 1e3, "post": (t3 - t2) * 1e3}
+
+
+def _imgsz(text: str) -> tuple[int, int] | None:
+    """Ultralytics' `imgsz` metadata ("[640, 640]") -> (h, w), None when absent or unreadable."""
+    try:
+        v = ast.literal_eval(text) if text else None
+    except (ValueError, SyntaxError):
+        return None
+    if isinstance(v, int):
+        v = [v, v]
+    if isinstance(v, (list, tuple)) and len(v) == 2 and all(isinstance(x, int) and x > 0 for x in v):
+        return int(v[0]), int(v[1])
+    return None
 
 
 def _first_line(e: BaseException) -> str:

@@ -2,7 +2,8 @@
 detections come back at the painted pixels with the model's class names and the image's stamp,
 at no more than the configured rate; the model is hot-swapped through the live parameter
 (good -> swapped; missing file / non-YOLO ONNX / garbage bytes -> the old model keeps running
-and perception/detector_health is ERROR naming the reason; good again -> OK).
+and perception/detector_health is ERROR naming the reason; good again -> OK); started without a
+model it runs, reports ERROR with the reason, and takes one through the parameter.
 
 The models are hand-built ONNX graphs (tests/detector_graphs.py) that find solid colour blocks,
 so every box the service publishes can be checked against where the block really is.
@@ -150,3 +151,12 @@ def test_hot_swap_through_the_live_parameter(det, models):
     _health(det, lambda h: h.level == DiagnosticStatus.OK and h.values.get("model") == str(models["a"]), "a again OK")
     wait_for_message(det.session, "perception/detections", Detection2DArray,
                      lambda m: _names(m) == ["blue", "green", "red"], timeout_s=10)
+
+
+def test_starts_without_a_model_reports_error_then_takes_one(stack, models, tmp_path):
+    st = stack(["detector"], extra_args=["--arg", f"detector:--param=model_path={tmp_path / 'none.onnx'}"])
+    h = _health(st, lambda h: h.level == DiagnosticStatus.ERROR, "no model at start")
+    assert h.message.startswith("no model: model file not found") and "none.onnx" in h.message
+    _set(st, "model_path", str(models["a"]))
+    h = _health(st, lambda h: h.level != DiagnosticStatus.ERROR, "a model after start")
+    assert h.message == "no camera image yet" and h.values["model"] == str(models["a"])

@@ -184,6 +184,11 @@ def test_bad_models_are_refused_with_the_reason(tmp_path):
 def test_input_size_from_the_model_or_the_override(tmp_path):
     dyn = box_finder_model(tmp_path / "dyn.onnx", input_hw=None)
     assert YoloModel.load(dyn).input_hw == (640, 640)
+    exported = box_finder_model(tmp_path / "imgsz.onnx", input_hw=None, imgsz=(384, 512))
+    assert YoloModel.load(exported).input_hw == (384, 512)             # Ultralytics' imgsz metadata
+    odd_stride = box_finder_model(tmp_path / "s64.onnx", input_hw=None, stride=64)
+    with pytest.raises(ModelError, match="not a multiple of the stride 64"):
+        YoloModel.load(odd_stride, input_hw=(352, 352))               # fine for stride 32
     m = YoloModel.load(dyn, input_hw=(320, 416))
     assert m.input_hw == (320, 416)
     dets, _ = m.detect(paint_blocks((480, 640), {0: (100, 100, 200, 180)}, "bgr"))
