@@ -120,11 +120,8 @@ def vehicle_pose(msg: VehicleState, root: str = f"{WORLD}/vehicle") -> list[Log]
 
 
 def vehicle_series(msg: VehicleState, source: str) -> list[Log]:
-    out = [log(f"series/altitude_m/{source}", rr.Scalars(msg.position_m.z)),
-           log(f"series/speed_mps/{source}", rr.Scalars(float(np.linalg.norm(msg.velocity_mps.to_array()))))]
-    if msg.battery_remaining is not None:
-        out.append(log(f"series/battery/remaining_{source}", rr.Scalars(msg.battery_remaining)))
-    return out
+    return [log(f"series/altitude_m/{source}", rr.Scalars(msg.position_m.z)),
+            log(f"series/speed_mps/{source}", rr.Scalars(float(np.linalg.norm(msg.velocity_mps.to_array()))))]
 
 
 class VehicleAdapter:
@@ -374,9 +371,10 @@ class PlannerStatusAdapter:
 
 
 def battery(msg: BatteryState) -> list[Log]:
-    out = [log("series/battery/voltage_v", rr.Scalars(msg.voltage_v))]
+    """Charge (%) and voltage as separate series: one axis for both would flatten the charge."""
+    out = [log("series/battery_voltage_v", rr.Scalars(msg.voltage_v))]
     if msg.remaining_fraction is not None:
-        out.append(log("series/battery/remaining", rr.Scalars(msg.remaining_fraction)))
+        out.append(log("series/battery_pct/remaining", rr.Scalars(100.0 * msg.remaining_fraction)))
     return out
 
 
@@ -407,7 +405,8 @@ LOOP_STATS = ("work_p99_ms", "period_error_p99_ms")
 
 class DiagnosticsAdapter:
     """diagnostics/<service>: level/message changes as text per service; the runtime's loop
-    timing (loop[<name>].work_p99_ms ...) and stage timings (*_ms_p99) as series."""
+    timing (loop[<name>].work_p99_ms ...) and stage timings (*_ms_p99) as series, one series
+    per "<service>.<loop>" under the statistic, so a plot compares services on one axis."""
 
     def __init__(self):
         self.last: dict[str, tuple[int, str]] = {}
@@ -420,9 +419,9 @@ class DiagnosticsAdapter:
             if k.startswith("loop[") and "]." in k:
                 loop, _, stat = k[5:].partition("].")
                 if stat in LOOP_STATS:
-                    name = f"series/loops/{svc}/{loop}/{stat}"
+                    name = f"series/loop_{stat}/{svc}.{loop}"
             elif k.endswith("_ms_p99"):
-                name = f"series/loops/{svc}/{k}"
+                name = f"series/stage_ms_p99/{svc}.{k.removesuffix('_ms_p99')}"
             if name is not None:
                 try:
                     out.append(log(name, rr.Scalars(float(v))))

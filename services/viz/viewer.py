@@ -38,8 +38,8 @@ def default_blueprint() -> rrb.Blueprint:
             rrb.Vertical(
                 rrb.TimeSeriesView(origin="series/altitude_m", name="Altitude (m)"),
                 rrb.TimeSeriesView(origin="series/speed_mps", name="Speed (m/s)"),
-                rrb.TimeSeriesView(origin="series/battery", name="Battery"),
-                rrb.TimeSeriesView(origin="series/loops", name="Loop timing p99 (ms)"),
+                rrb.TimeSeriesView(origin="series/battery_pct", name="Battery (%)"),
+                rrb.TimeSeriesView(origin="series/loop_work_p99_ms", name="Loop work p99 (ms)"),
                 rrb.TextLogView(origin="logs", name="Mission, safety, diagnostics")),
             column_shares=[3, 2]),
         rrb.BlueprintPanel(state="collapsed"), rrb.SelectionPanel(state="collapsed"),
@@ -96,7 +96,9 @@ class ViewerSink:
         if out.save_path:
             sinks.append(rr.FileSink(out.save_path))
         if out.serving:
-            server = rr.GrpcServerSink(out.bind_ip, out.grpc_port, server_memory_limit=out.server_memory_limit)
+            # newest_first: a viewer that connects mid-flight shows "now" at once, history fills in.
+            server = rr.GrpcServerSink(out.bind_ip, out.grpc_port, server_memory_limit=out.server_memory_limit,
+                                       newest_first=True)
             sinks.append(server)
             self.grpc_uri = f"rerun+http://{public_host(out.bind_ip)}:{out.grpc_port}/proxy"
         if out.spawn:

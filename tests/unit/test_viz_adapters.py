@@ -58,7 +58,7 @@ def params(**over):
 
 
 def test_vehicle_pose_translation_on_root_attitude_on_body_in_enu():
-    logs = A.VehicleAdapter()(state(battery_remaining=0.8))
+    logs = A.VehicleAdapter()(state())
     t = one(logs, "world/vehicle", rr.Transform3D)
     assert arrow(t, "translation") == [[1.0, 2.0, 3.0]]           # ENU, untouched
     body = one(logs, "world/vehicle/body", rr.Transform3D)
@@ -66,7 +66,6 @@ def test_vehicle_pose_translation_on_root_attitude_on_body_in_enu():
     assert (x, y) == (0.0, 0.0) and z == pytest.approx(math.sin(math.pi / 4)) and w == pytest.approx(math.cos(math.pi / 4))
     assert arrow(one(logs, "series/altitude_m/vehicle", rr.Scalars), "scalars") == [3.0]
     assert arrow(one(logs, "series/speed_mps/vehicle", rr.Scalars), "scalars") == [5.0]
-    assert arrow(one(logs, "series/battery/remaining_vehicle", rr.Scalars), "scalars") == [pytest.approx(0.8)]
     assert arrow(one(logs, "world/trajectory/vehicle", rr.LineStrips3D), "strips") == [[[1.0, 2.0, 3.0]]]
 
 
@@ -215,7 +214,8 @@ def test_setpoint_velocity_is_an_enu_arrow_on_the_vehicle():
 
 def test_battery_series():
     logs = A.battery(BatteryState(voltage_v=15.2, remaining_fraction=0.5))
-    assert arrow(one(logs, "series/battery/voltage_v", rr.Scalars), "scalars") == [pytest.approx(15.2)]
+    assert arrow(one(logs, "series/battery_voltage_v", rr.Scalars), "scalars") == [pytest.approx(15.2)]
+    assert arrow(one(logs, "series/battery_pct/remaining", rr.Scalars), "scalars") == [50.0]
 
 
 def test_diagnostics_loop_timing_series_and_text_on_change():
@@ -223,8 +223,8 @@ def test_diagnostics_loop_timing_series_and_text_on_change():
     msg = DiagnosticStatus(name="planner", level=0, message="tracking goal", values={
         "loop[setpoint].work_p99_ms": "0.4", "loop[setpoint].ticks": "100", "total_ms_p99": "12.5", "loop[x].work_p99_ms": "n/a"})
     logs = ad(msg)
-    assert arrow(one(logs, "series/loops/planner/setpoint/work_p99_ms", rr.Scalars), "scalars") == [pytest.approx(0.4)]
-    assert "series/loops/planner/total_ms_p99" in by_path(logs)
+    assert arrow(one(logs, "series/loop_work_p99_ms/planner.setpoint", rr.Scalars), "scalars") == [pytest.approx(0.4)]
+    assert "series/stage_ms_p99/planner.total" in by_path(logs)
     assert arrow(one(logs, "logs/diagnostics/planner", rr.TextLog), "text") == ["planner: tracking goal"]
     assert "logs/diagnostics/planner" not in by_path(ad(msg))
     warn = ad(DiagnosticStatus(name="planner", level=1, message="holding"))
