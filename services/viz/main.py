@@ -85,9 +85,9 @@ class VizService(Service):
 
     def stop(self) -> None:
         for w in list(self.workers.values()):
-            w.stop(0.2)
+            w.stop(0.1)
         if hasattr(self, "sink"):
-            self.sink.close(1.0)
+            self.sink.close(1.5)
 
     # ------------------------------------------------------------ Zenoh callbacks (cheap)
 

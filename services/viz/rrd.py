@@ -18,9 +18,10 @@ class EntitySpan:
 
 
 def entity_spans(path: str) -> dict[str, EntitySpan]:
-    """{entity path: rows and stamp span} of the first recording in the file."""
+    """{entity path: rows and stamp span} of the first recording in the file (streamed, so a
+    file whose footer was never written, e.g. after kill -9, reads too)."""
     out: dict[str, EntitySpan] = {}
-    for chunk in RrdReader(path).store().stream():
+    for chunk in RrdReader(path).stream():
         span = out.setdefault(chunk.entity_path, EntitySpan())
         span.rows += chunk.num_rows
         if TIMELINE not in chunk.timeline_names:

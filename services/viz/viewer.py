@@ -148,18 +148,25 @@ class ViewerSink:
                         self.on_backlog()
                 self.backlogged = True
 
-    def close(self, timeout_s: float = 1.0) -> None:
-        """Finish the .rrd (footer) within the stop budget; streaming sinks are dropped behind
-        us (a gRPC client waiting for an absent viewer would otherwise hold the exit for 5 s)."""
-        self._stop.set()
-        self._watchdog.join(timeout_s)
+    def close(self, timeout_s: float = 1.5) -> None:
+        """Finish the .rrd (footer) within the stop budget. With a viewer that is absent or behind,
+        Rerun waits for it (2 s to finalize the file, 5 s to drop a gRPC client): that runs on a
+        daemon thread we stop waiting for, and the file, if its footer is then missing, is still
+        a valid stream (rerun.chunk.RrdReader(path).stream(), `rerun rrd optimize`)."""
         deadline = time.monotonic() + timeout_s
-        try:
-            self.rec.flush(timeout_sec=max(0.05, deadline - time.monotonic()))
-        except Exception:  # noqa: BLE001 - a viewer that is behind must not keep the file open
-            pass
-        if self.out.save_path:
-            rr.bindings.finalize_deferred_sinks(recording=self.rec.to_native())
-        t = threading.Thread(target=self.rec.disconnect, name="viz-disconnect", daemon=True)
+        self._stop.set()
+        self._watchdog.join(max(0.05, deadline - time.monotonic()))
+
+        def finish() -> None:
+            if not self.backlogged:
+                try:
+                    self.rec.flush(timeout_sec=max(0.05, deadline - time.monotonic()))
+                except Exception:  # noqa: BLE001 - a viewer that fell behind just now
+                    pass
+            if self.out.save_path:
+                rr.bindings.finalize_deferred_sinks(recording=self.rec.to_native())
+            self.rec.disconnect()
+
+        t = threading.Thread(target=finish, name="viz-close", daemon=True)
         t.start()
         t.join(max(0.05, deadline - time.monotonic()))

@@ -282,3 +282,38 @@ def test_sink_saves_an_rrd_that_reads_back_with_entities_over_the_stamps(tmp_pat
     assert v.rows == 20 and (v.first_ns, v.last_ns) == (t0, t0 + 19 * 50_000_000)
     assert spans["/world/vehicle/body/model"].first_ns is None          # static body model
     assert spans["/world/trajectory/vehicle"].rows >= 9
+
+
+# ---------------------------------------------------------------- `aero viz` flags
+
+
+def viz_args(*argv: str):
+    import argparse
+
+    from aeroperception.tools import cmd_viz
+
+    parser = argparse.ArgumentParser()
+    cmd_viz.register(parser.add_subparsers())
+    return cmd_viz.viz_argv(parser.parse_args(["viz", *argv]))
+
+
+def test_aero_viz_flags_become_viz_parameters():
+    argv = viz_args("--web", "9090", "--save", "f.rrd", "--no-truth", "--connect", "tcp/10.0.0.2:7447")
+    params = [argv[i + 1] for i, a in enumerate(argv) if a == "--param"]
+    assert params == ["web_port=9090", "save_path=f.rrd", "show_truth=false"]
+    assert argv[argv.index("--connect") + 1] == "tcp/10.0.0.2:7447"      # --connect stays the Zenoh router
+    viewer = viz_args("--viewer", "rerun+http://laptop:9876/proxy")
+    assert "viewer_url=rerun+http://laptop:9876/proxy" in viewer and "spawn=true" not in viewer
+
+
+def test_aero_viz_without_outputs_spawns_the_native_viewer_or_says_what_to_do(monkeypatch):
+    from aeroperception.tools import cmd_viz
+    from aeroperception.tools.common import CliError
+
+    monkeypatch.setattr(cmd_viz.shutil, "which", lambda name: "/usr/bin/rerun")
+    assert "spawn=true" in viz_args()
+    monkeypatch.setattr(cmd_viz.shutil, "which", lambda name: None)
+    with pytest.raises(CliError, match="--web PORT"):
+        viz_args()
+    with pytest.raises(CliError, match="--viewer URL"):
+        viz_args("--connect", "rerun+http://laptop:9876/proxy")
