@@ -404,12 +404,13 @@ LOOP_STATS = ("work_p99_ms", "period_error_p99_ms")
 
 
 class DiagnosticsAdapter:
-    """diagnostics/<service>: level/message changes as text per service; the runtime's loop
+    """diagnostics/<service>: a text line per service when its level changes (messages carry
+    live numbers, e.g. achieved rates, so every message would be a line a second); the runtime's loop
     timing (loop[<name>].work_p99_ms ...) and stage timings (*_ms_p99) as series, one series
     per "<service>.<loop>" under the statistic, so a plot compares services on one axis."""
 
     def __init__(self):
-        self.last: dict[str, tuple[int, str]] = {}
+        self.last: dict[str, int] = {}
 
     def __call__(self, msg: DiagnosticStatus) -> list[Log]:
         svc = msg.name or "unknown"
@@ -427,8 +428,8 @@ class DiagnosticsAdapter:
                     out.append(log(name, rr.Scalars(float(v))))
                 except (TypeError, ValueError):
                     pass
-        if self.last.get(svc) != (msg.level, msg.message):
-            self.last[svc] = (msg.level, msg.message)
+        if self.last.get(svc) != msg.level:
+            self.last[svc] = msg.level
             out.append(log(f"logs/diagnostics/{svc}", rr.TextLog(f"{svc}: {msg.message}",
                                                                  level=DIAG_LEVELS.get(msg.level, rr.TextLogLevel.INFO))))
         return out

@@ -218,7 +218,7 @@ def test_battery_series():
     assert arrow(one(logs, "series/battery_pct/remaining", rr.Scalars), "scalars") == [50.0]
 
 
-def test_diagnostics_loop_timing_series_and_text_on_change():
+def test_diagnostics_loop_timing_series_and_text_on_level_change():
     ad = A.DiagnosticsAdapter()
     msg = DiagnosticStatus(name="planner", level=0, message="tracking goal", values={
         "loop[setpoint].work_p99_ms": "0.4", "loop[setpoint].ticks": "100", "total_ms_p99": "12.5", "loop[x].work_p99_ms": "n/a"})
@@ -227,6 +227,7 @@ def test_diagnostics_loop_timing_series_and_text_on_change():
     assert "series/stage_ms_p99/planner.total" in by_path(logs)
     assert arrow(one(logs, "logs/diagnostics/planner", rr.TextLog), "text") == ["planner: tracking goal"]
     assert "logs/diagnostics/planner" not in by_path(ad(msg))
+    assert "logs/diagnostics/planner" not in by_path(ad(DiagnosticStatus(name="planner", level=0, message="holding")))
     warn = ad(DiagnosticStatus(name="planner", level=1, message="holding"))
     assert arrow(one(warn, "logs/diagnostics/planner", rr.TextLog), "level") == ["WARN"]
 
