@@ -13,6 +13,8 @@ stamp() { echo "[install] $*"; }
 #   open3d: libusb-1.0-0, libudev1, libgl1/libegl1 (GLVND), libx11-6, libgomp1
 #   opencv (headless, and the GUI build MAVProxy pulls in): libgl1, libglib2.0-0
 APT_PACKAGES=(libusb-1.0-0 libudev1 libgl1 libegl1 libx11-6 libgomp1 libglib2.0-0)
+#   test: headless Chromium + chromedriver load the Rerun web viewer (tests/integration/test_viz.py)
+case ",$EXTRAS," in *,test,*) APT_PACKAGES+=(chromium chromium-driver) ;; esac
 if command -v apt-get >/dev/null 2>&1; then
     SUDO=""
     if [ "$(id -u)" != 0 ]; then

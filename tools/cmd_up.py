@@ -53,12 +53,15 @@ LEVELS = {0: "OK", 1: "WARN", 2: "ERROR", 3: "STALE"}
 
 
 def load_profiles() -> dict[str, dict]:
-    """{profile: {"services": [...], "args": {service: [flags]}}}; a bare list means services only."""
+    """{profile: {"services": [...], "args": {service: [flags]}}}; a bare list means services only.
+    `extends: OTHER` starts from an earlier profile's services and args and adds its own."""
     text = resources.files("aeroperception.tools").joinpath("profiles.yaml").read_text()
     out = {}
     for name, spec in yaml.safe_load(text)["profiles"].items():
         spec = {"services": spec} if isinstance(spec, list) else dict(spec)
-        out[name] = {"services": list(spec["services"]), "args": dict(spec.get("args") or {})}
+        base = out[spec["extends"]] if spec.get("extends") else {"services": [], "args": {}}
+        out[name] = {"services": [*base["services"], *(s for s in spec["services"] if s not in base["services"])],
+                     "args": {**base["args"], **dict(spec.get("args") or {})}}
     return out
 
 
