@@ -1,4 +1,4 @@
-"""`aero bench pubsub|sim|flight`: benchmarks that print median / p99 and the ratio to the raw
+"""`aero bench pubsub|sim|flight|lidar|vio|record|soak`: benchmarks that print median / p99 and the ratio to the raw
 baseline measured in the same run. Tests check correctness; these report speed."""
 from __future__ import annotations
 
@@ -33,6 +33,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--scenario", default="village")
     p.add_argument("--strategy", default="klt_stereo")
     p.set_defaults(func=lambda a: importlib.import_module("aeroperception.tools.bench_vio").run(a.n, a.scenario, a.strategy))
+    p = bsub.add_parser("record", help="recorder cost with images on: messages/s, MB/s, drops, CPU %")
+    p.add_argument("--duration", type=float, default=10.0, help="seconds per compression setting")
+    p.add_argument("--compression", default="zstd,lz4,none", help="settings to compare (comma-separated)")
+    p.set_defaults(func=lambda a: importlib.import_module("aeroperception.tools.bench_record").run(
+        a.duration, a.compression))
     p = bsub.add_parser("soak", help="fly missions in a loop for N minutes; RSS/CPU per service process")
     p.add_argument("--minutes", type=float, default=30.0, help="how long to fly")
     p.add_argument("--sensors", default="all", choices=["none", "imu", "all"], help="sim sensors rendered meanwhile")
