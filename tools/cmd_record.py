@@ -115,6 +115,8 @@ def replay(args) -> int:
         fi = info(args.file)
     except RecordingError as e:
         raise CliError(str(e)) from None
+    if not fi.indexed:
+        raise CliError(f"{args.file}: has no index (cut short?): run `aero mcap recover {args.file}` first")
     topics = [c.topic for c in fi.channels if c.count]
     if args.keys:
         exprs = [zenoh.KeyExpr(full_key(args, k)) for k in args.keys]

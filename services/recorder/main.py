@@ -4,6 +4,7 @@ from __future__ import annotations
 import json
 import subprocess
 import threading
+import time
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -32,6 +33,9 @@ def stack_version() -> str:
     return f"{v}+{rev}" if rev else v
 
 
+DROP_WARN_S = 10.0   # WARN this long after the last dropped sample
+
+
 class RecorderService(Service):
     """Record Zenoh keys to MCAP files (presets essentials/all, images on request)."""
 
@@ -57,6 +61,7 @@ class RecorderService(Service):
         self.recording = Recording(McapSink(cfg, {"aeroperception": meta}),
                                    int(p.max_buffer_mb * (1 << 20))).start()
         self.filter = KeyFilter(self.exprs, p.record_images)
+        self._drops_seen, self._drop_at = 0, float("-inf")
         for i, expr in enumerate(self.exprs):
             self.node.subscribe_raw(self.node.key(expr), self._on_sample_for(i))
         self.log.info("recording", keys=self.exprs, output_dir=str(out))
@@ -102,7 +107,10 @@ class RecorderService(Service):
                   "keys": ",".join(self.exprs)}
         if sink.failed:
             return Health(DiagnosticStatus.ERROR, f"recording stopped: {sink.error}", values)
-        if self.recording.dropped:
+        now = time.monotonic()
+        if self.recording.dropped > self._drops_seen:
+            self._drops_seen, self._drop_at = self.recording.dropped, now
+        if now - self._drop_at < DROP_WARN_S:
             return Health(DiagnosticStatus.WARN, f"dropped {self.recording.dropped} samples (disk too slow)", values)
         return Health(DiagnosticStatus.OK, f"recording {len(sink.stats.per_key)} keys", values)
 

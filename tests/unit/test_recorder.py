@@ -228,3 +228,27 @@ def test_foxglove_export_validates_against_foxglove_schemas(tmp_path):
     assert seen["diagnostics/agg"][1]["level"] == 4 and seen["diagnostics/agg"][1]["name"] == "fmu"
     assert seen["mission/status"][0] == schema_id(MissionStatus)
     assert seen["state/vehicle"][1]["timestamp"] == {"sec": 0, "nsec": 5}
+
+
+def test_cli_errors_are_one_line_with_what_to_do(tmp_path, capsys):
+    from aeroperception.tools.cli import main
+
+    assert main(["mcap", "info", str(tmp_path / "none.mcap")]) == 2
+    assert "no such file" in capsys.readouterr().err
+    (tmp_path / "junk.mcap").write_bytes(b"not an mcap file at all")
+    assert main(["mcap", "recover", str(tmp_path / "junk.mcap")]) == 2
+    assert "not an MCAP file" in capsys.readouterr().err
+    clock = FakeClock()
+    sink = McapSink(SinkConfig(tmp_path, flush_interval_s=0.1), clock=clock)
+    for i in range(20):
+        clock.t = i * 0.05
+        sink.write([sample(state(i), "state/vehicle", i)])
+    cut = tmp_path / "cut.mcap"
+    shutil.copy(sink.path, cut)
+    assert main(["replay", str(cut)]) == 2
+    err = capsys.readouterr().err
+    assert "aero mcap recover" in err and len(err.strip().splitlines()) == 1
+    assert main(["mcap", "recover", str(cut)]) == 0
+    assert main(["mcap", "info", str(tmp_path / "cut.recovered.mcap")]) == 0
+    out = capsys.readouterr().out
+    assert "state/vehicle" in out and "VehicleState@1" in out
