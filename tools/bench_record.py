@@ -20,7 +20,7 @@ from aeroperception.services.recorder.files import info
 from aeroperception.services.runtime.node import encoding_for
 from aeroperception.services.runtime.session import make_config, open_session
 
-from .cmd_chaos import free_port
+from .cmd_chaos import free_port, proc_stats
 from .cmd_router import open_router
 
 STREAMS = (("sensors/camera/left/image", 20.0), ("sensors/camera/right/image", 20.0),
@@ -28,8 +28,10 @@ STREAMS = (("sensors/camera/left/image", 20.0), ("sensors/camera/right/image", 2
 
 
 def _cpu_s(pid: int) -> float:
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    stats = proc_stats(pid)
+    if stats is None:
+        raise RuntimeError(f"the recorder (pid {pid}) exited during the benchmark")
+    return stats[1]
 
 
 def _frame(i: int) -> np.ndarray:
