@@ -13,7 +13,8 @@ Then, on other routers: `aero replay` of a 10 s window reproduces the recorded m
 bytes, same encoding, timing within 5 ms), and replaying state/vehicle + mission/active_goal
 into a stack with only the planner reproduces the live planner's setpoints. (The planner is the
 replayed service rather than vio: vio needs the rendered stereo cameras, which this 2-core CI
-cannot run beside a flight; the replay path is the same one.)
+cannot run beside a flight; the replay path is the same one.) The flight's Foxglove export
+validates against Foxglove's schemas.
 """
 from __future__ import annotations
 
@@ -251,3 +252,24 @@ def test_replay_drives_the_planner_like_the_live_flight(flight, stack_module):
           f"p95 {p95:.4f} max {diffs[-1]:.4f} m/s")
     assert p95 < 0.05
     assert any(abs(l.velocity_mps.x) + abs(l.velocity_mps.y) > 0.5 for _g, l in pairs)   # it was moving
+
+
+def test_foxglove_export_of_the_flight_validates(flight):
+    jsonschema = pytest.importorskip("jsonschema")
+    import json
+
+    out = flight["cli_file"].with_name("flight.foxglove.mcap")
+    r = aero("mcap", "export", flight["cli_file"], "--foxglove", "-o", out, timeout_s=120)
+    assert r.returncode == 0, r.stderr
+    validators, counts = {}, {}
+    with open(out, "rb") as f:
+        for s, ch, m in make_reader(f).iter_messages():
+            v = validators.get(s.id) or validators.setdefault(s.id, jsonschema.Draft202012Validator(json.loads(s.data)))
+            if counts.get(ch.topic, 0) < 200:          # a sample of every channel
+                v.validate(json.loads(m.data))
+            counts[ch.topic] = counts.get(ch.topic, 0) + 1
+            assert ch.message_encoding == "json"
+    with open(out, "rb") as f:
+        names = {s.name for s in make_reader(f).get_summary().schemas.values()}
+    assert {"foxglove.PoseInFrame", "foxglove.FrameTransform", "foxglove.Log"} <= names, names
+    assert counts["state/vehicle"] == counts["state/vehicle/tf"] > 1000
