@@ -1,4 +1,4 @@
-"""`aero bench pubsub|sim|flight|lidar|vio|detector|soak`: benchmarks that print median / p99 and the ratio to the raw
+"""`aero bench pubsub|sim|flight|lidar|vio|detector|record|soak`: benchmarks that print median / p99 and the ratio to the raw
 baseline measured in the same run. Tests check correctness; these report speed."""
 from __future__ import annotations
 
@@ -43,6 +43,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=lambda a: importlib.import_module("aeroperception.tools.bench_detector").run(
         a.n, a.scenario, tuple(int(s) for s in a.sizes.split(",")), tuple(int(t) for t in a.threads.split(",")),
         tuple(a.model)))
+    p = bsub.add_parser("record", help="recorder cost with images on: messages/s, MB/s, drops, CPU %")
+    p.add_argument("--duration", type=float, default=10.0, help="seconds per compression setting")
+    p.add_argument("--compression", default="zstd,lz4,none", help="settings to compare (comma-separated)")
+    p.set_defaults(func=lambda a: importlib.import_module("aeroperception.tools.bench_record").run(
+        a.duration, a.compression))
     p = bsub.add_parser("soak", help="fly missions in a loop for N minutes; RSS/CPU per service process")
     p.add_argument("--minutes", type=float, default=30.0, help="how long to fly")
     p.add_argument("--sensors", default="all", choices=["none", "imu", "all"], help="sim sensors rendered meanwhile")

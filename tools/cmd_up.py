@@ -223,6 +223,8 @@ def service_argv(name: str, args, endpoint: str, profile_args: list[str] = ()) -
                           ("--sensors", args.sensors)):
             if val is not None:
                 argv += [flag, str(val)]
+    if name == "recorder" and args.scenario is not None:
+        argv += ["--scenario", args.scenario]   # metadata of the recording
     if name == "fmu" and args.fcu_url:
         argv += ["--fcu-url", args.fcu_url]
     for item in args.arg:
