@@ -18,9 +18,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from aerotest import aero_argv, clean_env, wait_until
+from aerotest import aero_argv, clean_env, wait_for_message, wait_until
 from aeroperception.schemas import (
-    Detection2D, Detection2DArray, GoalReply, GoalStatus, GoToPositionGoal, Header, Image, Imu, NDArray,
+    Detection2D, Detection2DArray, DiagnosticStatus, GoalReply, GoalStatus, GoToPositionGoal, Header, Image, Imu, NDArray,
     PointCloud, Quaternion, Vector3, VehicleState,
 )
 
@@ -65,7 +65,7 @@ sub("/aero/detections", "vision_msgs/msg/Detection2DArray", lambda m: dict(
     n=len(m.detections), cls=m.detections[0].results[0].hypothesis.class_id, score=m.detections[0].results[0].hypothesis.score,
     cx=m.detections[0].bbox.center.position.x, sx=m.detections[0].bbox.size_x))
 pub = ROS2Publisher("/aero/goal", "geometry_msgs/msg/PoseStamped", router_ip="127.0.0.1", router_port=port)
-out(kind="key", topic="/aero/goal", key=pub.keyexpr if hasattr(pub, "keyexpr") else "")
+out(kind="key", topic="/aero/goal", key=pub.keyexpr)
 T = {n: get_message_class(n) for n in ["std_msgs/msg/Header", "builtin_interfaces/msg/Time", "geometry_msgs/msg/Pose",
                                        "geometry_msgs/msg/Point", "geometry_msgs/msg/Quaternion"]}
 out(kind="ready")
@@ -199,6 +199,16 @@ def test_ros2_node_sees_decodes_and_commands_through_the_bridge(zenoh_router, ma
         g = goals[0]
         assert (g.position_m.x, g.position_m.y, g.position_m.z) == (4.0, -3.0, 6.0)
         assert g.yaw_rad == pytest.approx(np.pi / 2, abs=1e-4)
+
+        # Garbage on the goal topic: counted in the bridge's diagnostics, dropped, never a goal.
+        goal_key = [d["key"] for d in ros.of("key", "/aero/goal")][0]
+        n_goals = len(goals)
+        stack.session.put(goal_key, b"\x00\x01\x00\x00garbage")
+        diag = wait_for_message(stack.session, "diagnostics/ros2bridge", DiagnosticStatus,
+                                lambda d: int(d.values.get("invalid_msgs", 0)) >= 1, timeout_s=5)
+        assert "invalid=1" in str(diag.values.get("goals")), diag.values
+        time.sleep(0.3)
+        assert len(goals) == n_goals and bridge.poll() is None
     finally:
         err = ros.close()
         bridge.terminate()
