@@ -43,10 +43,11 @@ class RosBridgeService(Service):
         self.conv = Converter(self.store)
         session = self.node.session
         self.ros = RosNode(domain_id=p.domain_id, zid=str(session.zid()), namespace=p.namespace, name=p.node_name)
-        self.tokens = [session.liveliness().declare_token(self.ros.token())]
+        self.entities = [session.liveliness().declare_token(self.ros.token())]
         self.sent: Counter = Counter()
         self.dropped: Counter = Counter()
         self.errors: Counter = Counter()
+        self.unheard: Counter = Counter()   # samples skipped: no ROS subscriber matched
         self.goals = Counter()
         self.last_goal = ""
         self.topics: dict[str, str] = {}
@@ -65,14 +66,20 @@ class RosBridgeService(Service):
         type_hash = self.store.hash_rihs01(b.ros_type)
         pub = self.node.session.declare_publisher(data_key(self.params.domain_id, topic, b.ros_type, type_hash),
                                                   encoding=CDR)
-        self.tokens.append(self.node.session.liveliness().declare_token(
+        self.entities.append(self.node.session.liveliness().declare_token(
             self.ros.endpoint_token("MP", entity_id, topic, b.ros_type, type_hash)))
         convert = conversion(self.conv, b)
         gid = os.urandom(16)
         min_period = 1.0 / self.params.max_rate_hz
         last = [0.0]
+        # Nobody on the ROS side listening: no conversion at all (images and clouds cost CPU).
+        matching = [pub.matching_status.matching]
+        self.entities.append(pub.declare_matching_listener(lambda st: matching.__setitem__(0, st.matching)))
 
         def on_message(msg) -> None:
+            if not matching[0]:
+                self.unheard[key] += 1
+                return
             now = time.monotonic()
             if now - last[0] < min_period:
                 self.dropped[key] += 1
@@ -93,7 +100,7 @@ class RosBridgeService(Service):
     def _goal_input(self, topic: str, entity_id: int) -> None:
         type_hash = self.store.hash_rihs01(GOAL_TYPE)
         key = data_key(self.params.domain_id, topic, GOAL_TYPE, type_hash)
-        self.tokens.append(self.node.session.liveliness().declare_token(
+        self.entities.append(self.node.session.liveliness().declare_token(
             self.ros.endpoint_token("MS", entity_id, topic, GOAL_TYPE, type_hash)))
         self.node.subscribe_raw(key, lambda s: self._on_goal(key, s))
         self.topics[topic] = GOAL_TYPE
@@ -120,7 +127,8 @@ class RosBridgeService(Service):
 
     def health(self) -> Health:
         values = {"topics": len(self.topics), "sent": sum(self.sent.values()),
-                  "dropped_rate_limit": sum(self.dropped.values()), "convert_errors": sum(self.errors.values()),
+                  "dropped_rate_limit": sum(self.dropped.values()),
+                  "skipped_no_subscriber": sum(self.unheard.values()), "convert_errors": sum(self.errors.values()),
                   "goals": ",".join(f"{k}={v}" for k, v in sorted(self.goals.items())) or "none",
                   "last_goal": self.last_goal}
         level = DiagnosticStatus.WARN if self.errors else DiagnosticStatus.OK

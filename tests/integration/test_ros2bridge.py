@@ -21,12 +21,12 @@ import pytest
 from aerotest import aero_argv, clean_env, wait_for_message, wait_until
 from aeroperception.schemas import (
     Detection2D, Detection2DArray, DiagnosticStatus, GoalReply, GoalStatus, GoToPositionGoal, Header, Image, Imu, NDArray,
-    PointCloud, Quaternion, Vector3, VehicleState,
+    Odometry, PointCloud, Quaternion, Vector3, VehicleState,
 )
 
 pytest.importorskip("zenoh_ros2_sdk", reason="zenoh-ros2-sdk is not installed (pip install .[test])")
 
-TOPICS = "state/vehicle,sensors/imu,sensors/camera/left/image,sensors/lidar/points,perception/detections"
+TOPICS = "state/vehicle,state/visual_odometry,sensors/imu,sensors/camera/left/image,sensors/lidar/points,perception/detections"
 ROS_TYPES = ["nav_msgs/msg/Odometry", "sensor_msgs/msg/Imu", "sensor_msgs/msg/Image", "sensor_msgs/msg/PointCloud2",
              "vision_msgs/msg/Detection2DArray", "geometry_msgs/msg/PoseStamped"]
 SEP = "=" * 80 + "\n"
@@ -166,6 +166,7 @@ def test_ros2_node_sees_decodes_and_commands_through_the_bridge(zenoh_router, ma
         assert topics["/aero/camera/left/image_raw"] == ["sensor_msgs/msg/Image"]
         assert topics["/aero/lidar/points"] == ["sensor_msgs/msg/PointCloud2"]
         assert topics["/aero/detections"] == ["vision_msgs/msg/Detection2DArray"]
+        assert topics["/aero/vio/odom"] == ["nav_msgs/msg/Odometry"]
         assert topics["/aero/goal"] == ["geometry_msgs/msg/PoseStamped"]   # our subscription is visible too
         # Published until every topic has been decoded at least once (bounded).
         want = ["/aero/odom", "/aero/imu", "/aero/camera/left/image_raw", "/aero/lidar/points", "/aero/detections"]
@@ -204,8 +205,13 @@ def test_ros2_node_sees_decodes_and_commands_through_the_bridge(zenoh_router, ma
         goal_key = [d["key"] for d in ros.of("key", "/aero/goal")][0]
         n_goals = len(goals)
         stack.session.put(goal_key, b"\x00\x01\x00\x00garbage")
+        # /aero/vio/odom has no ROS subscriber: its samples are not even converted.
+        vio = stack.publisher("state/visual_odometry", Odometry)
+        for _ in range(3):
+            vio.publish(Odometry())
         diag = wait_for_message(stack.session, "diagnostics/ros2bridge", DiagnosticStatus,
-                                lambda d: int(d.values.get("invalid_msgs", 0)) >= 1, timeout_s=5)
+                                lambda d: int(d.values.get("invalid_msgs", 0)) >= 1
+                                and int(d.values.get("skipped_no_subscriber", 0)) >= 3, timeout_s=5)
         assert "invalid=1" in str(diag.values.get("goals")), diag.values
         time.sleep(0.3)
         assert len(goals) == n_goals and bridge.poll() is None

@@ -137,6 +137,8 @@ def check_roles(vehicle, ground, certs: Path, router_listen: str, vehicle_ep: st
     # The aero CLI says so in one line.
     r = ground.run(aero_argv() + ["topic", "echo", "state/vehicle", "--json"], env=clean_env(tcp), timeout_s=30)
     assert r.returncode != 0 and "Traceback" not in r.stderr and "no Zenoh router reachable" in r.stderr
+    r = ground.run(aero_argv() + ["topic", "echo", "state/vehicle", "--json"], env=clean_env(ground_ep), timeout_s=30)
+    assert r.returncode != 0 and "refused this client" in r.stderr and "AERO_ZENOH_CONFIG" in r.stderr
 
 
 def test_secure_router_refuses_anonymous_and_ground_setpoints_on_loopback(tmp_path):
