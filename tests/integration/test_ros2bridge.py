@@ -192,9 +192,12 @@ def test_ros2_node_sees_decodes_and_commands_through_the_bridge(zenoh_router, ma
         assert (det["n"], det["cls"], det["cx"], det["sx"]) == (1, "person", 320.0, 40.0)
 
         # ROS -> us: its PoseStamped becomes a goto goal at the mission.
+        writes = [0]
+
         def goal_sent():
             ros.proc.stdin.write("goal\n")
             ros.proc.stdin.flush()
+            writes[0] += 1
             return goals
         wait_until(goal_sent, 10, "the ROS goal at mission/action/goto/goal", interval_s=0.5)
         g = goals[0]
@@ -203,6 +206,8 @@ def test_ros2_node_sees_decodes_and_commands_through_the_bridge(zenoh_router, ma
 
         # Garbage on the goal topic: counted in the bridge's diagnostics, dropped, never a goal.
         goal_key = [d["key"] for d in ros.of("key", "/aero/goal")][0]
+        wait_until(lambda: len(ros.of("published")) == writes[0], 5, "the ROS node to publish every goal asked")
+        time.sleep(0.5)
         n_goals = len(goals)
         stack.session.put(goal_key, b"\x00\x01\x00\x00garbage")
         # /aero/vio/odom has no ROS subscriber: its samples are not even converted.
