@@ -1,10 +1,15 @@
 """`aero router`: the stack's Zenoh router, a Python session in router mode.
 
 `aero up` runs it as a supervised child (so a dead router is noticed and restarted); started
-that way it also exits when `aero up` dies, like every service."""
+that way it also exits when `aero up` dies, like every service.
+Its config: --zenoh-config FILE, else $AERO_ROUTER_CONFIG, else the clients' ($AERO_ZENOH_CONFIG,
+zenoh.json5). AERO_ROUTER_CONFIG lets one environment hold both sides of a secured stack:
+`AERO_ROUTER_CONFIG=certs/router.json5 AERO_ZENOH_CONFIG=certs/vehicle.json5 aero up --listen tls/0.0.0.0:7447`
+(README, "Security")."""
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 
 import zenoh
@@ -18,7 +23,8 @@ from .common import CliError
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("router", help="run the Zenoh router (listening per zenoh.json5)")
-    p.add_argument("--zenoh-config", default=None, metavar="FILE")
+    p.add_argument("--zenoh-config", default=None, metavar="FILE",
+                   help="router config (default: env AERO_ROUTER_CONFIG, else the clients' zenoh.json5)")
     p.add_argument("--listen", action="append", default=None, metavar="ENDPOINT",
                    help="listen endpoint, e.g. tcp/0.0.0.0:7447 (repeatable; default from zenoh.json5)")
     p.set_defaults(func=run)
@@ -41,7 +47,7 @@ def open_router(zenoh_config: str | None, listen: list[str] | None) -> zenoh.Ses
 def run(args) -> int:
     stop = ShutdownFlag().install().event
     bind_to_supervisor(stop.set)
-    router = open_router(args.zenoh_config, args.listen)
+    router = open_router(args.zenoh_config or os.environ.get("AERO_ROUTER_CONFIG") or None, args.listen)
     print(f"aero router: zid {router.zid()} listening on {', '.join(args.listen or ['zenoh.json5 endpoints'])}",
           file=sys.stderr, flush=True)
     stop.wait()

@@ -95,6 +95,10 @@ def open_client(args: argparse.Namespace, wait_s: float = 3.0) -> zenoh.Session:
     session = open_session(conf, max_wait_s=wait_s)
     if session is None:
         where = conf.get_json("connect/endpoints")
+        if "tls/" in where:  # a secured router refuses a client it cannot authenticate: same symptom
+            raise CliError(f"no Zenoh router reachable at {where}, or it refused this client: check the "
+                           "router runs and that AERO_ZENOH_CONFIG/--zenoh-config is your role's config "
+                           "(its CA, certificate and password; `aero certs` writes them)")
         raise CliError(f"no Zenoh router reachable at {where}: start the stack with `aero up` "
                        "(or `aero router`), or point --connect at a running router")
     return session

@@ -8,7 +8,8 @@ msgpack messages. It is registered through zenoh-cli's entry-point groups
 zenoh-cli hands a codec the key and the payload only, never the sample's encoding, so the
 schema comes from what the services' contracts declare for the key (the table `aero docs keys`
 prints; a `<vehicle>/` prefix is recognised). A key no contract declares is shown as schema-less
-msgpack. What a user types for `put` is a command: it is decoded strictly (unknown fields and
+msgpack. Service keys work with `zenoh get` (reply decoded, `-v` encoded as the request).
+What a user types for `put` is a command: it is decoded strictly (unknown fields and
 wrong types refused, with the error on stderr), exactly like `aero topic pub`.
 """
 from __future__ import annotations
@@ -30,17 +31,20 @@ def _contracts() -> list[contracts.Contract]:
 
 
 @functools.lru_cache(maxsize=512)
-def schemas_for_key(key: str) -> tuple[str, ...]:
-    """Schema names the contracts declare for `key` (writers first); tries the key without its
-    first chunk too, for a `<vehicle>/` prefix."""
-    key = key.strip("/")
+def schemas_for_key(key: str, replies: bool = True) -> tuple[str, ...]:
+    """Schema names the contracts declare for `key`: topics (writers first), then for a service
+    key its reply (`replies`, what `zenoh get` prints) or its request (what `zenoh get -v` sends).
+    Tries the key without its first chunk too, for a `<vehicle>/` prefix."""
+    key = key.strip("/").split("?", 1)[0]
     candidates = [key]
     if "/" in key:
         candidates.append(key.split("/", 1)[1])
     for k in candidates:
-        found = contracts.declared_schemas(k, _contracts())
+        found = [s for s, _svc, _role in contracts.declared_schemas(k, _contracts())]
+        found += [pair[1 if replies else 0] for c in _contracts() for pattern, pair in c.services.items()
+                  if contracts.key_matches(pattern, k) and isinstance(pair[1 if replies else 0], str)]
         if found:
-            return tuple(dict.fromkeys(s for s, _svc, _role in found))
+            return tuple(dict.fromkeys(found))
     return ()
 
 
@@ -68,7 +72,7 @@ def encode_value(key: str, value: str) -> bytes:
     if head and head[0].isalpha() and not head.endswith(":"):
         type_name, text = head, rest.strip() or "{}"
     else:
-        declared = schemas_for_key(str(key))
+        declared = schemas_for_key(str(key), replies=False)
         if not declared:
             _refuse(f"no service declares {key}: name the schema, e.g. -v 'VehicleState {{...}}'")
         type_name = declared[0]

@@ -84,13 +84,13 @@ def role_env(certs: Path | None, role: str | None, endpoint: str) -> dict[str, s
 
 
 def check_roles(vehicle, ground, certs: Path, router_listen: str, vehicle_ep: str, ground_ep: str, log: Path):
-    """Start the secured router and mission on `vehicle`, then exercise every role from `ground`."""
-    with open(log / "router.log", "w") as f:
-        vehicle.popen(aero_argv() + ["router", "--zenoh-config", str(certs / "router.json5"), "--listen", router_listen],
-                      stdout=f, stderr=subprocess.STDOUT, env=clean_env())
-    with open(log / "mission.log", "w") as f:
-        vehicle.popen(aero_argv() + ["run", "mission"], stdout=f, stderr=subprocess.STDOUT,
-                      env=dict(role_env(certs, "vehicle", vehicle_ep), AERO_STATE_DIR=str(log / "state")))
+    """Start a secured `aero up` (router + mission) on `vehicle`, then exercise every role from `ground`."""
+    # The documented production start: both configs in the environment, a TLS listen endpoint.
+    env = dict(role_env(certs, "vehicle", None), AERO_ROUTER_CONFIG=str(certs / "router.json5"),
+               AERO_STATE_DIR=str(log / "state"))
+    with open(log / "aero-up.out", "w") as f:
+        vehicle.popen(aero_argv() + ["up", "--only", "mission", "--listen", router_listen, "--log-dir", str(log / "up")],
+                      stdout=f, stderr=subprocess.STDOUT, env=env)
     # The vehicle side's view of its setpoint input.
     seen = vehicle.follow(aero_argv() + ["topic", "echo", "fmu/in/trajectory_setpoint", "--json"],
                           env=role_env(certs, "vehicle", vehicle_ep))
@@ -103,7 +103,7 @@ def check_roles(vehicle, ground, certs: Path, router_listen: str, vehicle_ep: st
     # (no mission loaded: the reply says success false, so the command exits 1 with the reply printed)
     while not (r := call_get("ground")).stdout.strip():   # the router and mission are starting
         assert time.monotonic() < deadline, f"ground never reached mission/srv/get: {r.stderr}\n" + \
-            (log / "router.log").read_text() + (log / "mission.log").read_text()
+            "".join(p.read_text() for p in [log / "aero-up.out", *sorted((log / "up").glob("*.log"))] if p.exists())
         time.sleep(0.5)
     reply = json.loads(r.stdout.splitlines()[0])
     assert reply["key"] == "mission/srv/get" and reply["schema"].startswith("GetMissionReply")
@@ -137,6 +137,8 @@ def check_roles(vehicle, ground, certs: Path, router_listen: str, vehicle_ep: st
     # The aero CLI says so in one line.
     r = ground.run(aero_argv() + ["topic", "echo", "state/vehicle", "--json"], env=clean_env(tcp), timeout_s=30)
     assert r.returncode != 0 and "Traceback" not in r.stderr and "no Zenoh router reachable" in r.stderr
+    r = ground.run(aero_argv() + ["topic", "echo", "state/vehicle", "--json"], env=clean_env(ground_ep), timeout_s=30)
+    assert r.returncode != 0 and "refused this client" in r.stderr and "AERO_ZENOH_CONFIG" in r.stderr
 
 
 def test_secure_router_refuses_anonymous_and_ground_setpoints_on_loopback(tmp_path):

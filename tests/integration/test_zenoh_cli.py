@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from aerotest import clean_env, wait_until
-from aeroperception.schemas import TrajectorySetpoint, Vector3, VehicleState
+from aeroperception.schemas import MissionCommand, Reply, TrajectorySetpoint, Vector3, VehicleState
 from aeroperception.services.runtime.session import DEFAULT_CONFIG
 
 ZENOH = Path(sys.executable).parent / "zenoh"
@@ -82,3 +82,22 @@ def test_zenoh_put_injects_a_typed_setpoint_and_refuses_a_wrong_one(zenoh_router
     assert named.returncode == 0, named.stderr
     time.sleep(0.5)
     assert len(got) == 1 and node.bad_input.total() == 0
+
+
+def test_zenoh_get_calls_a_service_with_a_typed_request_and_decodes_the_reply(zenoh_router, make_node):
+    node = make_node("mission")
+    got: list[MissionCommand] = []
+
+    def handle(cmd: MissionCommand) -> Reply:
+        got.append(cmd)
+        return Reply(success=True, message=f"{cmd.command} accepted")
+
+    node.serve("mission/srv/command", MissionCommand, Reply, handle)
+    r = subprocess.run(zenoh_cli(zenoh_router, "get", "-s", "mission/srv/command", "--encoder", "aero",
+                                 "-v", "{command: HOLD}", "--decoder", "aero"),
+                       capture_output=True, text=True, timeout=30, env=clean_env())
+    assert r.returncode == 0, r.stderr
+    shown = json.loads(r.stdout.splitlines()[0])
+    assert shown["schema"] == "Reply"
+    assert (shown["data"]["success"], shown["data"]["message"]) == (True, "HOLD accepted")
+    assert [c.command for c in got] == ["HOLD"]

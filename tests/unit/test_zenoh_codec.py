@@ -28,3 +28,11 @@ def test_encoder_builds_the_declared_type_strictly():
     with pytest.raises(SystemExit, match="name the schema"):
         encode_value("nobody/declares/this", "{}")
     assert decode(encode_value("nobody/declares/this", "TrajectorySetpoint {yaw_rad: 2}"), TrajectorySetpoint).yaw_rad == 2.0
+
+
+def test_service_keys_decode_replies_and_encode_requests():
+    from aeroperception.schemas import MissionCommand, Reply
+
+    shown = json.loads(decode_payload("mission/srv/command", encode(Reply(success=True, message="ok"))))
+    assert shown["schema"] == "Reply" and shown["data"]["success"] is True
+    assert decode(encode_value("mission/srv/command", "{command: LAND}"), MissionCommand).command == "LAND"

@@ -1,0 +1,35 @@
+"""Contract of ros2bridge: which of our keys it reads, the mission action it calls, its parameters.
+
+Its ROS side (rmw_zenoh keys `<domain>/<namespace>/<topic>/<type>/<hash>`, `@ros2_lv/**` tokens) is
+not part of the stack's key space: see convert.CATALOG for the topic each key becomes.
+"""
+from aeroperception.schemas import (
+    Detection2DArray, GoalReply, GoToPositionGoal, Image, Imu, Odometry, PointCloud, VehicleState,
+)
+from aeroperception.services.runtime import Param
+
+NAME = "ros2bridge"
+INPUTS = {
+    "state/vehicle": VehicleState,                # -> <ns>/odom nav_msgs/Odometry
+    "state/visual_odometry": Odometry,            # -> <ns>/vio/odom nav_msgs/Odometry
+    "sensors/imu": Imu,                           # -> <ns>/imu sensor_msgs/Imu
+    "sensors/camera/left/image": Image,           # -> <ns>/camera/left/image_raw sensor_msgs/Image
+    "sensors/camera/right/image": Image,          # -> <ns>/camera/right/image_raw
+    "sensors/lidar/points": PointCloud,           # -> <ns>/lidar/points sensor_msgs/PointCloud2
+    "perception/obstacles": PointCloud,           # -> <ns>/perception/obstacles sensor_msgs/PointCloud2
+    "perception/detections": Detection2DArray,    # -> <ns>/detections vision_msgs/Detection2DArray
+}
+CALLS = {
+    # <ns>/goal geometry_msgs/PoseStamped (ENU "map") -> a goto goal, checked by the mission as any other.
+    "mission/action/goto/goal": (GoToPositionGoal, GoalReply),
+}
+ACTIONS = ["mission/action/goto"]
+PARAMS = [
+    Param("domain_id", 0, "", 0, 232, description="ROS_DOMAIN_ID of the ROS 2 graph to join"),
+    Param("namespace", "/aero", description="ROS namespace of the bridge node and its topics"),
+    Param("node_name", "aero_bridge", description="ROS node name"),
+    Param("topics", "state/vehicle,state/visual_odometry,sensors/imu,perception/detections",
+          description="comma-separated keys to publish to ROS (any of INPUTS; images and clouds cost CPU)"),
+    Param("max_rate_hz", 20.0, "Hz", 0.1, 200.0, description="per-topic cap: extra samples are dropped, never queued"),
+    Param("goal_topic", "goal", description="PoseStamped goal topic under the namespace (empty: no ROS commands)"),
+]
