@@ -85,25 +85,21 @@ def test_smoother_recovers_known_imu_biases_from_visual_relative_poses():
 
 
 def test_fixed_lag_window_stays_bounded_over_a_long_flight():
-    """Cost per frame stays flat: the smoother holds only lag_s of states however long it runs."""
-    import time
-
+    """Cost per frame stays flat: the smoother holds only lag_s of states however long it runs (the
+    state count is the proof; the per-frame time is `aero bench vio`'s, not a timed test's)."""
     samples, truth = imu_stream(31.0, noiseless=True)
     be = Backend(ImuNoise(), BackendConfig(lag_s=1.0))
     t0 = int(0.4e9)
     be.initialize(t0, pose(truth(t0)), np.zeros(3), ImuBias())
-    sizes, ms, kf_t = [], [], t0
+    sizes, kf_t = [], t0
     for k in range(1, 601):                   # 30 s at 20 Hz
         t = t0 + k * 50_000_000
         T_rel = np.linalg.inv(pose(truth(kf_t))) @ pose(truth(t))
-        w0 = time.perf_counter()
         be.add_frame(t, samples, (kf_t, T_rel, np.diag([1e-5] * 6)))
-        ms.append(time.perf_counter() - w0)
         sizes.append(be.smoother.calculateEstimate().size())
         if k % 8 == 0:
             kf_t = t
     assert max(sizes) <= 3 * (20 + 3)         # X, V, B per frame over 1 s at 20 Hz
     assert sizes[-1] == sizes[300]
-    assert np.median(ms[-100:]) < 2.0 * np.median(ms[50:150]) + 1e-3
     est = be.last
     assert np.linalg.norm(est.world_T_body[:3, 3] - truth(t).position_enu_m) < 0.05
