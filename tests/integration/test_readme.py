@@ -77,6 +77,40 @@ HOW: dict[str, tuple] = {
     "aero chaos --list": (SKIP, ["aero", "chaos", "--list"], "lists the rows"),
     "aero chaos --rows kill_planner,gcs_loss --json chaos.json": (
         SKIP, ["aero", "chaos", "--help"], "flies a mission per row: tests/faults runs the rows"),
+    "aero topic echo perception/costmap -n 1": (SKIP, ["aero", "topic", "echo", "--help"],
+                                                "needs the LiDAR rendered (2 cores): test_lidar_service reads the costmap"),
+    "aero eval lidar --altitude 4 --altitude 1.5": (SKIP, ["aero", "eval", "lidar", "--help"],
+                                                    "renders 60 scans per height: `aero eval lidar` is checked on two"),
+    "aero up --arg detector:--param=model_path=/abs/path/best.onnx": (DRY, None, "--param=model_path=/abs/path/best.onnx"),
+    "aero param set detector model_path /abs/path/yolov8n.onnx": (
+        SKIP, ["aero", "param", "set", "--help"], "test_detector_service hot-swaps models through it"),
+    "aero bench detector": (SKIP, ["aero", "bench", "detector", "--help"], "a benchmark: minutes of inference"),
+    "aero up --profile viz": (DRY, None, "aeroperception.services.viz"),
+    "aero viz --web 9090": (SKIP, ["aero", "viz", "--help"], "test_viz serves the web viewer and screenshots it"),
+    "aero viz --viewer rerun+http://laptop:9876/proxy": (
+        SKIP, ["aero", "viz", "--help"], "test_viz_service streams to a Rerun gRPC relay"),
+    "aero viz --save flight.rrd": (SKIP, ["aero", "viz", "--help"], "test_viz reads a saved .rrd back"),
+    "aero viz": (SKIP, ["aero", "viz", "--help"], "the native viewer needs a display"),
+    "aero record -o recordings": (SKIP, ["aero", "record", "--help"], "runs until Ctrl-C: test_recorder records a flight"),
+    "aero record --preset all --images -o recordings": (SKIP, ["aero", "record", "--help"], "test_recorder"),
+    "aero mcap info recordings/FILE.mcap": (SKIP, ["aero", "mcap", "info", "--help"], "FILE is a placeholder: test_recorder"),
+    "aero replay recordings/FILE.mcap --rate 2 --keys state/vehicle mission/active_goal": (
+        SKIP, ["aero", "replay", "--help"], "test_recorder replays a flight byte-equal"),
+    "aero mcap recover recordings/FILE.mcap": (SKIP, ["aero", "mcap", "recover", "--help"],
+                                               "test_recorder recovers a file cut by kill -9"),
+    "aero mcap export recordings/FILE.mcap --foxglove": (SKIP, ["aero", "mcap", "export", "--help"],
+                                                         "test_recorder validates the export"),
+    "aero certs --out certs --host VEHICLE_IP": (SKIP, ["aero", "certs", "--help"], "test_certs / test_security"),
+    "AERO_ROUTER_CONFIG=certs/router.json5 AERO_ZENOH_CONFIG=certs/vehicle.json5 aero up --listen tls/0.0.0.0:7447": (
+        SKIP, None, "test_security starts exactly this across network namespaces"),
+    "AERO_ZENOH_CONFIG=certs/ground.json5 aero node list --connect tls/VEHICLE_IP:7447": (SKIP, None, "test_security"),
+    "zenoh --mode client --connect tcp/127.0.0.1:7447 subscribe -k 'state/**' --decoder aero": (
+        SKIP, None, "test_zenoh_cli runs it against a real router"),
+    "zenoh --mode client --connect tcp/127.0.0.1:7447 put -k mission/command --encoder aero -v '{command: HOLD}'": (
+        SKIP, None, "test_zenoh_cli runs it against a real router"),
+    "aero run ros2bridge --param topics=state/vehicle,sensors/imu,perception/detections": (
+        SKIP, ["aero", "run", "ros2bridge", "--help"], "test_ros2bridge runs the bridge against zenoh-ros2-sdk"),
+    "ros2 topic echo /aero/odom": (SKIP, None, "needs ROS 2: test_ros2bridge plays the ROS node with zenoh-ros2-sdk"),
 }
 
 
