@@ -100,6 +100,9 @@ class SimService(Service):
         self.speed = a.speed if a.speed > 0 else 1.0
         self.vehicle = SimVehicle(self.node.params, seed=seed)
         self.epoch_ns = time.time_ns() - self.vehicle.time_ns
+        self.vehicle.estimator.epoch_ns = self.epoch_ns   # vision stamps -> sim time (GPS-denied fusion)
+        self.blackout_until_ns = 0
+        self.node.params.on_change(self._on_param)
         self.endpoint = MavlinkEndpoint(target=parse_address(a.target), bind=parse_address(a.bind))
         pub = self.node.publisher
         self.pubs = {k: pub(k, cls, **_qos(k)) for k, cls in OUTPUTS.items()}
@@ -169,7 +172,13 @@ class SimService(Service):
                                                  linear_acceleration_mps2=Vector3.from_array(s.linear_acceleration_flu_mps2)))
         for w in self.workers:
             if self._due(w.name, now):
-                w.request(t, stamp)
+                w.request(t, stamp, blackout=w.name == "camera" and now < self.blackout_until_ns)
+
+    def _on_param(self, name: str, value) -> None:
+        """SIM_CAM_BLACKOUT = N: the cameras see black for N s of sim time from now (a fault)."""
+        if name == "SIM_CAM_BLACKOUT" and hasattr(self, "runner"):
+            self.blackout_until_ns = self.runner.now_ns() + int(float(value) * 1e9)
+            self.log.info("camera_blackout", seconds=value)
 
     # ------------------------------------------------------------ renderers (own threads)
 
@@ -185,7 +194,9 @@ class SimService(Service):
         values = {k: d[k] for k in ("sim_time_s", "realtime_factor", "mode", "armed", "landed_state", "failsafe",
                                     "battery_remaining", "overruns", "reboots", "rebooting", "time_boot_ms") if k in d}
         values.update({k: v for k, v in d.items()
-                       if k.startswith(("rx", "tx", "vision", "setpoint", "bad", "commander_"))})
+                       if k.startswith(("rx", "tx", "vision", "setpoint", "bad", "commander_", "gps_denied",
+                                                        "position_valid", "estimate_", "ev_"))})
+        values["camera_blackout"] = self.runner.now_ns() < self.blackout_until_ns
         level, msgs = DiagnosticStatus.OK, []
         for w in self.workers:
             rated = 1e9 / self.periods_ns[w.name]
