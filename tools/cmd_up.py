@@ -89,7 +89,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--scenario", default=None, help="sim: scenario world (open_field, village, slope_forest)")
     p.add_argument("--speed", type=float, default=None, help="sim: run faster than real time (services follow sim/clock)")
     p.add_argument("--seed", type=int, default=None, help="sim: random seed (wind, noise)")
-    p.add_argument("--sensors", default=None, choices=["all", "lidar", "imu", "none"],
+    p.add_argument("--sensors", default=None, choices=["all", "lidar", "camera", "imu", "none"],
                    help="sim: which scenario sensors to render (none: vehicle and truth only, least CPU)")
     p.add_argument("--fcu-url", default=None, help="fmu: MAVLink URL of the flight controller")
     p.add_argument("--gps-denied", action="store_true",
@@ -212,7 +212,7 @@ def validate_args(args, names: list[str]) -> None:
         if missing:
             raise CliError(f"--gps-denied needs {', '.join(missing)} (the vision position and its health): "
                            "do not leave them out with --only/--except")
-        if args.sensors not in (None, "all"):
+        if args.sensors not in (None, "all", "camera"):
             raise CliError(f"--gps-denied needs the cameras: drop --sensors {args.sensors}")
     if args.fcu_url is not None:
         m = FCU_URL_RE.match(args.fcu_url)

@@ -84,8 +84,9 @@ class SimService(Service):
         parser.add_argument("--scenario", default="open_field", help="open_field, village, slope_forest or a YAML path")
         parser.add_argument("--speed", type=float, default=1.0, help="sim seconds per wall second")
         parser.add_argument("--seed", type=int, default=None, help="seed (default: the scenario's)")
-        parser.add_argument("--sensors", default="all", choices=["all", "lidar", "imu", "none"],
+        parser.add_argument("--sensors", default="all", choices=["all", "lidar", "camera", "imu", "none"],
                             help="which scenario sensors to render (lidar: IMU + LiDAR, no cameras; "
+                                 "camera: IMU + cameras, no LiDAR (VIO without its CPU); "
                                  "none: vehicle and truth only)")
         parser.add_argument("--target", default="%s:%d" % PX4_SITL_TARGET, help="MAVLink goes to HOST:PORT (fmu)")
         parser.add_argument("--bind", default="%s:%d" % PX4_SITL_BIND, help="MAVLink sent from HOST:PORT")
@@ -113,7 +114,7 @@ class SimService(Service):
         self.periods_ns: dict[str, int] = {"truth": int(1e9 / self.params.truth_rate_hz)}
         if self.sensors is not None:
             self.periods_ns["imu"] = int(1e9 / self.scenario.sensors.imu.rate_hz)
-            if a.sensors == "all" and self.sensors.stereo is not None:
+            if a.sensors in ("all", "camera") and self.sensors.stereo is not None:
                 self.periods_ns["camera"] = int(1e9 / self.sensors.stereo.infos()[0].rate_hz)
                 self.workers.append(RenderProcess("camera", a.scenario, node_kwargs))
                 for info in self.sensors.stereo.infos():
