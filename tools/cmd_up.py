@@ -232,7 +232,9 @@ def validate_args(args, names: list[str]) -> None:
 def service_argv(name: str, args, endpoint: str, profile_args: list[str] = ()) -> list[str]:
     """The child's command line: the profile's flags for it first, so --arg/--fcu-url override them."""
     argv = [sys.executable, "-m", f"aeroperception.services.{name}", "--connect", endpoint, *profile_args]
-    if args.speed is not None and args.speed != 1.0:
+    # GPS-denied, the VIO's age is checked (fmu) against the sim's stamps: every service follows
+    # sim/clock even at x1, where a sim that fell behind real time re-anchors and lags the wall clock.
+    if (args.speed is not None and args.speed != 1.0) or getattr(args, "gps_denied", False):
         argv.append("--sim-time")
     if name == "sim":
         for flag, val in (("--scenario", args.scenario), ("--speed", args.speed), ("--seed", args.seed),
