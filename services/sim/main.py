@@ -101,7 +101,7 @@ class SimService(Service):
         self.speed = a.speed if a.speed > 0 else 1.0
         self.vehicle = SimVehicle(self.node.params, seed=seed)
         self.epoch_ns = time.time_ns() - self.vehicle.time_ns
-        self.vehicle.estimator.epoch_ns = self.epoch_ns   # vision stamps -> sim time (GPS-denied fusion)
+        self.vehicle.estimator.epoch_ns = lambda: self.epoch_ns   # vision stamps -> sim time (GPS-denied fusion)
         self.blackout_until_ns = 0
         self.node.params.on_change(self._on_param)
         self.endpoint = MavlinkEndpoint(target=parse_address(a.target), bind=parse_address(a.bind))

@@ -153,6 +153,13 @@ def test_not_denied_is_the_truth_and_switching_on_live_starts_without_position()
     assert "position" in v.commander.arm(v.time_s).reason
 
 
+def test_epoch_may_be_a_getter():
+    v = denied_vehicle()
+    v.estimator.epoch_ns = lambda: EPOCH_NS
+    run(v, 1.0, FakeVio(v))
+    assert v.estimator.valid(v.time_ns) and v.estimator.counters["vision_late"] == 0
+
+
 def test_garbage_vision_is_rejected():
     v = denied_vehicle()
     assert not v.estimator.on_vision(v.time_ns, EPOCH_NS, [math.nan, 0, 0], [1, 0, 0, 0])

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from typing import Callable
 
 import numpy as np
 
@@ -50,7 +51,9 @@ class VisionEstimator:
         self.p = params
         self.truth = truth
         self.rng = rng
-        self.epoch_ns: int | None = None   # vision stamps - epoch = sim time; None: learnt (min delay 0)
+        # vision stamps - epoch = sim time: an int, a getter (the runner's epoch moves when it
+        # re-anchors), or None: learnt (the smallest delay seen counts as zero)
+        self.epoch_ns: int | Callable[[], int] | None = None
         self.counters = {"vision_fused": 0, "vision_rejected": 0, "vision_late": 0, "ev_alignments": 0}
         self.reset()
 
@@ -116,7 +119,7 @@ class VisionEstimator:
 
     def _sim_ns(self, stamp_ns: int, now_ns: int) -> int:
         if self.epoch_ns is not None:
-            return stamp_ns - self.epoch_ns
+            return stamp_ns - (self.epoch_ns() if callable(self.epoch_ns) else self.epoch_ns)
         off = stamp_ns - now_ns
         if self._learnt_offset_ns is None or off > self._learnt_offset_ns:
             self._learnt_offset_ns = off     # the smallest delay seen counts as zero
