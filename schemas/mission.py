@@ -74,11 +74,13 @@ class MissionCommand(Message, kw_only=True):
 @schema("PerceptionHealth", 1)
 class PerceptionHealth(Message, kw_only=True):
     """The perception coordinator's verdict (perception/health, 1 Hz + on change): the single
-    input the mission manager gates EXECUTING on. `overall_healthy` is vio_status == HEALTHY."""
+    input the mission manager gates EXECUTING on. `overall_healthy` is vio_status == HEALTHY.
+    `lidar_status` (same enum; the LiDAR obstacle service's diagnostics) is reported, not gated on."""
 
     header: Header = msgspec.field(default_factory=Header)
     vio_status: int = 0
     detector_status: int = 0
+    lidar_status: int = 0
     overall_healthy: bool = False
     message: str = ""
 

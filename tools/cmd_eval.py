@@ -26,7 +26,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     src = p.add_mutually_exclusive_group()
     src.add_argument("--euroc", metavar="DIR", help="EuRoC/ASL dataset folder (contains mav0/)")
     src.add_argument("--live", action="store_true", help="the running vio against sim/truth/state")
-    p.add_argument("--duration", type=float, default=60.0, help="--live: seconds to record")
+    p.add_argument("--duration", type=float, default=60.0, help="--live: seconds to record (at most, with --until-landed)")
+    p.add_argument("--until-landed", action="store_true",
+                   help="--live: stop once the vehicle (sim truth) has flown and is down and disarmed again")
     add_session_arguments(p)
     p.add_argument("--out", default="vio_eval", metavar="DIR", help="where to write vio_eval.json / .png")
     p.add_argument("--strategy", default="klt_stereo", help="VioStrategy (klt_stereo, klt_mono)")

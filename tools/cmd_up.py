@@ -92,9 +92,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--scenario", default=None, help="sim: scenario world (open_field, village, slope_forest)")
     p.add_argument("--speed", type=float, default=None, help="sim: run faster than real time (services follow sim/clock)")
     p.add_argument("--seed", type=int, default=None, help="sim: random seed (wind, noise)")
-    p.add_argument("--sensors", default=None, choices=["all", "lidar", "imu", "none"],
+    p.add_argument("--sensors", default=None, choices=["all", "lidar", "camera", "imu", "none"],
                    help="sim: which scenario sensors to render (none: vehicle and truth only, least CPU)")
     p.add_argument("--fcu-url", default=None, help="fmu: MAVLink URL of the flight controller")
+    p.add_argument("--gps-denied", action="store_true",
+                   help="sim: the flight controller has no GPS-like position, only the VIO (fused with its "
+                        "IMU); the mission waits for and holds on perception health (VIO TRACKING)")
     p.add_argument("--arg", action="append", default=[], metavar="SERVICE:FLAG",
                    help="extra flag for one service, e.g. --arg planner:--param=kp=1.0")
     p.add_argument("--status-interval", type=float, default=2.0, help="seconds between status tables")
@@ -187,6 +190,15 @@ FCU_URL_RE = re.compile(r"^(?:(?:udp|udpin|udpout|udpbcast|tcp|tcpin):[A-Za-z0-9
                         r"|(?:/dev/\S+|COM\d+)(?:,\d+)?)$")
 
 
+# `aero up --gps-denied`: the sim FC estimates position from the VIO only (SIM_GPS_DENIED); the
+# mission gates EXECUTING on perception/health (seed 000 §4.1 / §5.1).
+GPS_DENIED_NEEDS = ("vio", "perception")
+GPS_DENIED_ARGS = {
+    "sim": ["--param", "SIM_GPS_DENIED=true"],
+    "mission": ["--param", "require_perception=true"],
+}
+
+
 def validate_args(args, names: list[str]) -> None:
     """Refuse, before anything starts, what would only make a child crash-loop."""
     if args.speed is not None and not (math.isfinite(args.speed) and args.speed > 0):
@@ -198,6 +210,13 @@ def validate_args(args, names: list[str]) -> None:
             load_scenario(args.scenario)
         except ScenarioError as e:
             raise CliError(f"--scenario: {e}{_did_you_mean(args.scenario, available_scenarios())}") from None
+    if getattr(args, "gps_denied", False):
+        missing = [n for n in GPS_DENIED_NEEDS if n not in names]
+        if missing:
+            raise CliError(f"--gps-denied needs {', '.join(missing)} (the vision position and its health): "
+                           "do not leave them out with --only/--except")
+        if args.sensors not in (None, "all", "camera"):
+            raise CliError(f"--gps-denied needs the cameras: drop --sensors {args.sensors}")
     if args.fcu_url is not None:
         m = FCU_URL_RE.match(args.fcu_url)
         if not m or (m.group(1) and not 0 < int(m.group(1)) < 65536):
@@ -216,7 +235,9 @@ def validate_args(args, names: list[str]) -> None:
 def service_argv(name: str, args, endpoint: str, profile_args: list[str] = ()) -> list[str]:
     """The child's command line: the profile's flags for it first, so --arg/--fcu-url override them."""
     argv = [sys.executable, "-m", f"aeroperception.services.{name}", "--connect", endpoint, *profile_args]
-    if args.speed is not None and args.speed != 1.0:
+    # GPS-denied, the VIO's age is checked (fmu) against the sim's stamps: every service follows
+    # sim/clock even at x1, where a sim that fell behind real time re-anchors and lags the wall clock.
+    if (args.speed is not None and args.speed != 1.0) or getattr(args, "gps_denied", False):
         argv.append("--sim-time")
     if name == "sim":
         for flag, val in (("--scenario", args.scenario), ("--speed", args.speed), ("--seed", args.seed),
@@ -227,6 +248,8 @@ def service_argv(name: str, args, endpoint: str, profile_args: list[str] = ()) -
         argv += ["--scenario", args.scenario]   # metadata of the recording
     if name == "fmu" and args.fcu_url:
         argv += ["--fcu-url", args.fcu_url]
+    if getattr(args, "gps_denied", False):
+        argv += GPS_DENIED_ARGS.get(name, [])
     for item in args.arg:
         svc, sep, flag = item.partition(":")
         if not sep:

@@ -195,13 +195,15 @@ def _pose(p) -> np.ndarray:
     return T
 
 
-def collect_live(session, duration_s: float, prefix: str = "") -> tuple[list, list, list]:
-    """(odometry messages, truth stamps, truth 4x4 poses) recorded for duration_s."""
+def collect_live(session, duration_s: float, prefix: str = "", until_landed: bool = False) -> tuple[list, list, list]:
+    """(odometry messages, truth stamps, truth 4x4 poses) recorded for duration_s, or (until_landed)
+    until the true vehicle has been armed in the air and is down and disarmed again: one flight."""
     import threading
 
     from aeroperception.schemas import Odometry, Pose, SchemaError, VehicleState, decode
 
     odom, t_stamps, t_poses, lock = [], [], [], threading.Lock()
+    flew, down = threading.Event(), threading.Event()
 
     def on_odom(sample) -> None:
         try:
@@ -219,11 +221,18 @@ def collect_live(session, duration_s: float, prefix: str = "") -> tuple[list, li
         with lock:
             t_stamps.append(m.header.stamp_ns)
             t_poses.append(_pose(Pose(position=m.position_m, orientation=m.orientation)))
+        if m.armed and m.position_m.z > 0.5:
+            flew.set()
+        elif flew.is_set() and not m.armed and m.position_m.z < 0.2:
+            down.set()
 
     subs = [session.declare_subscriber(prefix + "state/visual_odometry", on_odom),
             session.declare_subscriber(prefix + "sim/truth/state", on_truth)]
     try:
-        time.sleep(duration_s)
+        if until_landed:
+            down.wait(duration_s)
+        else:
+            time.sleep(duration_s)
     finally:
         for s in subs:
             s.undeclare()
@@ -266,8 +275,10 @@ def run(euroc: str | None, out_dir: str, strategy: str = "klt_stereo", align: st
         session = open_client(live_args)
         try:
             prefix = f"{live_args.vehicle}/" if live_args.vehicle else ""
-            print(f"recording state/visual_odometry and sim/truth/state for {live_args.duration:g} s ...", flush=True)
-            m = _live_metrics(*collect_live(session, live_args.duration, prefix), align, rpe_delta_s)
+            until = getattr(live_args, "until_landed", False)
+            print(f"recording state/visual_odometry and sim/truth/state for {live_args.duration:g} s"
+                  + (" at most, until the vehicle has flown and landed" if until else "") + " ...", flush=True)
+            m = _live_metrics(*collect_live(session, live_args.duration, prefix, until), align, rpe_delta_s)
         finally:
             session.close()
         m.update(source="live")

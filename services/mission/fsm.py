@@ -265,6 +265,12 @@ class MissionManager:
             # landing aborted by us: take control back from AUTO.LAND (never from a pilot)
             self._request_mode("OFFBOARD")
         elif event == E.ALTITUDE_REACHED and self.start_requested:
+            if self.perception_required() and not self.perception_healthy:
+                # seed 000 §5.1: TAKEOFF exits to EXECUTING on "VIO healthy + altitude reached";
+                # wait here like a perception hold (recovered -> EXECUTING, recovery time -> RTL)
+                self.hold_reason = "perception"
+                self.message = "takeoff complete: waiting for perception (VIO TRACKING) to start the mission"
+                return
             self.fire(E.START_CMD, "takeoff complete, starting mission")
 
     def _enter_executing(self, prev: State, event: Event) -> None:
@@ -615,7 +621,8 @@ class MissionManager:
             self.fire(E.PERCEPTION_LOST, "perception unhealthy: holding")
         elif self.state == State.HOLDING and self.hold_reason == "perception" and not self.outage:
             if self.perception_healthy:
-                self.fire(E.PERCEPTION_RECOVERED, "perception recovered: resuming")
+                self.fire(E.PERCEPTION_RECOVERED, "perception recovered: resuming" if self.wp_index >= 0
+                          else "perception healthy: starting mission")
             elif now_s - self.hold_since_s > self.cfg.perception_recovery_s:
                 self.fire(E.PERCEPTION_TIMEOUT, "perception lost > recovery time: RTL")
 

@@ -84,8 +84,9 @@ class SimService(Service):
         parser.add_argument("--scenario", default="open_field", help="open_field, village, slope_forest or a YAML path")
         parser.add_argument("--speed", type=float, default=1.0, help="sim seconds per wall second")
         parser.add_argument("--seed", type=int, default=None, help="seed (default: the scenario's)")
-        parser.add_argument("--sensors", default="all", choices=["all", "lidar", "imu", "none"],
+        parser.add_argument("--sensors", default="all", choices=["all", "lidar", "camera", "imu", "none"],
                             help="which scenario sensors to render (lidar: IMU + LiDAR, no cameras; "
+                                 "camera: IMU + cameras, no LiDAR (VIO without its CPU); "
                                  "none: vehicle and truth only)")
         parser.add_argument("--target", default="%s:%d" % PX4_SITL_TARGET, help="MAVLink goes to HOST:PORT (fmu)")
         parser.add_argument("--bind", default="%s:%d" % PX4_SITL_BIND, help="MAVLink sent from HOST:PORT")
@@ -101,6 +102,8 @@ class SimService(Service):
         # The physics ground is the scenario's (slope_forest's 10 deg slope too), so landing,
         # take-off and the rendered sensors agree on where the ground is.
         self.vehicle = SimVehicle(self.node.params, seed=seed, terrain=self.scenario.ground_height_m)
+        self.blackout_until_ns = 0
+        self.node.params.on_change(self._on_param)
         self.endpoint = MavlinkEndpoint(target=parse_address(a.target), bind=parse_address(a.bind))
         pub = self.node.publisher
         self.pubs = {k: pub(k, cls, **_qos(k)) for k, cls in OUTPUTS.items()}
@@ -111,7 +114,7 @@ class SimService(Service):
         self.periods_ns: dict[str, int] = {"truth": int(1e9 / self.params.truth_rate_hz)}
         if self.sensors is not None:
             self.periods_ns["imu"] = int(1e9 / self.scenario.sensors.imu.rate_hz)
-            if a.sensors == "all" and self.sensors.stereo is not None:
+            if a.sensors in ("all", "camera") and self.sensors.stereo is not None:
                 self.periods_ns["camera"] = int(1e9 / self.sensors.stereo.infos()[0].rate_hz)
                 self.workers.append(RenderProcess("camera", a.scenario, node_kwargs))
                 for info in self.sensors.stereo.infos():
@@ -128,6 +131,8 @@ class SimService(Service):
         physics_hz = imu_hz * math.ceil(250.0 / imu_hz) if "imu" in self.periods_ns else 250.0
         self.runner = SimVehicleRunner(self.vehicle, self.endpoint, speed=self.speed, physics_rate_hz=physics_hz,
                                        on_truth=self._on_truth)
+        # Vision stamps -> sim time for the GPS-denied fusion: the runner owns the epoch.
+        self.vehicle.estimator.epoch_ns = lambda: self.runner.epoch_ns
         self.runner.start()
         self.log.info("sim_started", scenario=self.scenario.name, seed=seed, speed=self.speed,
                       mavlink_target=a.target, sensors=a.sensors)
@@ -170,7 +175,13 @@ class SimService(Service):
                                                  linear_acceleration_mps2=Vector3.from_array(s.linear_acceleration_flu_mps2)))
         for w in self.workers:
             if self._due(w.name, now):
-                w.request(t, stamp)
+                w.request(t, stamp, blackout=w.name == "camera" and now < self.blackout_until_ns)
+
+    def _on_param(self, name: str, value) -> None:
+        """SIM_CAM_BLACKOUT = N: the cameras see black for N s of sim time from now (a fault)."""
+        if name == "SIM_CAM_BLACKOUT" and hasattr(self, "runner"):
+            self.blackout_until_ns = self.runner.now_ns() + int(float(value) * 1e9)
+            self.log.info("camera_blackout", seconds=value)
 
     # ------------------------------------------------------------ renderers (own threads)
 
@@ -186,7 +197,9 @@ class SimService(Service):
         values = {k: d[k] for k in ("sim_time_s", "realtime_factor", "mode", "armed", "landed_state", "failsafe",
                                     "battery_remaining", "overruns", "reboots", "rebooting", "time_boot_ms") if k in d}
         values.update({k: v for k, v in d.items()
-                       if k.startswith(("rx", "tx", "vision", "setpoint", "bad", "commander_"))})
+                       if k.startswith(("rx", "tx", "vision", "setpoint", "bad", "commander_", "gps_denied",
+                                                        "position_valid", "estimate_", "ev_"))})
+        values["camera_blackout"] = self.runner.now_ns() < self.blackout_until_ns
         level, msgs = DiagnosticStatus.OK, []
         for w in self.workers:
             rated = 1e9 / self.periods_ns[w.name]

@@ -31,10 +31,15 @@ class _CameraRenderer:
         self.right = node.publisher(CAMERA_KEYS[1], Image)
         self.boxes = node.publisher(CAMERA_KEYS[2], Detection2DArray)
 
-    def __call__(self, truth, stamp_ns: int) -> None:
+    def __call__(self, truth, stamp_ns: int, blackout: bool = False) -> None:
         from .sensors.truth_boxes import project_targets
 
-        left, right = self.stereo.render(truth)
+        if blackout:  # the SIM_CAM_BLACKOUT fault: frames keep coming, all black
+            info = self.stereo.infos()[0]
+            left = np.zeros((info.height, info.width), np.uint8)
+            right = None if self.stereo.right is None else left
+        else:
+            left, right = self.stereo.render(truth)
         encoding = "mono8" if left.ndim == 2 else "rgb8"
         header = Header(stamp_ns=stamp_ns, frame_id="camera_left_optical")
         self.left.publish(Image.from_numpy(left, encoding, header))
@@ -57,7 +62,7 @@ class _LidarRenderer:
         self.points = node.publisher(LIDAR_KEYS[0], PointCloud)
         self.labels = node.publisher(LIDAR_KEYS[1], PointCloud)
 
-    def __call__(self, truth, stamp_ns: int) -> None:
+    def __call__(self, truth, stamp_ns: int, blackout: bool = False) -> None:
         scan = self.lidar.scan(truth, stamp_ns=stamp_ns)
         header = Header(stamp_ns=stamp_ns, frame_id=scan.frame_id)
         points = NDArray.from_numpy(scan.points_m.astype(np.float32, copy=False))
@@ -102,10 +107,10 @@ def _child_main(sensor: str, scenario_ref: str, node_kwargs: dict, conn) -> None
                     return
                 skipped += request is not None
                 request = msg
-            truth, stamp_ns = request
+            truth, stamp_ns, blackout = request
             t0 = time.perf_counter()
             try:
-                render(truth, stamp_ns)
+                render(truth, stamp_ns, blackout)
                 conn.send(("frame", (time.perf_counter() - t0) * 1e3, skipped, None))
             except Exception as e:  # noqa: BLE001 - keep rendering, report
                 conn.send(("frame", (time.perf_counter() - t0) * 1e3, skipped, f"{type(e).__name__}: {e}"))
@@ -135,11 +140,11 @@ class RenderProcess:
         self._reader = threading.Thread(target=self._read, name=f"sim-{name}-stats", daemon=True)
         self._reader.start()
 
-    def request(self, truth, stamp_ns: int) -> None:
+    def request(self, truth, stamp_ns: int, blackout: bool = False) -> None:
         self.requested += 1
         try:
             with self._send_lock:
-                self._conn.send((truth, stamp_ns))
+                self._conn.send((truth, stamp_ns, blackout))
         except (BrokenPipeError, OSError):
             self.errors += 1
             self.error, self.error_wall = "render process gone", time.monotonic()

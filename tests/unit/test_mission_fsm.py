@@ -1222,3 +1222,43 @@ def test_start_after_a_takeover_answers_with_the_fcs_offboard_outcome():
     rig.mgr.command("START", rig.on_result)
     rig.bridge.answer_pending()
     assert rig.results[-1][0] is True and rig.mgr.state == State.EXECUTING
+
+
+# ================================================================ VIO gate on takeoff (seed 000 §5.1)
+
+def test_takeoff_does_not_start_the_mission_until_perception_is_healthy():
+    rig = Rig()
+    rig.to_takeoff(survey(require_vio=True))
+    assert rig.mgr.command("START", rig.on_result)[0]       # start requested during the takeoff
+    rig.tick(0.5, healthy=False)
+    rig.feed(flying(z=5.0))                                  # altitude reached, VIO not TRACKING
+    assert rig.mgr.state == State.HOLDING and rig.mgr.hold_reason == "perception"
+    assert "VIO TRACKING" in rig.mgr.status().message
+    for _ in range(6):
+        rig.tick(0.5, healthy=False)
+        assert rig.mgr.state == State.HOLDING
+    assert all(g.position_m is None or g.position_m[2] == pytest.approx(5.0) for g in rig.goals)
+    rig.tick(0.5, healthy=True)
+    assert rig.mgr.state == State.EXECUTING and rig.mgr.wp_index == 0
+    assert "starting mission" in rig.mgr.message
+    assert_goal(rig.goals[-1], SURVEY_WPS[0])
+
+
+def test_takeoff_waiting_for_perception_returns_home_after_the_recovery_time():
+    rig = Rig()
+    rig.to_takeoff(survey(require_vio=True))
+    rig.mgr.command("START", rig.on_result)
+    rig.feed(flying(z=5.0))
+    assert rig.mgr.state == State.HOLDING
+    for _ in range(21):
+        rig.tick(0.5, healthy=False)
+    assert rig.mgr.state == State.LAND and rig.mgr.land_mode == "RTL"
+
+
+def test_takeoff_with_healthy_perception_starts_at_once():
+    rig = Rig()
+    rig.to_takeoff(survey(require_vio=True))
+    rig.mgr.command("START", rig.on_result)
+    rig.tick(0.1, healthy=True)
+    rig.feed(flying(z=5.0))
+    assert rig.mgr.state == State.EXECUTING

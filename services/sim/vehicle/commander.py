@@ -38,7 +38,7 @@ TEMPORARILY_REJECTED = mavlink.MAV_RESULT_TEMPORARILY_REJECTED
 FLYABLE_MODES = ("OFFBOARD", "POSCTL", "HOLD", "LAND", "RTL", "TAKEOFF")
 OFFBOARD_LOSS_MODES = {0: "LAND", 1: "HOLD", 2: "RTL"}   # COM_OBL_ACT
 FS_OFFBOARD_LOST = "offboard setpoints lost"
-FS_NO_POSITION = "position estimate lost"
+FS_NO_POSITION = "Navigation error: No valid position estimate"   # PX4's text (modeCheck.cpp)
 FS_BATTERY_CRITICAL = "battery critical"
 FS_BATTERY_EMERGENCY = "battery emergency"
 FS_TERMINATION = "flight termination"
@@ -63,8 +63,11 @@ class Commander:
     writes it. Call `update(now_s)` once per physics step; it returns None when the motors must
     be off (disarmed) and a Setpoint otherwise."""
 
-    def __init__(self, params: ParamSet, state: RigidBodyState, battery_remaining=lambda: 1.0):
+    def __init__(self, params: ParamSet, state: RigidBodyState, battery_remaining=lambda: 1.0,
+                 position_valid=None):
         self.p = params
+        # the estimator's verdict (estimator.py); default: the SIM_POS_VALID switch alone
+        self.position_valid = position_valid or (lambda: bool(self.p.SIM_POS_VALID))
         self.state = state
         self._battery_remaining = battery_remaining
         self.armed = False
@@ -113,8 +116,8 @@ class Commander:
 
     def arming_problem(self, now_s: float) -> str:
         """Why arming would be refused now ('' if it would not): PX4's pre-arm checks."""
-        if not self.p.SIM_POS_VALID:
-            return "no valid position estimate"
+        if not self.position_valid():
+            return FS_NO_POSITION
         if not self.landed:
             return "vehicle is not landed"
         if self._battery_remaining() < self.p.BAT_EMERGEN_THR:
@@ -160,8 +163,8 @@ class Commander:
             return self._refuse(DENIED, "flight termination active")
         if mode not in FLYABLE_MODES:
             return self._refuse(TEMPORARILY_REJECTED, f"mode {mode} not available in the simulator")
-        if not self.p.SIM_POS_VALID:
-            return self._refuse(TEMPORARILY_REJECTED, f"mode {mode} needs a position estimate")
+        if mode != "LAND" and not self.position_valid():   # PX4 can still descend without one
+            return self._refuse(TEMPORARILY_REJECTED, f"{mode} not possible: {FS_NO_POSITION}")
         if mode == "OFFBOARD" and not self.offboard_available(now_s):
             return self._refuse(TEMPORARILY_REJECTED, f"offboard denied: no setpoint stream "
                                                       f"(> {self.p.COM_OF_MIN_HZ:g} Hz for {self.p.COM_OF_WARM_T:g} s)")
@@ -235,7 +238,7 @@ class Commander:
         elif (self.failsafe_reason == FS_OFFBOARD_LOST and self.mode == "HOLD"
               and p.COM_OBL_HOLD_T >= 0 and now_s - self._mode_since_s >= p.COM_OBL_HOLD_T):
             self._enter_mode("LAND", now_s)
-        if in_air and not p.SIM_POS_VALID and self.mode != "LAND":
+        if in_air and self.mode != "LAND" and not self.position_valid():
             self._set_failsafe(FS_NO_POSITION)
             self._enter_mode("LAND", now_s)
         if p.COM_LOW_BAT_ACT == 3 and in_air:

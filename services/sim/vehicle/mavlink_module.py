@@ -167,7 +167,7 @@ class MavlinkModule:
         self.rx_types: Counter[str] = Counter()
         self.counters = Counter({k: 0 for k in (
             "commands", "commands_unsupported", "commands_refused", "setpoints", "setpoints_rejected",
-            "setpoints_nonfinite", "vision_odometry", "vision_position", "timesync", "params_sent",
+            "setpoints_nonfinite", "vision_odometry", "vision_position", "vision_rejected_frame", "timesync", "params_sent",
             "handler_errors", "ignored", "ignored_while_rebooting")})
         self.setpoint_max_speed_mps = 0.0   # fastest velocity setpoint received (truth of what the FC got)
         self._reboots_seen = vehicle.reboots
@@ -387,14 +387,31 @@ class MavlinkModule:
         self.setpoint_max_speed_mps = max(self.setpoint_max_speed_mps, math.sqrt(sum(v * v for v in vel)))
 
     def _on_vision(self, m) -> list[Message]:
-        """Count what a VIO injects and how far it is from the truth (an end-to-end check)."""
-        if m.get_type() == "ODOMETRY":
-            self.counters["vision_odometry"] += 1
-        else:
-            self.counters["vision_position"] += 1
+        """Vision from the companion (fmu injects the VIO): count it, measure it against the
+        truth (an end-to-end check) and, GPS-denied, fuse it (estimator.py). NED/FRD -> ENU/FLU
+        here, through frames.py."""
+        odom = m.get_type() == "ODOMETRY"
+        self.counters["vision_odometry" if odom else "vision_position"] += 1
         pos_enu = frames.ned_to_enu(np.array([m.x, m.y, m.z], dtype=float))
         if np.all(np.isfinite(pos_enu)):
             self.vision_error_m = float(np.linalg.norm(pos_enu - self.vehicle.state.position_enu_m))
+        if odom:
+            if m.frame_id not in (M.MAV_FRAME_LOCAL_NED, M.MAV_FRAME_LOCAL_FRD) or m.child_frame_id not in (
+                    M.MAV_FRAME_BODY_FRD,):
+                self.counters["vision_rejected_frame"] += 1
+                return []
+            q = frames.q_ned_frd_to_enu_flu(np.array(m.q, dtype=float))
+            vel = frames.frd_to_flu(np.array([m.vx, m.vy, m.vz], dtype=float))
+            pos_var = vel_var = None
+            if math.isfinite(m.pose_covariance[0]):
+                pos_var = np.diag(frames.cov6_ned_frd_to_enu_flu(frames.urt21_to_cov6(m.pose_covariance)))[:3]
+            if math.isfinite(m.velocity_covariance[0]):
+                vel_var = np.diag(frames.cov6_frd_to_flu(frames.urt21_to_cov6(m.velocity_covariance)))[:3]
+            self.vehicle.estimator.on_vision(self.vehicle.time_ns, int(m.time_usec) * 1000, pos_enu, q, vel,
+                                             pos_var, vel_var, m.reset_counter)
+        else:
+            q = frames.q_ned_frd_to_enu_flu(frames.quat_from_euler(m.roll, m.pitch, m.yaw))
+            self.vehicle.estimator.on_vision(self.vehicle.time_ns, int(m.usec) * 1000, pos_enu, q)
         return []
 
     def _on_timesync(self, m) -> list[Message]:
@@ -510,7 +527,7 @@ class MavlinkModule:
         return self.vehicle.sensor_rng.normal(0.0, 1.0, n) * sigma
 
     def local_position_ned(self) -> Message:
-        s, p = self.vehicle.state, self.vehicle.params
+        s, p = self.vehicle.estimate, self.vehicle.params   # what the FC believes (GPS-denied: vision + IMU)
         pos = frames.enu_to_ned(s.position_enu_m + self._noise(p.SIM_POS_NOISE))
         vel = frames.enu_to_ned(s.velocity_enu_mps + self._noise(p.SIM_VEL_NOISE))
         return self.enc.local_position_ned_encode(self.time_boot_ms, *pos, *vel)
@@ -543,7 +560,9 @@ class MavlinkModule:
     def sys_status(self) -> Message:
         bat, c, p = self.vehicle.airframe.battery, self.commander, self.vehicle.params
         health = SENSORS
-        if not p.SIM_POS_VALID:
+        if p.SIM_GPS_DENIED or not p.SIM_POS_VALID:
+            health &= ~M.MAV_SYS_STATUS_SENSOR_GPS
+        if not self.vehicle.estimator.valid(self.vehicle.time_ns):
             health &= ~(M.MAV_SYS_STATUS_SENSOR_GPS | M.MAV_SYS_STATUS_SENSOR_XY_POSITION_CONTROL)
         if c.arming_problem(self.now_s) and not c.armed:
             health &= ~M.MAV_SYS_STATUS_PREARM_CHECK
@@ -574,7 +593,7 @@ class MavlinkModule:
                                            alt_amsl, 25.0, 0x1FFF)
 
     def global_position_int(self) -> Message:
-        s, p = self.vehicle.state, self.vehicle.params
+        s, p = self.vehicle.estimate, self.vehicle.params
         pos = s.position_enu_m + self._noise(p.SIM_POS_NOISE)
         lat, lon = self.vehicle.home.reproject(north_m=pos[1], east_m=pos[0])
         vel_ned = frames.enu_to_ned(s.velocity_enu_mps)
@@ -596,7 +615,11 @@ class MavlinkModule:
 
     def diagnostics(self) -> dict:
         """Flat counters (per-type receive counts are in `rx_types`)."""
-        return {**self.counters, "vision_error_m": self.vision_error_m, "last_reason": self.commander.last_reason,
+        est = self.vehicle.estimator
+        return {**self.counters, **est.counters, "vision_error_m": self.vision_error_m,
+                "gps_denied": est.gps_denied, "position_valid": est.valid(self.vehicle.time_ns),
+                "estimate_error_m": round(float(np.linalg.norm(self.vehicle.estimate.position_enu_m
+                                                             - self.vehicle.state.position_enu_m)), 3), "last_reason": self.commander.last_reason,
                 "setpoint_max_speed_mps": round(self.setpoint_max_speed_mps, 3), "time_boot_ms": self.time_boot_ms,
                 "rebooting": self.vehicle.time_ns < self._silent_until_ns}
 

@@ -17,6 +17,7 @@ from aeroperception.services.sim.truth import VehicleTruth
 from .commander import Commander
 from .control import PositionController
 from .dynamics import Multirotor, Terrain
+from .estimator import EstimatedState, VisionEstimator
 from .params import make_params
 
 DEFAULT_PHYSICS_RATE_HZ = 250.0
@@ -30,9 +31,10 @@ class SimVehicle:
         self.params = params if isinstance(params, ParamSet) else make_params(params)
         self.terrain = terrain
         self.seed = seed
-        physics_seq, sensor_seq = np.random.SeedSequence(seed).spawn(2)
+        physics_seq, sensor_seq, estimator_seq = np.random.SeedSequence(seed).spawn(3)  # first two as before
         self.physics_rng = np.random.default_rng(physics_seq)
         self.sensor_rng = np.random.default_rng(sensor_seq)
+        self._estimator_seq = estimator_seq
         self.time_ns = 0
         self.boot_ns = 0          # sim time of the last (re)boot: time_boot_ms counts from here
         self.reboots = 0
@@ -41,7 +43,12 @@ class SimVehicle:
     def _build(self) -> None:
         self.airframe = Multirotor(self.params, self.physics_rng, terrain=self.terrain)
         self.controller = PositionController(self.params)
-        self.commander = Commander(self.params, self.airframe.state, lambda: self.airframe.battery.remaining)
+        epoch = getattr(self, "estimator", None) and self.estimator.epoch_ns
+        self.estimator = VisionEstimator(self.params, self.airframe.state, np.random.default_rng(self._estimator_seq))
+        self.estimator.epoch_ns = epoch
+        self.estimate = EstimatedState(self.airframe.state, self.estimator)  # what the FC believes
+        self.commander = Commander(self.params, self.estimate, lambda: self.airframe.battery.remaining,
+                                   lambda: self.estimator.valid(self.time_ns))
 
     def reboot(self) -> None:
         """Like power-cycling the autopilot: back on the ground at home, disarmed, termination
@@ -71,10 +78,11 @@ class SimVehicle:
         """Advance the simulation by dt_s (seconds of sim time)."""
         dt_ns = int(round(dt_s * 1e9))
         now_s = (self.time_ns + dt_ns) * 1e-9
+        self.estimator.step(dt_s, self.time_ns)
         setpoint = self.commander.update(now_s)
         command = None
         if setpoint is not None:
-            s = self.airframe.state
+            s = self.estimate   # the controller flies on the estimate: estimation error is flight error
             command = self.controller.update(dt_s, setpoint, s.position_enu_m, s.velocity_enu_mps,
                                              s.accel_enu_mps2, s.yaw_rad, self.commander.landed)
         else:

@@ -1,0 +1,20 @@
+"""Contract of the perception coordinator: keys in/out and parameters."""
+from aeroperception.schemas import DiagnosticStatus, PerceptionHealth, VioHealth
+from aeroperception.services.runtime import Param
+
+NAME = "perception"
+INPUTS = {
+    "state/vio_health": VioHealth,                        # vio: 1 Hz + on change
+    "perception/detector_health": DiagnosticStatus,       # detector (seed 000 §4.2: OK / WARN / ERROR)
+    "diagnostics/lidar": DiagnosticStatus,                # the LiDAR obstacle service's own health
+}
+OUTPUTS = {
+    "perception/health": PerceptionHealth,                # 1 Hz + on every change of a status
+}
+PARAMS = [
+    Param("vio_timeout_s", 3.0, "s", 0.5, 30.0, description="no state/vio_health this long -> VIO UNKNOWN (unhealthy)"),
+    Param("detector_timeout_s", 3.0, "s", 0.5, 30.0, description="no detector health this long -> detector UNKNOWN"),
+    Param("lidar_timeout_s", 3.0, "s", 0.5, 30.0, description="no lidar diagnostics this long -> lidar UNKNOWN"),
+    Param("publish_rate_hz", 1.0, "Hz", 0.2, 20.0, description="perception/health repeat rate (changes go out at once)"),
+    Param("check_rate_hz", 10.0, "Hz", 1.0, 50.0, description="how often timeouts are checked"),
+]
