@@ -1,4 +1,4 @@
-"""`aero bench pubsub|sim|flight`: benchmarks that print median / p99 and the ratio to the raw
+"""`aero bench pubsub|sim|flight|lidar|vio|detector|soak`: benchmarks that print median / p99 and the ratio to the raw
 baseline measured in the same run. Tests check correctness; these report speed."""
 from __future__ import annotations
 
@@ -33,6 +33,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--scenario", default="village")
     p.add_argument("--strategy", default="klt_stereo")
     p.set_defaults(func=lambda a: importlib.import_module("aeroperception.tools.bench_vio").run(a.n, a.scenario, a.strategy))
+    p = bsub.add_parser("detector", help="detector pre / infer / post per frame: bundled model and a YOLOv8n-sized "
+                                         "graph, 640/320, 1/2 threads, fp32/int8, vs bare session.run")
+    p.add_argument("-n", type=int, default=30, help="frames per configuration")
+    p.add_argument("--scenario", default="village", help="the rendered frame's scenario")
+    p.add_argument("--sizes", default="640,320", help="input sizes (square), comma-separated")
+    p.add_argument("--threads", default="1,2", help="onnxruntime intra-op thread counts, comma-separated")
+    p.set_defaults(func=lambda a: importlib.import_module("aeroperception.tools.bench_detector").run(
+        a.n, a.scenario, tuple(int(s) for s in a.sizes.split(",")), tuple(int(t) for t in a.threads.split(","))))
     p = bsub.add_parser("soak", help="fly missions in a loop for N minutes; RSS/CPU per service process")
     p.add_argument("--minutes", type=float, default=30.0, help="how long to fly")
     p.add_argument("--sensors", default="all", choices=["none", "imu", "all"], help="sim sensors rendered meanwhile")

@@ -1,0 +1,34 @@
+"""Contract of the object detector (seed 000 §4.2): keys in/out and parameters.
+
+Boxes are in the input image's pixels (continuous convention: the image spans [0, W] x [0, H]),
+the same form the simulator's sim/truth/boxes uses, so the two compare directly.
+"""
+from aeroperception.schemas import Detection2DArray, DiagnosticStatus, Image
+from aeroperception.services.runtime import Param
+
+NAME = "detector"
+INPUTS = {
+    "sensors/camera/left/image": Image,                   # 20 Hz sim camera; newest frame wins
+}
+OUTPUTS = {
+    "perception/detections": Detection2DArray,            # <= 10 Hz (inference_frequency_hz), the image's stamp
+    "perception/detector_health": DiagnosticStatus,       # 1 Hz, OK / WARN (slow, no images) / ERROR (no model)
+}
+# The bundled model, relative to this package (tools/train_detector.py makes it; models/MODEL_CARD.md).
+BUNDLED_MODEL = "models/aero_sim_det.onnx"
+# Changing one of these loads a new model beside the running one (swapped only if it works).
+RELOAD_PARAMS = ("model_path", "classes_file", "intra_op_threads", "input_width", "input_height")
+PARAMS = [
+    Param("model_path", BUNDLED_MODEL,
+          description="YOLOv8-format ONNX (relative: working directory, else the detector package); live"),
+    Param("classes_file", "",
+          description="class names, one a line; used when the model has no 'names' metadata (80 classes: COCO)"),
+    Param("confidence_threshold", 0.40, "", 0.0, 1.0, description="best class score must exceed this"),
+    Param("nms_threshold", 0.45, "", 0.0, 1.0, description="same-class boxes overlapping more (IoU) are suppressed"),
+    Param("inference_frequency_hz", 10.0, "Hz", 0.1, 60.0, description="at most this many frames per second"),
+    Param("intra_op_threads", 1, "", 1, 16, description="onnxruntime threads for one inference"),
+    Param("input_width", 0, "px", 0, 4096, description="model input width; 0: the model's (dynamic: 640)"),
+    Param("input_height", 0, "px", 0, 4096, description="model input height; 0: the model's (dynamic: 640)"),
+    Param("max_detections", 300, "", 1, 1000, description="per image, best first"),
+    Param("image_timeout_s", 2.0, "s", 0.2, 60.0, description="no image for this long -> health WARN"),
+]

@@ -1,0 +1,131 @@
+"""Process shell: left camera images in, YOLOv8 detections out at <= inference_frequency_hz.
+
+Frames above the rate are skipped at arrival (counted); an admitted frame that arrives while the
+previous one is still being inferred replaces the pending one (runtime LatestWorker, counted as
+dropped), so a slow machine lowers the output rate instead of growing a queue. Model loads
+(start, and every change of a RELOAD_PARAMS parameter) run on their own thread beside the model
+in use (logic.ModelHolder).
+"""
+from __future__ import annotations
+
+import time
+from collections import deque
+
+import numpy as np
+
+from aeroperception.schemas import Detection2DArray, DiagnosticStatus, Header, Image
+from aeroperception.services.runtime import Health, LatestWorker, Service, run
+
+from . import contract
+from .logic import LoadRequest, ModelHolder, RateGate, StageTimes, detection_array, detector_health
+
+# Image encodings the detector reads, and the channel order letterbox() is told.
+CHANNELS = {"rgb8": "rgb", "rgba8": "rgb", "bgr8": "bgr", "bgra8": "bgr", "mono8": "rgb", "mono16": "rgb",
+            "16UC1": "rgb"}
+
+
+class DetectorService(Service):
+    """YOLOv8-format ONNX object detector (seed 000 §4.2)."""
+
+    NAME = contract.NAME
+    PARAMS = contract.PARAMS
+
+    def start(self) -> None:
+        p = self.params
+        self.holder = ModelHolder()
+        self.gate = RateGate(p.inference_frequency_hz)
+        self.times = StageTimes()
+        self.received = 0
+        self.processed_without_model = 0
+        self.last_image_s: float | None = None
+        self.last_count = 0
+        self.published_s: deque[float] = deque(maxlen=20)
+        self.pub_dets = self.node.publisher("perception/detections", Detection2DArray)
+        self.pub_health = self.node.publisher("perception/detector_health", DiagnosticStatus)
+        self._load(LoadRequest.from_params(p))        # the first model before the first frame
+        self.loader = LatestWorker(self._load, "detector-load", on_error=self._on_load_error)
+        self.worker = LatestWorker(self._process, "detector-infer", on_error=self._on_error)
+        p.on_change(self._on_param)
+        self.node.subscribe("sensors/camera/left/image", Image, self._on_image)
+        self.node.every(1.0, lambda: self.pub_health.publish(self.node.diagnostics()), name="health")
+
+    def stop(self) -> None:
+        self.worker.stop()
+        self.loader.stop()
+
+    # ------------------------------------------------------------ model loads (loader thread)
+
+    def _load(self, req: LoadRequest) -> None:
+        if self.holder.load(req):
+            m = self.holder.model
+            self.log.info("model_loaded", path=m.path, input=f"{m.input_hw[1]}x{m.input_hw[0]}", classes=m.num_classes,
+                          layout=m.layout, threads=m.threads, load_ms=round(m.load_ms, 1))
+        else:
+            self.log.error("model_refused", path=req.model_path, error=self.holder.error,
+                           running=self.holder.model.path if self.holder.model else "none")
+
+    def _on_load_error(self, e: BaseException) -> None:
+        self.node.callback_errors["detector-load"] += 1
+        self.log.throttled("error", "load", "load_failed", error=f"{type(e).__name__}: {e}")
+
+    def _on_param(self, name, value) -> None:
+        if name in contract.RELOAD_PARAMS:
+            self.loader.offer(LoadRequest.from_params(self.params))
+        elif name == "inference_frequency_hz":
+            self.gate.rate_hz = value
+
+    # ------------------------------------------------------------ frames (node thread -> worker)
+
+    def _on_image(self, msg: Image) -> None:
+        self.received += 1
+        self.last_image_s = time.monotonic()
+        if msg.encoding not in CHANNELS:
+            self.node.report_bad_input("sensors/camera/left/image", f"encoding {msg.encoding} is not supported "
+                                       f"(use one of {', '.join(CHANNELS)})")
+            return
+        if not self.gate.admit(self.last_image_s):
+            return
+        # The decoded pixels are a view into Zenoh's buffer: copy before handing to the worker.
+        pixels = np.array(msg.to_numpy())
+        if pixels.dtype == np.uint16:
+            pixels = (pixels >> 8).astype(np.uint8)
+        self.worker.offer((msg.header, pixels, CHANNELS[msg.encoding]))
+
+    def _on_error(self, e: BaseException) -> None:
+        self.node.callback_errors["detector-infer"] += 1
+        self.log.throttled("error", "infer", "inference_failed", error=f"{type(e).__name__}: {e}")
+
+    def _process(self, item: tuple[Header, np.ndarray, str]) -> None:
+        header, pixels, channels = item
+        model = self.holder.model                      # one read: a swap mid-frame cannot mix models
+        if model is None:
+            self.processed_without_model += 1
+            return
+        p = self.params
+        dets, times = model.detect(pixels, p.confidence_threshold, p.nms_threshold, channels, p.max_detections)
+        self.times.add(times)
+        self.pub_dets.publish(detection_array(dets, model.names, header, pixels.shape[:2]))
+        self.last_count = len(dets)
+        self.published_s.append(time.monotonic())
+
+    # ------------------------------------------------------------ diagnostics
+
+    def output_hz(self) -> float:
+        t = self.published_s
+        if len(t) < 2 or time.monotonic() - t[-1] > 2.0:
+            return 0.0
+        return (len(t) - 1) / (t[-1] - t[0])
+
+    def health(self) -> Health:
+        age = None if self.last_image_s is None else time.monotonic() - self.last_image_s
+        h = detector_health(self.holder, self.times, self.params.inference_frequency_hz, age,
+                            self.params.image_timeout_s)
+        h.values = {**(h.values or {}), "frames_received": self.received, "frames_skipped_rate": self.gate.skipped,
+                    "frames_dropped_busy": self.worker.dropped, "frames_processed": self.worker.processed,
+                    "frames_without_model": self.processed_without_model, "detections_last": self.last_count,
+                    "output_hz": round(self.output_hz(), 2)}
+        return h
+
+
+def main(argv=None) -> int:
+    return run(DetectorService, argv)
