@@ -41,8 +41,9 @@ class Sample:
 
 _GROUND = ("grass", "dirt", "forest_floor", "asphalt", "concrete")
 _BUILDING = ("facade", "brick", "concrete")
-_CLASS_P = {"person": 0.4, "bicycle": 0.2, "car": 0.25, "truck": 0.15}
-_TARGET_MATERIALS = ("clothing", "car_paint", "truck_paint", "metal", "paint", "brick", "crate")
+_CLASS_P = {"person": 0.35, "bicycle": 0.25, "car": 0.22, "truck": 0.18}
+# Not "metal": in this world grey metal boxes are bicycles (and thin cylinders are poles).
+_TARGET_MATERIALS = ("clothing", "car_paint", "truck_paint", "paint", "brick", "crate")
 
 
 def _free(xy, footprints, margin: float) -> bool:
@@ -57,7 +58,7 @@ def random_scenario(seed: int):
     rng = np.random.default_rng(seed)
     objects, footprints = [], []
     for _ in range(rng.integers(2, 12)):
-        sx, sy, sz = rng.uniform(6, 16), rng.uniform(6, 14), rng.uniform(3, 12)
+        sx, sy, sz = rng.uniform(8, 16), rng.uniform(8, 14), rng.uniform(4, 12)
         xy = rng.uniform(-60, 60, 2)
         if not _free(xy, footprints, 2.0):
             continue
@@ -79,9 +80,10 @@ def random_scenario(seed: int):
     for _ in range(rng.integers(0, 6)):
         xy = rng.uniform(-60, 60, 2)
         if _free(xy, footprints, 1.5):
-            objects.append({"type": "box", "position_m": xy.tolist(),
-                            "size_m": rng.uniform([0.6, 0.6, 0.5], [2.5, 2.0, 2.0]).tolist(),
-                            "yaw_deg": rng.uniform(-90, 90), "material": str(rng.choice(["crate", "concrete"]))})
+            size = rng.uniform([0.6, 0.6, 0.5], [2.5, 2.0, 2.0])
+            rock = min(size[:2]) >= 1.2 and rng.random() < 0.5     # concrete rocks, never bicycle-thin
+            objects.append({"type": "box", "position_m": xy.tolist(), "size_m": size.tolist(),
+                            "yaw_deg": rng.uniform(-90, 90), "material": "concrete" if rock else "crate"})
     for _ in range(rng.integers(0, 3)):
         xy = rng.uniform(-60, 60, 2)
         if _free(xy, footprints, 1.0):
@@ -185,7 +187,7 @@ def render_samples(scn, n: int, pose_seed: int) -> Iterator[Sample]:
         yield Sample(image, boxes, [b.class_name for b in tb], np.array([b.visible_fraction for b in tb]), scn.name)
 
 
-def heldout_sets(n_per_set: int) -> dict[str, list]:
+def heldout_sets() -> dict[str, tuple]:
     """Held-out evaluation scenarios: name -> (scenario, pose seed). Seeds and scenarios here
     never appear in training."""
     from aeroperception.services.sim.world.scenario import load_scenario
@@ -197,5 +199,9 @@ def heldout_sets(n_per_set: int) -> dict[str, list]:
 
 
 def heldout_samples(n_per_set: int, names: list[str] | None = None) -> dict[str, list[Sample]]:
+    sets = heldout_sets()
+    unknown = sorted(set(names or ()) - set(sets))
+    if unknown:
+        raise ValueError(f"unknown held-out set(s) {', '.join(unknown)}: expected {', '.join(sets)}")
     return {name: list(render_samples(scn, n_per_set, seed))
-            for name, (scn, seed) in heldout_sets(n_per_set).items() if names is None or name in names}
+            for name, (scn, seed) in sets.items() if names is None or name in names}

@@ -49,9 +49,15 @@ def evaluate_offline(model_path: str, n_per_set: int, threads: int = 2, sets: li
     """Summaries per held-out set plus "all" (every frame pooled)."""
     from .detector_data import heldout_samples
 
+    from .common import CliError
+
     model = _load(model_path, threads)
+    try:
+        sets_samples = heldout_samples(n_per_set, sets)
+    except ValueError as e:
+        raise CliError(str(e)) from None
     results, pooled, ms = {}, DetectionEval(conf_thresh=conf, **eval_kw), []
-    for name, samples in heldout_samples(n_per_set, sets).items():
+    for name, samples in sets_samples.items():
         ev = DetectionEval(conf_thresh=conf, **eval_kw)
         for s in samples:
             ms.append(_add(ev, model, s.image, s.boxes, s.classes, s.visible, nms))
