@@ -112,30 +112,25 @@ def collect_live(session, duration_s: float, prefix: str, detections: bool, max_
             pairs.append((other.pop(stamp), truth.pop(stamp)))
             last[0] = time.monotonic()
 
-    def on_truth(sample) -> None:
-        try:
-            m = decode(sample.payload.to_bytes(), Detection2DArray)
-        except SchemaError:
-            return
-        with lock:
-            truth[m.header.stamp_ns] = m
-            match(m.header.stamp_ns)
-            while len(truth) > 200:
-                truth.pop(next(iter(truth)))
-
-    def on_other(sample) -> None:
-        with lock:
-            if time.monotonic() - last[0] < period_s or len(pairs) >= max_frames:
+    def keeper(store: dict, cls, keep: int, throttle: bool):
+        """Subscriber callback: decode, file by stamp (newest `keep`), pair when both are in."""
+        def cb(sample) -> None:
+            with lock:
+                if throttle and (time.monotonic() - last[0] < period_s or len(pairs) >= max_frames):
+                    return
+            try:
+                m = decode(sample.payload.to_bytes(), cls)
+            except SchemaError:
                 return
-        try:
-            m = decode(sample.payload.to_bytes(), Detection2DArray if detections else Image)
-        except SchemaError:
-            return
-        with lock:
-            other[m.header.stamp_ns] = m
-            match(m.header.stamp_ns)
-            while len(other) > 50:
-                other.pop(next(iter(other)))
+            with lock:
+                store[m.header.stamp_ns] = m
+                match(m.header.stamp_ns)
+                while len(store) > keep:
+                    store.pop(next(iter(store)))
+        return cb
+
+    on_truth = keeper(truth, Detection2DArray, 200, throttle=False)
+    on_other = keeper(other, Detection2DArray if detections else Image, 50, throttle=True)
 
     key = "perception/detections" if detections else "sensors/camera/left/image"
     subs = [session.declare_subscriber(prefix + "sim/truth/boxes", on_truth),
