@@ -1,4 +1,4 @@
-"""`aero eval lidar|vio`: accuracy of the perception services against truth (simulator truth or
+"""`aero eval lidar|vio|detector`: accuracy of the perception services against truth (simulator truth or
 real recordings), printed as a table and written as JSON (+ PNG for vio)."""
 from __future__ import annotations
 
@@ -37,6 +37,34 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--max-frames", type=int, default=None)
     p.set_defaults(func=lambda a: importlib.import_module("aeroperception.tools.eval_vio").run(
         a.euroc, a.out, a.strategy, a.align, a.rpe_delta_s, a.max_frames, a if a.live else None))
+
+    p = esub.add_parser("detector", help="mAP@0.5 and per-class P/R of a YOLOv8 ONNX vs sim truth boxes (held-out renders or live)")
+    p.add_argument("--model", default=None, metavar="ONNX", help="default: the bundled aero_sim_det.onnx")
+    p.add_argument("--live", action="store_true",
+                   help="a running stack: sensors/camera/left/image through the model vs sim/truth/boxes")
+    p.add_argument("--detections", action="store_true",
+                   help="with --live: the detector service's perception/detections vs sim/truth/boxes")
+    p.add_argument("--set", action="append", default=None, dest="sets", metavar="NAME",
+                   help="offline held-out set (repeatable; default all: village@1001, village@1002, open_field, slope_forest)")
+    p.add_argument("-n", type=int, default=60, help="offline: images per held-out set")
+    p.add_argument("--duration", type=float, default=20.0, help="--live: seconds to record at most")
+    p.add_argument("--max-frames", type=int, default=60, help="--live: frame pairs to evaluate at most")
+    p.add_argument("--conf", type=float, default=0.40, help="operating threshold for precision/recall")
+    p.add_argument("--nms", type=float, default=0.45, help="NMS IoU threshold")
+    p.add_argument("--threads", type=int, default=2, help="onnxruntime intra-op threads")
+    p.add_argument("--json", default=None, metavar="FILE", help="write the figures as JSON")
+    add_session_arguments(p)
+    p.set_defaults(func=_detector)
+
+
+def _detector(a) -> int:
+    mod = importlib.import_module("aeroperception.tools.eval_detector")
+    if a.live:
+        return mod.run_live(a)
+    if a.detections:
+        from .common import CliError
+        raise CliError("--detections needs --live (it evaluates the running detector service)")
+    return mod.run_offline(a.model or mod.default_model(), a.n, a.json, a.threads, a.sets, conf=a.conf, nms=a.nms)
 
 
 def _lidar(a) -> int:

@@ -111,6 +111,14 @@ HOW: dict[str, tuple] = {
     "aero run ros2bridge --param topics=state/vehicle,sensors/imu,perception/detections": (
         SKIP, ["aero", "run", "ros2bridge", "--help"], "test_ros2bridge runs the bridge against zenoh-ros2-sdk"),
     "ros2 topic echo /aero/odom": (SKIP, None, "needs ROS 2: test_ros2bridge plays the ROS node with zenoh-ros2-sdk"),
+    "aero up --gps-denied --scenario village --sensors camera": (DRY, None, "SIM_GPS_DENIED"),
+    "aero mission fly examples/missions/village_survey_gps_denied.json": (
+        SKIP, ["aero", "mission", "fly", "--help"],
+        "flies minutes on VIO alone: test_gps_denied_flight (opt-in vio_e2e)"),
+    "aero eval vio --live --until-landed --duration 600 --out vio_eval": (
+        SKIP, ["aero", "eval", "vio", "--help"], "test_gps_denied_flight evaluates the live flight"),
+    "aero param set sim SIM_CAM_BLACKOUT 3": (SKIP, ["aero", "param", "set", "--help"],
+                                              "test_gps_denied_flight blacks out the cameras 3 s and 15 s"),
 }
 
 
