@@ -119,6 +119,10 @@ HOW: dict[str, tuple] = {
         SKIP, ["aero", "eval", "vio", "--help"], "test_gps_denied_flight evaluates the live flight"),
     "aero param set sim SIM_CAM_BLACKOUT 3": (SKIP, ["aero", "param", "set", "--help"],
                                               "test_gps_denied_flight blacks out the cameras 3 s and 15 s"),
+    "aero eval detector": (SKIP, ["aero", "eval", "detector", "--help"],
+                           "test_detector_model checks the bundled model's held-out mAP on 16 frames"),
+    "aero eval detector --live --detections": (SKIP, ["aero", "eval", "detector", "--help"],
+                                               "test_detector_eval_live runs both live modes"),
 }
 
 
