@@ -232,7 +232,10 @@ class LocalPlanner:
         if self._free_line(p, straight_dir, min(dist_goal, cfg.sight_m)):
             direction = straight_dir                  # line of sight: no lattice zig-zag
         elif self._path is None or self._path_goal is None or np.hypot(*(self._path_goal - g)) > 0.1:
-            state, reason = self._state if self._path_goal is not None and self._path is None else (
+            # The last verdict only if it is about this goal: a new goal is "planning" until its
+            # replan lands (an old goal's "unreachable" once stood for a new goal's verdict).
+            same_goal = self._path_goal is not None and np.hypot(*(self._path_goal - g)) <= 0.1
+            state, reason = self._state if same_goal and self._path is None else (
                 "planning", "planning a way around an obstacle")
             v[:2] = 0.0
             return Avoidance(v, state, reason)

@@ -82,6 +82,18 @@ def test_goal_inside_an_obstacle_is_unreachable_and_holds():
     assert out.velocity_mps[:2] == pytest.approx([0, 0])
 
 
+def test_an_old_goals_verdict_never_stands_for_a_new_goal():
+    """A new goal behind the same building is "planning" until its own replan lands: an old
+    goal's "unreachable" once stood for it (and a test waiting for the new verdict took it)."""
+    lp = planner([(4.0, -1.0, 6.0, 1.0)], goal=(5, 0))
+    new = np.array([5.0, 0.6, 3.0])                            # inside too, but another goal
+    out = lp.adjust(np.array([0, 0, 3.0]), new, np.array([2.0, 0, 0]), 0.0)
+    assert out.state == "planning" and out.velocity_mps[:2] == pytest.approx([0, 0])
+    lp.replan(np.array([0.0, 0.0]), new[:2])
+    out = lp.adjust(np.array([0, 0, 3.0]), new, np.array([2.0, 0, 0]), 0.0)
+    assert out.state == "unreachable" and "(5.0, 0.6)" in out.reason
+
+
 def test_boxed_in_holds_with_the_reason():
     walls = [(-2, -2, 2, -1.8), (-2, 1.8, 2, 2), (-2, -2, -1.8, 2), (1.8, -2, 2, 2)]
     lp = planner(walls, goal=(8, 0))
