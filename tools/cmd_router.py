@@ -1,10 +1,16 @@
 """`aero router`: the stack's Zenoh router, a Python session in router mode.
 
 `aero up` runs it as a supervised child (so a dead router is noticed and restarted); started
-that way it also exits when `aero up` dies, like every service."""
+that way it also exits when `aero up` dies, like every service.
+
+Several machines: each host runs its own router; `--connect tcp/OTHER_HOST:7447` makes this one
+join another host's router (router to router), so every client on either host sees every key.
+The link is retried for ever (every 0.2-1 s), so either host may start first and a link that
+drops comes back by itself."""
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 
 import zenoh
@@ -21,14 +27,18 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--zenoh-config", default=None, metavar="FILE")
     p.add_argument("--listen", action="append", default=None, metavar="ENDPOINT",
                    help="listen endpoint, e.g. tcp/0.0.0.0:7447 (repeatable; default from zenoh.json5)")
+    p.add_argument("--connect", action="append", default=None, metavar="ENDPOINT",
+                   help="another host's router to join, e.g. tcp/10.0.0.2:7447 (repeatable)")
     p.set_defaults(func=run)
 
 
-def open_router(zenoh_config: str | None, listen: list[str] | None) -> zenoh.Session:
+def open_router(zenoh_config: str | None, listen: list[str] | None,
+                connect: list[str] | None = None) -> zenoh.Session:
+    """A router session; `connect`: other routers (other hosts) it links to, retried for ever."""
     try:
         conf = make_config(zenoh_config, mode="router", listen=listen)
         conf.insert_json5("scouting/delay", "0")
-        conf.insert_json5("connect/endpoints", "[]")
+        conf.insert_json5("connect/endpoints", json.dumps(list(connect or [])))
     except (ZenohConfigError, zenoh.ZError) as e:
         raise CliError(str(e)) from None
     try:
@@ -41,9 +51,10 @@ def open_router(zenoh_config: str | None, listen: list[str] | None) -> zenoh.Ses
 def run(args) -> int:
     stop = ShutdownFlag().install().event
     bind_to_supervisor(stop.set)
-    router = open_router(args.zenoh_config, args.listen)
-    print(f"aero router: zid {router.zid()} listening on {', '.join(args.listen or ['zenoh.json5 endpoints'])}",
-          file=sys.stderr, flush=True)
+    router = open_router(args.zenoh_config, args.listen, args.connect)
+    joins = f", joining {', '.join(args.connect)}" if args.connect else ""
+    print(f"aero router: zid {router.zid()} listening on {', '.join(args.listen or ['zenoh.json5 endpoints'])}"
+          f"{joins}", file=sys.stderr, flush=True)
     stop.wait()
     router.close()
     return 0
