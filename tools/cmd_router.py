@@ -39,6 +39,12 @@ def open_router(zenoh_config: str | None, listen: list[str] | None,
         conf = make_config(zenoh_config, mode="router", listen=listen)
         conf.insert_json5("scouting/delay", "0")
         conf.insert_json5("connect/endpoints", json.dumps(list(connect or [])))
+        if connect:
+            # zenoh.json5's connect timeout 0 (right for clients: the runtime retries) makes a
+            # router try its connect endpoints once and never again (seen with zenoh 1.10): a
+            # ground router started before the vehicle's would stay alone. Any non-zero timeout
+            # puts the endpoints on zenoh's own retry (connect/retry), also after a link drops.
+            conf.insert_json5("connect/timeout_ms", json.dumps({"router": 1, "peer": 0, "client": 0}))
     except (ZenohConfigError, zenoh.ZError) as e:
         raise CliError(str(e)) from None
     try:
