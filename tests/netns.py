@@ -265,6 +265,9 @@ class Lan:
 # ---------------------------------------------------------------- delay relay (run as a script)
 
 
+QUEUE_BYTES = 256 * 1024   # the relay's backlog per direction before it stops reading
+
+
 def _relay_main(listen_port: int, target: str, delay_spec: str) -> None:
     """Accept TCP connections and pipe each to `target`, every chunk delivered the delay later
     (order kept; one thread per direction)."""
@@ -291,7 +294,8 @@ def _relay_main(listen_port: int, target: str, delay_spec: str) -> None:
     def pipe(src: socket.socket, dst: socket.socket) -> None:
         q: collections.deque = collections.deque()
         cond = threading.Condition()
-        done = []
+        done: list = []
+        queued = [0]
 
         def sender() -> None:
             while True:
@@ -301,6 +305,8 @@ def _relay_main(listen_port: int, target: str, delay_spec: str) -> None:
                     if not q:
                         break
                     due, data = q.popleft()
+                    queued[0] -= len(data)
+                    cond.notify_all()
                 time.sleep(max(0.0, due - time.monotonic()))
                 try:
                     dst.sendall(data)
@@ -321,10 +327,15 @@ def _relay_main(listen_port: int, target: str, delay_spec: str) -> None:
             with cond:
                 if not data:
                     done.append(True)
-                    cond.notify()
+                    cond.notify_all()
                     break
                 q.append((time.monotonic() + delay_s[0], data))
-                cond.notify()
+                queued[0] += len(data)
+                cond.notify_all()
+                # Bounded like a real link's buffers: stop reading until the backlog drains, so
+                # the sender's own queues (zenoh's priority queues) fill and decide what waits.
+                while queued[0] > QUEUE_BYTES and not done:
+                    cond.wait(0.5)
 
     while True:
         c, _ = srv.accept()

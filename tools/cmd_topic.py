@@ -352,17 +352,22 @@ def service_call(args) -> int:
     return status
 
 
-def node_list(args) -> int:
-    session = open_client(args)
-    health: dict[str, dict] = {}
-
+def _diagnostics_callback(handle):
+    """A subscriber callback passing each decodable diagnostics sample (as a dict) to `handle`."""
     def on_diag(s: zenoh.Sample) -> None:
         try:
             _sid, d = decode_sample(s)
         except SchemaError:
             return
         if isinstance(d, dict):
-            health[str(d.get("name", ""))] = d
+            handle(d)
+    return on_diag
+
+
+def node_list(args) -> int:
+    session = open_client(args)
+    health: dict[str, dict] = {}
+    on_diag = _diagnostics_callback(lambda d: health.__setitem__(str(d.get("name", "")), d))
 
     sub = session.declare_subscriber("**/diagnostics/*", on_diag)
     sub2 = session.declare_subscriber("diagnostics/*", on_diag)
@@ -397,14 +402,11 @@ def node_check(args) -> int:
         got = threading.Event()
         last: dict = {}
 
-        def on_diag(s: zenoh.Sample) -> None:
-            try:
-                _sid, d = decode_sample(s)
-            except SchemaError:
-                return
-            if isinstance(d, dict):
-                last.update(d)
-                got.set()
+        def keep(d: dict) -> None:
+            last.update(d)
+            got.set()
+
+        on_diag = _diagnostics_callback(keep)
 
         sub = session.declare_subscriber(full_key(args, f"diagnostics/{args.name}"), on_diag)
         try:
