@@ -3,8 +3,12 @@
 # at import time (apt, when root or with sudo), then the package itself in editable mode.
 #   deploy/install.sh              -> extras sim,tools   (what `aero up` needs)
 #   deploy/install.sh sim,perception,tools,test          (what .ci/run uses)
+#   deploy/install.sh --apt-only                         (system libraries only: deploy/Dockerfile's first layer)
+# APT_PACKAGES below is the one list of system libraries, for machines and the image alike.
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
+APT_ONLY=0
+if [ "${1:-}" = "--apt-only" ]; then APT_ONLY=1; shift; fi
 EXTRAS=${1:-sim,tools}
 PY=${PYTHON:-python3}
 stamp() { echo "[install] $*"; }
@@ -31,6 +35,7 @@ if command -v apt-get >/dev/null 2>&1; then
 else
     stamp "no apt-get: assuming ${APT_PACKAGES[*]} are present"
 fi
+[ "$APT_ONLY" = 1 ] && exit 0
 
 # ---- Python packages (Debian's own python3 refuses pip without this; harmless elsewhere)
 export PIP_BREAK_SYSTEM_PACKAGES=1 PIP_DISABLE_PIP_VERSION_CHECK=1 PIP_NO_INPUT=1

@@ -34,6 +34,7 @@ import subprocess
 import sys
 import threading
 import time
+from pathlib import Path
 from typing import Callable, Iterable, Sequence
 
 SUBNET = "10.77.0"          # /24, only inside the Lan's namespaces
@@ -184,10 +185,12 @@ class Host:
             if r.returncode != 0:
                 raise RuntimeError(f"nft loss {loss_pct} % on {self.name}: {r.stderr.strip()}")
 
-    def relay(self, listen_port: int, target: str, delay_ms: float) -> subprocess.Popen:
+    def relay(self, listen_port: int, target: str, delay_ms: float | str) -> subprocess.Popen:
         """A TCP relay inside this host: connections to <addr>:listen_port reach `target`
         ("ADDR:PORT") with every chunk held `delay_ms` each way -- link latency for kernels without
-        netem (a TCP-level delay: what a Zenoh link over a slow radio sees). Stopped with the Lan."""
+        netem (a TCP-level delay: what a Zenoh link over a slow radio sees). delay_ms "@FILE": the
+        delay is read from FILE (a number, re-read every 0.2 s) so a test can change it live.
+        Stopped with the Lan."""
         return self.popen([sys.executable, "-u", __file__, "relay", str(listen_port), target, str(delay_ms)],
                           stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
 
@@ -262,20 +265,37 @@ class Lan:
 # ---------------------------------------------------------------- delay relay (run as a script)
 
 
-def _relay_main(listen_port: int, target: str, delay_ms: float) -> None:
-    """Accept TCP connections and pipe each to `target`, every chunk delivered delay_ms later
+QUEUE_BYTES = 256 * 1024   # the relay's backlog per direction before it stops reading
+
+
+def _relay_main(listen_port: int, target: str, delay_spec: str) -> None:
+    """Accept TCP connections and pipe each to `target`, every chunk delivered the delay later
     (order kept; one thread per direction)."""
     import collections
     import socket
 
-    delay = delay_ms / 1000.0
+    delay_s = [0.0]
+
+    def read_delay() -> None:
+        while True:
+            try:
+                delay_s[0] = float(Path(delay_spec[1:]).read_text().strip() or 0) / 1000.0
+            except (OSError, ValueError):
+                pass
+            time.sleep(0.2)
+
+    if delay_spec.startswith("@"):
+        threading.Thread(target=read_delay, daemon=True).start()
+    else:
+        delay_s[0] = float(delay_spec) / 1000.0
     host, port = target.rsplit(":", 1)
     srv = socket.create_server(("0.0.0.0", listen_port))
 
     def pipe(src: socket.socket, dst: socket.socket) -> None:
         q: collections.deque = collections.deque()
         cond = threading.Condition()
-        done = []
+        done: list = []
+        queued = [0]
 
         def sender() -> None:
             while True:
@@ -285,6 +305,8 @@ def _relay_main(listen_port: int, target: str, delay_ms: float) -> None:
                     if not q:
                         break
                     due, data = q.popleft()
+                    queued[0] -= len(data)
+                    cond.notify_all()
                 time.sleep(max(0.0, due - time.monotonic()))
                 try:
                     dst.sendall(data)
@@ -305,10 +327,15 @@ def _relay_main(listen_port: int, target: str, delay_ms: float) -> None:
             with cond:
                 if not data:
                     done.append(True)
-                    cond.notify()
+                    cond.notify_all()
                     break
-                q.append((time.monotonic() + delay, data))
-                cond.notify()
+                q.append((time.monotonic() + delay_s[0], data))
+                queued[0] += len(data)
+                cond.notify_all()
+                # Bounded like a real link's buffers: stop reading until the backlog drains, so
+                # the sender's own queues (zenoh's priority queues) fill and decide what waits.
+                while queued[0] > QUEUE_BYTES and not done:
+                    cond.wait(0.5)
 
     while True:
         c, _ = srv.accept()
@@ -324,4 +351,4 @@ def _relay_main(listen_port: int, target: str, delay_ms: float) -> None:
 
 
 if __name__ == "__main__" and len(sys.argv) == 5 and sys.argv[1] == "relay":
-    _relay_main(int(sys.argv[2]), sys.argv[3], float(sys.argv[4]))
+    _relay_main(int(sys.argv[2]), sys.argv[3], sys.argv[4])

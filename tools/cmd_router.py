@@ -5,10 +5,16 @@ that way it also exits when `aero up` dies, like every service.
 Its config: --zenoh-config FILE, else $AERO_ROUTER_CONFIG, else the clients' ($AERO_ZENOH_CONFIG,
 zenoh.json5). AERO_ROUTER_CONFIG lets one environment hold both sides of a secured stack:
 `AERO_ROUTER_CONFIG=certs/router.json5 AERO_ZENOH_CONFIG=certs/vehicle.json5 aero up --listen tls/0.0.0.0:7447`
-(README, "Security")."""
+(README, "Secured links").
+
+Several machines: each host runs its own router; `--connect tcp/OTHER_HOST:7447` makes this one
+join another host's router (router to router), so every client on either host sees every key.
+The link is retried for ever (every 0.2-1 s), so either host may start first and a link that
+drops comes back by itself."""
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import sys
 
@@ -27,14 +33,24 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="router config (default: env AERO_ROUTER_CONFIG, else the clients' zenoh.json5)")
     p.add_argument("--listen", action="append", default=None, metavar="ENDPOINT",
                    help="listen endpoint, e.g. tcp/0.0.0.0:7447 (repeatable; default from zenoh.json5)")
+    p.add_argument("--connect", action="append", default=None, metavar="ENDPOINT",
+                   help="another host's router to join, e.g. tcp/10.0.0.2:7447 (repeatable)")
     p.set_defaults(func=run)
 
 
-def open_router(zenoh_config: str | None, listen: list[str] | None) -> zenoh.Session:
+def open_router(zenoh_config: str | None, listen: list[str] | None,
+                connect: list[str] | None = None) -> zenoh.Session:
+    """A router session; `connect`: other routers (other hosts) it links to, retried for ever."""
     try:
         conf = make_config(zenoh_config, mode="router", listen=listen)
         conf.insert_json5("scouting/delay", "0")
-        conf.insert_json5("connect/endpoints", "[]")
+        conf.insert_json5("connect/endpoints", json.dumps(list(connect or [])))
+        if connect:
+            # zenoh.json5's connect timeout 0 (right for clients: the runtime retries) makes a
+            # router try its connect endpoints once and never again (seen with zenoh 1.10): a
+            # ground router started before the vehicle's would stay alone. Any non-zero timeout
+            # puts the endpoints on zenoh's own retry (connect/retry), also after a link drops.
+            conf.insert_json5("connect/timeout_ms", json.dumps({"router": 1, "peer": 0, "client": 0}))
     except (ZenohConfigError, zenoh.ZError) as e:
         raise CliError(str(e)) from None
     try:
@@ -47,9 +63,10 @@ def open_router(zenoh_config: str | None, listen: list[str] | None) -> zenoh.Ses
 def run(args) -> int:
     stop = ShutdownFlag().install().event
     bind_to_supervisor(stop.set)
-    router = open_router(args.zenoh_config or os.environ.get("AERO_ROUTER_CONFIG") or None, args.listen)
-    print(f"aero router: zid {router.zid()} listening on {', '.join(args.listen or ['zenoh.json5 endpoints'])}",
-          file=sys.stderr, flush=True)
+    router = open_router(args.zenoh_config or os.environ.get("AERO_ROUTER_CONFIG") or None, args.listen, args.connect)
+    joins = f", joining {', '.join(args.connect)}" if args.connect else ""
+    print(f"aero router: zid {router.zid()} listening on {', '.join(args.listen or ['zenoh.json5 endpoints'])}"
+          f"{joins}", file=sys.stderr, flush=True)
     stop.wait()
     router.close()
     return 0

@@ -24,6 +24,7 @@ from .common import (
     summarize,
 )
 
+LEVEL_NAMES = {0: "OK", 1: "WARN", 2: "ERROR", 3: "STALE"}   # DiagnosticStatus.level
 SILENCE_HINT_S = 2.5
 """`topic echo` says on stderr that nothing publishes its key after this long without a sample."""
 
@@ -81,6 +82,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_session_arguments(p)
     p.add_argument("--wait", type=float, default=1.2, help="seconds to collect diagnostics")
     p.set_defaults(func=node_list)
+    p = nsub.add_parser("check", help="exit 0 when a service is alive and healthy (container healthchecks)")
+    add_session_arguments(p)
+    p.add_argument("name", nargs="?", default=None,
+                   help="service name; without it: only whether the router answers")
+    p.add_argument("--wait", type=float, default=2.5, help="seconds to wait for its diagnostics (1 Hz)")
+    p.add_argument("--fail-on", default="ERROR", choices=["WARN", "ERROR", "STALE"],
+                   help="health level that counts as unhealthy (default ERROR: ERROR and STALE fail)")
+    p.set_defaults(func=node_check)
 
 
 # ---------------------------------------------------------------- decoding
@@ -343,17 +352,22 @@ def service_call(args) -> int:
     return status
 
 
-def node_list(args) -> int:
-    session = open_client(args)
-    health: dict[str, dict] = {}
-
+def _diagnostics_callback(handle):
+    """A subscriber callback passing each decodable diagnostics sample (as a dict) to `handle`."""
     def on_diag(s: zenoh.Sample) -> None:
         try:
             _sid, d = decode_sample(s)
         except SchemaError:
             return
         if isinstance(d, dict):
-            health[str(d.get("name", ""))] = d
+            handle(d)
+    return on_diag
+
+
+def node_list(args) -> int:
+    session = open_client(args)
+    health: dict[str, dict] = {}
+    on_diag = _diagnostics_callback(lambda d: health.__setitem__(str(d.get("name", "")), d))
 
     sub = session.declare_subscriber("**/diagnostics/*", on_diag)
     sub2 = session.declare_subscriber("diagnostics/*", on_diag)
@@ -366,12 +380,56 @@ def node_list(args) -> int:
     if not alive:
         print("no services alive", file=sys.stderr)
         return 1
-    levels = {0: "OK", 1: "WARN", 2: "ERROR", 3: "STALE"}
     print(f"{'VEHICLE':<10} {'SERVICE':<14} {'HEALTH':<6} MESSAGE")
     for k in alive:
         vehicle, name = k.split("/")[-2:]
         d = health.get(name, {})
-        print(f"{vehicle:<10} {name:<14} {levels.get(d.get('level'), '-'):<6} {d.get('message', '')}")
+        print(f"{vehicle:<10} {name:<14} {LEVEL_NAMES.get(d.get('level'), '-'):<6} {d.get('message', '')}")
+    return 0
+
+
+def node_check(args) -> int:
+    """Liveliness + diagnostics as one exit code: what a Docker/compose healthcheck (or a
+    systemd/k8s probe) runs. The token aero/alive/<vehicle>/<name> must exist and the service's
+    last diagnostics (within --wait) must be below --fail-on; no diagnostics at all is unhealthy
+    (a hung service keeps its token but stops its 1 Hz status)."""
+    session = open_client(args, wait_s=min(3.0, max(0.5, args.wait)))
+    try:
+        if not args.name:
+            print("router: reachable")
+            return 0
+        vehicle = args.vehicle or "default"
+        got = threading.Event()
+        last: dict = {}
+
+        def keep(d: dict) -> None:
+            last.update(d)
+            got.set()
+
+        on_diag = _diagnostics_callback(keep)
+
+        sub = session.declare_subscriber(full_key(args, f"diagnostics/{args.name}"), on_diag)
+        try:
+            tokens = [r for r in session.liveliness().get(f"{LIVELINESS_ROOT}/{vehicle}/{args.name}", timeout=2.0)
+                      if r.ok is not None]
+            if not tokens:
+                print(f"{args.name}: not alive (no liveliness token for vehicle {vehicle})", file=sys.stderr)
+                return 1
+            if not got.wait(args.wait):
+                print(f"{args.name}: alive but no diagnostics within {args.wait:g} s (hung?)", file=sys.stderr)
+                return 1
+        finally:
+            sub.undeclare()
+    finally:
+        session.close()
+    level = int(last.get("level", 3))
+    name = LEVEL_NAMES.get(level, str(level))
+    limit = {v: k for k, v in LEVEL_NAMES.items()}[args.fail_on]
+    line = f"{args.name}: {name} {last.get('message', '')}".rstrip()
+    if level >= limit:
+        print(line, file=sys.stderr)
+        return 1
+    print(line)
     return 0
 
 

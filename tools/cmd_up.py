@@ -46,10 +46,9 @@ from aeroperception.services.runtime.supervision import (
     EXIT_DUPLICATE, SUPERVISOR_ENV, Priority, apply_priority,
 )
 
+from .cmd_topic import LEVEL_NAMES as LEVELS
 from .cmd_topic import decode_sample
 from .common import CliError, emit
-
-LEVELS = {0: "OK", 1: "WARN", 2: "ERROR", 3: "STALE"}
 
 
 def load_profiles() -> dict[str, dict]:
@@ -88,6 +87,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--except", dest="exclude", default="", help="comma-separated services to skip")
     p.add_argument("--listen", default="tcp/127.0.0.1:7447",
                    help="router endpoint (use tcp/0.0.0.0:7447 to accept other machines)")
+    p.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
+                   help="join another host's router, e.g. tcp/10.0.0.2:7447 (several machines; repeatable)")
     p.add_argument("--log-dir", default=None, help="service logs (default ~/.aero/logs/<time>)")
     p.add_argument("--scenario", default=None, help="sim: scenario world (open_field, village, slope_forest)")
     p.add_argument("--speed", type=float, default=None, help="sim: run faster than real time (services follow sim/clock)")
@@ -197,6 +198,7 @@ GPS_DENIED_ARGS = {
     "sim": ["--param", "SIM_GPS_DENIED=true"],
     "mission": ["--param", "require_perception=true"],
 }
+ENDPOINT_RE = re.compile(r"^(?:tcp|udp|tls|quic|ws)/[A-Za-z0-9_.\-\[\]:]+:\d{1,5}$")
 
 
 def validate_args(args, names: list[str]) -> None:
@@ -222,6 +224,9 @@ def validate_args(args, names: list[str]) -> None:
         if not m or (m.group(1) and not 0 < int(m.group(1)) < 65536):
             raise CliError(f"--fcu-url {args.fcu_url!r}: expected udpin:HOST:PORT, udpout:HOST:PORT, "
                            "tcp:HOST:PORT or a serial device /dev/ttyACM0,921600")
+    for ep in args.connect:
+        if not ENDPOINT_RE.match(ep):
+            raise CliError(f"--connect {ep!r}: expected a Zenoh endpoint like tcp/10.0.0.2:7447")
     everything = load_profiles()[args.profile]["services"]
     for item in args.arg:
         svc, sep, flag = item.partition(":")
@@ -265,8 +270,11 @@ class RouterChild:
 
     BACKOFF_S, MAX_BACKOFF_S = 0.2, 2.0
 
-    def __init__(self, listen: str, log_dir: Path, env: dict[str, str], priority: Priority | None):
+    def __init__(self, listen: str, log_dir: Path, env: dict[str, str], priority: Priority | None,
+                 connect: list[str] = ()):
         argv = [sys.executable, "-m", "aeroperception.tools.cli", "router", "--listen", listen]
+        for ep in connect:
+            argv += ["--connect", ep]
         self.child = Child("router", argv, log_dir / "router.log", priority=priority or Priority(),
                            backoff_s=self.BACKOFF_S)
         self.pid_path = log_dir / "router.pid"
@@ -328,7 +336,8 @@ def run(args) -> int:
     if args.dry_run:
         endpoint = args.listen.replace("0.0.0.0", "127.0.0.1")
         profile_args = load_profiles()[args.profile]["args"]
-        emit(f"aero up: profile {args.profile}, router on {args.listen}; would start:")
+        joins = f", joining {', '.join(args.connect)}" if args.connect else ""
+        emit(f"aero up: profile {args.profile}, router on {args.listen}{joins}; would start:")
         for n in names:
             emit(f"  {n:<12} " + " ".join(service_argv(n, args, endpoint, [str(a) for a in profile_args.get(n, [])])))
         return 0
@@ -345,7 +354,7 @@ def run(args) -> int:
     lock = threading.Lock()
 
     stop = ShutdownFlag().install().event
-    router = RouterChild(args.listen, log_dir, env, priorities.get("router"))
+    router = RouterChild(args.listen, log_dir, env, priorities.get("router"), args.connect)
     router.start(stop)
     session = open_session(make_config(None, endpoint, mode="client"), stop, max_wait_s=10)
     if session is None:

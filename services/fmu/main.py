@@ -7,6 +7,7 @@ import time
 from collections import deque
 
 import numpy as np
+import zenoh
 from pymavlink.dialects.v20 import common as mavlink
 
 from aeroperception.schemas import (
@@ -68,7 +69,9 @@ class FmuService(Service):
         pub = node.publisher
         self.pubs = {k: pub(k, cls) for k, cls in contract.OUTPUTS.items()
                      if k != "sensors/imu" or p.publish_imu}
-        self.pubs["state/vehicle"] = pub("state/vehicle", VehicleState, express=True)
+        # DATA_HIGH: on a slow link to a ground host, state must not wait behind images and scans
+        # (DATA_LOW) or bulk telemetry: the ground mission calls 0.5 s without it an fmu outage.
+        self.pubs["state/vehicle"] = pub("state/vehicle", VehicleState, express=True, priority=zenoh.Priority.DATA_HIGH)
         node.subscribe("fmu/in/trajectory_setpoint", TrajectorySetpoint, self._on_setpoint, strict=True)
         # Stop following the planner at once when it goes away or says it is in ERROR, rather
         # than after setpoint_timeout_s of silence (or never, if it kept sending stale motion).

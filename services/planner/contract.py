@@ -24,6 +24,8 @@ PARAMS = [
     Param("acceptance_radius_m", 0.5, "m", 0.05, 10.0, description="goal counts as reached inside this"),
     Param("rate_hz", 50.0, "Hz", 10.0, 200.0, description="setpoint rate"),
     Param("state_timeout_s", 0.5, "s", 0.05, 5.0, description="older vehicle state -> hold, status ERROR"),
+    Param("goal_timeout_s", 2.0, "s", 0.0, 30.0,
+          description="no mission/active_goal (re-sent at 2 Hz) this long while tracking -> hold where it is (0: off)"),
     Param("obstacle_avoidance", True, description="steer around perception/costmap obstacles (off: straight lines)"),
     Param("avoid_clearance_m", 1.5, "m", 0.3, 10.0, description="keep this far from obstacles (plus tracking error)"),
     Param("avoid_goal_clearance_m", 1.0, "m", 0.1, 10.0,

@@ -22,6 +22,31 @@ class StepResult:
     reached: bool
 
 
+class GoalWatchdog:
+    """Is the mission still there? It re-publishes its goal at 2 Hz, so a goal stream silent for
+    `timeout_s` means the mission (or the link to the ground host it runs on) is gone: the planner
+    then holds where it is instead of flying on, blind, to the last goal. timeout_s 0 = off."""
+
+    def __init__(self, timeout_s: float):
+        self.timeout_s = timeout_s
+        self.last_heard_s: float | None = None
+        self.silent = False
+
+    def heard(self, now_s: float) -> bool:
+        """A goal message arrived; True when it ends a silence (the mission is back)."""
+        self.last_heard_s = now_s
+        was, self.silent = self.silent, False
+        return was
+
+    def expired(self, now_s: float, tracking: bool) -> bool:
+        """True once, the first check after the goal stream fell silent while tracking a goal."""
+        if (self.silent or not tracking or self.timeout_s <= 0 or self.last_heard_s is None
+                or now_s - self.last_heard_s <= self.timeout_s):
+            return False
+        self.silent = True
+        return True
+
+
 class WaypointPlanner:
     """P-controller to the current goal; holds position (zero velocity) without one.
 

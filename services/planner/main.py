@@ -11,7 +11,7 @@ from aeroperception.services.runtime import Health, LatestWorker, Service, run
 
 from . import contract
 from .avoidance import AvoidanceConfig, LocalPlanner
-from .logic import Goal, WaypointPlanner
+from .logic import Goal, GoalWatchdog, WaypointPlanner
 
 
 def avoidance_config(p) -> AvoidanceConfig:
@@ -38,6 +38,7 @@ class PlannerService(Service):
         self.last_distance: float | None = None
         self.goal_msg: PoseStamped | None = None
         self.goals_received = 0
+        self.goal_watch = GoalWatchdog(p.goal_timeout_s)
         self.pub_sp = self.node.publisher("fmu/in/trajectory_setpoint", contract.OUTPUTS["fmu/in/trajectory_setpoint"],
                                           express=True)
         self.pub_status = self.node.publisher("planner/status", TrajectoryStatus)
@@ -76,6 +77,8 @@ class PlannerService(Service):
             self.avoid.cfg = avoidance_config(self.params)
         elif name == "obstacle_avoidance":
             self.obstacle_state, self.obstacle_reason = ("no_costmap", "") if value else ("off", "")
+        if name == "goal_timeout_s":
+            self.goal_watch.timeout_s = value
         if name in ("max_velocity_mps", "kp", "acceptance_radius_m"):
             setattr(self.planner, name, value)
         elif name == "rate_hz":
@@ -100,6 +103,8 @@ class PlannerService(Service):
             self._cycle()
 
     def _on_goal(self, msg: PoseStamped) -> None:
+        if self.goal_watch.heard(time.monotonic()):
+            self.log.info("mission_back", note="goal stream resumed: following the mission's goal")
         if msg == self.goal_msg:
             return  # mission re-publishes its latest goal at 2 Hz for late joiners: already applied
         self.goal_msg = msg
@@ -136,7 +141,16 @@ class PlannerService(Service):
                                                      position_m=st.position_m))
             self.log.info("waypoint_reached", index=g.index, distance_m=round(res.distance_m, 3))
 
+    def _check_goal_stream(self) -> None:
+        if self.goal_watch.expired(time.monotonic(), self.planner.goal is not None):
+            # Hold here; forget the goal so the mission's next message (re-sent or new) applies.
+            self.planner.set_goal(None)
+            self.goal_msg = None
+            self.log.warn("mission_silent", timeout_s=self.params.goal_timeout_s,
+                          note="no goal from the mission (mission or ground link down): holding")
+
     def _publish_status(self) -> None:
+        self._check_goal_stream()
         status = self.planner.status if self.state_fresh() else TrajectoryStatus.STATUS_ERROR
         self.pub_status.publish(TrajectoryStatus(
             header=self.node.header("map"), status=status,
@@ -153,6 +167,9 @@ class PlannerService(Service):
                   "stale_states_dropped": self.stale_states}
         if self.obstacle_state in ("blocked", "unreachable", "stale_costmap"):
             return Health(DiagnosticStatus.WARN, f"holding: {self.obstacle_reason}", values)
+        if self.goal_watch.silent:
+            return Health(DiagnosticStatus.WARN, "holding: no goal from the mission for "
+                          f"{self.params.goal_timeout_s:g} s (mission or ground link down)", values)
         return Health(DiagnosticStatus.OK, "holding" if self.planner.goal is None else "tracking goal", values)
 
 

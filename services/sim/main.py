@@ -13,7 +13,6 @@ import math
 import time
 
 import numpy as np
-import zenoh
 
 from aeroperception.schemas import (
     CameraInfo, Clock, DiagnosticStatus, Detection2DArray, Header, Image, Imu, NDArray,
@@ -22,6 +21,7 @@ from aeroperception.schemas import (
 from aeroperception.services.runtime import Health, Param, Service, run
 from aeroperception.services.runtime.rotations import quat_from_rotmat
 
+from .qos import qos_for
 from .render import RenderProcess
 from .sensors.rig import build_sensors
 from .truth import VehicleTruth
@@ -47,20 +47,6 @@ SHELL_PARAMS = [
     Param("truth_rate_hz", 100.0, "Hz", 1.0, 250.0, description="sim/truth/state and sim/clock rate"),
 ]
 PARAMS = [*VEHICLE_PARAMS, *SHELL_PARAMS]
-
-
-# The small high-rate streams must not be lost behind the ~1 MB images and scans on the same link:
-# with zenoh's defaults (priority DATA, congestion control DROP) 5-10 % of IMU / clock / truth
-# samples were dropped, in bursts of up to ~90 ms, while frames were in flight. A higher priority
-# gives them their own queue ahead of the frames; BLOCK makes them wait instead of vanishing.
-# Images and scans keep DROP: a late frame is better skipped than queued.
-SMALL_STREAMS = ("sensors/imu", "sim/clock", "sim/truth/state")
-
-
-def _qos(key: str) -> dict:
-    if key in SMALL_STREAMS:
-        return dict(express=True, priority=zenoh.Priority.DATA_HIGH, congestion_control=zenoh.CongestionControl.BLOCK)
-    return {}
 
 
 def camera_info_msg(info, stamp_ns: int) -> CameraInfo:
@@ -106,7 +92,7 @@ class SimService(Service):
         self.node.params.on_change(self._on_param)
         self.endpoint = MavlinkEndpoint(target=parse_address(a.target), bind=parse_address(a.bind))
         pub = self.node.publisher
-        self.pubs = {k: pub(k, cls, **_qos(k)) for k, cls in OUTPUTS.items()}
+        self.pubs = {k: pub(k, cls, **qos_for(k)) for k, cls in OUTPUTS.items()}
         self.sensors = build_sensors(self.scenario) if a.sensors != "none" else None
         self.workers: list[RenderProcess] = []
         node_kwargs = dict(vehicle=a.vehicle, zenoh_config=a.zenoh_config, connect=a.connect, log_level=a.log_level)

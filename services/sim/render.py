@@ -20,6 +20,8 @@ import numpy as np
 
 from aeroperception.schemas import Detection2D, Detection2DArray, Header, Image, NDArray, PointCloud
 
+from .qos import qos_for
+
 CAMERA_KEYS = ("sensors/camera/left/image", "sensors/camera/right/image", "sim/truth/boxes")
 LIDAR_KEYS = ("sensors/lidar/points", "sim/truth/lidar_labels")
 
@@ -27,8 +29,8 @@ LIDAR_KEYS = ("sensors/lidar/points", "sim/truth/lidar_labels")
 class _CameraRenderer:
     def __init__(self, node, sensors, scenario):
         self.stereo, self.has_targets = sensors.stereo, bool(scenario.targets)
-        self.left = node.publisher(CAMERA_KEYS[0], Image)
-        self.right = node.publisher(CAMERA_KEYS[1], Image)
+        self.left = node.publisher(CAMERA_KEYS[0], Image, **qos_for(CAMERA_KEYS[0]))
+        self.right = node.publisher(CAMERA_KEYS[1], Image, **qos_for(CAMERA_KEYS[1]))
         self.boxes = node.publisher(CAMERA_KEYS[2], Detection2DArray)
 
     def __call__(self, truth, stamp_ns: int, blackout: bool = False) -> None:
@@ -59,8 +61,8 @@ class _CameraRenderer:
 class _LidarRenderer:
     def __init__(self, node, sensors, scenario):
         self.lidar = sensors.lidar
-        self.points = node.publisher(LIDAR_KEYS[0], PointCloud)
-        self.labels = node.publisher(LIDAR_KEYS[1], PointCloud)
+        self.points = node.publisher(LIDAR_KEYS[0], PointCloud, **qos_for(LIDAR_KEYS[0]))
+        self.labels = node.publisher(LIDAR_KEYS[1], PointCloud, **qos_for(LIDAR_KEYS[1]))
 
     def __call__(self, truth, stamp_ns: int, blackout: bool = False) -> None:
         scan = self.lidar.scan(truth, stamp_ns=stamp_ns)

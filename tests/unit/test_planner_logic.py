@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from aeroperception.schemas import TrajectoryStatus
-from aeroperception.services.planner.logic import Goal, WaypointPlanner, hold_setpoint
+from aeroperception.services.planner.logic import Goal, GoalWatchdog, WaypointPlanner, hold_setpoint
 
 
 def vel(result) -> np.ndarray:
@@ -131,3 +131,18 @@ def test_hold_setpoint_helper():
     assert not sp.acceleration_valid and not sp.yaw_rate_valid
     np.testing.assert_allclose(sp.position_m.to_array(), [1.0, 2.0, 3.0])
     assert sp.velocity_mps.to_array().tolist() == [0.0, 0.0, 0.0] and sp.yaw_rad == -0.5
+
+
+def test_goal_watchdog_fires_once_when_the_mission_goes_silent_while_tracking():
+    w = GoalWatchdog(2.0)
+    assert not w.expired(100.0, tracking=True)           # nothing heard yet: no verdict
+    assert not w.heard(100.0)
+    assert not w.expired(101.9, tracking=True)
+    assert not w.expired(103.0, tracking=False)          # holding already: nothing to stop
+    assert w.expired(102.1, tracking=True) and w.silent
+    assert not w.expired(102.2, tracking=True)           # once
+    assert w.heard(105.0) and not w.silent               # the mission is back
+    assert not w.expired(106.0, tracking=True)
+    off = GoalWatchdog(0.0)
+    off.heard(0.0)
+    assert not off.expired(1e6, tracking=True)

