@@ -29,7 +29,8 @@ from aeroperception.services.runtime.node import encoding_for
 from aeroperception.tools.cmd_chaos import AT_REST_MPS, profile_services, speed_of, wait_until
 from faults.payloads import collect, garbage, mutated, schema_maps
 
-pytestmark = [pytest.mark.slow, pytest.mark.timeout(280)]
+# extended: 100 s; the schema fuzzers (unit) and every service's garbage tests stay in the default run.
+pytestmark = [pytest.mark.slow, pytest.mark.extended, pytest.mark.timeout(280)]
 
 PER_KEY = 200          # payloads published on each input key
 PER_QUERYABLE = 30     # requests sent to each queryable

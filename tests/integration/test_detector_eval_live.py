@@ -18,7 +18,8 @@ from aeroperception.schemas import Detection2DArray
 from aeroperception.services.detector import contract
 from aeroperception.services.detector.logic import resolve_model_path
 
-pytestmark = [pytest.mark.slow, pytest.mark.timeout(240)]
+# extended: test_detector_sim covers the live service on the stack; this compares the two eval modes.
+pytestmark = [pytest.mark.slow, pytest.mark.extended, pytest.mark.timeout(240)]
 
 
 def _eval(stack, tmp_path, *extra: str) -> dict:

@@ -615,6 +615,7 @@ class Recorder:
 
 
 @pytest.mark.slow
+@pytest.mark.extended   # 26 s; test_gcs_px4_compat flies a MAVSDK mission to is_mission_finished by default
 def test_mavsdk_mission_flies_in_sim(stack):
     """MAVSDK uploads takeoff + DO_CHANGE_SPEED + 4 waypoints (a 4 m square at 3 m), arms and
     starts the mission; the speed item sets the planner's speed when the mission starts (not at

@@ -205,6 +205,7 @@ def test_blackout_3s_holds_then_resumes(gstack, tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.extended   # 63 s; the 3 s blackout (LOST -> HOLDING -> resume) runs by default, the RTL rule is unit-tested
 def test_blackout_15s_returns_home_and_lands(gstack, tmp_path):
     """The mission's policy, with the FC on its GPS-like position so RTL can fly (GPS-denied, the
     FC's own no-position failsafe lands it first: see the module docstring)."""

@@ -59,7 +59,6 @@ HOW: dict[str, tuple] = {
     "aero up --profile vehicle": (DRY, None, "--param publish_imu=true"),
     "aero up --profile vehicle --fcu-url udpin:0.0.0.0:14540": (DRY, None, "--fcu-url udpin:0.0.0.0:14540"),
     "aero up --profile vehicle --fcu-url /dev/ttyACM0,921600": (DRY, None, "--fcu-url /dev/ttyACM0,921600"),
-    "aero up --listen tcp/0.0.0.0:7447 --except planner": (DRY, None, "router on tcp/0.0.0.0:7447"),
     "aero node list --connect tcp/VEHICLE_IP:7447": (STACK, None, "planner"),
     "aero run planner --connect tcp/VEHICLE_IP:7447": (STACK, None, None),   # the fixture's planner uses --connect
     "aero topic hz perception/costmap": (SKIP, ["aero", "topic", "hz", "--help"],
@@ -123,6 +122,16 @@ HOW: dict[str, tuple] = {
                            "test_detector_model checks the bundled model's held-out mAP on 16 frames"),
     "aero eval detector --live --detections": (SKIP, ["aero", "eval", "detector", "--help"],
                                                "test_detector_eval_live runs both live modes"),
+    "aero up --profile sim --only sim,fmu,planner,safety --listen tcp/0.0.0.0:7447": (DRY, None, "router on tcp/0.0.0.0:7447"),
+    "aero up --only mission,gcs --connect tcp/VEHICLE_IP:7447": (
+        SKIP, ["aero", "up", "--help"], "test_multihost runs exactly this split across network namespaces"),
+    "docker compose -f deploy/compose.yaml --profile sim up -d --build": (
+        SKIP, None, "test_compose brings the sim profile up, flies survey_01, kills a container"),
+    "docker compose -f deploy/compose.yaml ps": (SKIP, None, "test_compose waits for every service healthy"),
+    "docker compose -f deploy/compose.yaml --profile sim down": (SKIP, None, "test_compose: nothing left running"),
+    "deploy/docker-local.sh": (SKIP, ["bash", "-n", "deploy/docker-local.sh"], "installs the engine as root: syntax checked"),
+    "BASE_IMAGE=aero-base:bookworm docker compose -f deploy/compose.yaml --profile sim up -d --build": (
+        SKIP, None, "what test_compose runs"),
 }
 
 
