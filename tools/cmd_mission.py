@@ -205,6 +205,11 @@ def _follow(args, prog: Progress, total: int, quiet: bool = False, interrupted: 
                 last_line_s = time.monotonic()
         if st is not None and st.state == "IDLE" and not flew and "failed" in st.message:
             raise CliError(f"mission could not start: {st.message}")
+        if flew and down and not interrupted and set(seen) <= {MissionStatus.STATE_IDLE}:
+            # Armed and disarmed again while the FSM never left IDLE: the FC's pre-flight auto-disarm
+            # after a TAKEOFF the mission never acted on (seen across a router link) — not a flight.
+            raise CliError(f"the vehicle armed and disarmed on the ground but the mission never left IDLE "
+                           f"({st.message if st else 'no mission/status'}): check `aero topic echo mission/status`")
         if flew and down:
             done = "landed after the interruption" if interrupted else "4/4 done: landed"
             print(f"{done} and disarmed (vehicle on the ground); states {' -> '.join(seen)}", flush=True)

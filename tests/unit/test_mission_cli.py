@@ -54,6 +54,29 @@ def test_idle_mission_over_a_flying_vehicle_is_not_landed():
         _follow(args(1.0), prog, 4)
 
 
+def test_armed_then_disarmed_while_the_mission_stayed_idle_is_not_done(capsys):
+    """Seen across a router link: TAKEOFF never acted on, the FC auto-disarmed on the ground, and
+    fly said "4/4 done: landed" with the vehicle never off the ground."""
+    prog = Progress()
+    prog.status = status("IDLE", message="mission lean loaded, 2 waypoints")
+    prog.vehicle = vehicle(True, LandedState.ON_GROUND)
+
+    def disarm_later():
+        time.sleep(0.6)
+        with prog.lock:
+            prog.vehicle = vehicle(False, LandedState.ON_GROUND)
+        prog.changed.set()
+
+    t = threading.Thread(target=disarm_later)
+    t.start()
+    try:
+        with pytest.raises(CliError, match="never left IDLE"):
+            _follow(args(5.0), prog, 4)
+    finally:
+        t.join()
+    assert "4/4 done" not in capsys.readouterr().out
+
+
 def test_done_when_the_vehicle_is_down_and_disarmed(capsys):
     prog = Progress()
     prog.status = status("EXECUTING", 2)
