@@ -57,6 +57,10 @@ PARAMS = [
     Param("home_request_period_s", 10.0, "s", 1.0, 120.0,
           description="ask the FC for HOME_POSITION this often until it sends one"),
     Param("command_timeout_s", 3.0, "s", 0.5, 20.0, description="wait for ACK + heartbeat confirmation"),
+    Param("offboard_warmup_s", 1.5, "s", 0.0, 10.0,
+          description="an OFFBOARD request waits (within command_timeout_s) until fmu has streamed setpoints "
+                      "this long, and is re-sent while the FC answers TEMPORARILY_REJECTED (PX4 needs a stream "
+                      "before it accepts OFFBOARD)"),
     Param("publish_imu", False, description="republish HIGHRES_IMU as sensors/imu (real hardware, no sim)"),
     Param("source_system", 1, "", 1, 255, description="our MAVLink system id"),
     Param("source_component", 191, "", 1, 255, description="our component id (191 = onboard computer)"),

@@ -18,8 +18,9 @@ from aeroperception.services.runtime import Health, Service, run
 from . import contract
 from .link import RebootWatch, open_fcu_link
 from .logic import CommandWaiter, Telemetry, ack_name, highres_imu_to_imu, odometry_fields, setpoint_target
-from .offboard import BRAKE, FOLLOW, Envelope, OffboardArbiter
+from .offboard import BRAKE, FOLLOW, Envelope, OffboardArbiter, StreamWarmth
 
+RETRY_S = 0.3       # re-send a TEMPORARILY_REJECTED OFFBOARD request after this
 FORCE_MAGIC = 21196  # COMPONENT_ARM_DISARM param2: force (PX4 and ArduPilot)
 STREAMS_HZ = {  # what we ask the FC for (SET_MESSAGE_INTERVAL); PX4 onboard links honour it
     mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 50,
@@ -49,7 +50,8 @@ class FmuService(Service):
         self.acks = CommandWaiter()
         self.send_lock = threading.Lock()
         self.counters = {"rx": 0, "bad_packets": 0, "setpoints_sent": 0, "holds_sent": 0, "brakes_sent": 0,
-                         "vio_injected": 0, "vio_stale_dropped": 0, "reboots_detected": 0, "link_setups": 0}
+                         "vio_injected": 0, "vio_stale_dropped": 0, "reboots_detected": 0, "link_setups": 0,
+                         "commands_retried": 0}
         self.arbiter = OffboardArbiter(
             Envelope(p.max_velocity_mps, p.max_acceleration_mps2, p.max_distance_m, p.max_altitude_m,
                      p.min_altitude_m, p.max_yaw_rate_radps),
@@ -57,6 +59,7 @@ class FmuService(Service):
             brake_speed_mps=p.brake_speed_mps, brake_timeout_s=p.brake_timeout_s)
         self.params.on_change(self._on_param)
         self.last_target_sent_s = 0.0
+        self.stream_warmth = StreamWarmth()
         self.state_published_s = -math.inf  # last state/vehicle from FC data (new session after a gap)
         self.reboots = RebootWatch(p.reboot_gap_s)
         self.last_setup_s = -math.inf
@@ -291,6 +294,7 @@ class FmuService(Service):
             boot_ms, self.tm.system_id, 1, f["coordinate_frame"], f["type_mask"], f["x"], f["y"], f["z"],
             f["vx"], f["vy"], f["vz"], f["afx"], f["afy"], f["afz"], f["yaw"], f["yaw_rate"]))
         self.last_target_sent_s = time.monotonic()
+        self.stream_warmth.sent(self.last_target_sent_s)
 
     def _offboard_tick(self) -> None:
         """Keep the stream at offboard_rate_hz: the planner's setpoint while it is fresh, else
@@ -347,19 +351,28 @@ class FmuService(Service):
 
     # ------------------------------------------------------------ queryables
 
-    def _command(self, command: int, params: list[float], confirm, timeout_s: float) -> tuple[bool, str]:
-        """COMMAND_LONG, wait for its ACK, then for `confirm()` (heartbeat state) within timeout."""
+    def _command(self, command: int, params: list[float], confirm, timeout_s: float,
+                 retry_rejected: bool = False) -> tuple[bool, str]:
+        """COMMAND_LONG, wait for its ACK, then for `confirm()` (heartbeat state) within timeout.
+        `retry_rejected`: re-send every RETRY_S while the FC answers TEMPORARILY_REJECTED."""
         if not self.link_fresh():
             return False, f"no link to the flight controller ({self.args.fcu_url})"
-        sent_s = time.monotonic()
-        deadline = sent_s + timeout_s
-        ev, box = self.acks.expect(command)
+        deadline = time.monotonic() + timeout_s
         p = params + [0.0] * (7 - len(params))
-        self._send(lambda mav: mav.command_long_send(self.tm.system_id, 1, command, 0, *p))
-        if not ev.wait(max(0.0, deadline - time.monotonic())):
-            return False, f"no COMMAND_ACK within {timeout_s:.1f} s"
-        if box[0] != mavlink.MAV_RESULT_ACCEPTED:
+        while True:
+            sent_s = time.monotonic()
+            ev, box = self.acks.expect(command)
+            self._send(lambda mav: mav.command_long_send(self.tm.system_id, 1, command, 0, *p))
+            if not ev.wait(max(0.0, deadline - time.monotonic())):
+                return False, f"no COMMAND_ACK within {timeout_s:.1f} s"
+            if box[0] == mavlink.MAV_RESULT_ACCEPTED:
+                break
             reason = self._refusal_reason(sent_s)
+            if (retry_rejected and box[0] == mavlink.MAV_RESULT_TEMPORARILY_REJECTED
+                    and time.monotonic() + RETRY_S < deadline):
+                self.counters["commands_retried"] += 1
+                time.sleep(RETRY_S)
+                continue
             return False, f"flight controller answered {ack_name(box[0])}" + (f": {reason}" if reason else "")
         while time.monotonic() < deadline:
             if confirm():
@@ -392,12 +405,26 @@ class FmuService(Service):
             return SetModeReply(success=False, current_mode=self.tm.flight_mode,
                                 message=f"unknown mode {req.mode!r} for {self.tm.autopilot.name}; "
                                         f"known: {', '.join(self.tm.autopilot.mode_names())}")
+        timeout_s = self.params.command_timeout_s
+        offboard = mode == "OFFBOARD"
+        if offboard:  # the FC refuses OFFBOARD until our stream has run a while (StreamWarmth)
+            timeout_s -= self._wait_stream_warm(min(self.params.offboard_warmup_s, timeout_s / 2))
         # Always ask the FC: the mode we last heard (1 Hz heartbeat) may be stale, e.g. right after
         # a failsafe switched OFFBOARD to HOLD; the FC acks a request for its current mode at once.
         ok, msg = self._command(mavlink.MAV_CMD_DO_SET_MODE, [base, main_mode, sub_mode],
-                                lambda: self.tm.flight_mode == mode, self.params.command_timeout_s)
+                                lambda: self.tm.flight_mode == mode, timeout_s, retry_rejected=offboard)
         self.log.info("set_mode", mode=mode, success=ok, message=msg)
         return SetModeReply(success=ok, message=msg, current_mode=self.tm.flight_mode)
+
+    def _wait_stream_warm(self, warm_s: float) -> float:
+        """Block until the setpoint stream has run `warm_s` (bounded by that); the time waited."""
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < warm_s and self.stream_warmth.age_s(time.monotonic()) < warm_s:
+            time.sleep(0.02)
+        waited = time.monotonic() - t0
+        if waited > 0.05:
+            self.log.info("offboard_waited_for_stream", waited_s=round(waited, 2))
+        return waited
 
     def _srv_estop(self, req: EmergencyStopRequest) -> EmergencyStopReply:
         if not req.confirm:

@@ -37,6 +37,32 @@ PLANNER_SILENT = "planner silent"
 LINK_REGAINED = "flight-controller link regained"
 
 
+class StreamWarmth:
+    """How long fmu's setpoint stream to the flight controller has run without a gap.
+
+    PX4 accepts OFFBOARD only once it has received setpoints for a while (the sim: faster than
+    COM_OF_MIN_HZ for COM_OF_WARM_T); a mode request right after fmu (re)started streaming
+    (start-up, link regained, FC reboot) is refused TEMPORARILY_REJECTED. fmu owns the stream,
+    so its set_mode waits until the stream is warm instead of every caller retrying.
+    """
+
+    def __init__(self, max_gap_s: float = 0.5):
+        self.max_gap_s = max_gap_s
+        self.since_s = math.nan
+        self.last_s = -math.inf
+
+    def sent(self, now_s: float) -> None:
+        if now_s - self.last_s > self.max_gap_s:
+            self.since_s = now_s  # a gap: PX4 restarts its count too
+        self.last_s = now_s
+
+    def age_s(self, now_s: float) -> float:
+        """Seconds the stream has run without a gap (0 when it is not running)."""
+        if now_s - self.last_s > self.max_gap_s:
+            return 0.0
+        return now_s - self.since_s
+
+
 @dataclass
 class Envelope:
     """Limits of a setpoint fmu forwards (the vehicle's envelope, ENU about the local origin)."""

@@ -209,7 +209,6 @@ def _rate(samples: list, window_s: float) -> float:
 
 
 @pytest.mark.slow
-@pytest.mark.known_flaky   # failed 2 of 3 on main: sim/truth never armed while `aero mission fly` said done (issue 14 note)
 def test_mission_across_the_link(hosts, tmp_path):
     h = hosts
     t0 = time.monotonic()

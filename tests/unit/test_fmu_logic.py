@@ -432,6 +432,7 @@ def test_ack_names(result, name):
 from aeroperception.schemas import Header  # noqa: E402
 from aeroperception.services.fmu.link import RebootWatch, is_autopilot_heartbeat  # noqa: E402
 from aeroperception.services.fmu.offboard import (  # noqa: E402
+    StreamWarmth,
     BRAKE, FOLLOW, HOLD, PLANNER_SILENT, Envelope, OffboardArbiter,
 )
 
@@ -605,3 +606,16 @@ def test_reboot_watch_heartbeat_gap_and_time_boot_going_back():
 def test_only_an_autopilot_heartbeat_locks_the_link(mav_type, autopilot, is_fc):
     hb = mavlink.MAVLink(None).decode(bytearray(MAV.heartbeat_encode(mav_type, autopilot, 0, 0, 0).pack(MAV)))
     assert is_autopilot_heartbeat(hb) == is_fc
+
+
+def test_stream_warmth_counts_from_the_last_gap():
+    """fmu's OFFBOARD request waits for this: PX4 refuses OFFBOARD until it has had a stream."""
+    w = StreamWarmth(max_gap_s=0.5)
+    assert w.age_s(0.0) == 0.0                     # never streamed
+    for i in range(61):                            # 50 Hz for 1.2 s
+        w.sent(10.0 + i * 0.02)
+    assert w.age_s(11.2) == pytest.approx(1.2, abs=0.03)
+    assert w.age_s(11.8) == 0.0                    # silent for 0.6 s: not running
+    w.sent(12.0)                                   # restarted after the gap: counts from here
+    w.sent(12.4)
+    assert w.age_s(12.4) == pytest.approx(0.4)
