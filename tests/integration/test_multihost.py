@@ -359,6 +359,14 @@ def test_saturated_link_never_stalls_the_vehicle(hosts):
     ages = sorted(r["rx"] - r["st"] for _t, r in state if r.get("st")) or [float("nan")]
     setp = h.v_obs.samples("fmu/in/trajectory_setpoint", since=t0, until=t1)
     gaps = [b - a for (a, _), (b, _) in zip(setp, setp[1:])]
+    truth = h.v_obs.samples("sim/truth/state", since=t0, until=t1)
+    def stamp_gap(ss):
+        st = [r["st"] for _t, r in ss if r.get("st")]
+        return max((b - a for a, b in zip(st, st[1:])), default=float("nan"))
+    def max_age(ss):
+        return max((r["rx"] - r["st"] for _t, r in ss if r.get("st")), default=float("nan"))
+    print(f"DIAG setpoint stamp gap {stamp_gap(setp)*1000:.0f} ms, setpoint age max {max_age(setp)*1000:.0f} ms; "
+          f"vehicle truth stamp gap {stamp_gap(truth)*1000:.0f} ms age max {max_age(truth)*1000:.0f} ms n={len(truth)}")
     print(f"multihost impaired B (+ {RATE_KBIT / 1000:g} Mbit/s cap, 20 Hz 640x480 raw images): ground gets "
           f"images {_rate(img, win):.1f} Hz, state/vehicle {_rate(state, win):.0f} Hz (age median "
           f"{statistics.median(ages) * 1000:.0f} ms, max {ages[-1] * 1000:.0f} ms), `aero param get` {query}; "
