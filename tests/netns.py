@@ -266,6 +266,9 @@ class Lan:
 
 
 QUEUE_BYTES = 256 * 1024   # the relay's backlog per direction before it stops reading
+# The relay's own kernel buffers, fixed: autotuned they grew to ~1 MB towards a capped link (0.5 s
+# at 20 Mbit/s) -- a queue no direct link has, which would hide what the endpoints' settings do.
+SOCKET_BYTES = 64 * 1024
 
 
 def _relay_main(listen_port: int, target: str, delay_spec: str) -> None:
@@ -347,6 +350,8 @@ def _relay_main(listen_port: int, target: str, delay_spec: str) -> None:
         u.settimeout(None)
         for a, b in ((c, u), (u, c)):
             a.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            a.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, SOCKET_BYTES)
+            a.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, SOCKET_BYTES)
             threading.Thread(target=pipe, args=(a, b), daemon=True).start()
 
 

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import difflib
+import importlib.util
 import json
 import math
 import os
@@ -89,6 +90,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="router endpoint (use tcp/0.0.0.0:7447 to accept other machines)")
     p.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
                    help="join another host's router, e.g. tcp/10.0.0.2:7447 (several machines; repeatable)")
+    p.add_argument("--thin-link", action="append", default=[], metavar="IFACE",
+                   help="router: network interface of a slow link to another host (e.g. wlan0); images "
+                        "and scans leave through it downsampled (`aero router --help`; repeatable)")
+    p.add_argument("--thin-link-hz", type=float, default=None, metavar="HZ",
+                   help="router: per bulk stream through --thin-link (default 1)")
     p.add_argument("--log-dir", default=None, help="service logs (default ~/.aero/logs/<time>)")
     p.add_argument("--scenario", default=None, help="sim: scenario world (open_field, village, slope_forest)")
     p.add_argument("--speed", type=float, default=None, help="sim: run faster than real time (services follow sim/clock)")
@@ -165,6 +171,19 @@ def write_pids(path: Path, children) -> None:
 def _did_you_mean(word: str, choices) -> str:
     near = difflib.get_close_matches(word, list(choices), n=3, cutoff=0.5)
     return f" (did you mean {', '.join(near)}?)" if near else ""
+
+
+# Optional services and the extra each needs: {service: (module it imports, pyproject extra)}.
+OPTIONAL_EXTRAS = {"ros2bridge": ("rosbags", "ros2")}
+
+
+def check_extras(names: list[str]) -> None:
+    """A profile with an optional service whose extra is not installed fails before anything starts."""
+    for name in names:
+        module, extra = OPTIONAL_EXTRAS.get(name, (None, None))
+        if module and importlib.util.find_spec(module) is None:
+            raise CliError(f"{name} needs the optional extra '{extra}' ({module}): pip install "
+                           f"'aeroperception[{extra}]', or leave it out with --except {name}")
 
 
 def select_services(args) -> list[str]:
@@ -271,10 +290,14 @@ class RouterChild:
     BACKOFF_S, MAX_BACKOFF_S = 0.2, 2.0
 
     def __init__(self, listen: str, log_dir: Path, env: dict[str, str], priority: Priority | None,
-                 connect: list[str] = ()):
+                 connect: list[str] = (), thin_links: list[str] = (), thin_link_hz: float | None = None):
         argv = [sys.executable, "-m", "aeroperception.tools.cli", "router", "--listen", listen]
         for ep in connect:
             argv += ["--connect", ep]
+        for iface in thin_links:
+            argv += ["--thin-link", iface]
+        if thin_link_hz is not None:
+            argv += ["--thin-link-hz", str(thin_link_hz)]
         self.child = Child("router", argv, log_dir / "router.log", priority=priority or Priority(),
                            backoff_s=self.BACKOFF_S)
         self.pid_path = log_dir / "router.pid"
@@ -332,6 +355,7 @@ class RouterChild:
 
 def run(args) -> int:
     names = select_services(args)
+    check_extras(names)
     validate_args(args, names)
     if args.dry_run:
         endpoint = args.listen.replace("0.0.0.0", "127.0.0.1")
@@ -354,7 +378,8 @@ def run(args) -> int:
     lock = threading.Lock()
 
     stop = ShutdownFlag().install().event
-    router = RouterChild(args.listen, log_dir, env, priorities.get("router"), args.connect)
+    router = RouterChild(args.listen, log_dir, env, priorities.get("router"), args.connect,
+                         args.thin_link, args.thin_link_hz)
     router.start(stop)
     session = open_session(make_config(None, endpoint, mode="client"), stop, max_wait_s=10)
     if session is None:

@@ -3,11 +3,17 @@
 The small high-rate streams must not be lost behind the ~1 MB images and scans on the same link:
 with zenoh's defaults (priority DATA, congestion control DROP) 5-10 % of IMU / clock / truth
 samples were dropped, in bursts of up to ~90 ms, while frames were in flight. A higher priority
-gives them their own queue ahead of the frames; BLOCK makes them wait instead of vanishing.
-Images and scans keep DROP (a late frame is better skipped than queued) at priority DATA_LOW: on
-a slow link to another host (radio, 20 Mbit/s) they yield to state, goals and service replies;
-at DATA, 20 Hz raw frames starved a ground station's arm request until it timed out
-(tests/integration/test_multihost.py::test_impaired_link).
+(DATA_HIGH) gives them their own queue ahead of the frames (the sensor stack test still gets
+them at their rated stamp rates, within 5 %).
+Congestion control stays DROP for every stream: BLOCK makes a publisher -- and the router
+forwarding for it -- wait for its slowest subscriber. A ground station subscribing to
+sim/truth/state across a saturated 20 Mbit/s link stalled the vehicle's router that way and
+delayed its local deliveries by up to 1.3 s (planner -> fmu setpoint gaps up to 0.9 s; PX4 leaves
+OFFBOARD after 1.0 s): nothing that may cross a link may block the vehicle's own loop
+(tests/integration/test_multihost.py::test_saturated_link_never_stalls_the_vehicle).
+Images and scans go at priority DATA_LOW: on a slow link to another host (radio, 20 Mbit/s) they
+yield to state, goals and service replies; at DATA, 20 Hz raw frames starved a ground station's
+arm request until it timed out (tests/integration/test_multihost.py::test_impaired_link).
 """
 from __future__ import annotations
 
@@ -21,7 +27,7 @@ BULK_STREAMS = ("sensors/camera/left/image", "sensors/camera/right/image", "sens
 def qos_for(key: str) -> dict:
     """Keyword arguments for Node.publisher(key, ...)."""
     if key in SMALL_STREAMS:
-        return dict(express=True, priority=zenoh.Priority.DATA_HIGH, congestion_control=zenoh.CongestionControl.BLOCK)
+        return dict(express=True, priority=zenoh.Priority.DATA_HIGH, congestion_control=zenoh.CongestionControl.DROP)
     if key in BULK_STREAMS:
         return dict(priority=zenoh.Priority.DATA_LOW, congestion_control=zenoh.CongestionControl.DROP)
     return {}
