@@ -42,8 +42,9 @@ SURVEY = REPO / "examples" / "missions" / "survey_01.json"
 # Rates (Hz) from the producers' contracts; vio, detector and perception keys are in the preset
 # but their producers do not run in this stack.
 RATES = {"state/vehicle": 50.0, "fmu/in/trajectory_setpoint": 50.0, "fmu/out/vehicle_local_position": 50.0,
-         "mission/status": 2.0, "diagnostics/agg": 1.0, "fmu/out/battery_status": 1.0}
-PRODUCED = [*RATES, "fmu/out/vehicle_status", "mission/active_goal"]
+         "mission/status": 2.0, "diagnostics/agg": 1.0, "fmu/out/battery_status": 1.0,
+         "fmu/out/vehicle_status": 5.0}
+PRODUCED = [*RATES, "mission/active_goal"]
 FSIZE_LIMIT = 300_000
 
 
@@ -145,7 +146,6 @@ def test_flight_recording_has_every_essentials_key_at_its_rate(flight):
         rate = (len(msgs) - 1) / ((msgs[-1][0] - msgs[0][0]) * 1e-9)
         assert abs(rate - hz) / hz < 0.1, f"{key}: {rate:.2f} Hz recorded, contract {hz} Hz"
         assert len(msgs) >= 0.9 * hz * span_s
-    assert len(data["fmu/out/vehicle_status"]) >= 0.9 * span_s
     # Plain msgpack reads every payload; the encoding names our schema.
     for key, msgs in data.items():
         for _t, payload, enc in msgs:
