@@ -11,10 +11,9 @@ diagnostics, recorder) flies survey_01 once while
 
 Then, on other routers: `aero replay` of a 10 s window reproduces the recorded messages (same
 bytes, same encoding, timing within 5 ms), and replaying state/vehicle + mission/active_goal
-into a stack with only the planner reproduces the live planner's setpoints. (The planner is the
-replayed service rather than vio: vio needs the rendered stereo cameras, which this 2-core CI
-cannot run beside a flight; the replay path is the same one.) The flight's Foxglove export
-validates against Foxglove's schemas.
+into a stack with only the planner reproduces the live planner's setpoints (vio replayed on
+camera + IMU: test_recorder_perception.py). The flight's Foxglove export validates against
+Foxglove's schemas.
 """
 from __future__ import annotations
 
@@ -40,7 +39,7 @@ pytestmark = pytest.mark.slow
 REPO = Path(__file__).resolve().parents[2]
 SURVEY = REPO / "examples" / "missions" / "survey_01.json"
 # Rates (Hz) from the producers' contracts; vio, detector and perception keys are in the preset
-# but their producers do not run in this stack.
+# but their producers do not run in this stack (test_recorder_perception.py checks them).
 RATES = {"state/vehicle": 50.0, "fmu/in/trajectory_setpoint": 50.0, "fmu/out/vehicle_local_position": 50.0,
          "mission/status": 2.0, "diagnostics/agg": 1.0, "fmu/out/battery_status": 1.0,
          "fmu/out/vehicle_status": 5.0}
