@@ -15,7 +15,7 @@ INPUTS = {
 OUTPUTS = {
     "fmu/out/vehicle_local_position": LocalPosition,    # 50 Hz
     "fmu/out/vehicle_attitude": Attitude,               # 50 Hz
-    "fmu/out/vehicle_status": VehicleStatus,            # 5 Hz
+    "fmu/out/vehicle_status": VehicleStatus,            # STATUS_RATE_HZ + at once on a heartbeat that changes it
     "fmu/out/battery_status": BatteryState,             # 1 Hz
     "fmu/out/home_position": HomePosition,              # FC's home (HOME_POSITION): on change + 1 Hz (latched)
     "fmu/out/sensor_combined": Imu,                     # FC IMU (HIGHRES_IMU), FLU
@@ -27,6 +27,9 @@ SERVICES = {
     "fmu/srv/set_mode": (SetModeRequest, SetModeReply),
     "fmu/srv/emergency_stop": (EmergencyStopRequest, EmergencyStopReply),
 }
+# The FC's HEARTBEAT comes at 1 Hz; the status is republished from the latest telemetry at this
+# rate (while the link is fresh) so a landed-state change or a late subscriber waits <= 0.2 s.
+STATUS_RATE_HZ = 5.0
 DEFAULT_FCU_URL = "udpin:127.0.0.1:14540"   # PX4 SITL / the built-in sim send here
 PARAMS = [
     Param("offboard_rate_hz", 50.0, "Hz", 20.0, 100.0, description="SET_POSITION_TARGET_LOCAL_NED stream rate"),

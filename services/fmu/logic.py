@@ -10,6 +10,7 @@ import threading
 import time
 from dataclasses import dataclass, field
 
+import msgspec
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
@@ -62,6 +63,7 @@ class Telemetry:
     last_heartbeat_s: float = 0.0
     system_id: int = 1
     home: HomePosition | None = None      # the FC's home (HOME_POSITION), None until it sends one
+    last_status: VehicleStatus | None = None  # last published (header cleared), see status_to_publish
 
     def on_heartbeat(self, m) -> VehicleStatus:
         if m.autopilot != self.autopilot.mav_autopilot:
@@ -73,8 +75,19 @@ class Telemetry:
         self.last_heartbeat_s = time.monotonic()
         return self.vehicle_status()
 
-    def vehicle_status(self) -> VehicleStatus:
-        return VehicleStatus(nav_state=self.flight_mode, custom_mode=self.custom_mode, armed=self.armed,
+    def status_to_publish(self, stamp_ns: int, periodic: bool) -> VehicleStatus | None:
+        """The status to publish now: always on the periodic tick (STATUS_RATE_HZ), and from a
+        heartbeat only when it changed what was last published (a mode or arming change goes
+        out at once without doubling the rate)."""
+        st = self.vehicle_status(stamp_ns)
+        body = msgspec.structs.replace(st, header=Header())
+        if not periodic and body == self.last_status:
+            return None
+        self.last_status = body
+        return st
+
+    def vehicle_status(self, stamp_ns: int = 0) -> VehicleStatus:
+        return VehicleStatus(header=Header(stamp_ns=stamp_ns), nav_state=self.flight_mode, custom_mode=self.custom_mode, armed=self.armed,
                              landed_state=self.landed_state,
                              failsafe=self.system_status in (mavlink.MAV_STATE_CRITICAL, mavlink.MAV_STATE_EMERGENCY),
                              system_id=self.system_id, autopilot=self.autopilot.name)

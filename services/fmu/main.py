@@ -92,6 +92,7 @@ class FmuService(Service):
         self.stale_published_s = 0.0       # last connected=False on state/vehicle (link stale)
         self.stream_loop = node.every(1.0 / p.offboard_rate_hz, self._offboard_tick, name="offboard")
         node.every(1.0, self._heartbeat_tick, name="heartbeat")
+        node.every(1.0 / contract.STATUS_RATE_HZ, self._status_tick, name="status")
         node.every(1.0, self._home_tick, name="home")
         self.reader = threading.Thread(target=self._read_loop, name="fmu-mavlink", daemon=True)
         self.reader.start()
@@ -137,7 +138,8 @@ class FmuService(Service):
             if m.type == mavlink.MAV_TYPE_GCS:
                 return
             self.tm.system_id = m.get_srcSystem()
-            self.pubs["fmu/out/vehicle_status"].publish(self.tm.on_heartbeat(m))
+            self.tm.on_heartbeat(m)
+            self._publish_status(stamp, periodic=False)
             why = self.reboots.on_heartbeat(time.monotonic())
             if not self.streams_requested:
                 self._request_streams()
@@ -324,6 +326,17 @@ class FmuService(Service):
             return
         self._send_target(setpoint_target(sp))
         self.counters["brakes_sent" if phase == BRAKE else "holds_sent"] += 1
+
+    def _status_tick(self) -> None:
+        """fmu/out/vehicle_status at its contract rate from the latest telemetry (the FC's
+        heartbeat is only 1 Hz); silent until the FC identified itself and while the link is stale."""
+        if self.tm.last_heartbeat_s > 0 and self.link_fresh():
+            self._publish_status(self.node.now_ns(), periodic=True)
+
+    def _publish_status(self, stamp_ns: int, periodic: bool) -> None:
+        st = self.tm.status_to_publish(stamp_ns, periodic)
+        if st is not None:
+            self.pubs["fmu/out/vehicle_status"].publish(st)
 
     def _heartbeat_tick(self) -> None:
         self._send(lambda mav: mav.heartbeat_send(mavlink.MAV_TYPE_ONBOARD_CONTROLLER, mavlink.MAV_AUTOPILOT_INVALID, 0, 0,

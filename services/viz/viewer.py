@@ -103,7 +103,9 @@ class ViewerSink:
             self.grpc_uri = f"rerun+http://{public_host(out.bind_ip)}:{out.grpc_port}/proxy"
         if out.spawn:
             port = out.grpc_port + 1 if out.serving else out.grpc_port
-            rr.spawn(port=port, connect=False, hide_welcome_screen=True)
+            # recording=: without it rr.spawn looks for a global recording, finds none (ours is
+            # our own stream) and only logs "Rerun is disabled - spawn() call ignored".
+            rr.spawn(port=port, connect=False, hide_welcome_screen=True, recording=self.rec)
             sinks.append(rr.GrpcSink(f"rerun+http://127.0.0.1:{port}/proxy"))
         if out.viewer_url:
             sinks.append(rr.GrpcSink(out.viewer_url))

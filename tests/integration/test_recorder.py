@@ -11,10 +11,9 @@ diagnostics, recorder) flies survey_01 once while
 
 Then, on other routers: `aero replay` of a 10 s window reproduces the recorded messages (same
 bytes, same encoding, timing within 5 ms), and replaying state/vehicle + mission/active_goal
-into a stack with only the planner reproduces the live planner's setpoints. (The planner is the
-replayed service rather than vio: vio needs the rendered stereo cameras, which this 2-core CI
-cannot run beside a flight; the replay path is the same one.) The flight's Foxglove export
-validates against Foxglove's schemas.
+into a stack with only the planner reproduces the live planner's setpoints (vio replayed on
+camera + IMU: test_recorder_perception.py). The flight's Foxglove export validates against
+Foxglove's schemas.
 """
 from __future__ import annotations
 
@@ -40,10 +39,11 @@ pytestmark = pytest.mark.slow
 REPO = Path(__file__).resolve().parents[2]
 SURVEY = REPO / "examples" / "missions" / "survey_01.json"
 # Rates (Hz) from the producers' contracts; vio, detector and perception keys are in the preset
-# but their producers do not run in this stack.
+# but their producers do not run in this stack (test_recorder_perception.py checks them).
 RATES = {"state/vehicle": 50.0, "fmu/in/trajectory_setpoint": 50.0, "fmu/out/vehicle_local_position": 50.0,
-         "mission/status": 2.0, "diagnostics/agg": 1.0, "fmu/out/battery_status": 1.0}
-PRODUCED = [*RATES, "fmu/out/vehicle_status", "mission/active_goal"]
+         "mission/status": 2.0, "diagnostics/agg": 1.0, "fmu/out/battery_status": 1.0,
+         "fmu/out/vehicle_status": 5.0}
+PRODUCED = [*RATES, "mission/active_goal"]
 FSIZE_LIMIT = 300_000
 
 
@@ -145,7 +145,6 @@ def test_flight_recording_has_every_essentials_key_at_its_rate(flight):
         rate = (len(msgs) - 1) / ((msgs[-1][0] - msgs[0][0]) * 1e-9)
         assert abs(rate - hz) / hz < 0.1, f"{key}: {rate:.2f} Hz recorded, contract {hz} Hz"
         assert len(msgs) >= 0.9 * hz * span_s
-    assert len(data["fmu/out/vehicle_status"]) >= 0.9 * span_s
     # Plain msgpack reads every payload; the encoding names our schema.
     for key, msgs in data.items():
         for _t, payload, enc in msgs:

@@ -161,6 +161,27 @@ def test_critical_system_status_is_a_failsafe():
     assert tm.on_heartbeat(hb).failsafe
 
 
+def test_status_is_periodic_and_a_changed_heartbeat_goes_out_at_once():
+    """fmu/out/vehicle_status: every periodic tick (5 Hz, the FC's heartbeat is 1 Hz) carries the
+    latest telemetry; a heartbeat publishes only when it changed the status (mode, arming)."""
+    tm = Telemetry()
+    hb = mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_PX4, DISARMED,
+                                           PX4_HOLD, mavlink.MAV_STATE_STANDBY, 3)
+    tm.on_heartbeat(hb)
+    first = tm.status_to_publish(10, periodic=False)
+    assert first is not None and first.header.stamp_ns == 10 and first.nav_state == "HOLD"
+    tm.on_heartbeat(hb)
+    assert tm.status_to_publish(20, periodic=False) is None          # unchanged heartbeat: no extra message
+    tick = tm.status_to_publish(30, periodic=True)
+    assert tick is not None and tick.header.stamp_ns == 30            # the tick always publishes
+    tm.on_extended_sys_state(mavlink.MAVLink_extended_sys_state_message(0, mavlink.MAV_LANDED_STATE_ON_GROUND))
+    assert tm.status_to_publish(40, periodic=True).landed_state == LandedState.ON_GROUND
+    hb.base_mode, hb.custom_mode = ARMED, PX4_OFFBOARD
+    tm.on_heartbeat(hb)
+    armed = tm.status_to_publish(50, periodic=False)
+    assert armed is not None and (armed.armed, armed.nav_state) == (True, "OFFBOARD")
+
+
 def test_ardupilot_heartbeat_switches_the_mode_map():
     tm = Telemetry()
     hb = mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA,

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import rerun as rr
 
+from aerotest import free_port
 from aeroperception.schemas import (
     BatteryState, Detection2D, Detection2DArray, DiagnosticStatus, GetMissionReply, Header, Image,
     MissionStatus, NDArray, OccupancyGrid, Odometry, PointCloud, Pose, PoseStamped, Quaternion,
@@ -283,6 +284,19 @@ def test_sink_saves_an_rrd_that_reads_back_with_entities_over_the_stamps(tmp_pat
     assert v.rows == 20 and (v.first_ns, v.last_ns) == (t0, t0 + 19 * 50_000_000)
     assert spans["/world/vehicle/body/model"].first_ns is None          # static body model
     assert spans["/world/trajectory/vehicle"].rows >= 9
+
+
+def test_spawned_viewer_is_asked_for_with_the_sinks_own_recording(monkeypatch, tmp_path):
+    """rr.spawn without recording= looks for a global recording, finds none (the sink has its own
+    stream) and silently spawns nothing: `aero viz` showed no viewer."""
+    calls = []
+    monkeypatch.setattr(rr, "spawn", lambda **kw: calls.append(kw))
+    monkeypatch.setattr(rr, "GrpcSink", lambda url: rr.FileSink(str(tmp_path / "stand-in.rrd")))  # no viewer here
+    sink = ViewerSink(Outputs(web_port=0, spawn=True, grpc_port=free_port()))
+    try:
+        assert len(calls) == 1 and calls[0]["recording"] is sink.rec and calls[0]["connect"] is False
+    finally:
+        sink.close(timeout_s=0.1)
 
 
 # ---------------------------------------------------------------- `aero viz` flags
