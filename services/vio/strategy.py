@@ -21,6 +21,7 @@ import numpy as np
 from . import health as H
 from .backend import Backend, BackendConfig, BackendError, adjoint, tangent_to_world_cov
 from .calibration import CameraCalibration
+from .drift import DriftConfig, DriftCovariance
 from .dto import (
     DEGRADED, INIT, LOST, FeatureQuality, ImuBias, ImuSample, ImuWindow, NavCameraFrame,
     StrategyNotAvailableError, VioDegradedError, VioFatalError, VioHealth, VioInitializingError,
@@ -35,6 +36,7 @@ class VioConfig:
     frontend: FrontEndConfig = field(default_factory=FrontEndConfig)
     backend: BackendConfig = field(default_factory=BackendConfig)
     imu: ImuNoise = field(default_factory=ImuNoise)
+    drift: DriftConfig = field(default_factory=DriftConfig)
     init_imu_s: float = 0.2            # IMU averaged for gravity alignment
     still_accel_std_mps2: float = 0.5  # below: vehicle still, mean gyro = gyro bias
     moving_init_velocity_sigma_mps: float = 3.0   # velocity prior when starting in motion
@@ -69,6 +71,7 @@ class KltVio(VioStrategy):
     def __init__(self, config: VioConfig | None = None):
         self.cfg = config or VioConfig()
         self.backend = Backend(self.cfg.imu, self.cfg.backend)
+        self.drift = DriftCovariance(self.cfg.drift)   # odom-frame drift outside the window
         self.calib: CameraCalibration | None = None
         self.frontend: FrontEnd | None = None
         self.imu: list[ImuSample] = []   # sorted by time, trimmed to imu_buffer_s
@@ -102,6 +105,7 @@ class KltVio(VioStrategy):
 
     def _reset(self, why: str) -> None:
         self.backend.reset()
+        self.drift.reset()
         if self.frontend:
             self.frontend.reset()
         self.counters["resets"] += 1
@@ -178,6 +182,7 @@ class KltVio(VioStrategy):
         except BackendError as e:
             raise VioInitializingError(str(e)) from None
         self.kf_world_T_body = est.world_T_body
+        self.drift.reset()
         self.health = VioHealth(H.next_state(self.health.state, H.INITIALIZED), 0, est.bias.norm,
                                 f"initialised ({len(self.frontend.kf_px)} stereo features)")
         self.last_t_ns = t
@@ -191,10 +196,13 @@ class KltVio(VioStrategy):
         gyro_var = self.cfg.imu.gyro_noise_density ** 2 * 200.0
         twist_cov[3:, 3:] = est.bias_cov[3:, 3:] + gyro_var * np.eye(3)
         self.counters["outputs"] += 1
+        self.drift.update(est.world_T_body)
+        # window marginal + the drift accumulated outside the window: honest over a long flight
+        pose_cov = tangent_to_world_cov(est.world_T_body, est.pose_cov_tangent) + self.drift.covariance()
         return VioOutput(
             frame_id=frame.frame_id, stamp_ns=frame.capture_timestamp_ns,
             relative_pose_T=np.linalg.inv(self.kf_world_T_body) @ est.world_T_body,
-            pose_covariance_6x6=tangent_to_world_cov(est.world_T_body, est.pose_cov_tangent),
+            pose_covariance_6x6=pose_cov,
             imu_bias=est.bias, feature_quality=quality, world_T_body=est.world_T_body,
             velocity_world_mps=est.velocity_world_mps,
             angular_velocity_body_radps=self.last_gyro - est.bias.gyro_radps,
