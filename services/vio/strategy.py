@@ -80,6 +80,7 @@ class KltVio(VioStrategy):
         self.last_t_ns: int | None = None
         self.kf_world_T_body = np.eye(4)
         self.last_gyro = np.zeros(3)
+        self.continuing = False   # the next initialisation continues the current odom frame
         self.counters = {"frames": 0, "outputs": 0, "bad_frames": 0, "time_backwards": 0,
                          "imu_gaps": 0, "imu_dropped": 0, "resets": 0, "visual_fixes": 0}
         self.last_timings: dict[str, float] = {}
@@ -103,9 +104,15 @@ class KltVio(VioStrategy):
 
     # ------------------------------------------------------------ internals
 
-    def _reset(self, why: str) -> None:
+    def _reset(self, why: str, keep_pose: bool = False) -> None:
+        """keep_pose: re-initialise from the last estimate (pose incl. yaw, bias; velocity re-found
+        from stereo + IMU), so the odom frame stays continuous through a restart of the smoother
+        instead of jumping back to the origin with yaw 0 (and its drift term is kept)."""
+        last = self.backend.last
+        self.continuing = keep_pose and last is not None
+        if self.continuing:
+            self.warm = WarmStartPose(last.world_T_body, last.velocity_world_mps, last.bias)
         self.backend.reset()
-        self.drift.reset()
         if self.frontend:
             self.frontend.reset()
         self.counters["resets"] += 1
@@ -167,6 +174,8 @@ class KltVio(VioStrategy):
         if self.warm is not None:
             w, self.warm = self.warm, None
             T, vel, bias = np.asarray(w.world_T_body, float), np.asarray(w.velocity_world_mps, float), w.bias
+            if self.continuing:
+                vel_sigma = self.cfg.moving_init_velocity_sigma_mps   # the last velocity is stale
         else:
             acc = np.array([s.accel_mps2 for s in win])
             gyr = np.array([s.gyro_radps for s in win])
@@ -182,7 +191,9 @@ class KltVio(VioStrategy):
         except BackendError as e:
             raise VioInitializingError(str(e)) from None
         self.kf_world_T_body = est.world_T_body
-        self.drift.reset()
+        if not self.continuing:
+            self.drift.reset()
+        self.continuing = False
         self.health = VioHealth(H.next_state(self.health.state, H.INITIALIZED), 0, est.bias.norm,
                                 f"initialised ({len(self.frontend.kf_px)} stereo features)")
         self.last_t_ns = t
@@ -247,7 +258,7 @@ class KltVio(VioStrategy):
         samples, gap_s = self._imu_between(self.last_t_ns, t)
         if gap_s > self.cfg.imu_gap_reset_s or not samples:
             self.counters["imu_gaps"] += 1
-            self._reset(f"IMU gap of {gap_s:.2f} s: re-initialising")
+            self._reset(f"IMU gap of {gap_s:.2f} s: re-initialising", keep_pose=True)
             raise VioInitializingError(self.health.message)
         notes = []
         if gap_s > self.cfg.imu_gap_warn_s:
@@ -273,7 +284,7 @@ class KltVio(VioStrategy):
         try:
             est = self.backend.add_frame(t, samples, visual)
         except BackendError as e:
-            self._reset(f"{e}: re-initialising")
+            self._reset(f"{e}: re-initialising", keep_pose=True)
             raise VioFatalError(self.health.message) from None
         timings["backend"] = (time.perf_counter() - t_be) * 1e3
         self.last_t_ns = t
