@@ -1,5 +1,5 @@
 """Contract of vio: keys in/out and parameters (stereo-inertial odometry, seed 003 / 000 §4.1)."""
-from aeroperception.schemas import CameraInfo, Image, Imu, Odometry, VioHealth
+from aeroperception.schemas import CameraInfo, Image, Imu, Odometry, Reply, VioHealth, VioResetRequest
 from aeroperception.services.runtime import Param
 
 from .backend import BackendConfig
@@ -22,6 +22,10 @@ OUTPUTS = {
     # (drift.py: grows with distance flown and yaw turned); one per processed frame.
     "state/visual_odometry": Odometry,
     "state/vio_health": VioHealth,           # 1 Hz and on every state change
+}
+SERVICES = {                                 # queryables served: request -> reply
+    # restart from a known odom pose (seed 003 reset_to_warm_start); INIT until the next good frame
+    "vio/srv/reset": (VioResetRequest, Reply),
 }
 QUERIES = ("sensors/camera/left/info", "sensors/camera/right/info")
 PARAMS = [

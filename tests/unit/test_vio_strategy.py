@@ -262,3 +262,20 @@ def test_frame_slot_pairs_by_stamp_and_newest_wins_while_busy():
     mono = FrameSlot(stereo=False)
     mono.put("left", "L", 5)
     assert mono.take(0.0) == ("L", None)
+
+
+def test_reset_request_maps_to_a_warm_start_and_refuses_bad_poses():
+    from aeroperception.schemas import VioResetRequest
+    from aeroperception.services.vio.messages import warm_start
+
+    q = quat_from_rotmat(np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]))   # yaw 90 deg
+    req = VioResetRequest(pose=Pose(position=Vector3(x=10.0, y=-2.0, z=3.0), orientation=Quaternion.from_array(q)),
+                          velocity_mps=Vector3(x=0.5))
+    w = warm_start(req)
+    assert np.allclose(w.world_T_body[:3, 3], [10.0, -2.0, 3.0]) and np.allclose(w.world_T_body[:3, 0], [0, 1, 0])
+    assert np.allclose(w.velocity_world_mps, [0.5, 0, 0])
+    assert np.allclose(warm_start(VioResetRequest()).world_T_body, np.eye(4))   # default: fresh start at the origin
+    with pytest.raises(ValueError, match="finite"):
+        warm_start(VioResetRequest(pose=Pose(position=Vector3(x=float("nan")))))
+    with pytest.raises(ValueError, match="unit quaternion"):
+        warm_start(VioResetRequest(pose=Pose(orientation=Quaternion(w=2.0))))
