@@ -27,6 +27,7 @@ from .mission import MissionCommand, MissionStatus, PerceptionHealth, WaypointRe
 from .services import (
     ArmReply, ArmRequest, EmergencyStopReply, EmergencyStopRequest, Empty, GetMissionReply, LoadMissionReply,
     LoadMissionRequest, Reply, SelectPluginReply, SelectPluginRequest, SetModeReply, SetModeRequest,
+    VioResetRequest,
 )
 from .actions import (
     ACTIONS, ActionFeedback, ActionResult, ActionSpec, CancelReply, CancelRequest,
@@ -57,7 +58,7 @@ __all__ = [
     # services
     "Empty", "Reply", "ArmRequest", "ArmReply", "SetModeRequest", "SetModeReply",
     "LoadMissionRequest", "LoadMissionReply", "GetMissionReply", "EmergencyStopRequest", "EmergencyStopReply",
-    "SelectPluginRequest", "SelectPluginReply",
+    "SelectPluginRequest", "SelectPluginReply", "VioResetRequest",
     # actions
     "TakeoffGoal", "TakeoffResult", "TakeoffFeedback", "LandGoal", "LandResult", "LandFeedback",
     "SetTrajectoryGoal", "SetTrajectoryResult", "SetTrajectoryFeedback", "GoToPositionGoal",

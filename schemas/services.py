@@ -11,12 +11,13 @@ from __future__ import annotations
 import msgspec
 
 from ._base import Header, Message, schema
+from .geometry import Pose, Vector3
 from ._checks import check_choice
 
 __all__ = [
     "Empty", "Reply", "ArmRequest", "ArmReply", "SetModeRequest", "SetModeReply",
     "LoadMissionRequest", "LoadMissionReply", "GetMissionReply", "EmergencyStopRequest", "EmergencyStopReply",
-    "SelectPluginRequest", "SelectPluginReply",
+    "SelectPluginRequest", "SelectPluginReply", "VioResetRequest",
 ]
 
 
@@ -137,3 +138,15 @@ class SelectPluginReply(Reply, kw_only=True):
     active_estimator / active_generator)."""
 
     active: str = ""
+
+
+@schema("VioResetRequest", 1)
+class VioResetRequest(Message, kw_only=True):
+    """vio/srv/reset (reply: Reply): restart the visual odometry from a known pose (seed 003's
+    reset_to_warm_start, e.g. a surveyed position after a companion reboot). `pose` is base_link
+    in odom (ENU, FLU body), `velocity_mps` in odom; the default identity pose is a fresh start at
+    the origin. VIO is INIT until its next good stereo frame, then TRACKING from that pose."""
+
+    header: Header = msgspec.field(default_factory=Header)
+    pose: Pose = msgspec.field(default_factory=Pose)
+    velocity_mps: Vector3 = msgspec.field(default_factory=Vector3)

@@ -214,7 +214,9 @@ FCU_URL_RE = re.compile(r"^(?:(?:udp|udpin|udpout|udpbcast|tcp|tcpin):[A-Za-z0-9
 # mission gates EXECUTING on perception/health (seed 000 §4.1 / §5.1).
 GPS_DENIED_NEEDS = ("vio", "perception")
 GPS_DENIED_ARGS = {
-    "sim": ["--param", "SIM_GPS_DENIED=true"],
+    # EKF2_EV_NOISE_MD=1: vio's covariance includes its accumulated drift (services/vio/drift.py),
+    # a common offset of every later sample, not per-sample noise: fuse with EKF2_EVP_NOISE instead.
+    "sim": ["--param", "SIM_GPS_DENIED=true", "--param", "EKF2_EV_NOISE_MD=1"],
     "mission": ["--param", "require_perception=true"],
 }
 ENDPOINT_RE = re.compile(r"^(?:tcp|udp|tls|quic|ws)/[A-Za-z0-9_.\-\[\]:]+:\d{1,5}$")

@@ -1,8 +1,9 @@
 """Contract of vio: keys in/out and parameters (stereo-inertial odometry, seed 003 / 000 §4.1)."""
-from aeroperception.schemas import CameraInfo, Image, Imu, Odometry, VioHealth
+from aeroperception.schemas import CameraInfo, Image, Imu, Odometry, Reply, VioHealth, VioResetRequest
 from aeroperception.services.runtime import Param
 
 from .backend import BackendConfig
+from .drift import DriftConfig
 from .frontend import FrontEndConfig
 from .imu import ImuNoise
 from .strategy import VioConfig
@@ -17,9 +18,14 @@ INPUTS = {
 }
 OUTPUTS = {
     # Pose of base_link in odom (gravity-aligned, z up, origin/yaw where VIO initialised) with
-    # 6x6 covariances from the smoother's marginals; one per processed frame.
+    # 6x6 covariances: the smoother's marginals plus the drift accumulated since initialisation
+    # (drift.py: grows with distance flown and yaw turned); one per processed frame.
     "state/visual_odometry": Odometry,
     "state/vio_health": VioHealth,           # 1 Hz and on every state change
+}
+SERVICES = {                                 # queryables served: request -> reply
+    # restart from a known odom pose (seed 003 reset_to_warm_start); INIT until the next good frame
+    "vio/srv/reset": (VioResetRequest, Reply),
 }
 QUERIES = ("sensors/camera/left/info", "sensors/camera/right/info")
 PARAMS = [
@@ -33,6 +39,10 @@ PARAMS = [
     Param("accel_noise_density", ImuNoise.accel_noise_density, "m/s^2/sqrt(Hz)", 1e-6, 10.0),
     Param("gyro_random_walk", ImuNoise.gyro_random_walk, "rad/s^2/sqrt(Hz)", 1e-9, 1.0),
     Param("accel_random_walk", ImuNoise.accel_random_walk, "m/s^3/sqrt(Hz)", 1e-9, 1.0),
+    Param("drift_xy_pct", 100 * DriftConfig.drift_xy_frac, "%", 0.0, 10.0,
+          description="1-sigma horizontal drift per axis as % of distance flown, added to the window's covariance"),
+    Param("drift_z_pct", 100 * DriftConfig.drift_z_frac, "%", 0.0, 10.0,
+          description="1-sigma vertical drift as % of distance flown"),
     Param("imu_gap_warn_s", 0.05, "s", 0.005, 1.0, description="longer IMU gap: DEGRADED for that frame"),
     Param("imu_gap_reset_s", 1.0, "s", 0.05, 10.0, description="longer IMU gap: re-initialise"),
 ]
@@ -44,6 +54,7 @@ def vio_config(p) -> VioConfig:
                         ransac_threshold_px=p.ransac_threshold_px)
     imu = ImuNoise(gyro_noise_density=p.gyro_noise_density, accel_noise_density=p.accel_noise_density,
                    gyro_random_walk=p.gyro_random_walk, accel_random_walk=p.accel_random_walk)
-    return VioConfig(frontend=fe, backend=BackendConfig(lag_s=p.lag_s), imu=imu,
+    drift = DriftConfig(drift_xy_frac=p.drift_xy_pct / 100, drift_z_frac=p.drift_z_pct / 100)
+    return VioConfig(frontend=fe, backend=BackendConfig(lag_s=p.lag_s), imu=imu, drift=drift,
                      lost_after_frames=p.lost_after_frames, imu_gap_warn_s=p.imu_gap_warn_s,
                      imu_gap_reset_s=p.imu_gap_reset_s)

@@ -13,7 +13,9 @@ from collections import deque
 
 import numpy as np
 
-from aeroperception.schemas import CameraInfo, DiagnosticStatus, Image, Imu, Odometry, VioHealth as VioHealthMsg
+from aeroperception.schemas import (
+    CameraInfo, DiagnosticStatus, Image, Imu, Odometry, Reply, VioHealth as VioHealthMsg, VioResetRequest,
+)
 from aeroperception.services.runtime import CallError, Health, Service, run
 
 from . import contract, messages
@@ -57,6 +59,8 @@ class VioService(Service):
             self.node.call_async(f"sensors/camera/{side}/info", None, CameraInfo,
                                  lambda r, s=side: None if isinstance(r, CallError) else self._on_info(s, r))
         self.node.subscribe("sensors/imu", Imu, self._on_imu)
+        self.pending_warm = None   # set by vio/srv/reset, applied by the worker before its next frame
+        self.node.serve("vio/srv/reset", VioResetRequest, Reply, self._on_reset)
         self.node.every(1.0, self._publish_health, name="health")
         self._stop = threading.Event()
         self.worker = threading.Thread(target=self._work, name="vio-worker", daemon=True)
@@ -95,11 +99,28 @@ class VioService(Service):
         with self.imu_lock:
             self.imu_pending.append(messages.imu_sample(msg))
 
+    def _on_reset(self, req: VioResetRequest) -> Reply:
+        try:
+            warm = messages.warm_start(req)
+        except ValueError as e:
+            return Reply(success=False, message=f"vio/srv/reset refused: {e}")
+        with self.imu_lock:
+            self.pending_warm = warm
+        self.frames.wake()
+        p = warm.world_T_body[:3, 3]
+        self.log.info("vio_reset_requested", position_m=[round(float(x), 3) for x in p])
+        return Reply(success=True, message="restarting from the given pose: INIT until the next good stereo frame")
+
     # ------------------------------------------------------------ worker
 
     def _work(self) -> None:
         frame_id = 0
         while not self._stop.is_set():
+            with self.imu_lock:
+                warm, self.pending_warm = self.pending_warm, None
+            if warm is not None:
+                self.strategy.reset_to_warm_start(warm)
+                self._publish_health()
             pair = self.frames.take(0.2)
             if pair is None:
                 continue

@@ -5,10 +5,11 @@ import numpy as np
 
 from aeroperception.schemas import (
     Header, Image, Imu, NDArray, Odometry, Pose, Quaternion, Twist, Vector3, VioHealth as VioHealthMsg,
+    VioResetRequest,
 )
-from aeroperception.services.runtime.rotations import quat_from_rotmat
+from aeroperception.services.runtime.rotations import quat_from_rotmat, quat_to_rotmat
 
-from .dto import FeatureQuality, ImuBias, ImuSample, VioHealth, VioOutput
+from .dto import FeatureQuality, ImuBias, ImuSample, VioHealth, VioOutput, WarmStartPose
 
 ODOM_FRAME = "odom"
 BODY_FRAME = "base_link"
@@ -49,3 +50,17 @@ def health(snapshot: VioHealth, strategy: str, stamp_ns: int, quality: FeatureQu
 def pixels(msg: Image) -> np.ndarray:
     """(H, W) or (H, W, C) view of an image message."""
     return msg.to_numpy()
+
+
+def warm_start(req: VioResetRequest) -> WarmStartPose:
+    """vio/srv/reset's pose -> the strategy's warm start; ValueError naming what is wrong."""
+    p, q = req.pose.position.to_array(), req.pose.orientation.to_array()
+    v = req.velocity_mps.to_array()
+    if not (np.all(np.isfinite(p)) and np.all(np.isfinite(q)) and np.all(np.isfinite(v))):
+        raise ValueError("pose and velocity must be finite")
+    n = float(np.linalg.norm(q))
+    if abs(n - 1.0) > 0.01:
+        raise ValueError(f"orientation must be a unit quaternion (norm {n:.3f})")
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = quat_to_rotmat(q / n), p
+    return WarmStartPose(T, v)

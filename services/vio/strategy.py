@@ -21,6 +21,7 @@ import numpy as np
 from . import health as H
 from .backend import Backend, BackendConfig, BackendError, adjoint, tangent_to_world_cov
 from .calibration import CameraCalibration
+from .drift import DriftConfig, DriftCovariance
 from .dto import (
     DEGRADED, INIT, LOST, FeatureQuality, ImuBias, ImuSample, ImuWindow, NavCameraFrame,
     StrategyNotAvailableError, VioDegradedError, VioFatalError, VioHealth, VioInitializingError,
@@ -35,6 +36,7 @@ class VioConfig:
     frontend: FrontEndConfig = field(default_factory=FrontEndConfig)
     backend: BackendConfig = field(default_factory=BackendConfig)
     imu: ImuNoise = field(default_factory=ImuNoise)
+    drift: DriftConfig = field(default_factory=DriftConfig)
     init_imu_s: float = 0.2            # IMU averaged for gravity alignment
     still_accel_std_mps2: float = 0.5  # below: vehicle still, mean gyro = gyro bias
     moving_init_velocity_sigma_mps: float = 3.0   # velocity prior when starting in motion
@@ -69,6 +71,7 @@ class KltVio(VioStrategy):
     def __init__(self, config: VioConfig | None = None):
         self.cfg = config or VioConfig()
         self.backend = Backend(self.cfg.imu, self.cfg.backend)
+        self.drift = DriftCovariance(self.cfg.drift)   # odom-frame drift outside the window
         self.calib: CameraCalibration | None = None
         self.frontend: FrontEnd | None = None
         self.imu: list[ImuSample] = []   # sorted by time, trimmed to imu_buffer_s
@@ -77,6 +80,7 @@ class KltVio(VioStrategy):
         self.last_t_ns: int | None = None
         self.kf_world_T_body = np.eye(4)
         self.last_gyro = np.zeros(3)
+        self.continuing = False   # the next initialisation continues the current odom frame
         self.counters = {"frames": 0, "outputs": 0, "bad_frames": 0, "time_backwards": 0,
                          "imu_gaps": 0, "imu_dropped": 0, "resets": 0, "visual_fixes": 0}
         self.last_timings: dict[str, float] = {}
@@ -100,7 +104,14 @@ class KltVio(VioStrategy):
 
     # ------------------------------------------------------------ internals
 
-    def _reset(self, why: str) -> None:
+    def _reset(self, why: str, keep_pose: bool = False) -> None:
+        """keep_pose: re-initialise from the last estimate (pose incl. yaw, bias; velocity re-found
+        from stereo + IMU), so the odom frame stays continuous through a restart of the smoother
+        instead of jumping back to the origin with yaw 0 (and its drift term is kept)."""
+        last = self.backend.last
+        self.continuing = keep_pose and last is not None
+        if self.continuing:
+            self.warm = WarmStartPose(last.world_T_body, last.velocity_world_mps, last.bias)
         self.backend.reset()
         if self.frontend:
             self.frontend.reset()
@@ -163,6 +174,8 @@ class KltVio(VioStrategy):
         if self.warm is not None:
             w, self.warm = self.warm, None
             T, vel, bias = np.asarray(w.world_T_body, float), np.asarray(w.velocity_world_mps, float), w.bias
+            if self.continuing:
+                vel_sigma = self.cfg.moving_init_velocity_sigma_mps   # the last velocity is stale
         else:
             acc = np.array([s.accel_mps2 for s in win])
             gyr = np.array([s.gyro_radps for s in win])
@@ -178,6 +191,9 @@ class KltVio(VioStrategy):
         except BackendError as e:
             raise VioInitializingError(str(e)) from None
         self.kf_world_T_body = est.world_T_body
+        if not self.continuing:
+            self.drift.reset()
+        self.continuing = False
         self.health = VioHealth(H.next_state(self.health.state, H.INITIALIZED), 0, est.bias.norm,
                                 f"initialised ({len(self.frontend.kf_px)} stereo features)")
         self.last_t_ns = t
@@ -191,10 +207,13 @@ class KltVio(VioStrategy):
         gyro_var = self.cfg.imu.gyro_noise_density ** 2 * 200.0
         twist_cov[3:, 3:] = est.bias_cov[3:, 3:] + gyro_var * np.eye(3)
         self.counters["outputs"] += 1
+        self.drift.update(est.world_T_body)
+        # window marginal + the drift accumulated outside the window: honest over a long flight
+        pose_cov = tangent_to_world_cov(est.world_T_body, est.pose_cov_tangent) + self.drift.covariance()
         return VioOutput(
             frame_id=frame.frame_id, stamp_ns=frame.capture_timestamp_ns,
             relative_pose_T=np.linalg.inv(self.kf_world_T_body) @ est.world_T_body,
-            pose_covariance_6x6=tangent_to_world_cov(est.world_T_body, est.pose_cov_tangent),
+            pose_covariance_6x6=pose_cov,
             imu_bias=est.bias, feature_quality=quality, world_T_body=est.world_T_body,
             velocity_world_mps=est.velocity_world_mps,
             angular_velocity_body_radps=self.last_gyro - est.bias.gyro_radps,
@@ -239,7 +258,7 @@ class KltVio(VioStrategy):
         samples, gap_s = self._imu_between(self.last_t_ns, t)
         if gap_s > self.cfg.imu_gap_reset_s or not samples:
             self.counters["imu_gaps"] += 1
-            self._reset(f"IMU gap of {gap_s:.2f} s: re-initialising")
+            self._reset(f"IMU gap of {gap_s:.2f} s: re-initialising", keep_pose=True)
             raise VioInitializingError(self.health.message)
         notes = []
         if gap_s > self.cfg.imu_gap_warn_s:
@@ -265,7 +284,7 @@ class KltVio(VioStrategy):
         try:
             est = self.backend.add_frame(t, samples, visual)
         except BackendError as e:
-            self._reset(f"{e}: re-initialising")
+            self._reset(f"{e}: re-initialising", keep_pose=True)
             raise VioFatalError(self.health.message) from None
         timings["backend"] = (time.perf_counter() - t_be) * 1e3
         self.last_t_ns = t

@@ -1,8 +1,8 @@
 """The vio service process over a real Zenoh router, fed the real EuRoC start (stereo mono8
 752x480 at 20 Hz with its radtan calibration as CameraInfo, the 200 Hz IMU) by a small publisher
 in this test: state/visual_odometry arrives at camera rate in odom/base_link with a 6x6 covariance
-and the vehicle's stillness, state/vio_health says TRACKING, and garbage on its inputs is counted
-and survived. Skipped (not failed) only when the shared data folder is absent.
+and the vehicle's stillness, state/vio_health says TRACKING, garbage on its inputs is counted
+and survived, and vio/srv/reset restarts it from a given pose (a bad pose refused). Skipped (not failed) only when the shared data folder is absent.
 Also: an unavailable strategy fails at start naming what exists, and (slow) the service on the
 simulator's own sensors (rgb8 stereo, CameraInfo queryable, sim IMU) tracks the still vehicle."""
 from __future__ import annotations
@@ -21,7 +21,8 @@ import zenoh
 from aerotest import aero_argv, clean_env, wait_until, zenoh_client
 
 from aeroperception.schemas import (
-    CameraInfo, DiagnosticStatus, Header, Image, Imu, Odometry, SchemaError, Vector3, VioHealth, decode,
+    CameraInfo, DiagnosticStatus, Header, Image, Imu, Odometry, Pose, Reply, SchemaError, Vector3, VioHealth,
+    VioResetRequest, decode,
 )
 from aeroperception.services.vio.euroc import EurocDataset, default_euroc_dir
 
@@ -58,7 +59,7 @@ def _euroc_params(ds: EurocDataset) -> list[str]:
     return out
 
 
-def _publish_euroc(node, ds: EurocDataset, stop: threading.Event, garbage_at: int) -> None:
+def _publish_euroc(node, ds: EurocDataset, stop: threading.Event, garbage_at: int, on_frame=None) -> None:
     """Like a camera driver + IMU: IMU samples up to each frame's stamp, then the stereo pair, at
     20 Hz wall time; the calibration at 1 Hz and as a queryable."""
     left_info, right_info = ds.camera_infos()
@@ -83,6 +84,8 @@ def _publish_euroc(node, ds: EurocDataset, stop: threading.Event, garbage_at: in
                                             angular_velocity_radps=Vector3.from_array(imu[j, 1:4]),
                                             linear_acceleration_mps2=Vector3.from_array(imu[j, 4:7])))
             j += 1
+        if on_frame is not None:
+            on_frame(k)
         if k == garbage_at:
             node.session.put("sensors/imu", b"\x93not an imu")           # undecodable
             node.session.put("sensors/camera/left/image", b"\x01\x02")
@@ -113,7 +116,14 @@ def test_vio_service_tracks_the_real_euroc_start_over_zenoh(zenoh_router, make_n
         assert proc.poll() is None, log.read_text()
         time.sleep(0.5)   # subscriptions propagate through the router
         node = make_node("euroc_player")
-        _publish_euroc(node, ds, stop, garbage_at=40)
+        reset_at, replies = 70, []
+
+        def reset(k: int) -> None:   # warm start over vio/srv/reset: a bad pose refused, then a good one
+            if k == reset_at:
+                replies.append(node.call("vio/srv/reset", VioResetRequest(pose=Pose(position=Vector3(x=float("inf")))), Reply))
+                replies.append(node.call("vio/srv/reset", VioResetRequest(pose=Pose(position=Vector3(x=10.0, y=-2.0, z=3.0))), Reply))
+
+        _publish_euroc(node, ds, stop, garbage_at=40, on_frame=reset)
         wait_until(lambda: len(odom.all()) >= 40, 10, "40 odometry messages")
 
         msgs = odom.all()
@@ -122,8 +132,12 @@ def test_vio_service_tracks_the_real_euroc_start_over_zenoh(zenoh_router, make_n
         assert m.header.frame_id == "odom" and m.child_frame_id == "base_link"
         stamps = [x.header.stamp_ns for x in msgs]
         assert stamps == sorted(stamps) and set(stamps) <= set(int(t) for t in ds.frame_stamps_ns)
-        p = np.array([x.pose.position.to_array() for x in msgs])
+        t_reset = int(ds.frame_stamps_ns[reset_at])
+        p = np.array([x.pose.position.to_array() for x in msgs if x.header.stamp_ns < t_reset])
         assert np.linalg.norm(p - p[0], axis=1).max() < 0.05          # the vehicle is still
+        assert [r.success for r in replies] == [False, True] and "finite" in replies[0].message, replies
+        # restarted from the requested pose (odom), still there
+        assert np.allclose(m.pose.position.to_array(), [10.0, -2.0, 3.0], atol=0.05), m.pose.position
         cov = m.pose_covariance.to_numpy()
         assert cov.shape == (6, 6) and np.all(np.isfinite(cov)) and np.all(np.linalg.eigvalsh(cov) > 0)
         assert np.sqrt(cov[:3, :3].diagonal()).max() < 0.05
@@ -148,7 +162,7 @@ def test_vio_service_tracks_the_real_euroc_start_over_zenoh(zenoh_router, make_n
             assert code == 0, log.read_text()[-3000:]
         watcher.close()
     events = [json.loads(ln)["event"] for ln in log.read_text().splitlines() if ln.startswith("{")]
-    assert "vio_started" in events and events[-1] == "stopped"
+    assert "vio_started" in events and "vio_reset_requested" in events and events[-1] == "stopped"
 
 
 def _start_vio(endpoint: str, log, *extra: str) -> subprocess.Popen:

@@ -25,7 +25,7 @@ from aeroperception.schemas import (
     ResultRequest, SafetyStatus, SchemaError, SelectPluginReply, SelectPluginRequest, SetModeReply,
     SetModeRequest, SetTrajectoryFeedback, SetTrajectoryGoal, SetTrajectoryResult, TakeoffFeedback,
     TakeoffGoal, TakeoffResult, Trajectory, TrajectorySetpoint, TrajectoryStatus, Twist, UAVMode,
-    UAVStatus, Vector3, VehicleState, VehicleStatus, VioHealth, Waypoint, WaypointReached, decode,
+    UAVStatus, Vector3, VehicleState, VehicleStatus, VioHealth, VioResetRequest, Waypoint, WaypointReached, decode,
     encode, from_builtins, load_mission_file, parse_mission, to_builtins,
 )
 
@@ -226,6 +226,8 @@ SAMPLES = {
     "EmergencyStopReply": lambda: EmergencyStopReply(header=H, success=True, message="motors stopped"),
     "SelectPluginRequest": lambda: SelectPluginRequest(header=H, role="estimator", name="vio"),
     "SelectPluginReply": lambda: SelectPluginReply(header=H, success=True, message="switched", active="vio"),
+    "VioResetRequest": lambda: VioResetRequest(header=H, pose=Pose(position=Vector3(x=10.0, y=-2.0, z=3.0)),
+                                               velocity_mps=Vector3(x=0.5)),
     "TakeoffGoal": lambda: TakeoffGoal(header=H, target_altitude_m=5.0, climb_rate_mps=1.0),
     "TakeoffResult": lambda: TakeoffResult(header=H, success=True, message="at altitude", final_altitude_m=4.95),
     "TakeoffFeedback": lambda: TakeoffFeedback(header=H, current_altitude_m=2.5, progress_percent=50.0),

@@ -31,6 +31,7 @@ class FakeVio:
         self.origin = np.array(origin, float)
         self.bias = np.array(bias_m, float)
         self.queue: list[tuple[int, np.ndarray, np.ndarray, np.ndarray]] = []
+        self.pos_var_m2 = 0.01 ** 2   # the reported position variance (ODOMETRY covariance)
 
     def sample(self) -> None:
         s = self.v.state
@@ -42,7 +43,7 @@ class FakeVio:
     def deliver(self) -> None:
         while self.queue and self.v.time_ns - self.queue[0][0] >= self.delay_ns:
             t, p, q, vb = self.queue.pop(0)
-            self.v.estimator.on_vision(self.v.time_ns, EPOCH_NS + t, p, q, vb, np.full(3, 0.01**2), np.full(3, 0.05**2))
+            self.v.estimator.on_vision(self.v.time_ns, EPOCH_NS + t, p, q, vb, np.full(3, self.pos_var_m2), np.full(3, 0.05**2))
 
 
 def run(v: SimVehicle, seconds: float, vio: FakeVio | None = None, setpoint: Setpoint | None = None, until=None):
@@ -110,6 +111,22 @@ def test_vision_error_becomes_flight_error():
     run(v, 15.0, vio)
     # the FC holds its *estimated* position: the vehicle really moved 1.5 m West
     assert v.state.position_enu_m[0] < -1.2, v.state.position_enu_m
+
+
+def test_noise_mode_1_fuses_vision_with_the_parameter_not_a_drift_inflated_covariance():
+    """A VIO whose covariance includes its accumulated drift (1 m sigma late in a flight) reports a
+    slowly varying offset, not per-sample noise: with EKF2_EV_NOISE_MD 1 the FC follows the vision
+    at EKF2_EVP_NOISE as it did at the start; with 0 (PX4's default) it would trust its IMU instead."""
+    lag = {}
+    for mode in (0, 1):
+        v = denied_vehicle(EKF2_EV_NOISE_MD=mode)
+        vio = FakeVio(v, yaw0=0.0, origin=(0, 0, 0))
+        vio.pos_var_m2 = 1.0
+        run(v, 1.0, vio)
+        vio.bias = np.array([1.0, 0.0, 0.0])   # vision steps 1 m: how far the FC follows in 2 s
+        run(v, 2.0, vio)
+        lag[mode] = 1.0 - (v.estimate.position_enu_m[0] - v.state.position_enu_m[0])
+    assert lag[1] < 0.5 < lag[0], lag
 
 
 def test_vision_lost_in_flight_px4_failsafe_lands():

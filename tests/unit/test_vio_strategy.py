@@ -196,6 +196,29 @@ def test_imu_gap_degrades_a_frame_and_a_long_one_reinitialises():
     assert f.s.health_snapshot().state == INIT and f.s.counters["resets"] == 1
 
 
+def test_reinitialisation_after_a_long_imu_gap_keeps_yaw_and_position():
+    """A restart of the smoother continues the odom frame from the last estimate (yaw included),
+    not from the origin with yaw 0: the FC and the mission see no jump."""
+    f = Feeder(create_strategy("klt_stereo"))
+    f.until_tracking()
+    c, s = np.cos(0.6), np.sin(0.6)
+    T = np.eye(4)
+    T[:2, :2] = [[c, -s], [s, c]]
+    T[:3, 3] = [5.0, 1.0, 2.0]
+    f.s.reset_to_warm_start(WarmStartPose(T))
+    f.until_tracking()
+    for _ in range(5):
+        f.frame()
+    with pytest.raises(VioInitializingError, match="IMU gap"):
+        f.frame(dt_ns=1_500_000_000, imu_gap_ns=1_450_000_000)
+    out = f.until_tracking()
+    for _ in range(5):
+        out = f.frame()
+    assert np.allclose(out.world_T_body[:3, 3], [5.0, 1.0, 2.0], atol=0.05), out.world_T_body
+    yaw = np.arctan2(out.world_T_body[1, 0], out.world_T_body[0, 0])
+    assert abs(yaw - 0.6) < 0.01, yaw
+
+
 def test_garbage_imu_samples_are_dropped_not_integrated():
     f = Feeder(create_strategy("klt_stereo"))
     f.until_tracking()
@@ -239,3 +262,20 @@ def test_frame_slot_pairs_by_stamp_and_newest_wins_while_busy():
     mono = FrameSlot(stereo=False)
     mono.put("left", "L", 5)
     assert mono.take(0.0) == ("L", None)
+
+
+def test_reset_request_maps_to_a_warm_start_and_refuses_bad_poses():
+    from aeroperception.schemas import VioResetRequest
+    from aeroperception.services.vio.messages import warm_start
+
+    q = quat_from_rotmat(np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]))   # yaw 90 deg
+    req = VioResetRequest(pose=Pose(position=Vector3(x=10.0, y=-2.0, z=3.0), orientation=Quaternion.from_array(q)),
+                          velocity_mps=Vector3(x=0.5))
+    w = warm_start(req)
+    assert np.allclose(w.world_T_body[:3, 3], [10.0, -2.0, 3.0]) and np.allclose(w.world_T_body[:3, 0], [0, 1, 0])
+    assert np.allclose(w.velocity_world_mps, [0.5, 0, 0])
+    assert np.allclose(warm_start(VioResetRequest()).world_T_body, np.eye(4))   # default: fresh start at the origin
+    with pytest.raises(ValueError, match="finite"):
+        warm_start(VioResetRequest(pose=Pose(position=Vector3(x=float("nan")))))
+    with pytest.raises(ValueError, match="unit quaternion"):
+        warm_start(VioResetRequest(pose=Pose(orientation=Quaternion(w=2.0))))

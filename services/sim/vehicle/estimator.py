@@ -6,7 +6,9 @@ the stack needs to feel: a per-axis [position, velocity] Kalman filter in ENU.
   of SIM_ACC_NOISE (the same noise its HIGHRES_IMU carries). No accelerometer bias is modelled,
   so dead-reckoning between vision samples drifts only by that noise.
 - Correct with each vision ODOMETRY: position (variance from its covariance, floored at
-  EKF2_EVP_NOISE^2) and velocity (floored at EKF2_EVV_NOISE^2). Fusion is delayed like EKF2's:
+  EKF2_EVP_NOISE^2) and velocity (floored at EKF2_EVV_NOISE^2); with EKF2_EV_NOISE_MD 1 the
+  parameters alone, as PX4 (our VIO's covariance includes its accumulated drift: a slowly varying
+  offset of the odom frame, not independent noise per sample, so it must not down-weight vision). Fusion is delayed like EKF2's:
   the innovation is taken against the estimate at the sample's stamp (a short history), and the
   correction applied to the current state, so VIO latency does not turn into lag.
 - Frames: the VIO's odom frame starts wherever and however the VIO initialised. Like EKF2 without
@@ -162,7 +164,8 @@ class VisionEstimator:
             self.counters["ev_alignments"] += 1
         z_pos = self.R_enu_odom @ p_odom + self.t_enu_odom
         r_pos = np.full(3, self.p.EKF2_EVP_NOISE ** 2)
-        if position_var_m2 is not None:
+        use_reported = not self.p.EKF2_EV_NOISE_MD
+        if use_reported and position_var_m2 is not None:
             var = np.asarray(position_var_m2, float)
             r_pos = np.where(np.isfinite(var), np.maximum(var, r_pos), r_pos)
         self._update(0, z_pos - p_then, r_pos)
@@ -171,7 +174,7 @@ class VisionEstimator:
             z_vel = self.R_enu_odom @ R_odom_body @ np.asarray(velocity_body_mps, float)
             _, v_then = self._at(t_ns)
             r_vel = np.full(3, self.p.EKF2_EVV_NOISE ** 2)
-            if velocity_var_m2 is not None:
+            if use_reported and velocity_var_m2 is not None:
                 var = np.asarray(velocity_var_m2, float)
                 r_vel = np.where(np.isfinite(var), np.maximum(var, r_vel), r_vel)
             self._update(1, z_vel - v_then, r_vel)

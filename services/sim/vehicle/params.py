@@ -30,8 +30,11 @@ PARAMS: tuple[Param, ...] = (
     # --- GPS-denied estimation (estimator.py; EKF2_* as PX4's EKF2 with EKF2_EV_CTRL) ---
     Param("SIM_GPS_DENIED", False,
           description="no GPS-like position: the FC estimates position only from vision ODOMETRY fused with its IMU"),
-    Param("EKF2_EVP_NOISE", 0.1, "m", 0.01, 10.0, description="floor of the vision position noise"),
-    Param("EKF2_EVV_NOISE", 0.1, "m/s", 0.01, 10.0, description="floor of the vision velocity noise"),
+    Param("EKF2_EV_NOISE_MD", 0, "", 0, 1,
+          description="vision noise: 0 the sample's covariance floored at EKF2_EVP/EVV_NOISE (PX4's default), "
+                      "1 EKF2_EVP/EVV_NOISE only (for a VIO whose covariance includes its accumulated drift)"),
+    Param("EKF2_EVP_NOISE", 0.1, "m", 0.01, 10.0, description="vision position noise (floor with EKF2_EV_NOISE_MD 0)"),
+    Param("EKF2_EVV_NOISE", 0.1, "m/s", 0.01, 10.0, description="vision velocity noise (floor with EKF2_EV_NOISE_MD 0)"),
     Param("EKF2_NOAID_TOUT", 5.0, "s", 0.5, 10.0,
           description="no vision fused this long -> no valid position (PX4's dead-reckoning limit)"),
     Param("SIM_EV_REALIGN_T", 1.0, "s", 0.1, 60.0,
