@@ -133,7 +133,7 @@ def recording(stack_module, tmp_path_factory):
                                stdin=subprocess.DEVNULL)
         wait_until(lambda: seen(st, "sim/truth/state", VehicleState, lambda m: m.position_m.z > 2.5), 60,
                    "the vehicle at 2.5 m")
-        wait_for_message(st.session, "mission/status", MissionStatus, lambda m: m.state == "EXECUTING", 20)
+        wait_for_message(st.session, "mission/status", MissionStatus, lambda m: m.state in ("EXECUTING", "LAND"), 20)
         time.sleep(4.0)
     finally:
         rec_code = sigint(rec)
