@@ -3,6 +3,7 @@ back into a live stack, and hand it to other tools (Foxglove)."""
 from __future__ import annotations
 
 import argparse
+import os
 import time
 from pathlib import Path
 
@@ -20,6 +21,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-o", "--output-dir", default="", help="directory (default $AERO_RECORD_DIR or ~/.aero/recordings)")
     p.add_argument("--max-bag-size", type=int, default=None, help="bytes per file before a split (default 1 GiB)")
     p.add_argument("--duration", type=float, default=0.0, help="stop after T seconds (0: until Ctrl-C)")
+    p.add_argument("--sim-time", action="store_true", default=os.environ.get("AERO_SIM_TIME") == "1",
+                   help="log times from sim/clock, as the stack's services do after `aero up --speed X` "
+                        "(env AERO_SIM_TIME=1); without it a slowed sim is recorded on wall time")
     p.add_argument("keys", nargs="*", metavar="KEYEXPR", help="extra key expressions, e.g. sensors/imu planner/**")
     p.set_defaults(func=record)
 
@@ -65,7 +69,7 @@ def record(args) -> int:
     try:
         # Its own name: `aero record` runs beside the profile's recorder service.
         node = Node("record", params=contract.PARAMS, vehicle=args.vehicle, zenoh_config=args.zenoh_config,
-                    connect=args.connect)
+                    connect=args.connect, sim_time=args.sim_time)
         values = {"preset": args.preset, "record_images": args.images, "keys": ",".join(args.keys),
                   "output_dir": args.output_dir}
         if args.max_bag_size is not None:

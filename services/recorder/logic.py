@@ -340,6 +340,7 @@ class Recording:
         self.sink = sink
         self.buffer = BoundedBuffer(max_buffer_bytes)
         self._pending_meta: list[tuple[str, dict[str, str]]] = []
+        self.before_clock = 0
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="recorder-writer", daemon=True)
 
@@ -348,6 +349,12 @@ class Recording:
         return self
 
     def offer(self, key: str, encoding: str, payload: bytes, log_time_ns: int) -> bool:
+        if log_time_ns <= 0:
+            # On sim time before the first sim/clock (the node's clock reads 0): the sample has no
+            # place on the time line, and a 0 would make the file start in 1970 (replay would
+            # wait decades for the next message). Counted, not recorded.
+            self.before_clock += 1
+            return False
         if self.sink.failed:
             self.buffer.dropped[key] += 1
             return False

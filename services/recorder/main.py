@@ -104,6 +104,7 @@ class RecorderService(Service):
         values = {"messages": sink.stats.messages, "mbytes": round(sink.stats.bytes / 1e6, 2),
                   "files": len(sink.stats.files), "file": str(sink.path or ""),
                   "dropped": self.recording.dropped, "buffered_bytes": self.recording.buffer.bytes,
+                  "before_clock": self.recording.before_clock,
                   "keys": ",".join(self.exprs)}
         if sink.failed:
             return Health(DiagnosticStatus.ERROR, f"recording stopped: {sink.error}", values)

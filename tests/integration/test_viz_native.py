@@ -20,6 +20,7 @@ import select
 import shutil
 import signal
 import subprocess
+import sys
 import threading
 import time
 
@@ -33,6 +34,8 @@ from aeroperception.services.viz import adapters as A
 pytestmark = pytest.mark.timeout(120)
 
 LAVAPIPE = "/usr/share/vulkan/icd.d/lvp_icd.*.json"
+# rerun-sdk's `rerun` script sits next to this interpreter (also when its bin is not on PATH).
+PATH = os.pathsep.join([os.path.dirname(sys.executable), os.environ.get("PATH", "")])
 
 
 def missing() -> list[str]:
@@ -41,7 +44,7 @@ def missing() -> list[str]:
         out.append("xvfb (Xvfb)")
     if not glob.glob(LAVAPIPE):
         out.append("mesa-vulkan-drivers (lavapipe)")
-    if shutil.which("rerun") is None:
+    if shutil.which("rerun", path=PATH) is None:
         out.append("rerun-sdk's `rerun` viewer")
     return out
 
@@ -122,7 +125,7 @@ def test_native_viewer_draws_the_live_stream_on_a_virtual_display(zenoh_router, 
     xvfb, display, display_fd = start_xvfb(xlog)
     stop_evt = threading.Event()
     feeder = threading.Thread(target=publish_tracks, args=(make_node, stop_evt), daemon=True)
-    env = dict(clean_env(zenoh_router), DISPLAY=display, WGPU_BACKEND="vulkan",
+    env = dict(clean_env(zenoh_router), PATH=PATH, DISPLAY=display, WGPU_BACKEND="vulkan",
                VK_ICD_FILENAMES=glob.glob(LAVAPIPE)[0])
     vlog = open(tmp_path / "viz.log", "wb")
     viz = subprocess.Popen(aero_argv() + ["viz", "--param", f"grpc_port={free_port()}"], env=env, stdout=vlog,

@@ -162,8 +162,17 @@ def test_unwritable_directory_is_an_error_not_an_exception(tmp_path):
 
 def test_buffer_is_bounded_and_counts_drops(tmp_path):
     rec = Recording(McapSink(SinkConfig(tmp_path)), max_buffer_bytes=10_000)  # writer not started
-    ok = [rec.offer("k", "application/octet-stream", bytes(1000), i) for i in range(25)]
+    ok = [rec.offer("k", "application/octet-stream", bytes(1000), i + 1) for i in range(25)]
     assert sum(ok) == 10 and rec.dropped == 15 and rec.buffer.bytes == 10_000
+
+
+def test_sample_before_the_sim_clock_started_is_counted_not_recorded(tmp_path):
+    """On sim time the node's clock reads 0 until sim/clock is heard: such a sample would put the
+    file's start in 1970 and make a replay wait that long for the next message."""
+    rec = Recording(McapSink(SinkConfig(tmp_path)), max_buffer_bytes=10_000)
+    assert not rec.offer("diagnostics/agg", "application/octet-stream", b"x", 0)
+    assert rec.offer("diagnostics/agg", "application/octet-stream", b"x", 1_800_000_000_000_000_000)
+    assert rec.before_clock == 1 and rec.dropped == 0 and len(rec.buffer.take_all(0)) == 1
 
 
 def test_replay_keeps_recorded_timing_and_drives_sim_clock():
