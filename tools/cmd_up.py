@@ -47,6 +47,7 @@ from aeroperception.services.runtime.supervision import (
     EXIT_DUPLICATE, SUPERVISOR_ENV, Priority, apply_priority,
 )
 
+from .cmd_router import THIN_LINK_HZ, thin_link_downsampling
 from .cmd_topic import LEVEL_NAMES as LEVELS
 from .cmd_topic import decode_sample
 from .common import CliError, emit
@@ -358,6 +359,8 @@ class RouterChild:
 def run(args) -> int:
     names = select_services(args)
     check_extras(names)
+    if args.thin_link:  # the router would refuse them: say so before anything starts
+        thin_link_downsampling(args.thin_link, THIN_LINK_HZ if args.thin_link_hz is None else args.thin_link_hz)
     validate_args(args, names)
     if args.dry_run:
         endpoint = args.listen.replace("0.0.0.0", "127.0.0.1")

@@ -10,7 +10,8 @@ forwarding for it -- wait for its slowest subscriber. A ground station subscribi
 sim/truth/state across a saturated 20 Mbit/s link stalled the vehicle's router that way and
 delayed its local deliveries by up to 1.3 s (planner -> fmu setpoint gaps up to 0.9 s; PX4 leaves
 OFFBOARD after 1.0 s): nothing that may cross a link may block the vehicle's own loop
-(tests/integration/test_multihost.py::test_saturated_link_never_stalls_the_vehicle).
+(tests/integration/test_multihost.py::test_saturated_link_never_stalls_the_vehicle). Only
+service replies keep zenoh's BLOCK (services/runtime/node.py, Node.serve: a lost reply is worse).
 Images and scans go at priority DATA_LOW: on a slow link to another host (radio, 20 Mbit/s) they
 yield to state, goals and service replies; at DATA, 20 Hz raw frames starved a ground station's
 arm request until it timed out (tests/integration/test_multihost.py::test_impaired_link).
