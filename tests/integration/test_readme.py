@@ -90,6 +90,14 @@ HOW: dict[str, tuple] = {
         SKIP, ["aero", "viz", "--help"], "test_viz_service streams to a Rerun gRPC relay"),
     "aero viz --save flight.rrd": (SKIP, ["aero", "viz", "--help"], "test_viz reads a saved .rrd back"),
     "aero viz": (SKIP, ["aero", "viz", "--help"], "the native viewer needs a display"),
+    "Xvfb :1 -extension Composite &": (SKIP, ["bash", "-c", "command -v Xvfb"], "test_viz_native runs it"),
+    "DISPLAY=:1 WGPU_BACKEND=vulkan aero viz": (SKIP, ["aero", "viz", "--help"],
+                                                "test_viz_native: aero viz on Xvfb + lavapipe, screenshot checked"),
+    "aero record --images sensors/imu 'sensors/camera/*/info'": (
+        SKIP, ["aero", "record", "--help"], "runs until Ctrl-C: test_recorder_perception records the VIO inputs"),
+    "aero run vio --sim-time": (SKIP, ["aero", "run", "vio", "--help"], "test_recorder_perception runs it on the replay"),
+    "aero replay FILE.mcap --keys sensors/imu 'sensors/camera/*/image' 'sensors/camera/*/info'": (
+        SKIP, ["aero", "replay", "--help"], "test_recorder_perception: replayed VIO matches the live one"),
     "aero record -o recordings": (SKIP, ["aero", "record", "--help"], "runs until Ctrl-C: test_recorder records a flight"),
     "aero record --preset all --images -o recordings": (SKIP, ["aero", "record", "--help"], "test_recorder"),
     "aero mcap info recordings/FILE.mcap": (SKIP, ["aero", "mcap", "info", "--help"], "FILE is a placeholder: test_recorder"),
