@@ -25,10 +25,10 @@ from .dto import FeatureQuality
 
 @dataclass
 class FrontEndConfig:
-    max_features: int = 150
+    max_features: int = 250
     min_distance_px: int = 12
     corner_quality: float = 0.01
-    klt_window_px: int = 21
+    klt_window_px: int = 15
     klt_levels: int = 3
     ransac_threshold_px: float = 1.5
     min_inliers: int = 12          # fewer: no visual fix this frame

@@ -24,7 +24,7 @@ def test_covariance_grows_monotonically_along_a_straight_flight():
     assert v[0, :3].max() == 0.0
     assert np.isclose(d.distance_m, 99.75, atol=0.01)
     sig = np.sqrt(v[-1])
-    assert np.allclose(sig[:2], DriftConfig.drift_xy_frac * 99.75, rtol=0.01)   # 0.35 m after 100 m
+    assert np.allclose(sig[:2], DriftConfig.drift_xy_frac * 99.75, rtol=0.01)   # 0.25 m after 100 m
     assert np.isclose(sig[2], DriftConfig.drift_z_frac * 99.75, rtol=0.01)
     assert sig[3] == 0.0 and sig[4] == 0.0   # roll, pitch: observable from gravity
 
