@@ -98,6 +98,9 @@ HOW: dict[str, tuple] = {
     "aero run vio --sim-time": (SKIP, ["aero", "run", "vio", "--help"], "test_recorder_perception runs it on the replay"),
     "aero replay FILE.mcap --keys sensors/imu 'sensors/camera/*/image' 'sensors/camera/*/info'": (
         SKIP, ["aero", "replay", "--help"], "test_recorder_perception: replayed VIO matches the live one"),
+    "aero service call vio/srv/reset '{pose: {position: {x: 10, y: -2, z: 3}}}' --type VioResetRequest": (
+        SKIP, ["aero", "service", "call", "--help"],
+        "needs a running vio: test_vio_service resets the real service to (10, -2, 3) and refuses bad poses"),
     "aero record -o recordings": (SKIP, ["aero", "record", "--help"], "runs until Ctrl-C: test_recorder records a flight"),
     "aero record --preset all --images -o recordings": (SKIP, ["aero", "record", "--help"], "test_recorder"),
     "aero mcap info recordings/FILE.mcap": (SKIP, ["aero", "mcap", "info", "--help"], "FILE is a placeholder: test_recorder"),
