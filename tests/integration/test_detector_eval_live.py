@@ -58,6 +58,9 @@ def test_live_eval_of_the_camera_stream_and_of_the_service(stack, tmp_path):
 
 TOUR = Path(__file__).resolve().parents[2] / "examples" / "missions" / "village_tour.json"
 ONBOARD = ["sim", "fmu", "planner", "mission", "diagnostics", "safety", "lidar", "vio", "perception", "detector"]
+# Half real time (every service follows sim/clock): two evaluations beside the whole stack on a
+# shared 2-core machine starved fmu for 0.6 s at real time once (mission HOLDING on the outage).
+SPEED = 0.5
 
 
 def _free_udp_port() -> int:
@@ -81,26 +84,26 @@ def _finish(p: subprocess.Popen, timeout_s: float) -> str:
     return out
 
 
-@pytest.mark.timeout(900)
+@pytest.mark.timeout(1200)
 def test_live_eval_over_a_village_flight_matches_the_held_out_renders(stack, tmp_path):
     """`aero up --scenario village` (whole onboard stack), `aero mission fly village_tour.json`, and
     `aero eval detector --live --until-landed` in both modes over that flight: the camera stream
     through the bundled model scores within 0.1 mAP of the held-out village renders measured here."""
     fcu, sim_bind = _free_udp_port(), _free_udp_port()
     st = stack(ONBOARD, extra_args=[
-        "--scenario", "village", "--fcu-url", f"udpin:127.0.0.1:{fcu}",
+        "--scenario", "village", "--speed", str(SPEED), "--fcu-url", f"udpin:127.0.0.1:{fcu}",
         "--arg", f"sim:--target=127.0.0.1:{fcu}", "--arg", f"sim:--bind=127.0.0.1:{sim_bind}"], timeout_s=60)
     wait_for_message(st.session, "perception/detections", Detection2DArray, timeout_s=60)
     wait_for_message(st.session, "perception/health", PerceptionHealth, lambda m: m.overall_healthy, 90)
     out = {m: tmp_path / f"{m}.json" for m in ("camera", "service", "heldout")}
-    evals = [_popen(st, "eval", "detector", "--live", "--until-landed", "--duration", "500", "--threads", "1",
+    evals = [_popen(st, "eval", "detector", "--live", "--until-landed", "--duration", "700", "--threads", "1",
                     "--json", str(out["camera"])),
-             _popen(st, "eval", "detector", "--live", "--detections", "--until-landed", "--duration", "500",
+             _popen(st, "eval", "detector", "--live", "--detections", "--until-landed", "--duration", "700",
                     "--json", str(out["service"]))]
     try:
         time.sleep(2.0)
-        fly = _popen(st, "mission", "fly", str(TOUR), "--quiet", "--timeout", "480")
-        fly_out = _finish(fly, 500)
+        fly = _popen(st, "mission", "fly", str(TOUR), "--quiet", "--timeout", "600")
+        fly_out = _finish(fly, 620)
         assert fly.returncode == 0, f"fly exit {fly.returncode}\n{fly_out}\n{st.describe()}"
         logs = [_finish(p, 60) for p in evals]
     finally:
