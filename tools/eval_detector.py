@@ -7,7 +7,12 @@ never saw (open_field, slope_forest), at drone poses from the ground up to 25 m.
 Live (`--live`): a running stack's sensors/camera/left/image run through the model here, paired by
 stamp with sim/truth/boxes; or (`--live --detections`) the detector service's own
 perception/detections against sim/truth/boxes (its output is already thresholded at the
-service's confidence, so its AP is computed over that truncated curve).
+service's confidence, so its AP is computed over that truncated curve). `--until-landed` evaluates
+one flight (e.g. `aero mission fly examples/missions/village_tour.json`) as it flies: every paired
+frame by default, in a short newest-wins queue so nothing piles up in memory; the report adds the
+camera / detections rates beside the detector's configured rate, the detector service's own
+received / processed / skipped counters over the window, and the pixel-height histogram of the
+truth boxes counted (what makes a flight comparable with the held-out renders).
 """
 from __future__ import annotations
 
@@ -117,20 +122,6 @@ class StampPairer:
         return None
 
 
-class FlightWatch:
-    """One flight per sim truth: armed above 0.5 m, then disarmed below 0.2 m (as `aero eval vio`)."""
-
-    def __init__(self):
-        self.flew = threading.Event()
-        self.down = threading.Event()
-
-    def update(self, armed: bool, z_m: float) -> None:
-        if armed and z_m > 0.5:
-            self.flew.set()
-        elif self.flew.is_set() and not armed and z_m < 0.2:
-            self.down.set()
-
-
 @dataclass
 class LiveWindow:
     """What the live window saw: message counts (for rates) and the detector's own counters."""
@@ -167,6 +158,8 @@ def collect_live(session, duration_s: float, prefix: str, detections: bool, max_
                                         decode)
 
     lock = threading.Lock()
+    from .common import FlightWatch
+
     pairer, pending, win, watch = StampPairer(), deque(), LiveWindow(), FlightWatch()
     last = [-1e9]
 

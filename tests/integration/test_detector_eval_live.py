@@ -1,6 +1,8 @@
 """`aero eval detector --live` on a running village stack (sim + detector): the camera stream run
 through the bundled model here and the detector service's own perception/detections, both
 against sim/truth/boxes, land within a few points of each other and find the street's people and cars.
+The flight test (`--until-landed` over examples/missions/village_tour.json on the whole onboard
+stack, ~4 min) holds the live mAP within 0.1 of the held-out village renders measured in the same test.
 """
 from __future__ import annotations
 

@@ -2,7 +2,8 @@
 one-flight watch behind --until-landed, and the window's rates and detector counter deltas."""
 import pytest
 
-from aeroperception.tools.eval_detector import FlightWatch, LiveWindow, StampPairer
+from aeroperception.tools.common import FlightWatch
+from aeroperception.tools.eval_detector import LiveWindow, StampPairer
 
 
 def test_pairs_by_equal_stamp_in_either_order_and_bounds_the_unmatched():
