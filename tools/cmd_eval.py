@@ -48,7 +48,12 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="offline held-out set (repeatable; default all: village@1001, village@1002, open_field, slope_forest)")
     p.add_argument("-n", type=int, default=60, help="offline: images per held-out set")
     p.add_argument("--duration", type=float, default=20.0, help="--live: seconds to record at most")
-    p.add_argument("--max-frames", type=int, default=60, help="--live: frame pairs to evaluate at most")
+    p.add_argument("--until-landed", action="store_true",
+                   help="--live: evaluate one flight: stop once the vehicle (sim truth) has flown and is down and disarmed")
+    p.add_argument("--max-frames", type=int, default=None,
+                   help="--live: frame pairs to evaluate at most (default 60; unbounded with --until-landed)")
+    p.add_argument("--period", type=float, default=0.0, metavar="S",
+                   help="--live: evaluate at most one frame per S seconds (default: every frame)")
     p.add_argument("--conf", type=float, default=0.40, help="operating threshold for precision/recall")
     p.add_argument("--nms", type=float, default=0.45, help="NMS IoU threshold")
     p.add_argument("--threads", type=int, default=2, help="onnxruntime intra-op threads")

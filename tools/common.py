@@ -154,4 +154,19 @@ def dump(obj: Any, as_json: bool) -> str:
 
 __all__ = ["CliError", "SchemaError", "TrailingPositionalParser", "emit", "silence_stdout", "stdout_closed",
            "EXIT_BROKEN_PIPE", "add_session_arguments", "open_client", "full_key",
-           "parse_data", "summarize", "dump"]
+           "parse_data", "summarize", "dump", "FlightWatch"]
+
+
+class FlightWatch:
+    """One flight per sim truth: armed above 0.5 m, then disarmed below 0.2 m
+    (`aero eval vio|detector --live --until-landed`)."""
+
+    def __init__(self):
+        self.flew = threading.Event()
+        self.down = threading.Event()
+
+    def update(self, armed: bool, z_m: float) -> None:
+        if armed and z_m > 0.5:
+            self.flew.set()
+        elif self.flew.is_set() and not armed and z_m < 0.2:
+            self.down.set()

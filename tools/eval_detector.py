@@ -7,13 +7,20 @@ never saw (open_field, slope_forest), at drone poses from the ground up to 25 m.
 Live (`--live`): a running stack's sensors/camera/left/image run through the model here, paired by
 stamp with sim/truth/boxes; or (`--live --detections`) the detector service's own
 perception/detections against sim/truth/boxes (its output is already thresholded at the
-service's confidence, so its AP is computed over that truncated curve).
+service's confidence, so its AP is computed over that truncated curve). `--until-landed` evaluates
+one flight (e.g. `aero mission fly examples/missions/village_tour.json`) as it flies: every paired
+frame by default, in a short newest-wins queue so nothing piles up in memory; the report adds the
+camera / detections rates beside the detector's configured rate, the detector service's own
+received / processed / skipped counters over the window, and the pixel-height histogram of the
+truth boxes counted (what makes a flight comparable with the held-out renders).
 """
 from __future__ import annotations
 
 import json
 import threading
 import time
+from collections import deque
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -95,81 +102,188 @@ def _truth_arrays(msg):
     return boxes, [d.class_name for d in msg.detections], np.array([d.score for d in msg.detections], float)
 
 
+class StampPairer:
+    """Pairs two streams by equal header stamps (the renderer publishes each left image and its
+    truth boxes with one stamp). Each side keeps its newest `keep` unmatched messages; `add`
+    returns (a, b) when the other side already holds that stamp."""
+
+    def __init__(self, keep: int = 50):
+        self.keep = keep
+        self.sides: tuple[dict, dict] = ({}, {})
+
+    def add(self, side: int, stamp: int, msg) -> tuple | None:
+        mine, other = self.sides[side], self.sides[1 - side]
+        if stamp in other:
+            o = other.pop(stamp)
+            return (msg, o) if side == 0 else (o, msg)
+        mine[stamp] = msg
+        while len(mine) > self.keep:
+            mine.pop(next(iter(mine)))
+        return None
+
+
+@dataclass
+class LiveWindow:
+    """What the live window saw: message counts (for rates) and the detector's own counters."""
+    seconds: float = 0.0
+    camera: int = 0                    # sensors/camera/left/image messages
+    truth: int = 0                     # sim/truth/boxes messages
+    detections: int = 0                # perception/detections messages
+    pairs: int = 0                     # pairs evaluated
+    dropped: int = 0                   # pairs not evaluated (this tool fell behind; newest wins)
+    health: list = field(default_factory=list)   # perception/detector_health values, first and last
+
+    def rates(self) -> dict[str, float]:
+        s = max(self.seconds, 1e-9)
+        return {"camera_hz": self.camera / s, "truth_hz": self.truth / s, "detections_hz": self.detections / s,
+                "evaluated_hz": self.pairs / s}
+
+    def detector_counts(self) -> dict[str, int]:
+        """Counter deltas of the detector service over the window (empty without its health)."""
+        if len(self.health) < 2:
+            return {}
+        a, b = self.health[0], self.health[-1]
+        return {k: int(b[k]) - int(a[k]) for k in ("frames_received", "frames_processed", "frames_skipped_rate",
+                                                     "frames_dropped_busy") if k in a and k in b}
+
+
 def collect_live(session, duration_s: float, prefix: str, detections: bool, max_frames: int,
-                 period_s: float = 0.2) -> list[tuple]:
-    """Pairs (image or detections message, truth message) with equal stamps, at most one per
-    period_s and max_frames in all, recorded for duration_s."""
-    from aeroperception.schemas import Detection2DArray, Image, SchemaError, decode
+                 on_pair, period_s: float = 0.0, until_landed: bool = False, max_pending: int = 4) -> LiveWindow:
+    """Record sensors/camera/left/image (or perception/detections) and sim/truth/boxes for
+    duration_s, or (until_landed) until the vehicle has flown and is down and disarmed again,
+    calling on_pair(other, truth) in this thread for each stamp-paired frame (at most one per
+    period_s, max_frames in all). Pairs wait in a short newest-wins queue so a slow evaluation
+    never holds frames in memory; those it drops are counted."""
+    from aeroperception.schemas import (Detection2DArray, DiagnosticStatus, Image, SchemaError, VehicleState,
+                                        decode)
 
     lock = threading.Lock()
-    truth: dict[int, object] = {}
-    other: dict[int, object] = {}
-    pairs: list[tuple] = []
-    last = [0.0]
+    from .common import FlightWatch
 
-    def match(stamp: int) -> None:
-        if stamp in truth and stamp in other and len(pairs) < max_frames:
-            pairs.append((other.pop(stamp), truth.pop(stamp)))
-            last[0] = time.monotonic()
+    pairer, pending, win, watch = StampPairer(), deque(), LiveWindow(), FlightWatch()
+    last = [-1e9]
 
-    def keeper(store: dict, cls, keep: int, throttle: bool):
-        """Subscriber callback: decode, file by stamp (newest `keep`), pair when both are in."""
+    def pair_in(side: int, cls, counter: str):
         def cb(sample) -> None:
             with lock:
-                if throttle and (time.monotonic() - last[0] < period_s or len(pairs) >= max_frames):
-                    return
+                setattr(win, counter, getattr(win, counter) + 1)
             try:
                 m = decode(sample.payload.to_bytes(), cls)
             except SchemaError:
                 return
             with lock:
-                store[m.header.stamp_ns] = m
-                match(m.header.stamp_ns)
-                while len(store) > keep:
-                    store.pop(next(iter(store)))
+                p = pairer.add(side, m.header.stamp_ns, m)
+                if p is None or time.monotonic() - last[0] < period_s:
+                    return
+                last[0] = time.monotonic()
+                pending.append(p)
+                while len(pending) > max_pending:
+                    pending.popleft()
+                    win.dropped += 1
         return cb
 
-    on_truth = keeper(truth, Detection2DArray, 200, throttle=False)
-    on_other = keeper(other, Detection2DArray if detections else Image, 50, throttle=True)
+    def on_health(sample) -> None:
+        try:
+            m = decode(sample.payload.to_bytes(), DiagnosticStatus)
+        except SchemaError:
+            return
+        with lock:
+            win.health[min(len(win.health), 1):] = [dict(m.values)]     # [first, latest]
+
+    def on_state(sample) -> None:
+        try:
+            m = decode(sample.payload.to_bytes(), VehicleState)
+        except SchemaError:
+            return
+        watch.update(m.armed, m.position_m.z)
+
+    def on_count(sample) -> None:
+        with lock:
+            win.camera += 1
 
     key = "perception/detections" if detections else "sensors/camera/left/image"
-    subs = [session.declare_subscriber(prefix + "sim/truth/boxes", on_truth),
-            session.declare_subscriber(prefix + key, on_other)]
+    subs = [session.declare_subscriber(prefix + "sim/truth/boxes", pair_in(1, Detection2DArray, "truth")),
+            session.declare_subscriber(prefix + key, pair_in(0, Detection2DArray if detections else Image,
+                                                              "detections" if detections else "camera")),
+            session.declare_subscriber(prefix + "perception/detector_health", on_health)]
+    if detections:
+        subs.append(session.declare_subscriber(prefix + "sensors/camera/left/image", on_count))
+    if until_landed:
+        subs.append(session.declare_subscriber(prefix + "sim/truth/state", on_state))
+    t0 = time.monotonic()
     try:
-        end = time.monotonic() + duration_s
-        while time.monotonic() < end and len(pairs) < max_frames:
-            time.sleep(0.05)
+        end = t0 + duration_s
+        while time.monotonic() < end and win.pairs < max_frames and not watch.down.is_set():
+            with lock:
+                p = pending.popleft() if pending else None
+            if p is None:
+                time.sleep(0.02)
+                continue
+            on_pair(*p)
+            win.pairs += 1
     finally:
         for s in subs:
             s.undeclare()
-    with lock:
-        return list(pairs)
+    win.seconds = time.monotonic() - t0
+    return win
+
+
+def _configured_rate(session, args) -> float | None:
+    """The detector service's inference_frequency_hz, or None when it does not answer."""
+    from aeroperception.schemas import ParamList
+
+    from .cmd_topic import call_or_fail
+    from .common import CliError, full_key
+    try:
+        plist = call_or_fail(session, full_key(args, "config/detector/@params"), None, ParamList, timeout_s=2.0)
+    except CliError:
+        return None
+    return next((float(p.value) for p in plist.params if p.name == "inference_frequency_hz"), None)
 
 
 def run_live(args) -> int:
     from .common import CliError, open_client
 
     prefix = f"{args.vehicle}/" if args.vehicle else ""
-    session = open_client(args)
-    try:
-        what = "perception/detections" if args.detections else "sensors/camera/left/image"
-        print(f"recording {what} and sim/truth/boxes for up to {args.duration:g} s ...", flush=True)
-        pairs = collect_live(session, args.duration, prefix, args.detections, args.max_frames)
-    finally:
-        session.close()
-    if not pairs:
-        raise CliError(f"no {what} paired by stamp with sim/truth/boxes in {args.duration:g} s: is the "
-                       f"simulator{' and the detector' if args.detections else ''} running (aero up)?")
+    until = getattr(args, "until_landed", False)
+    max_frames = args.max_frames if args.max_frames is not None else (100_000 if until else 60)
     ev = DetectionEval(conf_thresh=args.conf)
     if args.detections:
-        for det, tru in pairs:
-            d_boxes, d_cls, d_scores = _truth_arrays(det)
-            ev.add(d_boxes, d_scores, d_cls, *_truth_arrays(tru)[:2], _truth_arrays(tru)[2])
         source = "perception/detections (service-thresholded)"
+
+        def on_pair(det, tru) -> None:
+            d_boxes, d_cls, d_scores = _truth_arrays(det)
+            ev.add(d_boxes, d_scores, d_cls, *_truth_arrays(tru))
     else:
         model = _load(args.model or default_model(), args.threads)
-        for img, tru in pairs:
-            b, c, v = _truth_arrays(tru)
-            _add(ev, model, img.to_numpy(), b, c, v, args.nms)
         source = args.model or default_model()
-    return _report({"live": ev.summary()}, args.json, f"{source}: live stream vs sim/truth/boxes, {len(pairs)} frames")
+
+        def on_pair(img, tru) -> None:
+            _add(ev, model, img.to_numpy(), *_truth_arrays(tru), args.nms)
+    what = "perception/detections" if args.detections else "sensors/camera/left/image"
+    session = open_client(args)
+    try:
+        configured = _configured_rate(session, args)
+        print(f"recording {what} and sim/truth/boxes for {args.duration:g} s"
+              + (" at most, until the vehicle has flown and landed" if until else "") + " ...", flush=True)
+        win = collect_live(session, args.duration, prefix, args.detections, max_frames, on_pair,
+                           args.period, until)
+    finally:
+        session.close()
+    if not win.pairs:
+        raise CliError(f"no {what} paired by stamp with sim/truth/boxes in {win.seconds:.0f} s: is the "
+                       f"simulator{' and the detector' if args.detections else ''} running (aero up)?")
+    res = ev.summary()
+    res.update(win.rates(), window_s=win.seconds, pairs_dropped=win.dropped, configured_hz=configured,
+               detector=win.detector_counts())
+    r = win.rates()
+    cfg = f"{configured:g} Hz" if configured is not None else "unknown (no detector service)"
+    det = win.detector_counts()
+    header = (f"{source}: live stream vs sim/truth/boxes, {win.pairs} frames in {win.seconds:.0f} s "
+              f"({win.dropped} not evaluated); camera {r['camera_hz']:.2f} Hz, "
+              + (f"detections {r['detections_hz']:.2f} Hz, " if args.detections else "")
+              + f"configured {cfg}"
+              + (f"; detector received {det.get('frames_received')} processed {det.get('frames_processed')} "
+                 f"rate-skipped {det.get('frames_skipped_rate')} busy-dropped {det.get('frames_dropped_busy')}"
+                 if det else ""))
+    return _report({"live": res}, args.json, header)

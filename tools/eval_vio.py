@@ -202,8 +202,9 @@ def collect_live(session, duration_s: float, prefix: str = "", until_landed: boo
 
     from aeroperception.schemas import Odometry, Pose, SchemaError, VehicleState, decode
 
-    odom, t_stamps, t_poses, lock = [], [], [], threading.Lock()
-    flew, down = threading.Event(), threading.Event()
+    from .common import FlightWatch
+
+    odom, t_stamps, t_poses, lock, watch = [], [], [], threading.Lock(), FlightWatch()
 
     def on_odom(sample) -> None:
         try:
@@ -221,16 +222,13 @@ def collect_live(session, duration_s: float, prefix: str = "", until_landed: boo
         with lock:
             t_stamps.append(m.header.stamp_ns)
             t_poses.append(_pose(Pose(position=m.position_m, orientation=m.orientation)))
-        if m.armed and m.position_m.z > 0.5:
-            flew.set()
-        elif flew.is_set() and not m.armed and m.position_m.z < 0.2:
-            down.set()
+        watch.update(m.armed, m.position_m.z)
 
     subs = [session.declare_subscriber(prefix + "state/visual_odometry", on_odom),
             session.declare_subscriber(prefix + "sim/truth/state", on_truth)]
     try:
         if until_landed:
-            down.wait(duration_s)
+            watch.down.wait(duration_s)
         else:
             time.sleep(duration_s)
     finally:

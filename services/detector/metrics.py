@@ -21,6 +21,21 @@ import numpy as np
 
 DEFAULT_MIN_HEIGHT_PX = 12.0
 DEFAULT_MIN_VISIBLE = 0.4
+# Pixel-height bins of the counted truth boxes: the apparent size decides detectability, and it is
+# what a live flight and the held-out renders can be compared by (a 1.7 m person at the sim
+# camera's 320 px focal length: 24 px ~ 23 m, 48 px ~ 11 m, 96 px ~ 6 m).
+HEIGHT_BINS_PX = (12.0, 24.0, 48.0, 96.0, 192.0)
+
+
+def height_histogram(heights, bins=HEIGHT_BINS_PX) -> dict[str, int]:
+    """Counts of box heights per bin ("12-24", ..., ">=192"); heights below the first edge go to "<12"."""
+    h = np.asarray(heights, float).reshape(-1)
+    edges = list(bins)
+    out = {f"<{edges[0]:g}": int((h < edges[0]).sum())}
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        out[f"{lo:g}-{hi:g}"] = int(((h >= lo) & (h < hi)).sum())
+    out[f">={edges[-1]:g}"] = int((h >= edges[-1]).sum())
+    return out
 
 
 def iou_matrix(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -70,6 +85,7 @@ class DetectionEval:
     conf_thresh: float = 0.40
     frames: int = 0
     acc: dict[str, _ClassAcc] = field(default_factory=dict)
+    heights: list[float] = field(default_factory=list)   # pixel height of every counted truth box
 
     def _cls(self, name: str) -> _ClassAcc:
         return self.acc.setdefault(name, _ClassAcc())
@@ -84,6 +100,7 @@ class DetectionEval:
         vis = np.ones(len(truth_boxes)) if truth_visible is None else np.asarray(truth_visible, float).reshape(-1)
         ignored = ((truth_boxes[:, 3] - truth_boxes[:, 1]) < self.min_height_px) | (vis < self.min_visible)
         det_classes, truth_classes = list(det_classes), list(truth_classes)
+        self.heights.extend((truth_boxes[~ignored, 3] - truth_boxes[~ignored, 1]).tolist())
         for name in set(det_classes) | set(truth_classes):
             acc = self._cls(name)
             ti = [i for i, c in enumerate(truth_classes) if c == name]
@@ -106,7 +123,7 @@ class DetectionEval:
 
     def summary(self) -> dict:
         """{"mAP50": float, "frames": int, "classes": {name: {AP50, precision, recall, truth,
-        detections}}} with precision/recall at conf_thresh."""
+        detections}}, "truth_height_px": histogram} with precision/recall at conf_thresh."""
         classes = {}
         for name in sorted(self.acc):
             a = self.acc[name]
@@ -122,7 +139,8 @@ class DetectionEval:
         aps = [c["AP50"] for c in classes.values() if c["truth"] > 0]
         return {"mAP50": float(np.mean(aps)) if aps else float("nan"), "frames": self.frames,
                 "iou_thresh": self.iou_thresh, "min_height_px": self.min_height_px,
-                "min_visible": self.min_visible, "conf_thresh": self.conf_thresh, "classes": classes}
+                "min_visible": self.min_visible, "conf_thresh": self.conf_thresh, "classes": classes,
+                "truth_height_px": height_histogram(self.heights)}
 
 
 def format_table(results: dict[str, dict]) -> str:
@@ -135,4 +153,6 @@ def format_table(results: dict[str, dict]) -> str:
             lines.append(f"{name:<16} {cname:<9} {c['AP50']:>6.3f} {c['precision']:>6.3f} {c['recall']:>6.3f} "
                          f"{c['truth']:>6d} {c['detections']:>6d}")
         lines.append(f"{name:<16} {'mAP@0.5':<9} {s['mAP50']:>6.3f}   ({s['frames']} frames)")
+        if "truth_height_px" in s:
+            lines.append(f"{name:<16} {'truth px':<9} " + "  ".join(f"{k}:{v}" for k, v in s["truth_height_px"].items()))
     return "\n".join(lines)

@@ -74,3 +74,16 @@ def test_precision_recall_at_operating_threshold():
     assert s["AP50"] == pytest.approx(1.0)
     assert s["recall"] == pytest.approx(0.5) and s["precision"] == pytest.approx(1.0) and s["detections"] == 1
     assert "person" in format_table({"x": ev.summary()})
+
+
+def test_height_histogram_bins_counted_truth_only():
+    from aeroperception.services.detector.metrics import height_histogram
+
+    h = height_histogram([5, 12, 23.9, 24, 100, 191.9, 192, 400])
+    assert h == {"<12": 1, "12-24": 2, "24-48": 1, "48-96": 0, "96-192": 2, ">=192": 2}
+    ev = DetectionEval()
+    # 30 px counted; 8 px (too small) and a 50 px box 10 % visible are ignored: not in the histogram.
+    ev.add(np.zeros((0, 4)), [], [], [[0, 0, 10, 30], [0, 0, 10, 8], [0, 0, 10, 50]], ["car"] * 3, [1.0, 1.0, 0.1])
+    assert ev.summary()["truth_height_px"]["24-48"] == 1
+    assert sum(ev.summary()["truth_height_px"].values()) == 1
+    assert "truth px" in format_table({"x": ev.summary()})
