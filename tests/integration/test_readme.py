@@ -101,6 +101,10 @@ HOW: dict[str, tuple] = {
     "aero service call vio/srv/reset '{pose: {position: {x: 10, y: -2, z: 3}}}' --type VioResetRequest": (
         SKIP, ["aero", "service", "call", "--help"],
         "needs a running vio: test_vio_service resets the real service to (10, -2, 3) and refuses bad poses"),
+    "aero mission fly examples/missions/village_tour.json": (
+        SKIP, ["aero", "mission", "fly", "--help"], "test_detector_eval_live flies it (opt-in extended)"),
+    "aero eval detector --live --until-landed --duration 600": (
+        SKIP, ["aero", "eval", "detector", "--help"], "test_detector_eval_live evaluates the flight (opt-in extended)"),
     "aero record -o recordings": (SKIP, ["aero", "record", "--help"], "runs until Ctrl-C: test_recorder records a flight"),
     "aero record --preset all --images -o recordings": (SKIP, ["aero", "record", "--help"], "test_recorder"),
     "aero mcap info recordings/FILE.mcap": (SKIP, ["aero", "mcap", "info", "--help"], "FILE is a placeholder: test_recorder"),
