@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import subprocess
 import sys
 import threading
@@ -90,6 +91,36 @@ def wait_for_message(session: zenoh.Session, key: str, cls: type, pred: Callable
             return got[0]
     finally:
         sub.undeclare()
+
+
+def interrupt(proc: subprocess.Popen, timeout_s: float = 10.0) -> int | None:
+    """SIGINT (what Ctrl-C sends) and wait for the exit code; killed after timeout_s -> None."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+        try:
+            return proc.wait(timeout_s)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(5)
+            return None
+    return proc.returncode
+
+
+def validate_foxglove_export(path: Path, per_channel: int) -> dict[str, int]:
+    """Every channel of an `aero mcap export --foxglove` file: JSON messages that validate against
+    the file's own (Foxglove) JSON schemas, `per_channel` sampled each. Message counts per topic."""
+    import jsonschema
+    from mcap.reader import make_reader
+
+    validators, counts = {}, {}
+    with open(path, "rb") as f:
+        for s, ch, m in make_reader(f).iter_messages():
+            assert ch.message_encoding == "json", ch.topic
+            v = validators.get(s.id) or validators.setdefault(s.id, jsonschema.Draft202012Validator(json.loads(s.data)))
+            if counts.get(ch.topic, 0) < per_channel:
+                v.validate(json.loads(m.data))
+            counts[ch.topic] = counts.get(ch.topic, 0) + 1
+    return counts
 
 
 def clean_env(endpoint: str | None = None) -> dict[str, str]:

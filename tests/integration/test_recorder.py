@@ -30,7 +30,7 @@ import msgpack
 import pytest
 from mcap.reader import make_reader
 
-from aerotest import aero, aero_argv, clean_env, is_service_process, wait_for_message, wait_until
+from aerotest import aero, aero_argv, clean_env, interrupt, is_service_process, validate_foxglove_export, wait_for_message, wait_until
 from aeroperception.schemas import DiagnosticStatus, MissionStatus, TrajectorySetpoint, VehicleState, decode
 from aeroperception.services.recorder.contract import ESSENTIALS
 
@@ -63,13 +63,9 @@ def record_cli(endpoint: str, out: Path, *extra: str, fsize: int | None = None) 
 
 
 def stop_cli(proc: subprocess.Popen, timeout_s: float = 10.0) -> int:
-    proc.send_signal(signal.SIGINT)
-    try:
-        return proc.wait(timeout_s)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.wait(5)
-        raise AssertionError("aero record did not stop on SIGINT")
+    code = interrupt(proc, timeout_s)
+    assert code is not None, "aero record did not stop on SIGINT"
+    return code
 
 
 def only_file(d: Path) -> Path:
@@ -254,20 +250,11 @@ def test_replay_drives_the_planner_like_the_live_flight(flight, stack_module):
 
 
 def test_foxglove_export_of_the_flight_validates(flight):
-    jsonschema = pytest.importorskip("jsonschema")
-    import json
-
+    pytest.importorskip("jsonschema")
     out = flight["cli_file"].with_name("flight.foxglove.mcap")
     r = aero("mcap", "export", flight["cli_file"], "--foxglove", "-o", out, timeout_s=120)
     assert r.returncode == 0, r.stderr
-    validators, counts = {}, {}
-    with open(out, "rb") as f:
-        for s, ch, m in make_reader(f).iter_messages():
-            v = validators.get(s.id) or validators.setdefault(s.id, jsonschema.Draft202012Validator(json.loads(s.data)))
-            if counts.get(ch.topic, 0) < 200:          # a sample of every channel
-                v.validate(json.loads(m.data))
-            counts[ch.topic] = counts.get(ch.topic, 0) + 1
-            assert ch.message_encoding == "json"
+    counts = validate_foxglove_export(out, per_channel=200)
     with open(out, "rb") as f:
         names = {s.name for s in make_reader(f).get_summary().schemas.values()}
     assert {"foxglove.PoseInFrame", "foxglove.FrameTransform", "foxglove.Log"} <= names, names

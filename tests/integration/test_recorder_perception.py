@@ -21,7 +21,6 @@ recording runs, so the file holds every input it saw.
 from __future__ import annotations
 
 import json
-import signal
 import socket
 import subprocess
 import threading
@@ -33,7 +32,7 @@ import pytest
 from mcap.reader import make_reader
 
 import aeroperception.schemas as schemas
-from aerotest import aero, aero_argv, clean_env, wait_for_message, wait_until, zenoh_client
+from aerotest import aero, aero_argv, clean_env, interrupt, validate_foxglove_export, wait_for_message, wait_until, zenoh_client
 from aeroperception.schemas import MissionStatus, Odometry, VehicleState, VioHealth, decode, schema_id
 from aeroperception.services.recorder.contract import ESSENTIALS
 from aeroperception.tools.contracts import declared_schemas, load_contracts
@@ -55,18 +54,6 @@ def free_udp_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
-
-
-def sigint(proc: subprocess.Popen, timeout_s: float = 15.0) -> int | None:
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGINT)
-        try:
-            return proc.wait(timeout_s)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(5)
-            return None
-    return proc.returncode
 
 
 def read_file(path: Path) -> tuple[dict[str, list[tuple[int, bytes]]], dict[str, str]]:
@@ -138,10 +125,10 @@ def recording(stack_module, tmp_path_factory):
         wait_for_message(st.session, "mission/status", MissionStatus, lambda m: m.state in ("EXECUTING", "LAND"), 20)
         time.sleep(4.0)
     finally:
-        rec_code = sigint(rec)
-        vio_code = sigint(vio)
+        rec_code = interrupt(rec)
+        vio_code = interrupt(vio)
         if fly is not None:
-            sigint(fly)
+            interrupt(fly)
         st.stop()          # the replay runs on a machine to itself
     files = sorted((base / "rec").glob("*.mcap"))
     assert files, (base / "record.log").read_text()
@@ -177,17 +164,11 @@ def test_recording_has_every_essentials_key_at_a_plausible_rate(recording):
 
 
 def test_foxglove_export_of_the_perception_recording_validates(recording):
-    jsonschema = pytest.importorskip("jsonschema")
+    pytest.importorskip("jsonschema")
     out = recording["file"].with_name("perception.foxglove.mcap")
     r = aero("mcap", "export", recording["file"], "--foxglove", "-o", out, timeout_s=180)
     assert r.returncode == 0, r.stderr
-    validators, counts = {}, {}
-    with open(out, "rb") as f:
-        for s, ch, m in make_reader(f).iter_messages():
-            v = validators.get(s.id) or validators.setdefault(s.id, jsonschema.Draft202012Validator(json.loads(s.data)))
-            if counts.get(ch.topic, 0) < 20:          # a sample of every channel
-                v.validate(json.loads(m.data))
-            counts[ch.topic] = counts.get(ch.topic, 0) + 1
+    validate_foxglove_export(out, per_channel=20)
     with open(out, "rb") as f:
         names = {s.name for s in make_reader(f).get_summary().schemas.values()}
     assert {"foxglove.RawImage", "foxglove.PointCloud", "foxglove.Grid", "foxglove.PoseInFrame"} <= names, names
@@ -215,7 +196,7 @@ def test_replayed_camera_and_imu_drive_vio_like_the_live_flight(recording, zenoh
     finally:
         odoms.sub.undeclare()
         session.close()
-        code = sigint(vio)
+        code = interrupt(vio)
     assert code == 0, (tmp_path / "vio.log").read_text()[-3000:]
     with odoms.lock:
         got = dict(odoms.got)

@@ -27,7 +27,7 @@ import time
 import numpy as np
 import pytest
 
-from aerotest import aero_argv, clean_env, free_port, wait_until
+from aerotest import aero_argv, clean_env, free_port, interrupt, wait_until
 from aeroperception.schemas import Header, Vector3, VehicleState
 from aeroperception.services.viz import adapters as A
 
@@ -61,7 +61,7 @@ def start_xvfb(log) -> tuple[subprocess.Popen, str, int]:
     ready, _, _ = select.select([r], [], [], 15.0)
     number = os.read(r, 32).decode().strip() if ready else ""
     if not number:
-        stop(proc)
+        interrupt(proc)
         os.close(r)
         raise AssertionError("Xvfb did not report a display within 15 s")
     return proc, f":{number}", r
@@ -80,18 +80,6 @@ def descendants(pid: int) -> list[int]:
             out += kids
             todo += kids
     return out
-
-
-def stop(proc: subprocess.Popen, timeout_s: float = 10.0) -> int | None:
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGINT)
-        try:
-            return proc.wait(timeout_s)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(5)
-            return None
-    return proc.returncode
 
 
 def publish_tracks(make_node, stop_evt: threading.Event) -> None:
@@ -154,12 +142,12 @@ def test_native_viewer_draws_the_live_stream_on_a_virtual_display(zenoh_router, 
     finally:
         stop_evt.set()
         feeder.join(5)
-        code = stop(viz)
+        code = interrupt(viz)
         for pid in viewer:               # the spawned viewer outlives viz: stop it by its pid
             try:
                 os.kill(pid, signal.SIGTERM)
             except ProcessLookupError:
                 pass
-        stop(xvfb)
+        interrupt(xvfb)
         os.close(display_fd)
     assert code == 0, (tmp_path / "viz.log").read_text()[-3000:]
