@@ -380,12 +380,12 @@ class FmuService(Service):
                 return False, f"no COMMAND_ACK within {timeout_s:.1f} s"
             if box[0] == mavlink.MAV_RESULT_ACCEPTED:
                 break
-            reason = self._refusal_reason(sent_s)
             if (retry_rejected and box[0] == mavlink.MAV_RESULT_TEMPORARILY_REJECTED
                     and time.monotonic() + RETRY_S < deadline):
                 self.counters["commands_retried"] += 1
                 time.sleep(RETRY_S)
                 continue
+            reason = self._refusal_reason(sent_s)
             return False, f"flight controller answered {ack_name(box[0])}" + (f": {reason}" if reason else "")
         while time.monotonic() < deadline:
             if confirm():

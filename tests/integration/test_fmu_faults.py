@@ -537,3 +537,30 @@ def test_fmu_relocks_onto_a_restarted_fc_after_the_link_was_lost(fmu_alone, zeno
             assert int(diag(session, "fmu")["link_locks"]) == 2
     finally:
         session.close()
+
+
+def test_offboard_right_after_the_link_comes_up_waits_for_the_stream_and_retries_a_refusal(fmu_alone, zenoh_router):
+    """PX4 accepts OFFBOARD only after a setpoint stream. CI saw a mission's OFFBOARD reach the FC
+    < 1 s after fmu linked to it: refused TEMPORARILY_REJECTED, the mission failed, the vehicle
+    auto-disarmed. Here the FC wants 2 s of stream, more than fmu's offboard_warmup_s (1.5 s), and the
+    request comes the moment fmu is connected: fmu waits, is refused, re-sends, and is accepted."""
+    fcu = free_udp_port()
+    session = zenoh_client(zenoh_router)
+    runner = SimVehicleRunner(SimVehicle({"COM_OF_WARM_T": 2.0}, seed=2),
+                              MavlinkEndpoint(target=("127.0.0.1", fcu), bind=("127.0.0.1", 0)), speed=1.0).start()
+    try:
+        fmu_alone(fcu, "--param=command_timeout_s=5")
+        wait_until(lambda: latest(session, "state/vehicle", VehicleState, 1.0, lambda m: m.connected), 20,
+                   "fmu connected to the sim")
+        t0 = time.monotonic()
+        reply = fmu_call(session, "fmu/srv/set_mode", SetModeRequest(mode="OFFBOARD"), SetModeReply, timeout_s=10)
+        took = time.monotonic() - t0
+        assert reply is not None and reply.success, reply
+        assert runner.vehicle.commander.mode == "OFFBOARD"
+        retried = wait_until(lambda: int(diag(session, "fmu").get("commands_retried", 0)), 5,
+                             "diagnostics/fmu counting the re-sent request")
+        print(f"OFFBOARD right after link-up: accepted after {took:.2f} s, {retried} re-sends")
+        assert retried >= 1 and took < 5.0
+    finally:
+        runner.stop()
+        session.close()
