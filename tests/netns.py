@@ -29,13 +29,14 @@ from __future__ import annotations
 import itertools
 import os
 import shutil
-import signal
 import subprocess
 import sys
 import threading
 import time
 from pathlib import Path
 from typing import Callable, Iterable, Sequence
+
+from aeroperception.services.runtime.supervision import terminate
 
 SUBNET = "10.77.0"          # /24, only inside the Lan's namespaces
 _counter = itertools.count()
@@ -196,19 +197,7 @@ class Host:
 
     def stop_all(self, timeout_s: float = 8.0) -> None:
         """SIGTERM every process started here, wait (bounded), SIGKILL what is left."""
-        live = [p for p in self.procs if p.poll() is None]
-        for p in live:
-            try:
-                p.send_signal(signal.SIGTERM)
-            except ProcessLookupError:
-                pass
-        deadline = time.monotonic() + timeout_s
-        for p in live:
-            try:
-                p.wait(max(0.1, deadline - time.monotonic()))
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait(5)
+        terminate(self.procs, timeout_s)
 
 
 class Lan:

@@ -27,7 +27,6 @@ import math
 import os
 import re
 import shutil
-import signal
 import subprocess
 import sys
 import textwrap
@@ -44,7 +43,7 @@ from aeroperception.services.runtime.node import LIVELINESS_ROOT
 from aeroperception.services.runtime.session import make_config, open_session
 from aeroperception.services.runtime.signals import ShutdownFlag
 from aeroperception.services.runtime.supervision import (
-    EXIT_DUPLICATE, SUPERVISOR_ENV, Priority, apply_priority,
+    EXIT_DUPLICATE, SUPERVISOR_ENV, Priority, apply_priority, terminate,
 )
 
 from .cmd_router import THIN_LINK_HZ, thin_link_downsampling
@@ -518,16 +517,4 @@ def format_table(children, width: int | None = None) -> str:
 
 
 def shutdown(children) -> None:
-    procs = [c.proc for c in children if c.proc is not None and c.proc.poll() is None]
-    for p in procs:
-        try:
-            p.send_signal(signal.SIGTERM)
-        except ProcessLookupError:
-            pass
-    deadline = time.monotonic() + 3.0
-    for p in procs:
-        try:
-            p.wait(max(0.0, deadline - time.monotonic()))
-        except subprocess.TimeoutExpired:
-            p.kill()
-            p.wait(1.0)
+    terminate([c.proc for c in children if c.proc is not None], timeout_s=3.0, kill_wait_s=1.0)

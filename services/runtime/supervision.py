@@ -23,6 +23,7 @@ import json
 import os
 import signal
 import socket
+import subprocess
 import sys
 import threading
 import time
@@ -113,6 +114,23 @@ def set_parent_death_signal(sig: int = signal.SIGTERM) -> bool:
     if libc is None:
         return False
     return libc.prctl(PR_SET_PDEATHSIG, int(sig), 0, 0, 0) == 0
+
+
+def terminate(procs, timeout_s: float, kill_wait_s: float = 5.0) -> None:
+    """SIGTERM every live process at once, wait for all within one shared timeout_s, SIGKILL the rest."""
+    live = [p for p in procs if p.poll() is None]
+    for p in live:
+        try:
+            p.send_signal(signal.SIGTERM)
+        except ProcessLookupError:
+            pass
+    deadline = time.monotonic() + timeout_s
+    for p in live:
+        try:
+            p.wait(max(0.0, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait(kill_wait_s)
 
 
 def _pid_exists(pid: int) -> bool:

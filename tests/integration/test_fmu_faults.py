@@ -28,7 +28,7 @@ import pytest
 import zenoh
 from pymavlink.dialects.v20 import common as M
 
-from aerotest import clean_env, is_service_process, wait_for_message, wait_until, zenoh_client
+from aerotest import clean_env, interrupt, is_service_process, wait_for_message, wait_until, zenoh_client
 from aeroperception.schemas import (
     ArmReply, ArmRequest, DiagnosticStatus, Header, SchemaError, SetModeReply, SetModeRequest,
     TrajectorySetpoint, Vector3, VehicleState, decode, encode,
@@ -411,13 +411,7 @@ def fmu_alone(zenoh_router, tmp_path):
 
     yield start
     for p in procs:
-        if p.poll() is None:
-            p.send_signal(signal.SIGINT)
-            try:
-                p.wait(5)
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait(5)
+        interrupt(p, 5.0)
 
 
 @contextmanager
