@@ -10,10 +10,18 @@
 #   4. the base image $AERO_BASE_IMAGE (default aero-base:bookworm): debootstrap bookworm minbase
 #      + python3/pip, then `docker import`
 #   5. a wheelhouse in deploy/wheels/ (pip download of '.[sim]' for this Python) so image builds
-#      install offline
+#      install offline (downloaded while debootstrap runs: both wait mostly on the network)
+#   6. with --build: the compose image ($AERO_IMAGE, default aeroperception:latest) built on that
+#      base, so a later `docker compose ... up --build` finds every layer in the build cache
 # Then: BASE_IMAGE=aero-base:bookworm docker compose -f deploy/compose.yaml --profile sim up -d --build
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
+build=0
+case "${1:-}" in
+    --build) build=1 ;;
+    "") ;;
+    *) echo "docker-local: unknown argument '$1' (usage: deploy/docker-local.sh [--build])" >&2; exit 2 ;;
+esac
 PY=${PYTHON:-python3}
 BASE=${AERO_BASE_IMAGE:-aero-base:bookworm}
 LOG=${AERO_DOCKERD_LOG:-/var/log/aero-dockerd.log}
@@ -60,6 +68,17 @@ if ! timeout 10 docker info >/dev/null 2>&1; then
 fi
 stamp "engine $(docker version -f '{{.Server.Version}}') ($(docker info -f '{{.Driver}}'))"
 
+# ---- 5. wheelhouse (same Python minor as the base: bookworm's python3 is 3.11), in the background
+wheels_pid=
+if ! ls deploy/wheels/*.whl >/dev/null 2>&1; then
+    "$PY" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))' \
+        || die "the wheelhouse must be made with Python 3.11 (bookworm's); set PYTHON=python3.11"
+    stamp "pip download -> deploy/wheels (in the background)"
+    (PIP_DISABLE_PIP_VERSION_CHECK=1 "$PY" -m pip download -q -d deploy/wheels ".[sim]" setuptools wheel 2>&1 \
+        | grep -v "is ignored" || true) &
+    wheels_pid=$!
+fi
+
 # ---- 4. base image without Docker Hub
 if ! docker image inspect "$BASE" >/dev/null 2>&1; then
     root=$(mktemp -d /var/tmp/aero-rootfs.XXXXXX)
@@ -72,12 +91,16 @@ if ! docker image inspect "$BASE" >/dev/null 2>&1; then
 fi
 stamp "base image $BASE: $(docker image inspect -f '{{.Size}}' "$BASE" | awk '{printf "%.0f MB", $1/1e6}')"
 
-# ---- 5. wheelhouse (same Python minor as the base: bookworm's python3 is 3.11)
-if ! ls deploy/wheels/*.whl >/dev/null 2>&1; then
-    "$PY" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))' \
-        || die "the wheelhouse must be made with Python 3.11 (bookworm's); set PYTHON=python3.11"
-    stamp "pip download -> deploy/wheels"
-    PIP_DISABLE_PIP_VERSION_CHECK=1 "$PY" -m pip download -q -d deploy/wheels ".[sim]" setuptools wheel 2>&1 \
-        | grep -v "is ignored" || true
-fi
+[ -z "$wheels_pid" ] || wait "$wheels_pid"
+ls deploy/wheels/*.whl >/dev/null 2>&1 || die "pip download left no wheels in deploy/wheels"
 stamp "wheelhouse: $(ls deploy/wheels/*.whl | wc -l) wheels, $(du -sh deploy/wheels | cut -f1)"
+
+# ---- 6. the compose image
+if [ "$build" = 1 ]; then
+    image=${AERO_IMAGE:-aeroperception:latest}
+    stamp "docker compose build -> $image (base $BASE)"
+    BASE_IMAGE="$BASE" AERO_IMAGE="$image" docker compose -f deploy/compose.yaml --profile sim build --quiet \
+        || die "docker compose build failed"
+    stamp "image $image: $(docker image inspect -f '{{.Size}}' "$image" | awk '{printf "%.2f GB", $1/1e9}')"
+fi
+stamp "done"

@@ -32,6 +32,26 @@ from aerotest import (  # noqa: F401
 from aeroperception.tools.cmd_router import open_router
 
 
+# ---------------------------------------------------------------- order
+
+
+# Unit tests first (no timing-sensitive flights: .ci/run prepares Docker beside them), then the
+# integration tests (CLI and detector modules before the first flight), the fault rows, and the
+# compose flight test last (it waits for that preparation). Whole modules move, so module-scoped
+# stacks stay contiguous; the order within each group is kept.
+_ORDER = ("tests/unit/", "tests/integration/", "tests/faults/")
+_LAST = "tests/integration/test_compose.py"
+
+
+def pytest_collection_modifyitems(config, items):
+    def rank(item) -> int:
+        path = item.nodeid
+        if path.startswith(_LAST):
+            return len(_ORDER)
+        return next((i for i, prefix in enumerate(_ORDER) if path.startswith(prefix)), len(_ORDER) - 1)
+    items.sort(key=rank)                      # stable
+
+
 # ---------------------------------------------------------------- router / nodes
 
 

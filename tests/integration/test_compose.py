@@ -3,8 +3,9 @@ survey_01 from the host with `aero mission fly`, crash one container and see Doc
 and `docker compose down` leaves nothing behind.
 
 Needs a Docker engine with Compose v2 and a base image: deploy/docker-local.sh prepares them on a
-Debian machine without Docker Hub (.ci/run runs it and sets AERO_REQUIRE_DOCKER=1, so there a
-missing engine fails instead of skipping). Base image: $AERO_BASE_IMAGE, else aero-base:bookworm
+Debian machine without Docker Hub (.ci/run runs it in the background while the suite runs, names its
+status file in AERO_DOCKER_SETUP_STATUS, which this test waits for, and sets AERO_REQUIRE_DOCKER=1,
+so there a missing engine fails instead of skipping; conftest orders this test last). Base image: $AERO_BASE_IMAGE, else aero-base:bookworm
 when present, else the Dockerfile's default (python:3.11-slim from Docker Hub).
 Host networking: the router listens on a free port (AERO_ZENOH_PORT); MAVLink uses the fixed
 14540/14580 like every sim stack in this suite (run under the integration lock).
@@ -47,9 +48,25 @@ def _unavailable() -> str | None:
     return None
 
 
+def _setup_finished(max_wait_s: float = 1200) -> str | None:
+    """.ci/run prepares Docker in the background (deploy/docker-local.sh --build) and names a status
+    file in AERO_DOCKER_SETUP_STATUS: wait for its verdict; None when it succeeded (or none runs)."""
+    status = os.environ.get("AERO_DOCKER_SETUP_STATUS")
+    if not status:
+        return None
+    path, t0 = Path(status), time.monotonic()
+    while not path.exists() and time.monotonic() - t0 < max_wait_s:
+        time.sleep(2)
+    if not path.exists():
+        return f"the Docker setup did not finish within {max_wait_s:.0f} s (log {path.with_suffix('.log')})"
+    print(f"compose: waited {time.monotonic() - t0:.0f} s for the Docker setup")
+    verdict = path.read_text().strip()
+    return None if verdict == "ok" else f"the Docker setup {verdict} (log {path.with_suffix('.log')})"
+
+
 @pytest.fixture(scope="module")
 def compose():
-    why = _unavailable()
+    why = _setup_finished() or _unavailable()
     if why:
         if os.environ.get("AERO_REQUIRE_DOCKER") == "1":
             pytest.fail(f"AERO_REQUIRE_DOCKER=1 but {why}")
