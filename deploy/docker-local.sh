@@ -28,7 +28,10 @@ LOG=${AERO_DOCKERD_LOG:-/var/log/aero-dockerd.log}
 t0=$(date +%s)
 stamp() { echo "[docker-local $(( $(date +%s) - t0 ))s] $*"; }
 die() { echo "docker-local: $*" >&2; exit 1; }
-[ "$(id -u)" = 0 ] || die "run as root (apt-get, dockerd, debootstrap)"
+# Exit 3: this machine cannot run an engine (not root, no package, dockerd will not start): a fact
+# about the machine, which .ci/run reports and the compose test skips on. Exit 1: a later step failed.
+unavailable() { echo "docker-local: engine unavailable: $*" >&2; exit 3; }
+[ "$(id -u)" = 0 ] || unavailable "run as root (apt-get, dockerd, debootstrap)"
 
 # ---- 1. engine + debootstrap
 need=()
@@ -37,8 +40,9 @@ command -v debootstrap >/dev/null 2>&1 || need+=(debootstrap)
 if [ ${#need[@]} -gt 0 ]; then
     stamp "apt-get install ${need[*]}"
     export DEBIAN_FRONTEND=noninteractive
-    apt-get update -qq
-    apt-get install -y -qq --no-install-recommends "${need[@]}" >/dev/null
+    apt-get update -qq || unavailable "apt-get update failed"
+    apt-get install -y -qq --no-install-recommends "${need[@]}" >/dev/null \
+        || unavailable "apt-get install ${need[*]} failed"
 fi
 
 # ---- 2. compose v2 plugin
@@ -61,10 +65,10 @@ if ! timeout 10 docker info >/dev/null 2>&1; then
     nohup dockerd --iptables=false --ip6tables=false --bridge=none "${host_args[@]}" >>"$LOG" 2>&1 &
     for _ in $(seq 1 60); do
         timeout 5 docker info >/dev/null 2>&1 && break
-        kill -0 $! 2>/dev/null || { tail -20 "$LOG" >&2; die "dockerd exited (log above, $LOG)"; }
+        kill -0 $! 2>/dev/null || { tail -20 "$LOG" >&2; unavailable "dockerd exited: $(tail -1 "$LOG")"; }
         sleep 0.5
     done
-    timeout 10 docker info >/dev/null 2>&1 || { tail -20 "$LOG" >&2; die "dockerd did not answer within 30 s"; }
+    timeout 10 docker info >/dev/null 2>&1 || { tail -20 "$LOG" >&2; unavailable "dockerd did not answer within 30 s"; }
 fi
 stamp "engine $(docker version -f '{{.Server.Version}}') ($(docker info -f '{{.Driver}}'))"
 

@@ -18,8 +18,9 @@ stamp() { echo "[install] $*"; }
 #   opencv (headless, and the GUI build MAVProxy pulls in): libgl1, libglib2.0-0
 APT_PACKAGES=(libusb-1.0-0 libudev1 libgl1 libegl1 libx11-6 libgomp1 libglib2.0-0)
 #   test: headless Chromium + chromedriver load the Rerun web viewer (tests/integration/test_viz.py);
-#   Xvfb + Mesa's software Vulkan (lavapipe) run the native viewer (tests/integration/test_viz_native.py)
-case ",$EXTRAS," in *,test,*) APT_PACKAGES+=(chromium chromium-driver xvfb mesa-vulkan-drivers) ;; esac
+#   Xvfb + Mesa's software Vulkan (lavapipe) run the native viewer (tests/integration/test_viz_native.py);
+#   iproute2 (ip, tc) + nftables (nft) build the test hosts and impair their links (tests/netns.py)
+case ",$EXTRAS," in *,test,*) APT_PACKAGES+=(chromium chromium-driver xvfb mesa-vulkan-drivers iproute2 nftables) ;; esac
 if command -v apt-get >/dev/null 2>&1; then
     SUDO=""
     if [ "$(id -u)" != 0 ]; then
