@@ -70,7 +70,13 @@ if ! timeout 10 docker info >/dev/null 2>&1; then
     done
     timeout 10 docker info >/dev/null 2>&1 || { tail -20 "$LOG" >&2; unavailable "dockerd did not answer within 30 s"; }
 fi
-stamp "engine $(docker version -f '{{.Server.Version}}') ($(docker info -f '{{.Driver}}'))"
+driver=$(docker info -f '{{.Driver}}')
+stamp "engine $(docker version -f '{{.Server.Version}}') ($driver)"
+# The sim profile runs nine containers of a 2.3 GB image: with vfs (no overlayfs here) each would be
+# a full copy; base, wheelhouse, image and build cache take ~5 GB.
+[ "$driver" = overlay2 ] || unavailable "storage driver $driver (overlay2 needed: vfs copies the 2.3 GB image per container)"
+free_gb=$(df -P --block-size=1G "$(docker info -f '{{.DockerRootDir}}')" | awk 'NR == 2 {print $4}')
+[ "$free_gb" -ge 8 ] || unavailable "${free_gb} GB free under $(docker info -f '{{.DockerRootDir}}') (8 GB needed)"
 
 # ---- 5. wheelhouse (same Python minor as the base: bookworm's python3 is 3.11), in the background
 wheels_pid=
@@ -78,7 +84,7 @@ if ! ls deploy/wheels/*.whl >/dev/null 2>&1; then
     "$PY" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))' \
         || die "the wheelhouse must be made with Python 3.11 (bookworm's); set PYTHON=python3.11"
     stamp "pip download -> deploy/wheels (in the background)"
-    (PIP_DISABLE_PIP_VERSION_CHECK=1 "$PY" -m pip download -q -d deploy/wheels ".[sim]" setuptools wheel 2>&1 \
+    (PIP_DISABLE_PIP_VERSION_CHECK=1 timeout 900 "$PY" -m pip download -q -d deploy/wheels ".[sim]" setuptools wheel 2>&1 \
         | grep -v "is ignored" || true) &
     wheels_pid=$!
 fi
@@ -88,7 +94,7 @@ if ! docker image inspect "$BASE" >/dev/null 2>&1; then
     root=$(mktemp -d /var/tmp/aero-rootfs.XXXXXX)
     trap 'rm -rf "$root"' EXIT
     stamp "debootstrap bookworm -> $BASE"
-    debootstrap --variant=minbase --include=python3,python3-pip,python3-venv,ca-certificates \
+    timeout 900 debootstrap --variant=minbase --include=python3,python3-pip,python3-venv,ca-certificates \
         bookworm "$root" http://deb.debian.org/debian >/dev/null
     tar -C "$root" -c . | docker import - "$BASE" >/dev/null
     rm -rf "$root"
