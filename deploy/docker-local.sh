@@ -84,8 +84,12 @@ if ! ls deploy/wheels/*.whl >/dev/null 2>&1; then
     "$PY" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))' \
         || die "the wheelhouse must be made with Python 3.11 (bookworm's); set PYTHON=python3.11"
     stamp "pip download -> deploy/wheels (in the background)"
-    (PIP_DISABLE_PIP_VERSION_CHECK=1 timeout 900 "$PY" -m pip download -q -d deploy/wheels ".[sim]" setuptools wheel 2>&1 \
-        | grep -v "is ignored" || true) &
+    # into a side folder, moved in only when complete: an interrupted download is not a wheelhouse
+    rm -rf deploy/wheels.part
+    (set -o pipefail
+     PIP_DISABLE_PIP_VERSION_CHECK=1 timeout 900 "$PY" -m pip download -q -d deploy/wheels.part ".[sim]" setuptools wheel 2>&1 \
+        | { grep -v "is ignored" || true; } \
+     && mkdir -p deploy/wheels && mv deploy/wheels.part/*.whl deploy/wheels/ && rm -rf deploy/wheels.part) &
     wheels_pid=$!
 fi
 
@@ -101,7 +105,7 @@ if ! docker image inspect "$BASE" >/dev/null 2>&1; then
 fi
 stamp "base image $BASE: $(docker image inspect -f '{{.Size}}' "$BASE" | awk '{printf "%.0f MB", $1/1e6}')"
 
-[ -z "$wheels_pid" ] || wait "$wheels_pid"
+[ -z "$wheels_pid" ] || wait "$wheels_pid" || die "pip download of '.[sim]' failed (see above)"
 ls deploy/wheels/*.whl >/dev/null 2>&1 || die "pip download left no wheels in deploy/wheels"
 stamp "wheelhouse: $(ls deploy/wheels/*.whl | wc -l) wheels, $(du -sh deploy/wheels | cut -f1)"
 
