@@ -26,6 +26,7 @@ import subprocess
 import sys
 import threading
 import time
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Callable, Iterable
 
@@ -104,6 +105,22 @@ def interrupt(proc: subprocess.Popen, timeout_s: float = 10.0) -> int | None:
             proc.wait(5)
             return None
     return proc.returncode
+
+
+@contextmanager
+def standalone_fc(fcu_port: int, log: Path):
+    """The simulated PX4 run alone (MAVLink only, no Zenoh), as a PX4 SITL would be: it sends to
+    127.0.0.1:`fcu_port`, where fmu listens (`--fcu-url udpin:127.0.0.1:PORT`). Stopped on exit."""
+    from aeroperception.services.runtime.supervision import terminate
+
+    with open(log, "wb") as err:
+        fc = subprocess.Popen([sys.executable, "-m", "aeroperception.services.sim.vehicle", "--target",
+                               f"127.0.0.1:{fcu_port}", "--bind", f"127.0.0.1:{free_port()}", "--status-every", "0"],
+                              stdout=subprocess.DEVNULL, stderr=err)
+    try:
+        yield fc
+    finally:
+        terminate([fc], 5.0)
 
 
 def validate_foxglove_export(path: Path, per_channel: int) -> dict[str, int]:

@@ -1,6 +1,7 @@
 """deploy/compose.yaml for real: build the image, `docker compose --profile sim up -d`, fly
 survey_01 from the host with `aero mission fly`, crash one container and see Docker restart it,
-and `docker compose down` leaves nothing behind.
+and `docker compose down` leaves nothing behind; then `--profile vehicle` against a flight
+controller on the host (the simulated PX4 run standalone, MAVLink only).
 
 Needs a Docker engine with Compose v2 and a base image: deploy/docker-local.sh prepares them on a
 Debian machine without Docker Hub (.ci/run runs it in the background while the suite runs, names its
@@ -21,7 +22,8 @@ from pathlib import Path
 
 import pytest
 
-from aerotest import aero, clean_env, free_port, wait_until
+from aeroperception.schemas import Imu, VehicleState, decode
+from aerotest import aero, clean_env, free_port, standalone_fc, wait_for_message, wait_until, zenoh_client
 
 REPO = Path(__file__).resolve().parents[2]
 COMPOSE = REPO / "deploy" / "compose.yaml"
@@ -92,22 +94,31 @@ def compose():
     if base:
         env["BASE_IMAGE"] = base
 
-    def run(*args: str, timeout_s: float = 120, check: bool = True) -> subprocess.CompletedProcess:
-        return _docker("compose", "-f", str(COMPOSE), "-p", project, "--profile", "sim", *args,
+    def run(*args: str, timeout_s: float = 120, check: bool = True, profiles=("sim",)) -> subprocess.CompletedProcess:
+        flags = [f for p in profiles for f in ("--profile", p)]
+        return _docker("compose", "-f", str(COMPOSE), "-p", project, *flags, *args,
                        env=env, timeout_s=timeout_s, check=check)
 
     run.project, run.endpoint, run.env = project, f"tcp/127.0.0.1:{port}", env
     try:
         yield run
     finally:
-        run("down", "-v", "--timeout", "5", check=False)
+        run("down", "-v", "--timeout", "5", check=False, profiles=("sim", "vehicle"))
         _docker("image", "rm", env["AERO_IMAGE"], check=False)
 
 
-def _states(compose) -> dict[str, dict]:
-    r = compose("ps", "-a", "--format", "json")
+def _states(compose, profiles=("sim",)) -> dict[str, dict]:
+    r = compose("ps", "-a", "--format", "json", profiles=profiles)
     rows = [json.loads(ln) for ln in r.stdout.splitlines() if ln.strip()]
     return {row["Service"]: row for row in rows}
+
+
+def _gone(compose) -> None:
+    """`down` left no container or volume of the project, and the router no longer answers."""
+    left = _docker("ps", "-a", "-q", "--filter", f"label=com.docker.compose.project={compose.project}").stdout.split()
+    vols = _docker("volume", "ls", "-q", "--filter", f"label=com.docker.compose.project={compose.project}").stdout.split()
+    assert not left and not vols, f"left behind: containers {left}, volumes {vols}"
+    assert aero("node", "list", endpoint=compose.endpoint, timeout_s=20).returncode != 0, "router still answers"
 
 
 @pytest.mark.slow
@@ -143,8 +154,43 @@ def test_compose_sim_profile_flies_restarts_and_goes_away(compose):
 
     t0 = time.monotonic()
     compose("down", "-v", "--timeout", "5", timeout_s=120)
-    left = _docker("ps", "-a", "-q", "--filter", f"label=com.docker.compose.project={compose.project}").stdout.split()
-    vols = _docker("volume", "ls", "-q", "--filter", f"label=com.docker.compose.project={compose.project}").stdout.split()
-    assert not left and not vols, f"left behind: containers {left}, volumes {vols}"
-    assert aero("node", "list", endpoint=compose.endpoint, timeout_s=20).returncode != 0, "router still answers"
+    _gone(compose)
     print(f"compose: down in {time.monotonic() - t0:.1f} s")
+
+
+VEHICLE_SERVICES = ["router", "fmu-fc", "planner", "mission", "gcs-fc", "diagnostics", "safety"]
+
+
+@pytest.mark.slow
+def test_compose_vehicle_profile_bridges_a_flight_controller_on_the_host(compose, tmp_path):
+    """`--profile vehicle` against an FC that is not ours to start: the simulated PX4 run standalone
+    on the host (MAVLink only, as a PX4 SITL or a serial-to-UDP FC would be), AERO_FCU_URL pointing
+    fmu-fc at it. Every container healthy, the FC's state and its IMU (HIGHRES_IMU, republished by
+    fmu-fc) on Zenoh at the host's router port, and `down` leaves nothing."""
+    compose("build", timeout_s=1200)            # the sim-profile test built it: cached
+    fcu_port = free_port()
+    env = compose.env
+    env["AERO_FCU_URL"] = f"udpin:127.0.0.1:{fcu_port}"
+    with standalone_fc(fcu_port, tmp_path / "fc.log"):
+        t0 = time.monotonic()
+        compose("up", "-d", timeout_s=180, profiles=("vehicle",))
+        wait_until(lambda: all(_states(compose, ("vehicle",)).get(s, {}).get("Health") == "healthy"
+                               for s in VEHICLE_SERVICES), 120, "every vehicle-profile container healthy", interval_s=2)
+        print(f"compose vehicle profile: up -d -> all healthy {time.monotonic() - t0:.0f} s")
+        session = zenoh_client(compose.endpoint)
+        try:
+            state = wait_for_message(session, "state/vehicle", VehicleState, lambda m: m.connected, timeout_s=15)
+            assert state.flight_mode and abs(state.position_m.z) < 0.5, state
+            stamps: list[int] = []
+            sub = session.declare_subscriber(
+                "sensors/imu", lambda s: stamps.append(decode(s.payload.to_bytes(), Imu).header.stamp_ns))
+            wait_until(lambda: len(stamps) >= 50, 10, "the FC's IMU on sensors/imu")
+            n0, t1 = len(stamps), time.monotonic()
+            time.sleep(2.0)
+            rate_hz = (len(stamps) - n0) / (time.monotonic() - t1)
+            sub.undeclare()
+        finally:
+            session.close()
+        assert rate_hz > 50, f"sensors/imu at {rate_hz:.1f} Hz (the FC streams HIGHRES_IMU at 100 Hz)"
+        compose("down", "-v", "--timeout", "5", timeout_s=120, profiles=("vehicle",))
+        _gone(compose)

@@ -3,23 +3,17 @@ simulated PX4 run standalone (MAVLink only, no Zenoh), as a real PX4 SITL would 
 must give the stack its state and, with no simulator, the IMU (HIGHRES_IMU -> sensors/imu)."""
 from __future__ import annotations
 
-import subprocess
-import sys
 import time
 
 import numpy as np
 
 from aeroperception.schemas import Imu, VehicleState, decode
-from aerotest import free_port, wait_for_message, wait_until
+from aerotest import free_port, standalone_fc, wait_for_message, wait_until
 
 
 def test_vehicle_profile_fmu_bridges_a_standalone_px4_and_republishes_its_imu(stack, tmp_path):
-    fcu_port, sim_port = free_port(), free_port()
-    fc = subprocess.Popen([sys.executable, "-m", "aeroperception.services.sim.vehicle",
-                           "--target", f"127.0.0.1:{fcu_port}", "--bind", f"127.0.0.1:{sim_port}",
-                           "--status-every", "0"],
-                          stdout=subprocess.DEVNULL, stderr=open(tmp_path / "fc.log", "wb"))
-    try:
+    fcu_port = free_port()
+    with standalone_fc(fcu_port, tmp_path / "fc.log"):
         st = stack(["fmu"], profile="vehicle", extra_args=["--fcu-url", f"udpin:127.0.0.1:{fcu_port}"])
         state = wait_for_message(st.session, "state/vehicle", VehicleState, lambda m: m.connected, timeout_s=15)
         assert state.flight_mode and abs(state.position_m.z) < 0.5
@@ -44,10 +38,3 @@ def test_vehicle_profile_fmu_bridges_a_standalone_px4_and_republishes_its_imu(st
         assert np.all(np.diff(stamps) > 0), "IMU stamps not strictly increasing"
         # FLU body frame, specific force: a vehicle at rest on the ground reads about +g on z.
         assert abs(float(np.median(accel_z)) - 9.81) < 0.5, np.median(accel_z)
-    finally:
-        fc.terminate()
-        try:
-            fc.wait(5)
-        except subprocess.TimeoutExpired:
-            fc.kill()
-            fc.wait()
