@@ -112,7 +112,9 @@ def test_web_viewer_shows_the_live_stream_in_headless_chromium(flight):
     url = (f"http://127.0.0.1:{flight['web']}/?url="
            + urllib.parse.quote(f"rerun+http://127.0.0.1:{flight['grpc']}/proxy", safe=""))
     shot = flight["out"] / "web_viewer.png"
+    t0 = time.monotonic()
     with headless_chromium() as browser:
+        t_browser = time.monotonic() - t0
         browser.get(url)
         verdict = {}
 
@@ -123,9 +125,10 @@ def test_web_viewer_shows_the_live_stream_in_headless_chromium(flight):
             return verdict["ok"]
 
         try:
-            wait_until(rendered, 60, "the web viewer to draw the live stream", interval_s=2.0)
+            wait_until(rendered, 150, "the web viewer to draw the live stream", interval_s=2.0)
         finally:
-            print(f"web viewer screenshot: {shot} ({verdict})")
+            print(f"web viewer: browser up in {t_browser:.1f} s, drawn {time.monotonic() - t0:.1f} s after the start; "
+                  f"screenshot: {shot} ({verdict})")
             for line in browser.console()[-15:]:
                 print("chromium console:", line.get("level"), line.get("message", "")[:300])
 
