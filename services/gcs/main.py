@@ -500,9 +500,12 @@ class GcsService(Service):
                 self._end_speed_scope("mission replaced")
                 self.speeds = SpeedSchedule(speeds, mission.mission_id)
                 self.synced = (mission.mission_id, len(mission.waypoints))
-                self.tel.mission_total = len(items)
+            done(res.success, res.message, M.MAV_MISSION_DENIED)   # accepts the items: the new plan id
+            if res.success:
+                # total and plan id together, once the items are in: MISSION_CURRENT streamed in
+                # between carried the new total with the old plan id (0 after a first upload)
+                self._sync_plan()
                 self.tel.mission_seq = 0
-            done(res.success, res.message, M.MAV_MISSION_DENIED)
 
         self.node.call_async("mission/srv/load", LoadMissionRequest(mission_json=mission.to_json()),
                              LoadMissionReply, loaded, timeout_s=self.params.call_timeout_s)
