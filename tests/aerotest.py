@@ -94,6 +94,24 @@ def wait_for_message(session: zenoh.Session, key: str, cls: type, pred: Callable
         sub.undeclare()
 
 
+def sample_stream(session: zenoh.Session, key: str, cls: type, min_count: int, window_s: float,
+                  timeout_s: float = 10.0) -> tuple[list[Any], float]:
+    """Messages on `key` decoded as `cls`: wait for `min_count` (else fail after `timeout_s`), then
+    count for `window_s`. Returns every message received and the rate over the window (Hz)."""
+    from aeroperception.schemas import decode
+
+    msgs: list[Any] = []
+    sub = session.declare_subscriber(key, lambda sample: msgs.append(decode(sample.payload.to_bytes(), cls)))
+    try:
+        wait_until(lambda: len(msgs) >= min_count, timeout_s, f"{min_count} {cls.__name__} on {key}")
+        n0, t0 = len(msgs), time.monotonic()
+        time.sleep(window_s)
+        rate_hz = (len(msgs) - n0) / (time.monotonic() - t0)
+    finally:
+        sub.undeclare()
+    return list(msgs), rate_hz
+
+
 def interrupt(proc: subprocess.Popen, timeout_s: float = 10.0) -> int | None:
     """SIGINT (what Ctrl-C sends) and wait for the exit code; killed after timeout_s -> None."""
     if proc.poll() is None:

@@ -540,7 +540,6 @@ class GcsService(Service):
             self._sync_plan()
             self._end_speed_scope("mission replaced")
             self.speeds = SpeedSchedule([], mission.mission_id)
-            self.tel.mission_total = len(self.missions.items)
             self.tel.mission_seq = 0
             self.synced = key
             self.log.info("mission_synced", mission_id=mission.mission_id, items=len(self.missions.items))

@@ -6,8 +6,9 @@ controller on the host (the simulated PX4 run standalone, MAVLink only).
 Needs a Docker engine with Compose v2 and a base image: deploy/docker-local.sh prepares them on a
 Debian machine without Docker Hub (.ci/run runs it in the background while the suite runs, names its
 status file in AERO_DOCKER_SETUP_STATUS, which this test waits for, and sets AERO_REQUIRE_DOCKER=1,
-so there a missing engine fails instead of skipping; conftest orders this test last). Base image: $AERO_BASE_IMAGE, else aero-base:bookworm
-when present, else the Dockerfile's default (python:3.11-slim from Docker Hub).
+so there a missing engine fails instead of skipping; conftest orders this test last). Base image:
+$AERO_BASE_IMAGE, else aero-base:bookworm when present, else the Dockerfile's default
+(python:3.11-slim from Docker Hub).
 Host networking: the router listens on a free port (AERO_ZENOH_PORT); MAVLink uses the fixed
 14540/14580 like every sim stack in this suite (run under the integration lock).
 """
@@ -22,8 +23,10 @@ from pathlib import Path
 
 import pytest
 
-from aeroperception.schemas import Imu, VehicleState, decode
-from aerotest import aero, clean_env, free_port, standalone_fc, wait_for_message, wait_until, zenoh_client
+from aeroperception.schemas import Imu, VehicleState
+from aerotest import (
+    aero, clean_env, free_port, sample_stream, standalone_fc, wait_for_message, wait_until, zenoh_client,
+)
 
 REPO = Path(__file__).resolve().parents[2]
 COMPOSE = REPO / "deploy" / "compose.yaml"
@@ -181,14 +184,7 @@ def test_compose_vehicle_profile_bridges_a_flight_controller_on_the_host(compose
         try:
             state = wait_for_message(session, "state/vehicle", VehicleState, lambda m: m.connected, timeout_s=15)
             assert state.flight_mode and abs(state.position_m.z) < 0.5, state
-            stamps: list[int] = []
-            sub = session.declare_subscriber(
-                "sensors/imu", lambda s: stamps.append(decode(s.payload.to_bytes(), Imu).header.stamp_ns))
-            wait_until(lambda: len(stamps) >= 50, 10, "the FC's IMU on sensors/imu")
-            n0, t1 = len(stamps), time.monotonic()
-            time.sleep(2.0)
-            rate_hz = (len(stamps) - n0) / (time.monotonic() - t1)
-            sub.undeclare()
+            _imu, rate_hz = sample_stream(session, "sensors/imu", Imu, 50, 2.0)
         finally:
             session.close()
         assert rate_hz > 50, f"sensors/imu at {rate_hz:.1f} Hz (the FC streams HIGHRES_IMU at 100 Hz)"

@@ -3,12 +3,11 @@ simulated PX4 run standalone (MAVLink only, no Zenoh), as a real PX4 SITL would 
 must give the stack its state and, with no simulator, the IMU (HIGHRES_IMU -> sensors/imu)."""
 from __future__ import annotations
 
-import time
 
 import numpy as np
 
-from aeroperception.schemas import Imu, VehicleState, decode
-from aerotest import free_port, standalone_fc, wait_for_message, wait_until
+from aeroperception.schemas import Imu, VehicleState
+from aerotest import free_port, sample_stream, standalone_fc, wait_for_message
 
 
 def test_vehicle_profile_fmu_bridges_a_standalone_px4_and_republishes_its_imu(stack, tmp_path):
@@ -18,22 +17,9 @@ def test_vehicle_profile_fmu_bridges_a_standalone_px4_and_republishes_its_imu(st
         state = wait_for_message(st.session, "state/vehicle", VehicleState, lambda m: m.connected, timeout_s=15)
         assert state.flight_mode and abs(state.position_m.z) < 0.5
 
-        stamps: list[int] = []
-        accel_z: list[float] = []
-
-        def on_imu(sample) -> None:
-            m = decode(sample.payload.to_bytes(), Imu)
-            stamps.append(m.header.stamp_ns)
-            accel_z.append(m.linear_acceleration_mps2.z)
-
-        sub = st.session.declare_subscriber("sensors/imu", on_imu)
-        try:
-            wait_until(lambda: len(stamps) >= 100, 10, "100 IMU samples on sensors/imu from fmu")
-            t0, n0 = time.monotonic(), len(stamps)
-            time.sleep(2.0)
-            rate_hz = (len(stamps) - n0) / (time.monotonic() - t0)
-        finally:
-            sub.undeclare()
+        imu, rate_hz = sample_stream(st.session, "sensors/imu", Imu, 100, 2.0)
+        stamps = [m.header.stamp_ns for m in imu]
+        accel_z = [m.linear_acceleration_mps2.z for m in imu]
         assert rate_hz > 50, f"sensors/imu at {rate_hz:.1f} Hz (FC streams HIGHRES_IMU at 100 Hz)"
         assert np.all(np.diff(stamps) > 0), "IMU stamps not strictly increasing"
         # FLU body frame, specific force: a vehicle at rest on the ground reads about +g on z.
