@@ -19,6 +19,7 @@ is stopped through its own handle (never by name).
 """
 from __future__ import annotations
 
+import ctypes
 import json
 import os
 import signal
@@ -165,6 +166,16 @@ def clean_env(endpoint: str | None = None) -> dict[str, str]:
     if endpoint:
         env["AERO_CONNECT"] = endpoint
     return env
+
+
+def signal_other_thread(pid: int, sig: int) -> None:
+    """Deliver `sig` to one of the process's threads other than the main one (tgkill), as the kernel
+    may do with any process-directed signal: the Python handler still runs only on the main thread."""
+    tids = [int(t) for t in os.listdir(f"/proc/{pid}/task") if int(t) != pid]
+    assert tids, "the service has no other threads"
+    libc = ctypes.CDLL(None, use_errno=True)
+    if libc.tgkill(pid, tids[-1], int(sig)) != 0:
+        raise OSError(ctypes.get_errno(), "tgkill failed")
 
 
 def aero_argv() -> list[str]:

@@ -88,7 +88,7 @@ def record(args) -> int:
     print(f"recording {', '.join(svc.exprs)} (Ctrl-C to stop)", flush=True)
     t0 = time.monotonic()
     try:
-        while not node.stop_event.wait(2.0 if not args.duration else min(2.0, args.duration)):
+        while not shutdown.wait(2.0 if not args.duration else min(2.0, args.duration)):
             h = svc.health()
             v = h.values
             print(f"  {v['messages']} msgs  {v['mbytes']} MB  dropped {v['dropped']}  {v['file']}"

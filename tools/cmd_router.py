@@ -96,7 +96,8 @@ def open_router(zenoh_config: str | None, listen: list[str] | None,
 
 
 def run(args) -> int:
-    stop = ShutdownFlag().install().event
+    shutdown = ShutdownFlag().install()
+    stop = shutdown.event
     bind_to_supervisor(stop.set)
     router = open_router(args.zenoh_config or os.environ.get("AERO_ROUTER_CONFIG") or None, args.listen, args.connect,
                          args.thin_link, args.thin_link_hz)
@@ -105,6 +106,6 @@ def run(args) -> int:
         joins += f", bulk streams via {', '.join(args.thin_link)} at {args.thin_link_hz:g} Hz"
     print(f"aero router: zid {router.zid()} listening on {', '.join(args.listen or ['zenoh.json5 endpoints'])}"
           f"{joins}", file=sys.stderr, flush=True)
-    stop.wait()
+    shutdown.wait()
     router.close()
     return 0

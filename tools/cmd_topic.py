@@ -17,6 +17,7 @@ from aeroperception.schemas import (
 )
 from aeroperception.services.runtime.node import LIVELINESS_ROOT, CallError, encoding_for, schema_of
 from aeroperception.services.runtime.node import call as rpc_call
+from aeroperception.services.runtime.signals import wait_polling
 
 from . import contracts
 from .common import (
@@ -188,9 +189,9 @@ def topic_echo(args) -> int:
     try:
         t_end = time.monotonic() + args.timeout if args.timeout else float("inf")
         first = min(SILENCE_HINT_S, args.timeout) if args.timeout else SILENCE_HINT_S
-        if not done.wait(first) and not got_one.is_set() and time.monotonic() < t_end:
+        if not wait_polling(done, first) and not got_one.is_set() and time.monotonic() < t_end:
             print(silence_hint(session, key, args), file=sys.stderr, flush=True)
-        done.wait(None if t_end == float("inf") else max(0.0, t_end - time.monotonic()))
+        wait_polling(done, None if t_end == float("inf") else max(0.0, t_end - time.monotonic()))
     except KeyboardInterrupt:
         pass
     sub.undeclare()

@@ -114,7 +114,7 @@ def run(service_cls: type[Service], argv: Sequence[str] | None = None) -> int:
     try:
         with node.lock:
             service.start()
-        node.stop_event.wait()
+        shutdown.wait()
         if shutdown.signal_name:
             node.log.info("signal", signal=shutdown.signal_name)
     except Exception as e:  # noqa: BLE001 - report a start-up failure as one clear line

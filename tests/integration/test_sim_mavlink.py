@@ -21,6 +21,7 @@ os.environ.setdefault("MAVLINK20", "1")  # before mavutil picks its dialect
 from pymavlink import mavutil  # noqa: E402
 from pymavlink.dialects.v20 import common as M  # noqa: E402
 
+from aerotest import signal_other_thread  # noqa: E402
 from aeroperception.services.mavlink import px4  # noqa: E402
 from aeroperception.services.sim.vehicle import MavlinkEndpoint, SimVehicle, SimVehicleRunner  # noqa: E402
 
@@ -234,6 +235,27 @@ def test_standalone_entry_point_runs_and_stops_on_sigterm():
         proc.send_signal(signal.SIGTERM)
         assert proc.wait(timeout=3.0) == 0
         assert '"mode": "HOLD"' in proc.stderr.read()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        peer.close()
+
+
+def test_standalone_entry_point_stops_on_sigint_to_any_thread():
+    """No status lines (an untimed wait) and the signal delivered to the runner's thread, not the
+    main one: it still stops within 2 s (the handler runs only on the main thread; see signals.py)."""
+    port = free_udp_port()
+    peer = Peer(port)
+    proc = subprocess.Popen([sys.executable, "-m", "aeroperception.services.sim.vehicle", "--target",
+                             f"127.0.0.1:{port}", "--bind", "127.0.0.1:0", "--status-every", "0"],
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        peer.recv("HEARTBEAT", timeout_s=10.0)
+        t0 = time.monotonic()
+        signal_other_thread(proc.pid, signal.SIGINT)
+        assert proc.wait(timeout=10.0) == 0
+        assert time.monotonic() - t0 < 2.0
     finally:
         if proc.poll() is None:
             proc.kill()

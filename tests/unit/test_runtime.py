@@ -997,3 +997,28 @@ def test_apply_priority_unprivileged_falls_back_and_says_so():
             "print(apply_priority(0, Priority(nice=5)))\n")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=30)
     assert out.stdout.splitlines() == ["nice 0 (SCHED_RR 20, nice -10 not permitted)", "nice 5"], out.stderr
+
+
+def test_wait_polling_times_out_and_sees_a_set_from_another_thread():
+    from aeroperception.services.runtime.signals import wait_polling
+
+    ev = threading.Event()
+    t0 = time.monotonic()
+    assert wait_polling(ev, 0.25, poll_s=0.1) is False
+    assert 0.24 <= time.monotonic() - t0 < 1.0
+    threading.Timer(0.15, ev.set).start()
+    assert wait_polling(ev, 5.0, poll_s=0.1) is True
+    assert time.monotonic() - t0 < 1.5
+    flag = [False]
+    assert wait_polling(threading.Event(), 2.0, poll_s=0.05, done=lambda: flag.__setitem__(0, True) or True)
+    assert flag[0]
+
+
+def test_shutdown_flag_wait_turns_a_recorded_signal_into_the_event():
+    """What the main thread does after a handler ran: the event is set without the forwarder."""
+    from aeroperception.services.runtime.signals import ShutdownFlag
+
+    flag = ShutdownFlag(main_poll_s=0.05)   # not installed: no handlers, no forwarder thread
+    assert flag.wait(0.1) is False and not flag
+    flag.signal_name = "SIGINT"
+    assert flag.wait(1.0) is True and flag.event.is_set()

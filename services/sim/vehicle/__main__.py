@@ -8,11 +8,10 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import signal
 import sys
-import threading
 
 from aeroperception.services.runtime.params import ParamError, parse_overrides
+from aeroperception.services.runtime.signals import ShutdownFlag
 
 from .endpoint import PX4_SITL_BIND, PX4_SITL_TARGET, MavlinkEndpoint, parse_address
 from .model import SimVehicle
@@ -51,15 +50,13 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     runner = SimVehicleRunner(SimVehicle(params, seed=args.seed), endpoint, speed=args.speed)
 
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+    shutdown = ShutdownFlag().install()  # a handler calling Event.set() can deadlock: see signals.py
     runner.start()
     logging.info("sim vehicle: sending to %s from %s:%d, speed %.1fx, seed %d",
                  args.target, *endpoint.local_address, args.speed, args.seed)
     keys = ("sim_time_s", "realtime_factor", "mode", "armed", "landed_state", "failsafe", "position_enu_m",
             "battery_remaining", "rx_msgs", "rx_bad", "tx_msgs", "setpoints", "vision_odometry", "peer")
-    while not stop.wait(args.status_every or None):
+    while not shutdown.wait(args.status_every or None):
         d = runner.diagnostics()
         print(json.dumps({k: d.get(k) for k in keys}), file=sys.stderr, flush=True)
     runner.stop()
