@@ -170,11 +170,14 @@ def clean_env(endpoint: str | None = None) -> dict[str, str]:
 
 def signal_other_thread(pid: int, sig: int) -> None:
     """Deliver `sig` to one of the process's threads other than the main one (tgkill), as the kernel
-    may do with any process-directed signal: the Python handler still runs only on the main thread."""
-    tids = [int(t) for t in os.listdir(f"/proc/{pid}/task") if int(t) != pid]
-    assert tids, "the service has no other threads"
+    may do with any process-directed signal: the Python handler still runs only on the main thread.
+    A zenoh runtime thread (rx-/tx-/net-/app-) if there is one, else the oldest: long-lived either way,
+    so the signal is not lost with a thread that exits."""
+    tids = sorted(int(t) for t in os.listdir(f"/proc/{pid}/task") if int(t) != pid)
+    assert tids, "the process has no other threads"
+    named = [t for t in tids if Path(f"/proc/{pid}/task/{t}/comm").read_text().startswith(("rx-", "tx-", "net-", "app-"))]
     libc = ctypes.CDLL(None, use_errno=True)
-    if libc.tgkill(pid, tids[-1], int(sig)) != 0:
+    if libc.tgkill(pid, (named or tids)[0], int(sig)) != 0:
         raise OSError(ctypes.get_errno(), "tgkill failed")
 
 
