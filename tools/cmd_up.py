@@ -466,6 +466,12 @@ def run(args) -> int:
     return 0
 
 
+# Lines of a faulthandler stack dump (services/runtime/service.py enables it) other than its
+# "Fatal Python error: Segmentation fault" headline.
+STACK_DUMP_LINES = ("File \"", "Thread 0x", "Current thread 0x", "Stack (most recent", "Extension modules:",
+                    "<no Python frame>", "Garbage-collecting", "<unknown>")
+
+
 def last_error_line(log_path: Path, tail_bytes: int = 16384) -> str:
     """The last error a service wrote before it exited: a JSON log record at level error, or a
     plain line (a traceback's last line, `aero run X: ...`). "" when there is none."""
@@ -477,8 +483,8 @@ def last_error_line(log_path: Path, tail_bytes: int = 16384) -> str:
         return ""
     for line in reversed(lines[-200:]):
         line = line.strip()
-        if not line:
-            continue
+        if not line or line.startswith(STACK_DUMP_LINES):
+            continue  # faulthandler's dump (a native crash, or kill -USR1): its headline says what
         try:
             rec = json.loads(line)
         except ValueError:

@@ -4,11 +4,17 @@ the service's logic, wait for SIGINT/SIGTERM, stop cleanly within 2 s.
 A service is a subclass of `Service` declaring NAME, PARAMS (and optionally extra CLI flags);
 its module's `main()` is `run(MyService)`. `aero run NAME` and `python -m
 aeroperception.services.NAME` both end up here.
+
+Stack dumps: a crash in native code (SIGSEGV/SIGABRT in zenoh, OpenCV, Open3D, ONNX Runtime...)
+writes every thread's Python stack to the service's log, and `kill -USR1 <pid>` does the same on
+demand for a service that looks stuck — it keeps running.
 """
 from __future__ import annotations
 
 import argparse
+import faulthandler
 import os
+import signal
 import sys
 from typing import ClassVar, Sequence
 
@@ -92,6 +98,8 @@ def run(service_cls: type[Service], argv: Sequence[str] | None = None) -> int:
     # The handler only records the signal (see signals.py): logging or Event.set() in a
     # handler can deadlock against the main thread.
     shutdown = ShutdownFlag(node.stop_event).install()
+    faulthandler.enable(all_threads=True)
+    faulthandler.register(signal.SIGUSR1, all_threads=True, chain=False)
     # Started by `aero up`: stop when it dies (kill -9 included) instead of lingering unsupervised.
     binding = bind_to_supervisor(node.stop_event.set)
     if binding.orphaned:
