@@ -474,7 +474,8 @@ STACK_DUMP_LINES = ("File \"", "Thread 0x", "Current thread 0x", "Stack (most re
 
 def last_error_line(log_path: Path, tail_bytes: int = 16384) -> str:
     """The last error a service wrote before it exited: a JSON log record at level error, or a
-    plain line (a traceback's last line, `aero run X: ...`). "" when there is none."""
+    plain line (a traceback's last line, `aero run X: ...`, a native crash's "Fatal Python error: ..."
+    above its stack dump). "" when there is none."""
     try:
         with open(log_path, "rb") as f:
             f.seek(max(0, f.seek(0, os.SEEK_END) - tail_bytes))

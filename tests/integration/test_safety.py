@@ -54,6 +54,10 @@ class StatusWatch:
         self.cond = threading.Condition()
         self.seen: list[tuple[float, SafetyStatus]] = []
         self.sub = st.session.declare_subscriber("safety/status", self._on_sample)
+        # Live only once a status arrived (1 Hz): a change published at once right after the
+        # declaration could otherwise pass the router before it knows this subscriber (seen once
+        # in a full run: the first case's status came with the next tick, 1.1 s later).
+        self.wait(lambda m: True, time.monotonic() - 10.0, 3.0)
 
     def _on_sample(self, sample) -> None:
         msg = decode(sample.payload.to_bytes(), SafetyStatus)
