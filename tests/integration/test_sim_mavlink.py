@@ -243,8 +243,8 @@ def test_standalone_entry_point_runs_and_stops_on_sigterm():
 
 
 def test_standalone_entry_point_stops_on_sigint_to_any_thread():
-    """No status lines (an untimed wait) and the signal delivered to the runner's thread, not the
-    main one: it still stops within 2 s (the handler runs only on the main thread; see signals.py)."""
+    """No status lines (an untimed wait) and the signal delivered to a thread other than the main
+    one: it still stops within 2 s (the handler runs only on the main thread; see signals.py)."""
     port = free_udp_port()
     peer = Peer(port)
     proc = subprocess.Popen([sys.executable, "-m", "aeroperception.services.sim.vehicle", "--target",
