@@ -33,7 +33,9 @@ from mcap.reader import make_reader
 
 import aeroperception.schemas as schemas
 from aerotest import aero, aero_argv, clean_env, interrupt, validate_foxglove_export, wait_for_message, wait_until, zenoh_client
-from aeroperception.schemas import MissionStatus, Odometry, VehicleState, VioHealth, decode, schema_id
+from aeroperception.schemas import (
+    MissionStatus, Odometry, PerceptionHealth, VehicleState, VehicleStatus, VioHealth, decode, schema_id,
+)
 from aeroperception.services.recorder.contract import ESSENTIALS
 from aeroperception.tools.contracts import declared_schemas, load_contracts
 
@@ -48,6 +50,12 @@ RATES = {"state/vehicle": 50.0, "fmu/out/vehicle_local_position": 50.0, "fmu/in/
          "fmu/out/vehicle_status": 5.0, "fmu/out/battery_status": 1.0, "state/vio_health": 1.0,
          "perception/health": 1.0, "diagnostics/agg": 1.0, "mission/status": 2.0,
          "sim/truth/state": 100.0, "sensors/imu": 200.0}
+# Keys also published at once when a status changes (the contracts say "+ on change"): the
+# changes are counted out before the rate is checked (a verdict that flips a few times in a
+# 15 s take-off put perception/health at 1.31 Hz once).
+ON_CHANGE = {"perception/health": (PerceptionHealth, ("vio_status", "detector_status", "lidar_status", "overall_healthy")),
+             "state/vio_health": (VioHealth, ("state",)),
+             "fmu/out/vehicle_status": (VehicleStatus, ("nav_state", "armed", "landed_state", "failsafe"))}
 
 
 def free_udp_port() -> int:
@@ -76,6 +84,21 @@ def seen(st, key: str, cls: type, pred, timeout_s: float = 2.0) -> bool:
 
 def rate_hz(msgs: list[tuple[int, bytes]]) -> float:
     return (len(msgs) - 1) / ((msgs[-1][0] - msgs[0][0]) * 1e-9)
+
+
+def stamps(msgs: list[tuple[int, bytes]], cls: type) -> list[int]:
+    return [decode(p, cls).header.stamp_ns for _t, p in msgs]
+
+
+def periodic_rate_hz(key: str, msgs: list[tuple[int, bytes]]) -> float:
+    """The rate without the messages a change of status sent at once (keys in ON_CHANGE).
+    A change also restarts the repeat period, so the lower bound is checked on every message."""
+    if key not in ON_CHANGE:
+        return rate_hz(msgs)
+    cls, fields = ON_CHANGE[key]
+    states = [tuple(getattr(decode(p, cls), f) for f in fields) for _t, p in msgs]
+    changes = sum(a != b for a, b in zip(states, states[1:]))
+    return (len(msgs) - 1 - changes) / ((msgs[-1][0] - msgs[0][0]) * 1e-9)
 
 
 class Odoms:
@@ -117,11 +140,17 @@ def recording(stack_module, tmp_path_factory):
     try:
         wait_until(lambda: seen(st, "state/vio_health", VioHealth, lambda m: m.state == VioHealth.TRACKING), 40,
                    "vio TRACKING")
-        fly = subprocess.Popen(aero_argv() + ["mission", "fly", str(mission), "--quiet", "--timeout", "120"],
-                               env=clean_env(st.endpoint), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+        fly_log = open(base / "fly.log", "wb")
+        fly = subprocess.Popen(aero_argv() + ["mission", "fly", str(mission), "--timeout", "120"],
+                               env=clean_env(st.endpoint), stdout=fly_log, stderr=subprocess.STDOUT,
                                stdin=subprocess.DEVNULL)
-        wait_until(lambda: seen(st, "sim/truth/state", VehicleState, lambda m: m.position_m.z > 2.5), 60,
-                   "the vehicle at 2.5 m")
+        try:
+            wait_until(lambda: seen(st, "sim/truth/state", VehicleState, lambda m: m.position_m.z > 2.5), 60,
+                       "the vehicle at 2.5 m")
+        except AssertionError as e:
+            interrupt(fly)
+            raise AssertionError(f"{e}\n--- aero mission fly:\n{(base / 'fly.log').read_text()[-3000:]}\n"
+                                 f"{st.describe()}") from None
         wait_for_message(st.session, "mission/status", MissionStatus, lambda m: m.state in ("EXECUTING", "LAND"), 20)
         time.sleep(4.0)
     finally:
@@ -145,17 +174,27 @@ def test_recording_has_every_essentials_key_at_a_plausible_rate(recording):
     report = {k: round(rate_hz(v), 2) for k, v in sorted(data.items()) if len(v) > 1}
     print(f"recorded rates (Hz): {report}")
     for key, hz in RATES.items():
-        got = rate_hz(data[key])
-        assert 0.7 * hz <= got <= 1.3 * hz, f"{key}: {got:.2f} Hz recorded, contract {hz} Hz; all: {report}"
+        got, periodic = rate_hz(data[key]), periodic_rate_hz(key, data[key])
+        assert 0.7 * hz <= got and periodic <= 1.3 * hz, \
+            f"{key}: {got:.2f} Hz recorded, {periodic:.2f} Hz without changes, contract {hz} Hz; all: {report}"
     # 20 Hz rated; ~3-4 Hz with the whole stack on 2 cores, ~1 Hz when other work loads them.
     assert camera_hz > 0.5, report
-    vo = rate_hz(data["state/visual_odometry"])
-    assert 0.6 * camera_hz <= vo <= 1.05 * camera_hz, f"visual odometry {vo:.1f} Hz, camera {camera_hz:.1f} Hz"
+    # One visual odometry and one detection per camera frame, stamped with it: checked by stamps,
+    # not by rates over each key's own first-to-last span (with ~20 frames in the take-off, one
+    # frame more or less at either end moved a rate by 10 %: detections 2.6 Hz vs camera 2.3 Hz).
+    frames = stamps(data["sensors/camera/left/image"], schemas.Image)
+    for key, cls in (("state/visual_odometry", Odometry), ("perception/detections", schemas.Detection2DArray)):
+        got = stamps(data[key], cls)
+        assert len(set(got)) == len(got), f"{key}: {len(got) - len(set(got))} frames answered twice"
+        unknown = set(got) - set(frames)      # frames the recorder itself dropped (DROP QoS under load)
+        assert len(unknown) <= 0.25 * len(got), f"{key}: {len(unknown)} of {len(got)} stamps are no recorded frame"
+        during = [f for f in frames if min(got) <= f <= max(got)]    # vio starts after the recorder
+        assert len(got) >= 0.6 * len(during), f"{key}: {len(got)} for {len(during)} camera frames"
     # One costmap and one obstacle cloud per LiDAR scan (10 Hz rated).
     costmap, obstacles = rate_hz(data["perception/costmap"]), rate_hz(data["perception/obstacles"])
     assert 0.5 <= costmap <= 10.5 and abs(costmap - obstacles) < 0.05 * costmap, (costmap, obstacles)
     det = rate_hz(data["perception/detections"])
-    assert 1.0 <= det <= min(10.5, 1.05 * camera_hz), f"detections at {det:.1f} Hz, camera {camera_hz:.1f} Hz"
+    assert 1.0 <= det <= 10.5, f"detections at {det:.1f} Hz, camera {camera_hz:.1f} Hz"
     contracts = load_contracts()
     for key in data:
         declared = {f"{n}" for n, _svc, role in declared_schemas(key, contracts) if role == "writes"}
