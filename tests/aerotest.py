@@ -168,6 +168,32 @@ def clean_env(endpoint: str | None = None) -> dict[str, str]:
     return env
 
 
+def token_alive(session: zenoh.Session, service: str, vehicle: str = "default") -> bool:
+    """Whether the liveliness token aero/alive/<vehicle>/<service> exists right now."""
+    return any(r.ok is not None for r in session.liveliness().get(f"{LIVELINESS_ROOT}/{vehicle}/{service}", timeout=1.0))
+
+
+@contextmanager
+def diagnostics_service(endpoint: str, log: Path, **popen: Any):
+    """`aero run diagnostics` on `endpoint` (stderr into `log`; `popen` e.g. cwd, preexec_fn),
+    yielded as (process, client session) once its liveliness token is seen; killed at exit if
+    still running. The smallest real service, for tests of the runtime every service shares."""
+    watcher = zenoh_client(endpoint)
+    with open(log, "wb") as f:
+        proc = subprocess.Popen(aero_argv() + ["run", "diagnostics"], stdout=subprocess.DEVNULL, stderr=f,
+                                stdin=subprocess.DEVNULL, env=clean_env(endpoint), **popen)
+    try:
+        wait_until(lambda: token_alive(watcher, "diagnostics") or proc.poll() is not None, 20,
+                   "the service's liveliness token")
+        assert proc.poll() is None, log.read_text()
+        yield proc, watcher
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(5)
+        watcher.close()
+
+
 def signal_other_thread(pid: int, sig: int) -> None:
     """Deliver `sig` to one of the process's threads other than the main one (tgkill), as the kernel
     may do with any process-directed signal: the Python handler still runs only on the main thread.

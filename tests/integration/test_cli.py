@@ -19,7 +19,9 @@ from pathlib import Path
 
 import pytest
 
-from aerotest import aero, aero_argv, clean_env, free_port, wait_for_message, wait_until, zenoh_client
+from aerotest import (
+    aero, aero_argv, clean_env, diagnostics_service, free_port, wait_for_message, zenoh_client,
+)
 
 from aeroperception.schemas import DiagnosticStatus, MissionCommand, VehicleState, encode
 from aeroperception.services.runtime.node import encoding_for
@@ -265,19 +267,10 @@ def test_a_native_crash_dumps_the_stacks_and_aero_up_names_it(zenoh_router, tmp_
     """faulthandler in every service: a SIGSEGV (here sent, as a crashing C library would raise it)
     leaves every thread's stack in the log, and the supervisor's one-line cause is the headline."""
     log = tmp_path / "diagnostics.log"
-    with open(log, "wb") as f:
-        proc = subprocess.Popen(aero_argv() + ["run", "diagnostics"], stdout=subprocess.DEVNULL, stderr=f,
-                                stdin=subprocess.DEVNULL, env=clean_env(zenoh_router), cwd=tmp_path,
-                                preexec_fn=lambda: resource.setrlimit(resource.RLIMIT_CORE, (0, 0)))  # no core file
-    try:
-        wait_until(lambda: '"event":"started"' in log.read_text() or proc.poll() is not None, 20, "the service")
-        time.sleep(0.3)
+    no_core = lambda: resource.setrlimit(resource.RLIMIT_CORE, (0, 0))  # noqa: E731 - no core file
+    with diagnostics_service(zenoh_router, log, cwd=tmp_path, preexec_fn=no_core) as (proc, _watcher):
         proc.send_signal(signal.SIGSEGV)
         assert proc.wait(10) == -signal.SIGSEGV
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait(5)
     text = log.read_text()
     assert "Fatal Python error: Segmentation fault" in text and "runtime/service.py" in text, text[-2000:]
     assert last_error_line(log) == "Fatal Python error: Segmentation fault"

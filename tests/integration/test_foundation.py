@@ -10,18 +10,14 @@ import re
 import signal
 import subprocess
 import time
-from collections.abc import Iterator
-from contextlib import contextmanager
-from pathlib import Path
 
 import msgpack
 import pytest
 import zenoh
 
 from aerotest import (
-    StackStartError, aero, aero_argv, clean_env, free_port, is_service_process, signal_other_thread,
-    wait_for_message, wait_until,
-    zenoh_client,
+    StackStartError, aero, aero_argv, clean_env, diagnostics_service, free_port, is_service_process,
+    signal_other_thread, token_alive, wait_for_message, wait_until,
 )
 
 from aeroperception.schemas import Clock as ClockMsg, DiagnosticArray, DiagnosticStatus, decode
@@ -261,29 +257,6 @@ def test_garbage_flood_service_survives_and_reports(stack):
 # ---------------------------------------------------------------- process lifecycle
 
 
-def _alive(session: zenoh.Session, key: str = TOKEN) -> bool:
-    return any(r.ok is not None for r in session.liveliness().get(key, timeout=1.0))
-
-
-@contextmanager
-def _diagnostics_service(endpoint: str, log: Path) -> Iterator[tuple[subprocess.Popen, zenoh.Session]]:
-    """`aero run diagnostics` on `endpoint` (stderr into `log`), yielded once its liveliness token is
-    seen, with a client session watching it; killed at exit if still running."""
-    watcher = zenoh_client(endpoint)
-    with open(log, "wb") as f:
-        proc = subprocess.Popen(aero_argv() + ["run", "diagnostics"], stdout=subprocess.DEVNULL, stderr=f,
-                                stdin=subprocess.DEVNULL, env=clean_env(endpoint))
-    try:
-        wait_until(lambda: _alive(watcher) or proc.poll() is not None, 20, "the service's liveliness token")
-        assert proc.poll() is None, log.read_text()
-        yield proc, watcher
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait(5)
-        watcher.close()
-
-
 @pytest.mark.timeout(60)
 @pytest.mark.parametrize("sig,to_thread", [(signal.SIGTERM, False), (signal.SIGINT, False), (signal.SIGINT, True)],
                          ids=["SIGTERM", "SIGINT", "SIGINT-to-a-zenoh-thread"])
@@ -291,7 +264,7 @@ def test_aero_run_stops_on_signal_within_2s(zenoh_router, sig, to_thread, tmp_pa
     """A CI run once hung here: SIGINT landed on a zenoh thread while the main thread sat in an
     untimed Event.wait(), so the Python handler never ran (services/runtime/signals.py)."""
     log = tmp_path / "diagnostics.log"
-    with _diagnostics_service(zenoh_router, log) as (proc, watcher):
+    with diagnostics_service(zenoh_router, log) as (proc, watcher):
         t0 = time.monotonic()
         if to_thread:
             signal_other_thread(proc.pid, sig)
@@ -306,13 +279,13 @@ def test_aero_run_stops_on_signal_within_2s(zenoh_router, sig, to_thread, tmp_pa
         assert code == 0, log.read_text()
         events = [json.loads(ln)["event"] for ln in log.read_text().splitlines() if ln.startswith("{")]
         assert events[-2:] == ["signal", "stopped"]
-        wait_until(lambda: not _alive(watcher), 5, "the token to be gone")
+        wait_until(lambda: not token_alive(watcher, "diagnostics"), 5, "the token to be gone")
 
 
 @pytest.mark.timeout(60)
 def test_sigusr1_dumps_every_thread_stack_into_the_log_and_the_service_keeps_running(zenoh_router, tmp_path):
     log = tmp_path / "diagnostics.log"
-    with _diagnostics_service(zenoh_router, log) as (proc, watcher):
+    with diagnostics_service(zenoh_router, log) as (proc, watcher):
         proc.send_signal(signal.SIGUSR1)
         # the current (main) thread comes last, in run() (starting the service, or waiting to stop)
         wait_until(lambda: "runtime/service.py\", line" in log.read_text(), 10, "a whole stack dump in the log")
@@ -320,7 +293,7 @@ def test_sigusr1_dumps_every_thread_stack_into_the_log_and_the_service_keeps_run
         assert text.count("Thread 0x") >= 3, text[-3000:]          # the main thread, loops, forwarder
         assert "Current thread 0x" in text and "in _forward" in text, text[-3000:]
         time.sleep(0.5)
-        assert proc.poll() is None and _alive(watcher)
+        assert proc.poll() is None and token_alive(watcher, "diagnostics")
         proc.send_signal(signal.SIGTERM)
         assert proc.wait(10) == 0
 
