@@ -168,9 +168,10 @@ def clean_env(endpoint: str | None = None) -> dict[str, str]:
     return env
 
 
-def token_alive(session: zenoh.Session, service: str, vehicle: str = "default") -> bool:
+def token_alive(session: zenoh.Session, service: str, vehicle: str = "default", timeout_s: float = 1.0) -> bool:
     """Whether the liveliness token aero/alive/<vehicle>/<service> exists right now."""
-    return any(r.ok is not None for r in session.liveliness().get(f"{LIVELINESS_ROOT}/{vehicle}/{service}", timeout=1.0))
+    replies = session.liveliness().get(f"{LIVELINESS_ROOT}/{vehicle}/{service}", timeout=timeout_s)
+    return any(r.ok is not None for r in replies)
 
 
 @contextmanager
@@ -288,10 +289,8 @@ class Stack:
 
     def alive(self, name: str, vehicle: str = "default", timeout_s: float = 1.0) -> bool:
         """Whether the liveliness token aero/alive/<vehicle>/<name> exists right now."""
-        key = f"{LIVELINESS_ROOT}/{vehicle}/{name}"
         assert self.session is not None
-        replies = self.session.liveliness().get(key, timeout=timeout_s)
-        return any(r.ok is not None for r in replies)
+        return token_alive(self.session, name, vehicle, timeout_s)
 
     def service_log(self, name: str) -> str:
         p = self.log_dir / f"{name}.log"
