@@ -30,24 +30,26 @@ TOPICS = "state/vehicle,state/visual_odometry,sensors/imu,sensors/camera/left/im
 ROS_TYPES = ["nav_msgs/msg/Odometry", "sensor_msgs/msg/Imu", "sensor_msgs/msg/Image", "sensor_msgs/msg/PointCloud2",
              "vision_msgs/msg/Detection2DArray", "geometry_msgs/msg/PoseStamped"]
 SEP = "=" * 80 + "\n"
+# What `ros2 topic list` must show of the bridge: its publications and, last declared, its subscription.
+LISTED = {"/aero/odom": "nav_msgs/msg/Odometry", "/aero/camera/left/image_raw": "sensor_msgs/msg/Image",
+          "/aero/lidar/points": "sensor_msgs/msg/PointCloud2", "/aero/detections": "vision_msgs/msg/Detection2DArray",
+          "/aero/vio/odom": "nav_msgs/msg/Odometry", "/aero/goal": "geometry_msgs/msg/PoseStamped"}
 
 # The ROS 2 side: only zenoh-ros2-sdk (and its rosbags) -- nothing of ours is imported.
 ROS_NODE = r'''
 import json, os, sys, time
 os.environ["ZENOH_CONFIG_OVERRIDE"] = 'mode="client";scouting/multicast/enabled=false'
 from zenoh_ros2_sdk import ROS2Publisher, ROS2Subscriber, get_message_class, get_registry, get_topic_names_and_types
-port, msgdir = int(sys.argv[1]), sys.argv[2]
+port, msgdir, expected = int(sys.argv[1]), sys.argv[2], set(json.loads(sys.argv[3]))
 get_registry(msgdir)
 def out(**kw):
     print(json.dumps(kw), flush=True)
-EXPECTED = {"/aero/odom", "/aero/camera/left/image_raw", "/aero/lidar/points", "/aero/detections", "/aero/vio/odom",
-            "/aero/goal"}
 deadline = time.monotonic() + 15
 while True:
     topics = dict(get_topic_names_and_types(router_ip="127.0.0.1", router_port=port, timeout=1.0))
     # Each token is its own reply to a liveliness query bounded at 1 s: a loaded machine can return
     # part of them (seen once: /aero/goal, declared last, listed but not /aero/detections).
-    if EXPECTED <= set(topics) or time.monotonic() > deadline:
+    if expected <= set(topics) or time.monotonic() > deadline:
         break
 out(kind="topics", topics=topics)
 def sub(topic, typ, summary):
@@ -101,7 +103,7 @@ class RosNode:
     """The SDK script as a subprocess; its JSON lines collected."""
 
     def __init__(self, port: int, msgdir: Path):
-        self.proc = subprocess.Popen([sys.executable, "-u", "-c", ROS_NODE, str(port), str(msgdir)],
+        self.proc = subprocess.Popen([sys.executable, "-u", "-c", ROS_NODE, str(port), str(msgdir), json.dumps(list(LISTED))],
                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         self.lines: list[dict] = []
         import threading
@@ -166,12 +168,8 @@ def test_ros2_node_sees_decodes_and_commands_through_the_bridge(zenoh_router, ma
         wait_until(lambda: ros.of("ready") or ros.proc.poll() is not None, 40, "the ROS node to start")
         assert ros.of("ready"), ros.close()
         topics = ros.of("topics")[0]["topics"]
-        assert topics["/aero/odom"] == ["nav_msgs/msg/Odometry"]
-        assert topics["/aero/camera/left/image_raw"] == ["sensor_msgs/msg/Image"]
-        assert topics["/aero/lidar/points"] == ["sensor_msgs/msg/PointCloud2"]
-        assert topics["/aero/detections"] == ["vision_msgs/msg/Detection2DArray"]
-        assert topics["/aero/vio/odom"] == ["nav_msgs/msg/Odometry"]
-        assert topics["/aero/goal"] == ["geometry_msgs/msg/PoseStamped"]   # our subscription is visible too
+        for topic, ros_type in LISTED.items():
+            assert topics.get(topic) == [ros_type], (topic, topics)
         # Published until every topic has been decoded at least once (bounded).
         want = ["/aero/odom", "/aero/imu", "/aero/camera/left/image_raw", "/aero/lidar/points", "/aero/detections"]
 
