@@ -30,7 +30,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    if argv[:1] == ["run"]:  # `aero run SERVICE ...`: the service parses its own flags
+    if argv[:1] == ["run"] and argv[1:2] not in (["-h"], ["--help"]):  # the service parses its own flags
         from .cmd_run import run_service
 
         return _guard(lambda: run_service(argv[1:]))

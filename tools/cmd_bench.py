@@ -43,7 +43,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=lambda a: importlib.import_module("aeroperception.tools.bench_detector").run(
         a.n, a.scenario, tuple(int(s) for s in a.sizes.split(",")), tuple(int(t) for t in a.threads.split(",")),
         tuple(a.model)))
-    p = bsub.add_parser("record", help="recorder cost with images on: messages/s, MB/s, drops, CPU %")
+    p = bsub.add_parser("record", help="recorder cost with images on: messages/s, MB/s, drops, CPU %%")
     p.add_argument("--duration", type=float, default=10.0, help="seconds per compression setting")
     p.add_argument("--compression", default="zstd,lz4,none", help="settings to compare (comma-separated)")
     p.set_defaults(func=lambda a: importlib.import_module("aeroperception.tools.bench_record").run(
