@@ -141,8 +141,21 @@ class NDArray(msgspec.Struct):
         return cls.from_numpy(np.zeros(tuple(shape), dtype=dtype))
 
     def to_numpy(self) -> np.ndarray:
-        """A read-only numpy view of the data (copy it if you need to write)."""
-        return np.frombuffer(self.data, dtype=self.dtype).reshape(self.shape)
+        """A read-only numpy array of the data (copy it if you need to write), always aligned
+        for its dtype.
+
+        Decoded `data` points into the received payload at whatever offset msgpack put the field,
+        so a float32 or float64 view may start at an odd address. Native code that takes arrays
+        without copying (Rerun's Arrow import panics and aborts the process, OpenCV and Open3D may
+        fault or slow down) requires aligned memory; the view is kept (zero-copy) when it is
+        aligned and copied once when it is not.
+        """
+        a = np.frombuffer(self.data, dtype=self.dtype).reshape(self.shape)
+        if a.flags.aligned:
+            return a
+        a = a.copy()
+        a.flags.writeable = False
+        return a
 
     @property
     def nbytes(self) -> int:

@@ -48,10 +48,11 @@ class Converter:
 
     @staticmethod
     def covariance(arr, n: int) -> np.ndarray:
-        """Row-major n*n float64; all zeros when unknown (ROS: "covariance unknown")."""
+        """Row-major n*n float64, a copy the caller may write (decoded arrays are read-only views);
+        all zeros when unknown (ROS: "covariance unknown")."""
         if arr is None:
             return np.zeros(n * n, dtype=np.float64)
-        return np.asarray(arr.to_numpy() if hasattr(arr, "to_numpy") else arr, dtype=np.float64).reshape(n * n)
+        return np.array(arr.to_numpy() if hasattr(arr, "to_numpy") else arr, dtype=np.float64).reshape(n * n)
 
     def odometry(self, stamp_ns, frame_id, child_frame_id, position, orientation, linear_body, angular_body,
                  pose_cov, twist_cov):
