@@ -2,8 +2,8 @@
 
 Mission/Waypoint are exactly seed 000 §5.1's JSON (x/y/z in metres ENU, yaw_deg in degrees — the
 only non-SI field names in the project, kept so existing mission files load unchanged).
-`parse_mission` is the one place mission text is validated; it never returns a mission the
-vehicle cannot fly (no waypoints, non-finite numbers, non-positive radius or altitude).
+`parse_mission` is the one place mission text (JSON or YAML) is validated; it never returns a
+mission the vehicle cannot fly (no waypoints, non-finite numbers, non-positive radius or altitude).
 """
 from __future__ import annotations
 
@@ -164,30 +164,39 @@ _mission_json = msgspec.json.Decoder(Mission)
 
 
 def parse_mission(text: str | bytes) -> Mission:
-    """Parse and validate mission JSON strictly (a user file: a misspelt field such as
-    `takeoff_altitude` is refused, not silently replaced by the default); SchemaError names
-    the offending field (e.g. "Mission: Expected `float`, got `str` - at `$.waypoints[1].x`")."""
-    try:
-        mission = _mission_json.decode(text)
-    except (msgspec.DecodeError, msgspec.ValidationError) as e:
-        raise SchemaError(f"Mission: {e}") from None
-    check_known_fields(msgspec.json.decode(text), Mission)
-    return mission
-
-
-def load_mission_file(path: str | Path) -> Mission:
-    """Load a mission from a .json, .yaml or .yml file (YAML has the same structure)."""
-    p = Path(path)
-    try:
-        text = p.read_text()
-    except OSError as e:
-        raise SchemaError(f"Mission: cannot read {p}: {e.strerror or e}") from None
-    if p.suffix.lower() not in (".yaml", ".yml"):
-        return parse_mission(text)
+    """Parse and validate a mission, JSON or YAML (the same structure), strictly: a misspelt
+    field such as `takeoff_altitude` is refused, not silently replaced by the default, and a
+    missing one is named. The one place mission text is read (files, mission/srv/load, the
+    mission service's start-up file, the persisted mission). JSON text (starting with `{`) goes
+    through the JSON decoder, anything else through YAML (PyYAML reads `1e3` as a string, so
+    JSON is never handed to it). SchemaError names the offending field (e.g. "Mission: Expected
+    `float`, got `str` - at `$.waypoints[1].x`")."""
+    if isinstance(text, (bytes, bytearray, memoryview)):
+        text = bytes(text).decode("utf-8", errors="replace")
+    if text.lstrip().startswith("{"):
+        try:
+            mission = _mission_json.decode(text)
+        except (msgspec.DecodeError, msgspec.ValidationError) as e:
+            raise SchemaError(f"Mission: {e}") from None
+        check_known_fields(msgspec.json.decode(text), Mission)
+        return mission
     import yaml
 
     try:
         obj = yaml.safe_load(text)
     except yaml.YAMLError as e:
-        raise SchemaError(f"Mission: {p} is not valid YAML: {e}") from None
+        raise SchemaError(f"Mission: neither JSON nor valid YAML: {' '.join(str(e).split())}") from None
+    if not isinstance(obj, dict):
+        raise SchemaError("Mission: expected a JSON object or a YAML mapping with `waypoints`, "
+                          f"got {type(obj).__name__}")
     return from_builtins(obj, Mission, strict=True)
+
+
+def load_mission_file(path: str | Path) -> Mission:
+    """Load a mission from a .json, .yaml or .yml file (parse_mission reads either format)."""
+    p = Path(path)
+    try:
+        text = p.read_text()
+    except OSError as e:
+        raise SchemaError(f"Mission: cannot read {p}: {e.strerror or e}") from None
+    return parse_mission(text)

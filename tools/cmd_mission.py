@@ -29,11 +29,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     msub = m.add_subparsers(dest="mission_cmd", required=True)
     p = msub.add_parser("fly", help="load FILE, arm, take off, fly it, land; Ctrl-C = HOLD then LAND")
     add_session_arguments(p)
-    p.add_argument("file", help="mission JSON/YAML (seed 000 §5.1 format), e.g. examples/missions/survey_01.json")
+    p.add_argument("file", help="mission file, JSON or YAML, e.g. examples/missions/survey_01.json")
     p.add_argument("--timeout", type=float, default=600.0, help="give up after this many seconds")
     p.add_argument("--quiet", action="store_true", help="only print state changes")
     p.set_defaults(func=fly)
-    p = msub.add_parser("load", help="validate and load a mission file")
+    p = msub.add_parser("load", help="validate and load a mission file (JSON or YAML)")
     add_session_arguments(p)
     p.add_argument("file")
     p.set_defaults(func=load)
@@ -44,11 +44,13 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _read(path: str) -> str:
+    """The file's text, validated locally first (the error names the file and the field); the
+    service parses it again, JSON or YAML alike."""
     p = Path(path)
+    if not p.is_file():
+        raise CliError(f"{p}: no such file")
     try:
-        load_mission_file(p)  # validate locally first: the error names the file and field
-    except FileNotFoundError:
-        raise CliError(f"{p}: no such file") from None
+        load_mission_file(p)
     except SchemaError as e:
         raise CliError(f"{p}: {e}") from None
     return p.read_text()

@@ -45,6 +45,9 @@ PARAMS = [
           description="after an fmu outage resume the mission by itself (default: hold until START)"),
     Param("restore_timeout_s", 5.0, "s", 0.5, 60.0,
           description="after a restart, wait this long for vehicle state before accepting commands"),
+    Param("mission_file", "",
+          description="mission file (JSON or YAML) loaded at start-up (unless a restart restores one "
+                      "in flight) and when set live; '' = none (aero up --mission FILE sets it)"),
     Param("state_dir", "", description="where the loaded mission and progress persist; '' = $AERO_STATE_DIR or ~/.aero/state, /<vehicle>/"),
     # limits every mission, goto and takeoff is checked against (with the shared geofence)
     Param("max_takeoff_altitude_m", 50.0, "m", 1.0, 10_000.0,

@@ -13,7 +13,7 @@ from aeroperception.schemas import (
     GoToPositionGoal, GoToPositionResult, LandFeedback, LandGoal, LandResult, LoadMissionReply,
     LoadMissionRequest, MissionCommand, PerceptionHealth, Pose, PoseStamped, Quaternion, Reply,
     SafetyStatus, SchemaError, SetModeReply, SetModeRequest, TakeoffFeedback, TakeoffGoal, TakeoffResult,
-    VehicleState, Vector3, WaypointReached, parse_mission,
+    VehicleState, Vector3, WaypointReached, load_mission_file, parse_mission,
 )
 from aeroperception.services.runtime import ActionServer, CallError, GoalHandle, Health, Service, run
 
@@ -73,6 +73,12 @@ class MissionService(Service):
         self.log.info("restored", path=str(self.store.path), state=(snapshot or {}).get("state"),
                       mission=bool((snapshot or {}).get("mission_json")))
         self.mgr.on_persist = self._persist
+        self.file_error = ""
+        if p.mission_file and self.mgr.mission is not None:
+            self.log.warn("mission_file_skipped", path=p.mission_file, reason=f"restored mission "
+                          f"{self.mgr.mission.mission_id or '(unnamed)'} in progress")
+        elif p.mission_file:
+            self._load_file(p.mission_file)
         self.pub_status = node.publisher("mission/status", contract.OUTPUTS["mission/status"])
         self.pub_goal = node.publisher("mission/active_goal", PoseStamped)
         self.pub_reached = node.publisher("mission/waypoint_reached", WaypointReached)
@@ -109,7 +115,23 @@ class MissionService(Service):
         node.every(1.0 / p.status_rate_hz, self._tick, name="status")
         node.every(0.1, lambda: self.mgr.tick(time.monotonic()), name="watchdog")  # outage within ~0.1 s
 
+    def _load_file(self, path: str) -> None:
+        """mission_file (at start-up unless a restart restored a mission in progress: that one is
+        the vehicle's; and when set live). A refusal is logged and in the diagnostics; never fatal."""
+        try:
+            ok, message = self.mgr.load(load_mission_file(path))
+        except SchemaError as e:
+            ok, message = False, str(e)
+        self.file_error = "" if ok else f"mission_file {path}: {message}"
+        if ok:
+            self.log.info("mission_file_loaded", path=path, message=message)
+        else:
+            self.log.error("mission_file_refused", path=path, error=message)
+            self.mgr.message = self.file_error
+
     def _on_param(self, name, value) -> None:
+        if name == "mission_file" and value:
+            self._load_file(value)
         if hasattr(self.mgr.cfg, name):
             setattr(self.mgr.cfg, name, value)
         try:
@@ -165,6 +187,8 @@ class MissionService(Service):
             self.log.warn("mission_rejected", error=str(e))
             return LoadMissionReply(success=False, message=f"invalid mission: {e}")
         ok, message = self.mgr.load(mission)
+        if ok:
+            self.file_error = ""
         return LoadMissionReply(success=ok, message=message, num_waypoints=len(mission.waypoints) if ok else 0)
 
     def _on_get(self, _req: Empty) -> GetMissionReply:
@@ -279,9 +303,9 @@ class MissionService(Service):
     def health(self) -> Health:
         v = self.mgr.vehicle
         level = DiagnosticStatus.OK if v is not None and v.connected else DiagnosticStatus.WARN
-        if self.mgr.outage:
+        if self.mgr.outage or self.file_error:
             level = DiagnosticStatus.WARN
-        return Health(level, f"{self.mgr.state.value}: {self.mgr.message}",
+        return Health(level, f"{self.mgr.state.value}: {self.file_error or self.mgr.message}",
                       {"state": self.mgr.state.value, "waypoint": self.mgr.wp_index,
                        "perception_healthy": self.mgr.perception_healthy,
                        "vehicle": "connected" if v is not None and v.connected else "no state",
