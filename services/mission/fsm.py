@@ -15,9 +15,10 @@ Fault policy (ARCHITECTURE §8), every automatic transition reported in `message
 - fmu outage (state/vehicle stale, fmu's liveliness gone, or the FC link lost): HOLDING; when
   fresh state is back the mission resumes only if `resume_after_outage` (default: stay HOLDING
   until commanded) and the FC is holding or in OFFBOARD, never out of a failsafe RTL/LAND.
-- Restart: `restore()` with the persisted mission/progress; the first vehicle state decides:
-  flying -> HOLDING ("mission restarted in flight"), LAND/RTL/HOLD/START accepted; on the
-  ground -> IDLE with the mission still loaded.
+- Restart: `restore()` with the persisted mission/progress (persisted only while flying, and
+  never a completed one); the first vehicle state decides: flying -> HOLDING ("mission
+  restarted in flight"), LAND/RTL/HOLD/START accepted; on the ground -> IDLE with the
+  interrupted mission still loaded.
 - safety/status: a rising recommended_action HOLD / RTH / LAND acts once (SAFETY_REACTIONS);
   the operator may command afterwards. EMERGENCY_STOP is the safety service's own job.
 """
@@ -204,6 +205,7 @@ class MissionManager:
         self.restored_state = "IDLE"            # the state the previous run persisted
         self.resume_done: Callable[[bool, str], None] | None = None  # START's outcome (OFFBOARD answer)
         self.restore_deadline_s: float | None = None
+        self.restored_note = ""                 # what restore() dropped (a completed mission)
         self.message = "ready"
         self.started_s: float | None = None
         self.now_s = 0.0
@@ -314,10 +316,13 @@ class MissionManager:
     # ------------------------------------------------------------ persistence and restart
 
     def snapshot(self) -> dict:
-        """What a restarted service needs: the mission, its progress and the state we were in."""
-        return {"mission_json": self.mission.to_json() if self.mission else None,
-                "wp_index": self.wp_index, "state": self.state.value,
-                "start_requested": self.start_requested}
+        """What a service restarted mid-flight needs: the mission, its progress and the state we
+        were in. On the ground (IDLE) nothing: a new stack after a landed (or finished) flight
+        must not come up with the old mission loaded; the mission stays loaded in this process."""
+        flying = self.state != State.IDLE and self.mission is not None
+        return {"mission_json": self.mission.to_json() if flying else None,
+                "wp_index": self.wp_index if flying else -1, "state": self.state.value,
+                "start_requested": self.start_requested and flying}
 
     def _persist(self) -> None:
         self.on_persist(self.snapshot())
@@ -329,6 +334,7 @@ class MissionManager:
         self.rebuild_pending = True
         self.restore_deadline_s = now_s + self.cfg.restore_timeout_s
         self.restored_state = (snapshot or {}).get("state", "IDLE")
+        self.restored_note = ""
         text = (snapshot or {}).get("mission_json")
         if text:
             try:
@@ -337,13 +343,21 @@ class MissionManager:
             except Exception as e:  # noqa: BLE001 - a bad snapshot must not stop a restart
                 self.log("restore_failed", error=str(e))
                 self.mission, self.wp_index = None, -1
+        if self.mission is not None and self.wp_index >= len(self.mission.waypoints):
+            # every waypoint was flown (the landing may have been cut short): nothing to resume
+            n = len(self.mission.waypoints)
+            self.restored_note = f"mission {self.mission.mission_id or '(unnamed)'} was complete ({n}/{n} waypoints)"
+            self.mission, self.wp_index = None, -1
         self.message = "restarted: waiting for vehicle state to rebuild the mission state"
 
     def _rebuild(self, st: VehicleState) -> None:
         self.rebuild_pending = False
         was = self.restored_state
-        loaded = (f"mission {self.mission.mission_id or '(unnamed)'} loaded at waypoint "
-                  f"{max(self.wp_index, 0) + 1}/{len(self.mission.waypoints)}" if self.mission else "no mission loaded")
+        if self.mission is not None:
+            loaded = (f"mission {self.mission.mission_id or '(unnamed)'} loaded at waypoint "
+                      f"{max(self.wp_index, 0) + 1}/{len(self.mission.waypoints)}")
+        else:
+            loaded = f"{self.restored_note}; no mission loaded" if self.restored_note else "no mission loaded"
         if self.in_air():
             mode = st.flight_mode or "unknown mode"
             self.expected_mode = "OFFBOARD" if st.flight_mode == "OFFBOARD" else None

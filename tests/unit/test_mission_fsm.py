@@ -827,6 +827,45 @@ def test_every_change_is_persisted_and_a_snapshot_restores_the_progress():
     assert_goal(again.goals[-1], SURVEY_WPS[2])
 
 
+def test_a_landed_flight_persists_no_mission_so_a_new_stack_starts_without_it():
+    """Issue 18 #9: only a flight persists its mission; once landed (IDLE) the store holds none,
+    while this process keeps it loaded (START again, gcs downloads)."""
+    rig = Rig()
+    saved: list[dict] = []
+    rig.mgr.on_persist = saved.append
+    rig.to_idle()
+    assert saved[-1]["mission_json"] is None          # loaded on the ground: nothing to resume
+    rig.mgr.command("TAKEOFF", rig.on_result)
+    rig.feed(flying(z=0.5))
+    assert saved[-1]["state"] == "TAKEOFF" and saved[-1]["mission_json"]
+    rig.feed(flying(z=5.0))
+    assert rig.mgr.command("START")[0]
+    for wp in SURVEY_WPS:
+        rig.feed(flying(*wp))
+    assert rig.mgr.state == State.LAND and saved[-1]["wp_index"] == 4
+    rig.feed(vehicle(*SURVEY_WPS[-1][:2], 0.0))       # landed and disarmed
+    assert rig.mgr.state == State.IDLE and rig.mgr.mission is not None
+    assert saved[-1] == {"mission_json": None, "wp_index": -1, "state": "IDLE", "start_requested": False}
+
+    again = restarted(saved[-1])
+    again.feed(vehicle())
+    assert again.mgr.mission is None and again.mgr.status().active_waypoint == -1
+    assert "no mission loaded" in again.mgr.message
+
+
+@pytest.mark.parametrize("airborne", [False, True])
+def test_a_completed_mission_is_never_restored_nor_indexed_past_its_end(airborne):
+    """Issue 18 #9: 'mission survey_01 loaded at waypoint 5/4' from a finished flight."""
+    rig = restarted(snapshot_mid_survey(wp_index=4, state="LAND"))   # killed during the final landing
+    rig.feed(flying() if airborne else vehicle())
+    assert rig.mgr.mission is None and rig.mgr.wp_index == -1
+    assert "was complete (4/4 waypoints)" in rig.mgr.message and "5/4" not in rig.mgr.message
+    st = rig.mgr.status()
+    assert st.mission_id == "" and st.active_waypoint == -1 and st.total_waypoints == 0
+    if airborne:
+        assert rig.mgr.state == State.HOLDING and rig.mgr.command("LAND")[0]
+
+
 def test_store_writes_atomically_and_reads_back(tmp_path):
     from aeroperception.services.mission.store import MissionStore
     store = MissionStore(tmp_path / "v1")
