@@ -15,7 +15,7 @@ from .sensors import (
 )
 from .safety import SafetyStatus
 from .vehicle import (
-    Attitude, ControlOutput, HomePosition, LandedState, LocalPosition, TrajectorySetpoint, UAVMode,
+    Attitude, ControlOutput, EstimatorStatus, GpsPosition, HomePosition, LandedState, LocalPosition, TrajectorySetpoint, UAVMode,
     UAVStatus, VehicleState, VehicleStatus,
 )
 from .planning import (
@@ -47,7 +47,7 @@ __all__ = [
     "BatteryState", "DiagnosticStatus", "DiagnosticArray", "Odometry", "VioHealth",
     # vehicle
     "LandedState", "VehicleState", "TrajectorySetpoint", "ControlOutput", "UAVMode", "UAVStatus",
-    "VehicleStatus", "LocalPosition", "Attitude", "HomePosition",
+    "VehicleStatus", "LocalPosition", "Attitude", "HomePosition", "GpsPosition", "EstimatorStatus",
     # planning and mission
     "Trajectory", "TrajectoryStatus", "CollisionConstraint", "Waypoint", "Mission", "parse_mission",
     "load_mission_file", "MissionStatus", "MissionCommand", "PerceptionHealth", "WaypointReached",

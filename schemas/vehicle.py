@@ -10,13 +10,13 @@ from __future__ import annotations
 import msgspec
 
 from ._base import Header, Message, NDArray, schema
-from ._checks import check_dtype, enum_names
+from ._checks import check_choice, check_dtype, enum_names
 from .geometry import Pose, Quaternion, Vector3
 from .safety import SafetyStatus
 
 __all__ = [
     "LandedState", "VehicleState", "TrajectorySetpoint", "ControlOutput", "UAVMode", "UAVStatus",
-    "VehicleStatus", "LocalPosition", "Attitude", "HomePosition",
+    "VehicleStatus", "LocalPosition", "Attitude", "HomePosition", "GpsPosition", "EstimatorStatus",
 ]
 
 
@@ -271,3 +271,77 @@ class HomePosition(Message, kw_only=True):
     longitude_deg: float = 0.0
     altitude_amsl_m: float = 0.0
     position_m: Vector3 = msgspec.field(default_factory=Vector3)
+
+
+@schema("GpsPosition", 1)
+class GpsPosition(Message, kw_only=True):
+    """The flight controller's GPS receiver as it reports it (fmu/out/vehicle_gps_position, MAVLink
+    GPS_RAW_INT, ~1-10 Hz). Replaces px4 SensorGps. Not the fused position (that is state/vehicle):
+    a ground station shows this to say whether there is a GPS and what fix it has.
+
+    `fix_type` is MAVLink's GPS_FIX_TYPE (NO_GPS 0: no receiver, NO_FIX 1: receiver without a fix,
+    FIX_2D 2, FIX_3D 3, DGPS 4, RTK_FLOAT 5, RTK_FIXED 6, ...). Position fields are None without a
+    fix; unknown accuracies / satellite count are None. `course_rad` is the ENU course over ground
+    (0 = East, CCW positive, like yaw_rad), None when the receiver does not know it.
+    """
+
+    FIX_NO_GPS = 0
+    FIX_NO_FIX = 1
+    FIX_2D = 2
+    FIX_3D = 3
+    FIX_DGPS = 4
+    FIX_RTK_FLOAT = 5
+    FIX_RTK_FIXED = 6
+
+    header: Header = msgspec.field(default_factory=Header)
+    fix_type: int = FIX_NO_GPS
+    latitude_deg: float | None = None
+    longitude_deg: float | None = None
+    altitude_amsl_m: float | None = None
+    hdop: float | None = None              # horizontal dilution of precision (unitless)
+    vdop: float | None = None              # vertical dilution of precision (unitless)
+    horizontal_accuracy_m: float | None = None  # the receiver's 1-sigma position uncertainty
+    vertical_accuracy_m: float | None = None
+    ground_speed_mps: float | None = None
+    course_rad: float | None = None
+    satellites_visible: int | None = None
+
+    def __post_init__(self) -> None:
+        check_choice("fix_type", self.fix_type, range(9))   # GPS_FIX_TYPE 0..8
+
+    @property
+    def has_fix(self) -> bool:
+        return self.fix_type >= self.FIX_2D
+
+
+@schema("EstimatorStatus", 1)
+class EstimatorStatus(Message, kw_only=True):
+    """The flight controller's estimator health (fmu/out/estimator_status, MAVLink ESTIMATOR_STATUS,
+    ~1 Hz). Replaces px4 EstimatorStatusFlags. `flags` is MAVLink's ESTIMATOR_STATUS_FLAGS bitmask
+    (the constants below): position from vision alone shows as POS_HORIZ_REL without POS_HORIZ_ABS.
+    Test ratios (innovation / gate, < 1 passes) and accuracies are None when unknown.
+    """
+
+    ATTITUDE = 1
+    VELOCITY_HORIZ = 2
+    VELOCITY_VERT = 4
+    POS_HORIZ_REL = 8
+    POS_HORIZ_ABS = 16
+    POS_VERT_ABS = 32
+    POS_VERT_AGL = 64
+    CONST_POS_MODE = 128
+    PRED_POS_HORIZ_REL = 256
+    PRED_POS_HORIZ_ABS = 512
+    GPS_GLITCH = 1024
+    ACCEL_ERROR = 2048
+
+    header: Header = msgspec.field(default_factory=Header)
+    flags: int = 0
+    velocity_test_ratio: float | None = None
+    position_horizontal_test_ratio: float | None = None
+    position_vertical_test_ratio: float | None = None
+    magnetometer_test_ratio: float | None = None
+    height_above_ground_test_ratio: float | None = None
+    airspeed_test_ratio: float | None = None
+    position_horizontal_accuracy_m: float | None = None
+    position_vertical_accuracy_m: float | None = None

@@ -1,6 +1,7 @@
 """Contract of fmu: keys in/out (ENU/FLU) and parameters."""
 from aeroperception.schemas import (
-    ArmReply, ArmRequest, Attitude, BatteryState, EmergencyStopReply, EmergencyStopRequest, HomePosition, Imu,
+    ArmReply, ArmRequest, Attitude, BatteryState, EmergencyStopReply, EmergencyStopRequest, EstimatorStatus,
+    GpsPosition, HomePosition, Imu,
     LocalPosition, Odometry, SetModeReply, SetModeRequest, TrajectorySetpoint, TrajectoryStatus, VehicleState, VehicleStatus,
 )
 from aeroperception.services.runtime import Param
@@ -19,6 +20,8 @@ OUTPUTS = {
     "fmu/out/battery_status": BatteryState,             # 1 Hz
     "fmu/out/home_position": HomePosition,              # FC's home (HOME_POSITION): on change + 1 Hz (latched)
     "fmu/out/sensor_combined": Imu,                     # FC IMU (HIGHRES_IMU), FLU
+    "fmu/out/vehicle_gps_position": GpsPosition,        # 1 Hz: the FC's GPS receiver (GPS_RAW_INT), NO_GPS/NO_FIX too
+    "fmu/out/estimator_status": EstimatorStatus,        # 1 Hz: the FC's estimator flags (ESTIMATOR_STATUS)
     "sensors/imu": Imu,                                 # only with publish_imu (real hardware)
     "state/vehicle": VehicleState,                      # 50 Hz
 }

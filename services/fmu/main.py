@@ -18,6 +18,7 @@ from aeroperception.services.runtime import Health, Service, run
 from . import contract
 from .link import RebootWatch, open_fcu_link
 from .logic import CommandWaiter, Telemetry, ack_name, highres_imu_to_imu, odometry_fields, setpoint_target
+from .navigation import estimator_status_from_mavlink, gps_from_mavlink
 from .offboard import BRAKE, FOLLOW, Envelope, OffboardArbiter, StreamWarmth
 
 RETRY_S = 0.3       # re-send a TEMPORARILY_REJECTED OFFBOARD request after this
@@ -29,6 +30,8 @@ STREAMS_HZ = {  # what we ask the FC for (SET_MESSAGE_INTERVAL); PX4 onboard lin
     mavlink.MAVLINK_MSG_ID_SYS_STATUS: 1,
     mavlink.MAVLINK_MSG_ID_BATTERY_STATUS: 1,
     mavlink.MAVLINK_MSG_ID_HIGHRES_IMU: 100,
+    mavlink.MAVLINK_MSG_ID_GPS_RAW_INT: 1,
+    mavlink.MAVLINK_MSG_ID_ESTIMATOR_STATUS: 1,
 }
 
 
@@ -172,6 +175,10 @@ class FmuService(Service):
             if "sensors/imu" in self.pubs:
                 self.pubs["sensors/imu"].publish(imu)
                 self.imu_stamps_ns.append(stamp)
+        elif t == "GPS_RAW_INT":
+            self.pubs["fmu/out/vehicle_gps_position"].publish(gps_from_mavlink(m, stamp))
+        elif t == "ESTIMATOR_STATUS":
+            self.pubs["fmu/out/estimator_status"].publish(estimator_status_from_mavlink(m, stamp))
         elif t == "HOME_POSITION":  # answer to our request, and sent by PX4 whenever home changes
             self._on_home_position(m, stamp)
         elif t == "COMMAND_ACK":

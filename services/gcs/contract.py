@@ -1,6 +1,7 @@
 """Contract of gcs: keys in/out, calls, ports and parameters."""
 from aeroperception.schemas import (
-    ArmReply, ArmRequest, BatteryState, Empty, GcsLink, GetMissionReply, HomePosition, Joystick, LoadMissionReply,
+    ArmReply, ArmRequest, BatteryState, Empty, EstimatorStatus, GcsLink, GetMissionReply, GpsPosition, HomePosition,
+    Joystick, LoadMissionReply,
     LoadMissionRequest, MissionCommand, MissionStatus, ParamList, ParamSet, ParamSetReply, Reply, SafetyStatus,
     SetModeReply, SetModeRequest, VehicleState, VehicleStatus, WaypointReached,
 )
@@ -11,6 +12,8 @@ INPUTS = {
     "state/vehicle": VehicleState,                  # pose (ENU), mode, armed, landed, battery
     "fmu/out/battery_status": BatteryState,         # real battery for SYS_STATUS / BATTERY_STATUS
     "fmu/out/home_position": HomePosition,          # the FC's home: geodetic <-> local (else the home_* params)
+    "fmu/out/vehicle_gps_position": GpsPosition,    # GPS_RAW_INT: the FC's fix (NO_GPS without one)
+    "fmu/out/estimator_status": EstimatorStatus,    # ESTIMATOR_STATUS (vision-only position: REL without ABS)
     "mission/status": MissionStatus,                # MISSION_CURRENT
     "mission/waypoint_reached": WaypointReached,    # MISSION_ITEM_REACHED
     "safety/status": SafetyStatus,                  # SYS_STATUS geofence bits; warnings/errors -> STATUSTEXT

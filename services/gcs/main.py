@@ -19,8 +19,8 @@ import time
 from pymavlink.dialects.v20 import common as M
 
 from aeroperception.schemas import (
-    ArmReply, ArmRequest, BatteryState, DiagnosticStatus, Empty, GcsLink, GetMissionReply, GoalReply,
-    GoToPositionGoal, HomePosition, Joystick, LoadMissionReply, LoadMissionRequest, MissionCommand, MissionStatus,
+    ArmReply, ArmRequest, BatteryState, DiagnosticStatus, Empty, EstimatorStatus, GcsLink, GetMissionReply, GoalReply,
+    GoToPositionGoal, GpsPosition, HomePosition, Joystick, LoadMissionReply, LoadMissionRequest, MissionCommand, MissionStatus,
     ParamList, ParamSet, ParamSetReply, Reply, SafetyStatus, SchemaError, SetModeReply, SetModeRequest, TakeoffGoal,
     Vector3, VehicleState, VehicleStatus, WaypointReached, parse_mission,
 )
@@ -154,6 +154,8 @@ class GcsService(Service):
         node.subscribe("state/vehicle", VehicleState, self._on_vehicle)
         node.subscribe("fmu/out/battery_status", BatteryState, lambda m: setattr(self.tel, "battery", m))
         node.subscribe("fmu/out/home_position", HomePosition, self._on_home_position)
+        node.subscribe("fmu/out/vehicle_gps_position", GpsPosition, self._on_gps)
+        node.subscribe("fmu/out/estimator_status", EstimatorStatus, self._on_estimator_status)
         node.subscribe("mission/status", MissionStatus, self._on_mission_status)
         node.subscribe("mission/waypoint_reached", WaypointReached, self._on_reached)
         node.subscribe("safety/status", SafetyStatus, self._on_safety)
@@ -177,6 +179,12 @@ class GcsService(Service):
 
     def _on_vehicle(self, msg: VehicleState) -> None:
         self.tel.vehicle = msg
+
+    def _on_gps(self, msg: GpsPosition) -> None:
+        self.tel.gps, self.tel.gps_rx_s = msg, time.monotonic()
+
+    def _on_estimator_status(self, msg: EstimatorStatus) -> None:
+        self.tel.estimator, self.tel.estimator_rx_s = msg, time.monotonic()
 
     def _on_safety(self, msg: SafetyStatus) -> None:
         self.tel.safety, self.tel.safety_rx_s = msg, time.monotonic()

@@ -14,7 +14,9 @@ from typing import Callable
 
 from pymavlink.dialects.v20 import common as M
 
-from aeroperception.schemas import BatteryState, LandedState, MissionStatus, SafetyStatus, VehicleState
+from aeroperception.schemas import (
+    BatteryState, EstimatorStatus, GpsPosition, LandedState, MissionStatus, SafetyStatus, VehicleState,
+)
 from aeroperception.services.mavlink import frames, px4
 
 from .messages import MissionCurrent
@@ -32,15 +34,20 @@ SENSORS = (M.MAV_SYS_STATUS_SENSOR_3D_GYRO | M.MAV_SYS_STATUS_SENSOR_3D_ACCEL | 
 
 FENCE = M.MAV_SYS_STATUS_GEOFENCE
 SAFETY_STALE_S = 3.0      # safety/status (1 Hz) older than this: the geofence is unknown, not reported
+# fmu/out/vehicle_gps_position and fmu/out/estimator_status (1 Hz) older than this are not reported:
+# GPS_RAW_INT says NO_GPS, ESTIMATOR_STATUS is not sent (we never invent the FC's GPS or estimator)
+FC_STATUS_STALE_S = 3.0
+UINT16_UNKNOWN = 0xFFFF
 
 ID = {name: getattr(M, f"MAVLINK_MSG_ID_{name}") for name in (
     "HEARTBEAT", "SYS_STATUS", "LOCAL_POSITION_NED", "ATTITUDE", "GLOBAL_POSITION_INT", "GPS_RAW_INT",
     "HOME_POSITION", "EXTENDED_SYS_STATE", "MISSION_CURRENT", "BATTERY_STATUS", "AUTOPILOT_VERSION",
-    "ATTITUDE_QUATERNION",
+    "ATTITUDE_QUATERNION", "ESTIMATOR_STATUS",
 )}
 # The default set, sent every telemetry period (seed 001 §9: 900 ms).
 DEFAULT_STREAM = ["HEARTBEAT", "SYS_STATUS", "LOCAL_POSITION_NED", "ATTITUDE", "GLOBAL_POSITION_INT",
-                  "GPS_RAW_INT", "HOME_POSITION", "EXTENDED_SYS_STATE", "MISSION_CURRENT", "BATTERY_STATUS"]
+                  "GPS_RAW_INT", "HOME_POSITION", "EXTENDED_SYS_STATE", "MISSION_CURRENT", "BATTERY_STATUS",
+                  "ESTIMATOR_STATUS"]
 
 
 @dataclass
@@ -57,6 +64,10 @@ class TelemetryState:
     progress: Progress | None = None  # the mission protocol's progress (current item, mission_state)
     safety: SafetyStatus | None = None
     safety_rx_s: float = 0.0        # monotonic time safety/status last arrived
+    gps: GpsPosition | None = None  # the FC's GPS receiver (fmu/out/vehicle_gps_position)
+    gps_rx_s: float = -math.inf
+    estimator: EstimatorStatus | None = None  # the FC's estimator flags (fmu/out/estimator_status)
+    estimator_rx_s: float = -math.inf
     companion: bool = False         # vehicle profile: we are the FC's onboard computer (heartbeat only)
     boot_s: float = field(default_factory=time.monotonic)
 
@@ -157,13 +168,47 @@ class TelemetryState:
             int(round((self.home.alt_m + rel) * 1000)), int(round(rel * 1000)),
             *(int(round(c * 100)) for c in vel), int(round(hdg * 100)) % 36000)
 
+    def fresh_gps(self, now_s: float | None = None) -> GpsPosition | None:
+        now = time.monotonic() if now_s is None else now_s
+        return self.gps if now - self.gps_rx_s <= FC_STATUS_STALE_S else None
+
     def gps_raw_int(self):
-        v, lat, lon, rel = self._geo()
-        speed = math.hypot(v.velocity_mps.x, v.velocity_mps.y)
-        cog = math.degrees(math.atan2(v.velocity_mps.x, v.velocity_mps.y)) % 360.0 if speed > 0.1 else 0.0
+        """The FC's GPS receiver as fmu reports it: NO_GPS while there is no (fresh) report, NO_FIX
+        with no position when the receiver has no fix. Never the fused position dressed as a fix."""
+        g = self.fresh_gps() or GpsPosition()
+
+        def scaled(value: float | None, scale: float, top: int = UINT16_UNKNOWN - 1) -> int:
+            return UINT16_UNKNOWN if value is None else min(top, max(0, int(round(value * scale))))
+
+        def mm_or_0(value_m: float | None) -> int:   # h_acc / v_acc (uint32 mm): 0 = not known
+            return 0 if value_m is None else min(0xFFFFFFFF, max(1, int(round(value_m * 1000))))
+
+        cog = None if g.course_rad is None else math.degrees(frames.yaw_enu_to_ned(g.course_rad)) % 360.0
         return M.MAVLink_gps_raw_int_message(
-            int(time.time() * 1e6), M.GPS_FIX_TYPE_RTK_FIXED, int(round(lat * 1e7)), int(round(lon * 1e7)),
-            int(round((self.home.alt_m + rel) * 1000)), 50, 80, int(speed * 100), int(cog * 100) % 36000, 16)
+            int(time.time() * 1e6), g.fix_type,
+            int(round((g.latitude_deg or 0.0) * 1e7)), int(round((g.longitude_deg or 0.0) * 1e7)),
+            int(round((g.altitude_amsl_m or 0.0) * 1000)), scaled(g.hdop, 100), scaled(g.vdop, 100),
+            scaled(g.ground_speed_mps, 100), scaled(cog, 100, 35999),
+            0xFF if g.satellites_visible is None else min(254, g.satellites_visible), 0,
+            mm_or_0(g.horizontal_accuracy_m), mm_or_0(g.vertical_accuracy_m), 0, 0, 0)
+
+    def estimator_status(self):
+        """The FC's ESTIMATOR_STATUS as fmu reports it (flags: POS_HORIZ_REL without POS_HORIZ_ABS =
+        position from vision alone); None (not sent) without a fresh report."""
+        now = time.monotonic()
+        e = self.estimator if now - self.estimator_rx_s <= FC_STATUS_STALE_S else None
+        if e is None:
+            return None
+        nan = float("nan")
+
+        def f(value: float | None) -> float:
+            return nan if value is None else value
+
+        return M.MAVLink_estimator_status_message(
+            int(time.time() * 1e6), e.flags & UINT16_UNKNOWN, f(e.velocity_test_ratio),
+            f(e.position_horizontal_test_ratio), f(e.position_vertical_test_ratio), f(e.magnetometer_test_ratio),
+            f(e.height_above_ground_test_ratio), f(e.airspeed_test_ratio), f(e.position_horizontal_accuracy_m),
+            f(e.position_vertical_accuracy_m))
 
     def home_position(self):
         h = self.home
@@ -202,7 +247,7 @@ class TelemetryState:
             ID["GLOBAL_POSITION_INT"]: self.global_position_int, ID["GPS_RAW_INT"]: self.gps_raw_int,
             ID["HOME_POSITION"]: self.home_position, ID["EXTENDED_SYS_STATE"]: self.extended_sys_state,
             ID["MISSION_CURRENT"]: self.mission_current, ID["BATTERY_STATUS"]: self.battery_status,
-            ID["AUTOPILOT_VERSION"]: self.autopilot_version,
+            ID["AUTOPILOT_VERSION"]: self.autopilot_version, ID["ESTIMATOR_STATUS"]: self.estimator_status,
         }.get(msg_id)
         return fn() if fn else None
 

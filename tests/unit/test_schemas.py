@@ -18,7 +18,8 @@ from aeroperception.schemas import (
     ACTIONS, REGISTRY, ActionFeedback, ActionResult, ArmReply, ArmRequest, Attitude, BatteryState,
     CameraInfo, CancelReply, CancelRequest, CollisionConstraint, ControlOutput, Detection2D,
     Detection2DArray, DiagnosticArray, DiagnosticStatus, EmergencyStopReply, EmergencyStopRequest,
-    Empty, GetMissionReply, GoalReply, GoalStatus, GoToPositionFeedback, GoToPositionGoal, GoToPositionResult, Header,
+    Empty, EstimatorStatus, GetMissionReply, GoalReply, GoalStatus, GoToPositionFeedback, GoToPositionGoal,
+    GoToPositionResult, GpsPosition, Header,
     HomePosition, Image, Imu, LandedState, LandFeedback, LandGoal, LandResult, LoadMissionReply,
     LoadMissionRequest, LocalPosition, Message, Mission, MissionCommand, MissionStatus, NDArray,
     OccupancyGrid, Odometry, PerceptionHealth, PointCloud, Pose, PoseStamped, Quaternion, Reply,
@@ -194,6 +195,15 @@ SAMPLES = {
     "HomePosition": lambda: HomePosition(
         header=H, latitude_deg=47.397742, longitude_deg=8.545594, altitude_amsl_m=488.0,
         position_m=Vector3(x=1.0, y=-2.0, z=0.3)),
+    "GpsPosition": lambda: GpsPosition(
+        header=H, fix_type=GpsPosition.FIX_3D, latitude_deg=47.397742, longitude_deg=8.545594, altitude_amsl_m=490.5,
+        hdop=0.9, vdop=1.4, horizontal_accuracy_m=1.1,
+        vertical_accuracy_m=1.7, ground_speed_mps=2.5, course_rad=1.2, satellites_visible=11),
+    "EstimatorStatus": lambda: EstimatorStatus(
+        header=H, flags=EstimatorStatus.ATTITUDE | EstimatorStatus.POS_HORIZ_REL, velocity_test_ratio=0.1,
+        position_horizontal_test_ratio=0.2, position_vertical_test_ratio=0.3, magnetometer_test_ratio=0.4,
+        height_above_ground_test_ratio=0.5, airspeed_test_ratio=0.6, position_horizontal_accuracy_m=0.7,
+        position_vertical_accuracy_m=0.8),
     "SafetyStatus": _safety,
     "Trajectory": _trajectory,
     "TrajectoryStatus": _traj_status,

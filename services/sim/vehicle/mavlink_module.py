@@ -46,8 +46,15 @@ DEFAULT_RATES_HZ: dict[int, float] = {
     M.MAVLINK_MSG_ID_HIGHRES_IMU: 50.0,
     M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 10.0,
     M.MAVLINK_MSG_ID_HOME_POSITION: 0.5,
+    M.MAVLINK_MSG_ID_GPS_RAW_INT: 1.0,
+    M.MAVLINK_MSG_ID_ESTIMATOR_STATUS: 1.0,
 }
 
+# GPS_RAW_INT of the simulated receiver with a fix (values of a good open-sky u-blox fix)
+GPS_SATELLITES = 12
+GPS_HDOP_X100 = 80
+GPS_VDOP_X100 = 120
+UINT16_UNKNOWN = 0xFFFF
 FORCE_MAGIC = 21196  # COMPONENT_ARM_DISARM param2: skip checks (PX4, ArduPilot)
 PX4_VERSION = (1 << 24) | (15 << 16) | (0 << 8) | 255  # 1.15.0 release, PX4's encoding
 CAPABILITIES = (
@@ -130,6 +137,8 @@ class MavlinkModule:
             M.MAVLINK_MSG_ID_HIGHRES_IMU: self.highres_imu,
             M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: self.global_position_int,
             M.MAVLINK_MSG_ID_HOME_POSITION: self.home_position,
+            M.MAVLINK_MSG_ID_GPS_RAW_INT: self.gps_raw_int,
+            M.MAVLINK_MSG_ID_ESTIMATOR_STATUS: self.estimator_status,
             M.MAVLINK_MSG_ID_AUTOPILOT_VERSION: self.autopilot_version,
         }
         self._handlers: dict[str, Callable[[Message], list[Message]]] = {
@@ -602,6 +611,43 @@ class MavlinkModule:
             self.time_boot_ms, int(round(lat * 1e7)), int(round(lon * 1e7)),
             int(round((p.SIM_HOME_ALT + pos[2]) * 1000)), int(round(pos[2] * 1000)),
             *(int(np.clip(round(v * 100), -32768, 32767)) for v in vel_ned), int(heading_deg * 100) % 36000)
+
+    def gps_raw_int(self) -> Message:
+        """The GPS receiver: a 3D fix of the true position (noise SIM_POS_NOISE, reported as its
+        accuracy) with GPS, no fix and no satellites when GPS-denied (jammed / indoors)."""
+        p = self.vehicle.params
+        if self.vehicle.estimator.gps_denied:
+            return self.enc.gps_raw_int_encode(self.time_boot_us, M.GPS_FIX_TYPE_NO_FIX, 0, 0, 0,
+                                               UINT16_UNKNOWN, UINT16_UNKNOWN, UINT16_UNKNOWN, UINT16_UNKNOWN, 0)
+        s = self.vehicle.state
+        pos = s.position_enu_m + self._noise(p.SIM_POS_NOISE)
+        lat, lon = self.vehicle.home.reproject(north_m=pos[1], east_m=pos[0])
+        vel_ned = frames.enu_to_ned(s.velocity_enu_mps)
+        cog_deg = math.degrees(math.atan2(vel_ned[1], vel_ned[0])) % 360.0
+        acc_mm = max(1, int(round(p.SIM_POS_NOISE * 1000)))
+        return self.enc.gps_raw_int_encode(
+            self.time_boot_us, M.GPS_FIX_TYPE_3D_FIX, int(round(lat * 1e7)), int(round(lon * 1e7)),
+            int(round((p.SIM_HOME_ALT + pos[2]) * 1000)), GPS_HDOP_X100, GPS_VDOP_X100,
+            min(int(round(math.hypot(vel_ned[0], vel_ned[1]) * 100)), UINT16_UNKNOWN - 1),
+            int(round(cog_deg * 100)) % 36000, GPS_SATELLITES, 0, acc_mm, acc_mm, 0, 0, 0)
+
+    def estimator_status(self) -> Message:
+        """ESTIMATOR_STATUS as PX4's EKF2 sets it: attitude, velocity and baro height always; a
+        horizontal position relative only (vision) when GPS-denied, absolute with GPS; none (and
+        constant-position mode) when the estimator has no valid position."""
+        est, p = self.vehicle.estimator, self.vehicle.params
+        flags = (M.ESTIMATOR_ATTITUDE | M.ESTIMATOR_VELOCITY_VERT | M.ESTIMATOR_POS_VERT_ABS
+                 | M.ESTIMATOR_POS_VERT_AGL)
+        if est.valid(self.vehicle.time_ns):
+            flags |= M.ESTIMATOR_VELOCITY_HORIZ | M.ESTIMATOR_POS_HORIZ_REL | M.ESTIMATOR_PRED_POS_HORIZ_REL
+            if not est.gps_denied:
+                flags |= M.ESTIMATOR_POS_HORIZ_ABS | M.ESTIMATOR_PRED_POS_HORIZ_ABS
+        else:
+            flags |= M.ESTIMATOR_CONST_POS_MODE
+        horiz_m = est.position_sigma_m() if est.gps_denied else p.SIM_POS_NOISE
+        nan = float("nan")   # innovation test ratios: not modelled
+        return self.enc.estimator_status_encode(self.time_boot_us, flags, nan, nan, nan, nan, nan, nan,
+                                                horiz_m, p.SIM_BARO_NOISE)
 
     def home_position(self) -> Message:
         p = self.vehicle.params
