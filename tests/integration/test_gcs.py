@@ -127,7 +127,7 @@ def test_pymavlink_ground_station(stack):
         gp = g.recv("GLOBAL_POSITION_INT", timeout_s=5)
         assert abs(gp.lat / 1e7 - HOME.lat_deg) < 1e-5 and abs(gp.lon / 1e7 - HOME.lon_deg) < 1e-5
         assert abs(gp.alt / 1e3 - HOME.alt_m) < 0.5 and abs(gp.relative_alt / 1e3) < 0.5
-        raw = g.recv("GPS_RAW_INT", timeout_s=5)
+        raw = g.recv("GPS_RAW_INT", lambda m: m.fix_type == M.GPS_FIX_TYPE_3D_FIX, timeout_s=5)   # the sim's GPS
         assert abs(raw.lat / 1e7 - HOME.lat_deg) < 1e-5 and abs(raw.lon / 1e7 - HOME.lon_deg) < 1e-5
         g.conn.mav.command_long_send(1, 1, M.MAV_CMD_REQUEST_MESSAGE, 0, M.MAVLINK_MSG_ID_HOME_POSITION,
                                      0, 0, 0, 0, 0, 0)
