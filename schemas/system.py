@@ -51,6 +51,7 @@ class ParamDescriptor(msgspec.Struct, kw_only=True):
     max: float | None = None
     choices: list[Any] | None = None
     description: str = ""
+    start_only: bool = False      # read once at start: a live set is refused
 
 
 @schema("ParamList")

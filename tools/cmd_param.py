@@ -45,7 +45,8 @@ def param_list(args) -> int:
         rng = "" if p.min is None and p.max is None else f"[{p.min}, {p.max}]"
         if p.choices:
             rng = "|".join(map(str, p.choices))
-        print(f"{p.name:<28} {str(p.value):>12} {p.unit:<8} {rng:<20} {p.description}")
+        note = "(start only) " if p.start_only else ""
+        print(f"{p.name:<28} {str(p.value):>12} {p.unit:<8} {rng:<20} {note}{p.description}")
     return 0
 
 

@@ -3,7 +3,8 @@ timing and the health rule. The process shell (main.py) only wires these to keys
 
 Hot swap: a new model is loaded and test-run beside the one in use; only a model that works
 replaces it. A model that does not (missing file, garbage bytes, not a YOLOv8 output) leaves the
-running one in place and the reason in `error`, which health reports as ERROR until a load works.
+running one in place and the reason in `error`; the service refuses the parameter set with it, so
+the parameter keeps naming the model that runs (health: the reason in `model_refused`).
 """
 from __future__ import annotations
 
@@ -153,21 +154,18 @@ def detection_array(dets: Sequence[Detection], names: Sequence[str], header: Hea
 def detector_health(holder: ModelHolder, times: StageTimes, rate_hz: float,
                     image_age_s: float | None, image_timeout_s: float) -> Health:
     """Seed 000 §4.2: ERROR no (usable) model, WARN inference slower than the rate (or no camera
-    images), else OK. A refused hot swap is ERROR although the previous model keeps running:
-    what was asked for is not what runs."""
+    images), else OK. A refused hot swap does not change the level: its set was refused, so the
+    model that runs is the one the parameter names (the reason stays in `model_refused`)."""
     m = holder.model
     values: dict[str, object] = {"model_swaps": holder.swaps, "model_load_failures": holder.failures}
     if m is not None:
         values.update(model=m.path, input=f"{m.input_hw[1]}x{m.input_hw[0]}", classes=m.num_classes,
                       layout=m.layout, threads=m.threads, load_ms=round(m.load_ms, 1))
     if holder.error:
-        values["model_error"] = holder.error
+        values["model_refused"] = holder.error
     values.update(times.summary())
     if m is None:
         return Health(DiagnosticStatus.ERROR, f"no model: {holder.error or 'none loaded'}", values)
-    if holder.error:
-        return Health(DiagnosticStatus.ERROR, f"new model refused, still running {Path(m.path).name}: {holder.error}",
-                      values)
     if image_age_s is None:
         return Health(DiagnosticStatus.WARN, "no camera image yet", values)
     if image_age_s > image_timeout_s:

@@ -2,19 +2,22 @@
 
 Frames above the rate are skipped at arrival (counted); an admitted frame that arrives while the
 previous one is still being inferred replaces the pending one (runtime LatestWorker, counted as
-dropped), so a slow machine lowers the output rate instead of growing a queue. Model loads
-(start, and every change of a RELOAD_PARAMS parameter) run on their own thread beside the model
-in use (logic.ModelHolder).
+dropped), so a slow machine lowers the output rate instead of growing a queue. A change of a
+RELOAD_PARAMS parameter loads the new model beside the one in use (logic.ModelHolder) before the
+set is answered: a model that does not load refuses the set with the reason, the parameter keeps
+the path that runs, and inference goes on with the old model meanwhile (it reads the holder, not
+the parameter).
 """
 from __future__ import annotations
 
 import time
 from collections import deque
+from pathlib import Path
 
 import numpy as np
 
 from aeroperception.schemas import Detection2DArray, DiagnosticStatus, Header, Image
-from aeroperception.services.runtime import Health, LatestWorker, Service, run
+from aeroperception.services.runtime import Health, LatestWorker, ParamError, Service, run
 
 from . import contract
 from .logic import LoadRequest, ModelHolder, RateGate, StageTimes, detection_array, detector_health
@@ -43,7 +46,6 @@ class DetectorService(Service):
         self.pub_dets = self.node.publisher("perception/detections", Detection2DArray)
         self.pub_health = self.node.publisher("perception/detector_health", DiagnosticStatus)
         self._load(LoadRequest.from_params(p))        # the first model before the first frame
-        self.loader = LatestWorker(self._load, "detector-load", on_error=self._on_load_error)
         self.worker = LatestWorker(self._process, "detector-infer", on_error=self._on_error)
         p.on_change(self._on_param)
         self.node.subscribe("sensors/camera/left/image", Image, self._on_image)
@@ -51,26 +53,26 @@ class DetectorService(Service):
 
     def stop(self) -> None:
         self.worker.stop()
-        self.loader.stop()
 
-    # ------------------------------------------------------------ model loads (loader thread)
+    # ------------------------------------------------------------ model loads
 
-    def _load(self, req: LoadRequest) -> None:
+    def _load(self, req: LoadRequest) -> bool:
         if self.holder.load(req):
             m = self.holder.model
             self.log.info("model_loaded", path=m.path, input=f"{m.input_hw[1]}x{m.input_hw[0]}", classes=m.num_classes,
                           layout=m.layout, threads=m.threads, load_ms=round(m.load_ms, 1))
-        else:
-            self.log.error("model_refused", path=req.model_path, error=self.holder.error,
-                           running=self.holder.model.path if self.holder.model else "none")
-
-    def _on_load_error(self, e: BaseException) -> None:
-        self.node.callback_errors["detector-load"] += 1
-        self.log.throttled("error", "load", "load_failed", error=f"{type(e).__name__}: {e}")
+            return True
+        self.log.error("model_refused", path=req.model_path, error=self.holder.error,
+                       running=self.holder.model.path if self.holder.model else "none")
+        return False
 
     def _on_param(self, name, value) -> None:
         if name in contract.RELOAD_PARAMS:
-            self.loader.offer(LoadRequest.from_params(self.params))
+            # Loads while the set waits (node lock held: a frame callback waits too, inference does not).
+            if not self._load(LoadRequest.from_params(self.params)):
+                m = self.holder.model
+                running = f"still running {Path(m.path).name}" if m else "no model running"
+                raise ParamError(f"{name}: model refused ({running}): {self.holder.error}")
         elif name == "inference_frequency_hz":
             self.gate.rate_hz = value
 

@@ -30,11 +30,13 @@ class PerceptionService(Service):
         node.subscribe("state/vio_health", VioHealth, lambda m: self._input(self.coord.on_vio, m))
         node.subscribe("perception/detector_health", DiagnosticStatus, lambda m: self._input(self.coord.on_detector, m))
         node.subscribe("diagnostics/lidar", DiagnosticStatus, lambda m: self._input(self.coord.on_lidar, m))
-        node.every(1.0 / p.check_rate_hz, self._check, name="check")
+        self.loop = node.every(1.0 / p.check_rate_hz, self._check, name="check")
 
     def _on_param(self, name, value) -> None:
         if name.endswith("_timeout_s") and name[: -len("_timeout_s")] in SOURCES:
             self.coord.timeouts_s[name[: -len("_timeout_s")]] = value
+        elif name == "check_rate_hz":
+            self.loop.set_rate(value)
 
     def _input(self, feed, msg) -> None:
         feed(msg, time.monotonic())

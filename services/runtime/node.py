@@ -417,12 +417,14 @@ class Node:
             out.append(ParamDescriptor(name=n, value=self.params[n], default=p.default,
                                        type=p.type.__name__, unit=p.unit, min=p.min, max=p.max,
                                        choices=list(p.choices) if p.choices else None,
-                                       description=p.description))
+                                       description=p.description, start_only=p.start_only))
         return ParamList(header=self.header(), service=self.name, params=out)
 
     def set_param(self, name: str, value: Any) -> ParamSetReply:
+        """A live set (config/<service>/@set, a put on config/<service>/<name>, gcs): the reply
+        carries the value in force afterwards and, when refused, why (params.ParamSet.apply)."""
         try:
-            v = self.params.set(name, value)
+            v = self.params.apply(name, value)
         except ParamError as e:
             self.params_rejected += 1
             self.log.warn("param_rejected", name=name, value=value, error=str(e))

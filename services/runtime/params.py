@@ -3,6 +3,12 @@
 Values come from the declaration, then a YAML file, then --param overrides, then live updates
 on config/<service>/**. Every new value is validated against its declaration; a bad value is
 rejected with a message that says what is allowed, and the old value stays.
+
+A live update (`ParamSet.apply`) is never accepted and ignored: a parameter declared
+`start_only` (read once when the service starts) is refused naming that, and a service's apply
+callback (`on_change`) may refuse a valid value by raising ParamError (a model that does not
+load, a polygon that does not parse): the old value is restored, so what a parameter list shows
+is what runs, and the reason goes back in the reply.
 """
 from __future__ import annotations
 
@@ -30,6 +36,7 @@ class Param:
     max: float | None = None
     choices: tuple[Any, ...] | None = None
     description: str = ""
+    start_only: bool = False      # read once at start: a live set is refused, saying so
 
     @property
     def type(self) -> type:
@@ -95,16 +102,44 @@ class ParamSet:
             return values[name]
         raise AttributeError(name)
 
-    def set(self, name: str, value: Any) -> Any:
-        """Validate and apply; raises ParamError (old value kept) when invalid or unknown."""
+    def _declared(self, name: str) -> Param:
         p = self.declared.get(name)
         if p is None:
             raise ParamError(f"unknown parameter {name!r}; declared: {', '.join(sorted(self.declared))}")
-        v = p.validate(value)
+        return p
+
+    def set(self, name: str, value: Any) -> Any:
+        """Validate and store (start-up values, a service's own corrections); raises ParamError
+        (old value kept) when invalid or unknown. Listeners are told; none may refuse here."""
+        v = self._declared(name).validate(value)
         with self._lock:
             self.values[name] = v
         for cb in list(self._listeners):
             cb(name, v)
+        return v
+
+    def apply(self, name: str, value: Any) -> Any:
+        """A live update: refused (ParamError, old value kept) when unknown, invalid, start-only,
+        or when an apply callback refuses it by raising ParamError. On a refusal the callbacks
+        that had already taken the new value are given the old one back."""
+        p = self._declared(name)
+        if p.start_only:
+            raise ParamError(f"{name} is read at start only (restart the service with --param {name}=...); "
+                             f"still {self.values[name]!r}")
+        v = p.validate(value)
+        with self._lock:
+            old, self.values[name] = self.values[name], v
+        done: list[Callable[[str, Any], None]] = []
+        try:
+            for cb in list(self._listeners):
+                cb(name, v)
+                done.append(cb)
+        except ParamError:
+            with self._lock:
+                self.values[name] = old
+            for cb in done:
+                cb(name, old)
+            raise
         return v
 
     def update(self, mapping: dict[str, Any]) -> None:

@@ -41,6 +41,11 @@ TRANSITIONS: dict[tuple[int, str], int] = {
 }
 
 
+# Level of the log line announcing a change into each state: losing the visual fix is what an
+# operator must not miss (DEGRADED warns, LOST is an error); initialising and recovering are news.
+LOG_LEVEL: dict[int, str] = {INIT: "info", TRACKING: "info", DEGRADED: "warn", LOST: "error"}
+
+
 def next_state(state: int, event: str) -> int:
     """The table's answer; events that do not apply in a state (e.g. GOOD while INIT) keep it."""
     return TRANSITIONS.get((state, event), state)

@@ -25,6 +25,7 @@ from .dto import (
     DEGRADED, INIT, LOST, STATE_NAMES, TRACKING, ImuWindow, NavCameraFrame, VioDegradedError,
     VioError, VioFatalError, VioInitializingError,
 )
+from .health import LOG_LEVEL
 from .strategy import create_strategy
 
 LEVEL = {INIT: DiagnosticStatus.WARN, TRACKING: DiagnosticStatus.OK, DEGRADED: DiagnosticStatus.WARN,
@@ -163,7 +164,7 @@ class VioService(Service):
             snap, self.params.strategy, self.node.now_ns(), out.feature_quality if out else None,
             out.imu_bias if out else None))
         if snap.state != self.published_state:
-            self.log.info("vio_state", state=STATE_NAMES[snap.state], message=snap.message)
+            self.log.log(LOG_LEVEL[snap.state], "vio_state", state=STATE_NAMES[snap.state], message=snap.message)
         self.published_state = snap.state
 
     # ------------------------------------------------------------ diagnostics

@@ -1,9 +1,9 @@
 """The detector as a real process under `aero up`, fed camera frames over Zenoh by the test:
 detections come back at the painted pixels with the model's class names and the image's stamp,
 at no more than the configured rate; the model is hot-swapped through the live parameter
-(good -> swapped; missing file / non-YOLO ONNX / garbage bytes -> the old model keeps running
-and perception/detector_health is ERROR naming the reason; good again -> OK); started without a
-model it runs, reports ERROR with the reason, and takes one through the parameter.
+(good -> swapped; missing file / non-YOLO ONNX / garbage bytes -> `aero param set` is refused with
+the reason, the old model keeps running and `aero param list` still names it; good again -> OK);
+started without a model it runs, reports ERROR with the reason, and takes one through the parameter.
 
 The models are hand-built ONNX graphs (tests/detector_graphs.py) that find solid colour blocks,
 so every box the service publishes can be checked against where the block really is.
@@ -139,16 +139,21 @@ def test_hot_swap_through_the_live_parameter(det, models):
     _health(det, lambda h: h.level == DiagnosticStatus.OK and h.values.get("model") == str(models["b"]), "b is OK")
     for bad, reason in [("missing", "model file not found"), ("classifier", "output shape [1, 1000] is not a YOLOv8"),
                         ("garbage", "not a loadable ONNX model")]:
-        _set(det, "model_path", str(models[bad]))
-        h = _health(det, lambda h: h.level == DiagnosticStatus.ERROR and reason in h.message, f"{bad} refused")
-        assert "still running b.onnx" in h.message and h.values["model"] == str(models["b"])
+        # The set is refused with the reason; the parameter keeps naming the model that runs.
+        res = det.aero("param", "set", "detector", "model_path", str(models[bad]))
+        assert res.returncode == 1 and reason in res.stderr and "still running b.onnx" in res.stderr, res.stderr
+        listed = det.aero("param", "get", "detector", "model_path")
+        assert listed.returncode == 0 and listed.stdout.strip() == str(models["b"]), listed.stdout
+        h = _health(det, lambda h: reason in h.values.get("model_refused", ""), f"{bad} refused")
+        assert h.level == DiagnosticStatus.OK and h.values["model"] == str(models["b"])
         # The old model keeps detecting: a frame stamped after the refusal, with b's names.
         after = time.time_ns()
         m = wait_for_message(det.session, "perception/detections", Detection2DArray,
                              lambda m: m.header.stamp_ns > after, timeout_s=10)
         assert _names(m) == ["b", "g", "r"]
     _set(det, "model_path", str(models["a"]))
-    _health(det, lambda h: h.level == DiagnosticStatus.OK and h.values.get("model") == str(models["a"]), "a again OK")
+    _health(det, lambda h: h.level == DiagnosticStatus.OK and h.values.get("model") == str(models["a"])
+            and "model_refused" not in h.values, "a again OK")
     wait_for_message(det.session, "perception/detections", Detection2DArray,
                      lambda m: _names(m) == ["blue", "green", "red"], timeout_s=10)
 

@@ -21,8 +21,8 @@ import zenoh
 from aerotest import aero_argv, clean_env, wait_until, zenoh_client
 
 from aeroperception.schemas import (
-    CameraInfo, DiagnosticStatus, Header, Image, Imu, Odometry, Pose, Reply, SchemaError, Vector3, VioHealth,
-    VioResetRequest, decode,
+    CameraInfo, DiagnosticStatus, Header, Image, Imu, Odometry, ParamSet, ParamSetReply, Pose, Reply, SchemaError,
+    Vector3, VioHealth, VioResetRequest, decode,
 )
 from aeroperception.services.vio.euroc import EurocDataset, default_euroc_dir
 
@@ -59,9 +59,11 @@ def _euroc_params(ds: EurocDataset) -> list[str]:
     return out
 
 
-def _publish_euroc(node, ds: EurocDataset, stop: threading.Event, garbage_at: int, on_frame=None) -> None:
+def _publish_euroc(node, ds: EurocDataset, stop: threading.Event, garbage_at: int, on_frame=None,
+                   black: range = range(0)) -> None:
     """Like a camera driver + IMU: IMU samples up to each frame's stamp, then the stereo pair, at
-    20 Hz wall time; the calibration at 1 Hz and as a queryable."""
+    20 Hz wall time; the calibration at 1 Hz and as a queryable. Frames in `black` are black (a
+    covered lens: no visual fix)."""
     left_info, right_info = ds.camera_infos()
     right_info.header.frame_id = "camera_right_optical"
     pubs = {k: node.publisher(k, cls) for k, cls in (
@@ -90,6 +92,8 @@ def _publish_euroc(node, ds: EurocDataset, stop: threading.Event, garbage_at: in
             node.session.put("sensors/imu", b"\x93not an imu")           # undecodable
             node.session.put("sensors/camera/left/image", b"\x01\x02")
         left, right = ds.load_pair(int(t))
+        if k in black:
+            left, right = np.zeros_like(left), np.zeros_like(right)
         pubs["sensors/camera/left/image"].publish(Image.from_numpy(left, "mono8", Header(stamp_ns=int(t), frame_id="camera_left_optical")))
         pubs["sensors/camera/right/image"].publish(Image.from_numpy(right, "mono8", Header(stamp_ns=int(t), frame_id="camera_right_optical")))
         delay = t_start + (k + 1) * 0.05 - time.monotonic()
@@ -123,7 +127,16 @@ def test_vio_service_tracks_the_real_euroc_start_over_zenoh(zenoh_router, make_n
                 replies.append(node.call("vio/srv/reset", VioResetRequest(pose=Pose(position=Vector3(x=float("inf")))), Reply))
                 replies.append(node.call("vio/srv/reset", VioResetRequest(pose=Pose(position=Vector3(x=10.0, y=-2.0, z=3.0))), Reply))
 
-        _publish_euroc(node, ds, stop, garbage_at=40, on_frame=reset)
+        strategy_set = []
+
+        def on_frame(k: int) -> None:
+            reset(k)
+            if k == 20:   # strategy is chosen at start: refused live, saying so
+                strategy_set.append(node.call("config/vio/@set", ParamSet(name="strategy", value="klt_mono"),
+                                              ParamSetReply))
+
+        # 14 black frames (> lost_after_frames 10): DEGRADED, then LOST, then back to TRACKING.
+        _publish_euroc(node, ds, stop, garbage_at=40, on_frame=on_frame, black=range(44, 58))
         wait_until(lambda: len(odom.all()) >= 40, 10, "40 odometry messages")
 
         msgs = odom.all()
@@ -144,6 +157,8 @@ def test_vio_service_tracks_the_real_euroc_start_over_zenoh(zenoh_router, make_n
         wait_until(lambda: any(h.state == VioHealth.TRACKING for h in health.all()), 5, "health TRACKING")
         h = [x for x in health.all() if x.state == VioHealth.TRACKING][-1]
         assert h.strategy == "klt_stereo" and h.tracked_features >= 40 and h.bias_norm > 0
+        (refused,) = strategy_set
+        assert not refused.success and "strategy is read at start only" in refused.message and refused.value == "klt_stereo"
         assert health.all()[-1].state == VioHealth.TRACKING
         d = wait_until(lambda: [x for x in diags.all() if int(x.values.get("invalid_msgs", 0)) >= 2], 5,
                        "diagnostics counting the garbage")[-1]
@@ -161,8 +176,15 @@ def test_vio_service_tracks_the_real_euroc_start_over_zenoh(zenoh_router, make_n
                 code = None
             assert code == 0, log.read_text()[-3000:]
         watcher.close()
-    events = [json.loads(ln)["event"] for ln in log.read_text().splitlines() if ln.startswith("{")]
+    records = [json.loads(ln) for ln in log.read_text().splitlines() if ln.startswith("{")]
+    events = [r["event"] for r in records]
     assert "vio_started" in events and "vio_reset_requested" in events and events[-1] == "stopped"
+    # State changes are logged at the level they deserve: losing the fix warns, LOST is an error,
+    # initialising and recovering are info.
+    changes = [(r["state"], r["level"]) for r in records if r["event"] == "vio_state"]
+    assert ("DEGRADED", "warn") in changes and ("LOST", "error") in changes, changes
+    assert changes[changes.index(("LOST", "error")) + 1] == ("TRACKING", "info"), changes
+    assert {lvl for st_, lvl in changes if st_ in ("INIT", "TRACKING")} == {"info"}, changes
 
 
 def _start_vio(endpoint: str, log, *extra: str) -> subprocess.Popen:

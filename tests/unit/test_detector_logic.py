@@ -34,8 +34,9 @@ def test_hot_swap_keeps_the_running_model_until_a_good_one_loads(tmp_path):
                         (tmp_path / "garbage.onnx", "not a loadable ONNX model")]:
         assert not h.load(LoadRequest(str(bad)))
         assert h.model is running and reason in h.error
-        health = detector_health(h, StageTimes(), 10.0, 0.1, 2.0)
-        assert health.level == DiagnosticStatus.ERROR and reason in health.message and "still running b.onnx" in health.message
+        health = detector_health(h, StageTimes(), 10.0, 0.1, 2.0)   # the set was refused: b runs as named
+        assert health.level == DiagnosticStatus.OK and "b.onnx" in health.message
+        assert reason in health.values["model_refused"]
         dets, _ = h.model.detect(paint_blocks((480, 640), {1: (5, 5, 50, 50)}))
         assert [d[5] for d in dets] == [1]                     # the old model still detects
     assert h.load(LoadRequest(str(good_a))) and h.model.names[0] == "red" and h.error == ""

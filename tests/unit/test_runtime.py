@@ -105,6 +105,32 @@ def test_params_update_is_atomic_and_notifies():
     assert sorted(seen) == [("mode", "safe"), ("retries", 5)]
 
 
+def test_params_live_set_refused_by_apply_callback_keeps_what_runs():
+    """An apply callback that refuses a valid value (raises ParamError): the old value stays,
+    and callbacks that had already taken the new one get the old one back."""
+    ps = params()
+    applied = []
+    ps.on_change(lambda n, v: applied.append(v))
+
+    def refuse_large(name, value):
+        if value > 5:
+            raise ParamError(f"{name}: the motors cannot do {value}")
+
+    ps.on_change(refuse_large)
+    with pytest.raises(ParamError, match="cannot do 9"):
+        ps.apply("max_velocity_mps", 9)
+    assert ps["max_velocity_mps"] == 2.0 and applied == [9.0, 2.0]
+    assert ps.apply("max_velocity_mps", 4) == 4.0 and ps["max_velocity_mps"] == 4.0
+
+
+def test_params_start_only_refused_live_naming_that():
+    ps = ParamSet.from_declarations([Param("strategy", "a", start_only=True), Param("gain", 1.0)])
+    ps.update({"strategy": "b"})                   # start-up values (file, --param) are taken
+    with pytest.raises(ParamError, match="strategy is read at start only.*still 'b'"):
+        ps.apply("strategy", "c")
+    assert ps["strategy"] == "b" and ps.apply("gain", 2.0) == 2.0
+
+
 def test_params_load_flat_file(tmp_path):
     f = tmp_path / "p.yaml"
     f.write_text("max_velocity_mps: 4.5\nretries: 7\n")
@@ -591,7 +617,8 @@ def _try_call(cli) -> bool:
 
 @pytest.mark.timeout(60)
 def test_live_params_set_list_put_and_reject(make_node, zenoh_router):
-    svc = make_node("tuned", params=[Param("gain", 1.0, "", 0.0, 5.0), Param("name", "a")])
+    svc = make_node("tuned", params=[Param("gain", 1.0, "", 0.0, 5.0), Param("name", "a"),
+                                     Param("mode", "x", start_only=True)])
     cli = make_node("operator")
     changes = []
     svc.params.on_change(lambda n, v: changes.append((n, v)))
@@ -614,7 +641,10 @@ def test_live_params_set_list_put_and_reject(make_node, zenoh_router):
     assert svc.params["gain"] == 2.5 and svc.params_rejected == 1
     unknown = cli.call("config/tuned/@set", ParamSetMsg(name="nope", value=1), ParamSetReply)
     assert not unknown.success and "unknown parameter" in unknown.message
-    assert svc.diagnostics().values["params_rejected"] == "2"
+    start_only = cli.call("config/tuned/@set", ParamSetMsg(name="mode", value="y"), ParamSetReply)
+    assert not start_only.success and "read at start only" in start_only.message and start_only.value == "x"
+    assert {p.name: p.start_only for p in listed().params} == {"gain": False, "name": False, "mode": True}
+    assert svc.diagnostics().values["params_rejected"] == "3"
 
     # Fire-and-forget put on config/<service>/<name> (the name comes from the key).
     raw = zenoh_client(zenoh_router)
