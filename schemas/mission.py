@@ -38,7 +38,7 @@ class MissionStatus(Message, kw_only=True):
     STATES = ("IDLE", "TAKEOFF", "EXECUTING", "HOLDING", "LAND")
 
 
-MISSION_COMMANDS = ("ARM", "DISARM", "TAKEOFF", "LOAD", "START", "HOLD", "LAND", "RTL")
+MISSION_COMMANDS = ("ARM", "DISARM", "TAKEOFF", "LOAD", "START", "HOLD", "LAND", "RTL", "SET_CURRENT")
 
 
 @schema("MissionCommand", 1)
@@ -46,12 +46,16 @@ class MissionCommand(Message, kw_only=True):
     """An operator command to the mission manager (mission/command).
 
     `command` is one of MissionCommand.COMMANDS (case-insensitive on input, stored upper-case);
-    `mission_json` carries the mission (seed 000 §5.1 JSON) with LOAD and is empty otherwise.
+    `mission_json` carries the mission (JSON or YAML text) with LOAD and is empty otherwise.
+    SET_CURRENT makes waypoint `waypoint_index` (0-based, required with it and only with it) the
+    one flown to next, as a ground station's MISSION_SET_CURRENT does on PX4: at once when the
+    mission is flying, else where START begins.
     """
 
     header: Header = msgspec.field(default_factory=Header)
     command: str
     mission_json: str = ""
+    waypoint_index: int = -1
 
     ARM = "ARM"
     DISARM = "DISARM"
@@ -61,6 +65,7 @@ class MissionCommand(Message, kw_only=True):
     HOLD = "HOLD"
     LAND = "LAND"
     RTL = "RTL"
+    SET_CURRENT = "SET_CURRENT"
     COMMANDS = MISSION_COMMANDS
 
     def __post_init__(self) -> None:
@@ -69,6 +74,10 @@ class MissionCommand(Message, kw_only=True):
         check_choice("command", self.command, MISSION_COMMANDS)
         if self.command == "LOAD" and not self.mission_json.strip():
             raise ValueError("field `mission_json` is required with the LOAD command")
+        if self.command == "SET_CURRENT" and self.waypoint_index < 0:
+            raise ValueError("field `waypoint_index` (0-based, >= 0) is required with the SET_CURRENT command")
+        if self.command != "SET_CURRENT" and self.waypoint_index != -1:
+            raise ValueError(f"field `waypoint_index` is only for SET_CURRENT, not {self.command}")
 
 
 @schema("PerceptionHealth", 1)

@@ -555,8 +555,16 @@ class GcsService(Service):
         self.node.call_async("mission/srv/get", Empty(), GetMissionReply, done, timeout_s=self.params.call_timeout_s)
 
     def _set_current(self, seq: int) -> bool:
-        ok = self.missions.set_current(seq)
+        """MISSION_SET_CURRENT / DO_SET_MISSION_CURRENT: the mission jumps (flies to that item
+        next, as PX4 does), not only MISSION_CURRENT; a refusal by the mission is a STATUSTEXT."""
+        k = self.progress.waypoint_for(seq)
+        ok = k is not None and self.missions.set_current(seq)
         if ok:
+            def done(jumped: bool, message: str, failed: bool = False) -> None:
+                if not jumped:
+                    self._notify(f"Mission jump to item {seq} refused: {message}", None)
+            self.node.call_async("mission/srv/command", MissionCommand(command="SET_CURRENT", waypoint_index=k),
+                                 Reply, self._reply_cb(done), timeout_s=self.params.call_timeout_s)
             self.progress.set_current(seq)
             self.tel.mission_seq = seq
         return ok

@@ -437,6 +437,11 @@ class Progress:
     def set_current(self, seq: int) -> None:
         self.current = seq
 
+    def waypoint_for(self, seq: int) -> int | None:
+        """The mission waypoint (0-based) a jump to item `seq` flies to next: the item's own
+        waypoint, or the first one after it (a takeoff or DO item); None past the last one."""
+        return next((k for k, s in enumerate(self.wp_seqs) if s >= seq), None)
+
     @property
     def total(self) -> int:
         return len(self.items)

@@ -388,13 +388,16 @@ class MissionManager:
         self._persist()
         return True, self.message
 
-    def command(self, cmd: str, on_result: Callable[[bool, str], None] | None = None) -> tuple[bool, str]:
+    def command(self, cmd: str, on_result: Callable[[bool, str], None] | None = None,
+                waypoint_index: int = -1) -> tuple[bool, str]:
         """Operator command (mission/command). Returns (accepted, message) at once; commands that
         need the flight controller report their outcome through `on_result` as well."""
         done = on_result or (lambda ok, msg: None)
         cmd = cmd.upper()
         if self.restoring():
             return self._refuse(done, "restarting: waiting for vehicle state to rebuild the mission state; retry")
+        if cmd == "SET_CURRENT":
+            return self.set_current(waypoint_index, done)
         if cmd == "ARM":
             if self.state != State.IDLE:
                 return self._refuse(done, f"ARM only in IDLE (now {self.state.value})")
@@ -437,6 +440,27 @@ class MissionManager:
             done(True, cmd.lower())
             return True, cmd.lower()
         return self._refuse(done, f"unknown command {cmd!r}")
+
+    def set_current(self, index: int, done: Callable[[bool, str], None]) -> tuple[bool, str]:
+        """Waypoint `index` is the one flown to next (a ground station's MISSION_SET_CURRENT, as
+        PX4 jumps): at once while EXECUTING the mission, else where START (or a goto's end) goes on."""
+        if self.mission is None:
+            return self._refuse(done, "no mission loaded; LOAD one first")
+        n = len(self.mission.waypoints)
+        if not 0 <= index < n:
+            return self._refuse(done, f"waypoint index {index} out of range: the mission has {n} (0..{n - 1})")
+        if self.state == State.LAND:
+            return self._refuse(done, "not while landing; HOLD first")
+        self.wp_index = index
+        if self.state == State.EXECUTING and self.goto_target is None:
+            self.message = f"jumped to waypoint {index + 1}/{n}"
+            self._publish_waypoint()
+        else:
+            self.message = f"waypoint {index + 1}/{n} is next (START flies there)"
+        self.log("set_current", index=index, state=self.state.value)
+        self._persist()
+        done(True, self.message)
+        return True, self.message
 
     def _refuse(self, done, message: str) -> tuple[bool, str]:
         done(False, message)

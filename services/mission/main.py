@@ -155,7 +155,7 @@ class MissionService(Service):
         if msg.command == MissionCommand.LOAD:
             r = self._on_load(LoadMissionRequest(mission_json=msg.mission_json))
             return Reply(success=r.success, message=r.message)
-        ok, message = self.mgr.command(msg.command)
+        ok, message = self.mgr.command(msg.command, waypoint_index=msg.waypoint_index)
         self.log.info("command", command=msg.command, accepted=ok, message=message)
         return Reply(success=ok, message=message)
 
@@ -174,7 +174,7 @@ class MissionService(Service):
             answered.set()
 
         with self.node.lock:
-            ok, message = self.mgr.command(msg.command, on_result)
+            ok, message = self.mgr.command(msg.command, on_result, msg.waypoint_index)
             self.log.info("command", command=msg.command, accepted=ok, message=message)
         if ok and answered.wait(self.params.bridge_timeout_s + 1.0):
             ok, message = outcome[0]

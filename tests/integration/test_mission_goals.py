@@ -5,16 +5,20 @@ sim's truth (sim/truth/state) and the real state file:
 - issue 18 #9: a finished flight leaves nothing to restore; a restarted mission service on the
   ground comes up with no mission (and one killed after completing its waypoints never
   reports "waypoint 5/4").
+- issue 18 #5: MAVSDK's set_current_mission_item while the mission flies to item 1 makes the
+  vehicle fly to item 3 next (truth: items 1 and 2 are never approached), as PX4 jumps.
 """
 from __future__ import annotations
 
+import asyncio
 import json
-import time
 
+import numpy as np
 import pytest
 
 from aerotest import wait_until
-from aeroperception.schemas import MissionStatus
+from aeroperception.schemas import MissionStatus, VehicleState
+from aeroperception.tools.cmd_chaos import Recorder
 from test_flight import flight_stack, latest, truth
 from test_mission_faults import command, ensure_landed, kill9, load, wait_status
 
@@ -69,3 +73,57 @@ def test_a_finished_flight_is_not_restored_after_a_restart(gstack):
     assert "5/4" not in s.message and "was complete (4/4 waypoints)" in s.message, s.message
     assert s.mission_id == "" and s.active_waypoint == -1, s
     assert not truth(st).armed and latest(st, "mission/status", MissionStatus, 2.0).state == "IDLE"
+
+
+def test_mavsdk_set_current_mission_item_makes_the_vehicle_jump(stack):
+    pytest.importorskip("mavsdk.asyncio")
+    from mavsdk.asyncio.plugins.action.action import ActionAsync
+    from mavsdk.asyncio.plugins.mission_raw.mission_raw import MissionRawAsync
+    from mavsdk.plugins.mission_raw import MissionItem
+    from pymavlink.dialects.v20 import common as M
+    from test_gcs import HOME, free_udp_port, mavsdk_autopilot, start_stack, waypoints
+
+    port, sdk_port = free_udp_port(), free_udp_port()
+    st = start_stack(stack, port, sdk_port)
+    alt = 3.0
+    rows = [(M.MAV_CMD_NAV_TAKEOFF, HOME.lat_deg, HOME.lon_deg, alt)] + \
+        [(M.MAV_CMD_NAV_WAYPOINT, *p) for p in waypoints(n=3, alt=alt)]
+    items = [MissionItem(seq=i, frame=M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, command=cmd, current=int(i == 0),
+                         autocontinue=1, param1=0.0, param2=0.5 if cmd == M.MAV_CMD_NAV_WAYPOINT else 0.0,
+                         param3=0.0, param4=float("nan"), x=round(lat * 1e7), y=round(lon * 1e7), z=z,
+                         mission_type=0) for i, (cmd, lat, lon, z) in enumerate(rows)]
+    enu = {i: np.array(HOME.to_enu(*rows[i][1:])) for i in (1, 2, 3)}
+    jumped: dict[str, float] = {}
+
+    def status(pred):
+        m = latest(st, "mission/status", MissionStatus, 1.0, pred)
+        return m
+
+    async def session():
+        async with mavsdk_autopilot(sdk_port) as system:
+            raw, action = MissionRawAsync(system), ActionAsync(system)
+            await asyncio.wait_for(raw.upload_mission(items), 20)
+            await asyncio.wait_for(action.arm(), 15)
+            await asyncio.wait_for(raw.start_mission(), 15)
+            await asyncio.to_thread(wait_until, lambda: status(
+                lambda m: m.state == "EXECUTING" and m.active_waypoint == 0 and (m.distance_to_goal_m or 0) > 2.5),
+                40, "flying to item 1 (waypoint 0)")
+            await asyncio.wait_for(raw.set_current_mission_item(3), 10)
+            jumped["at"] = len(rec.get("truth"))
+            s = await asyncio.to_thread(wait_until, lambda: status(lambda m: m.active_waypoint == 2), 5,
+                                        "mission/status at waypoint index 2")
+            jumped["message"] = s.message
+            await asyncio.to_thread(wait_until, lambda: status(lambda m: m.state in ("LAND", "IDLE")), 40,
+                                    "the mission completes after item 3")
+
+    rec = Recorder(st.session, {"truth": ("sim/truth/state", VehicleState)})
+    try:
+        asyncio.run(asyncio.wait_for(session(), 120))
+        track = np.array([m.position_m.to_array() for m in rec.get("truth")[jumped["at"]:]])
+    finally:
+        rec.close()
+    near = {i: float(np.linalg.norm(track - p, axis=1).min()) for i, p in enu.items()}
+    print(f"after the jump to item 3: closest approach per item {({i: round(d, 2) for i, d in near.items()})}; "
+          f"{jumped['message']}")
+    assert near[3] < 0.6, f"never reached item 3 at {enu[3]}"
+    assert near[1] > 1.5 and near[2] > 1.5, f"flew on to the skipped items: {near}"

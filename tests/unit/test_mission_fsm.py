@@ -1301,3 +1301,53 @@ def test_takeoff_with_healthy_perception_starts_at_once():
     rig.tick(0.1, healthy=True)
     rig.feed(flying(z=5.0))
     assert rig.mgr.state == State.EXECUTING
+
+
+# ================================================================ jump to a waypoint (issue 18 #5)
+
+def test_set_current_while_executing_flies_to_that_waypoint_next():
+    rig = Rig()
+    rig.to_executing()
+    rig.feed(flying(*SURVEY_WPS[0]))                  # waypoint 0 reached: flying to index 1
+    assert rig.mgr.wp_index == 1
+    ok, msg = rig.mgr.command("SET_CURRENT", waypoint_index=3)
+    assert ok and msg == "jumped to waypoint 4/4", msg
+    assert_goal(rig.goals[-1], SURVEY_WPS[3])
+    assert rig.mgr.status().active_waypoint == 3
+    rig.feed(flying(*SURVEY_WPS[3]))                  # reached: the mission completes, 1 and 2 skipped
+    assert rig.mgr.state == State.LAND and rig.mgr.reached_events == [0, 3]
+
+
+def test_set_current_while_holding_or_on_the_ground_is_where_start_goes():
+    rig = Rig()
+    rig.to_idle()
+    ok, msg = rig.mgr.command("SET_CURRENT", waypoint_index=2)
+    assert ok and "3/4 is next" in msg and rig.mgr.state == State.IDLE and rig.goals == []
+    rig.mgr.command("TAKEOFF", rig.on_result)
+    rig.feed(flying(z=0.5))
+    rig.feed(flying(z=5.0))
+    assert rig.mgr.command("START")[0]
+    assert_goal(rig.goals[-1], SURVEY_WPS[2])
+
+
+@pytest.mark.parametrize(("index", "words"), [(4, "out of range: the mission has 4 (0..3)"), (-1, "out of range")])
+def test_set_current_out_of_range_or_without_a_mission_is_refused(index, words):
+    rig = Rig()
+    rig.feed(vehicle())
+    assert rig.mgr.command("SET_CURRENT", waypoint_index=1) == (False, "no mission loaded; LOAD one first")
+    rig.to_executing()
+    ok, msg = rig.mgr.command("SET_CURRENT", waypoint_index=index)
+    assert not ok and words in msg and rig.mgr.wp_index == 0
+
+
+def test_set_current_command_is_decoded_strictly():
+    from aeroperception.schemas import MissionCommand, SchemaError, decode, encode
+    assert MissionCommand(command="set_current", waypoint_index=2).waypoint_index == 2
+    with pytest.raises(ValueError, match="`waypoint_index`.*required"):
+        MissionCommand(command="SET_CURRENT")
+    with pytest.raises(ValueError, match="`waypoint_index` is only for SET_CURRENT"):
+        MissionCommand(command="START", waypoint_index=1)
+    import msgpack
+    with pytest.raises(SchemaError, match="unknown field `index`"):
+        decode(msgpack.packb({"command": "SET_CURRENT", "waypoint_index": 1, "index": 1}), MissionCommand, strict=True)
+    assert decode(encode(MissionCommand(command="SET_CURRENT", waypoint_index=1)), MissionCommand).waypoint_index == 1

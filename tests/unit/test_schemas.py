@@ -644,7 +644,7 @@ def test_mission_command_is_normalized_and_validated():
         decode(msgpack.packb({"command": "FLY_AWAY"}), MissionCommand)
     with pytest.raises(SchemaError, match="mission_json"):
         decode(msgpack.packb({"command": "LOAD"}), MissionCommand)
-    assert set(MissionCommand.COMMANDS) == {"ARM", "TAKEOFF", "START", "HOLD", "LAND", "RTL", "LOAD", "DISARM"}
+    assert set(MissionCommand.COMMANDS) == {"ARM", "TAKEOFF", "START", "HOLD", "LAND", "RTL", "LOAD", "DISARM", "SET_CURRENT"}
 
 
 def test_select_plugin_role_is_validated():
