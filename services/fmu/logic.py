@@ -178,9 +178,12 @@ def highres_imu_to_imu(m, stamp_ns: int) -> Imu:
 
 
 def setpoint_target(sp: TrajectorySetpoint) -> dict:
-    """TrajectorySetpoint (ENU) -> SET_POSITION_TARGET_LOCAL_NED fields (NED), type_mask honoured."""
-    mask = IGNORE_ACC
-    pos = vel = np.zeros(3)
+    """TrajectorySetpoint (ENU) -> SET_POSITION_TARGET_LOCAL_NED fields (NED): every part marked
+    valid is sent and its type_mask bits cleared; the others are ignored and sent as finite zeros.
+    Acceleration is feed-forward (PX4 adds it to its velocity controller's output; FORCE_SET stays
+    clear). Jerk has no field in the message: the Envelope refuses a setpoint that marks it valid."""
+    mask = 0
+    pos = vel = acc = np.zeros(3)
     if sp.position_valid:
         pos = frames.enu_to_ned(sp.position_m.to_array())
     else:
@@ -189,19 +192,23 @@ def setpoint_target(sp: TrajectorySetpoint) -> dict:
         vel = frames.enu_to_ned(sp.velocity_mps.to_array())
     else:
         mask |= IGNORE_VEL
+    if sp.acceleration_valid:
+        acc = frames.enu_to_ned(sp.acceleration_mps2.to_array())
+    else:
+        mask |= IGNORE_ACC
     yaw = yaw_rate = 0.0
     if sp.yaw_valid and math.isfinite(sp.yaw_rad):
         yaw = frames.yaw_enu_to_ned(sp.yaw_rad)
     else:
         mask |= IGNORE_YAW
     if sp.yaw_rate_valid and math.isfinite(sp.yaw_rate_radps):
-        yaw_rate = -sp.yaw_rate_radps  # ENU counter-clockwise -> NED clockwise
+        yaw_rate = frames.yaw_rate_enu_to_ned(sp.yaw_rate_radps)
     else:
         mask |= IGNORE_YAW_RATE
     return dict(coordinate_frame=mavlink.MAV_FRAME_LOCAL_NED, type_mask=mask,
                 x=float(pos[0]), y=float(pos[1]), z=float(pos[2]),
                 vx=float(vel[0]), vy=float(vel[1]), vz=float(vel[2]),
-                afx=0.0, afy=0.0, afz=0.0, yaw=float(yaw), yaw_rate=float(yaw_rate))
+                afx=float(acc[0]), afy=float(acc[1]), afz=float(acc[2]), yaw=float(yaw), yaw_rate=float(yaw_rate))
 
 
 def hold_target(position_enu_m: np.ndarray, yaw_enu_rad: float) -> dict:

@@ -31,6 +31,10 @@ from aeroperception.schemas import TrajectorySetpoint, Vector3
 
 FOLLOW, BRAKE, HOLD = "follow", "brake", "hold"
 
+# SET_POSITION_TARGET_LOCAL_NED (what PX4 offboard takes) carries position, velocity,
+# acceleration, yaw and yaw rate, but no jerk: forwarding the rest would drop it unseen.
+JERK_REFUSED = "jerk_valid: jerk feed-forward cannot be sent (SET_POSITION_TARGET_LOCAL_NED has no jerk field)"
+
 # Hold reasons (diagnostics `hold_reason`)
 WAIT_FRESH = "waiting for fresh planner setpoints"
 PLANNER_SILENT = "planner silent"
@@ -77,6 +81,8 @@ class Envelope:
     def problem(self, sp: TrajectorySetpoint) -> str:
         """Why `sp` must not be forwarded ('' if it may). Only the parts marked valid are
         checked (unused fields may be anything, NaN included, per the schema)."""
+        if sp.jerk_valid:
+            return JERK_REFUSED
         if not (sp.position_valid or sp.velocity_valid):
             return "neither position nor velocity valid"
         if sp.position_valid:

@@ -304,6 +304,59 @@ def test_planner_lost_at_speed_brakes_and_holds_where_it_stops(fst, how):
     assert truth.last().flight_mode == "OFFBOARD"
 
 
+# ---------------------------------------------------------------- issue 18 item 4: feed-forward
+
+
+def hold_with_feed_forward(p, accel_enu_mps2, valid: bool = True, jerk: bool = False) -> callable:
+    """Hold at p (position + zero velocity) with an acceleration feed-forward (marked valid or not)."""
+    def law(st):
+        sp = hold_at(p)(st)
+        sp.acceleration_valid, sp.acceleration_mps2 = valid, Vector3.from_array(np.asarray(accel_enu_mps2, float))
+        sp.jerk_valid, sp.jerk_mps3 = jerk, Vector3(x=1.0 if jerk else 0.0)
+        return sp
+    return law
+
+
+def east_acceleration_during(truth: Truth, planner: TestPlanner, law, hold, pulse_s: float = 0.5) -> float:
+    """Mean true east acceleration (m/s^2) while `law` is followed for pulse_s (its first 0.1 s,
+    the attitude settling, left out); then back to `hold` and at rest."""
+    t0 = time.monotonic()
+    planner.law = law
+    time.sleep(pulse_s)
+    planner.law = hold
+    samples = [m for m in truth.since(t0 + 0.1) if m.header.stamp_ns]
+    samples = samples[:int(100 * (pulse_s - 0.1))]          # 100 Hz truth, within the pulse
+    wait_at_rest(truth)
+    return float(np.mean([m.acceleration_mps2.x for m in samples]))
+
+
+def test_acceleration_feed_forward_reaches_the_fc_and_accelerates_the_vehicle_and_jerk_is_refused(fst):
+    """Same position/velocity setpoint, with and without a valid 3 m/s^2 east feed-forward: the
+    true acceleration follows the feed-forward only when it is marked valid (fmu used to drop it).
+    A setpoint marking jerk valid cannot be sent over MAVLink: refused, counted, held with the reason."""
+    st, planner, truth = fst
+    rest = ensure_hovering(st, planner, truth)
+    hold = hold_at(pos(rest))
+    ff = [3.0, 0.0, 0.0]
+    with_ff = east_acceleration_during(truth, planner, hold_with_feed_forward(pos(rest), ff), hold)
+    without = east_acceleration_during(truth, planner, hold_with_feed_forward(pos(rest), ff, valid=False), hold)
+    f0 = diag(st.session, "fmu")
+    t0 = time.monotonic()
+    planner.law = hold_with_feed_forward(pos(rest), ff, jerk=True)
+    held = wait_until(lambda: (d := diag(st.session, "fmu")) and "jerk_valid" in d.get("hold_reason", "") and d, 5,
+                      "fmu refusing the jerk setpoint")
+    time.sleep(0.5)
+    moved = max(float(np.linalg.norm(pos(m) - pos(rest))) for m in truth.since(t0))
+    planner.law = hold
+    wait_until(lambda: diag(st.session, "fmu").get("planner") == "streaming", 5, "following again")
+    print(f"true east acceleration: {with_ff:.2f} m/s^2 with a valid 3 m/s^2 feed-forward, {without:.2f} without; "
+          f"jerk: rejected {f0['setpoints_rejected']} -> {held['setpoints_rejected']}, moved {moved:.2f} m")
+    assert with_ff > 1.0, f"feed-forward 3 m/s^2 east gave {with_ff:.2f} m/s^2"
+    assert abs(without) < 0.5, f"an ignored feed-forward moved the vehicle ({without:.2f} m/s^2)"
+    assert int(held["setpoints_rejected"]) > int(f0["setpoints_rejected"])
+    assert held["offboard"] in ("brake", "hold") and moved < 0.3
+
+
 # ---------------------------------------------------------------- item 8: FC reboot
 
 

@@ -115,6 +115,34 @@ def test_nothing_valid_ignores_everything_but_sends_finite_numbers():
     assert all(math.isfinite(f[k]) for k in ("x", "y", "z", "vx", "vy", "vz", "yaw", "yaw_rate"))
 
 
+@pytest.mark.parametrize(("valid", "used_bits"), [
+    ("position_valid", IGNORE_POS), ("velocity_valid", IGNORE_VEL), ("acceleration_valid", IGNORE_ACC),
+    ("yaw_valid", IGNORE_YAW), ("yaw_rate_valid", IGNORE_YAW_RATE),
+])
+def test_type_mask_uses_exactly_the_fields_marked_valid(valid, used_bits):
+    everything = IGNORE_POS | IGNORE_VEL | IGNORE_ACC | IGNORE_YAW | IGNORE_YAW_RATE
+    f = setpoint_target(TrajectorySetpoint(**{valid: True}))
+    assert f["type_mask"] == everything & ~used_bits
+    assert not f["type_mask"] & mavlink.POSITION_TARGET_TYPEMASK_FORCE_SET   # acceleration, not force
+    packs(setpoint_msg(f))
+
+
+def test_acceleration_feed_forward_is_sent_in_ned():
+    # East 1, North 2, Up 3 m/s^2 -> North 2, East 1, Down -3 alongside the velocity it feeds
+    sp = TrajectorySetpoint(velocity_valid=True, acceleration_valid=True, velocity_mps=Vector3(x=0.5),
+                            acceleration_mps2=Vector3(x=1.0, y=2.0, z=3.0))
+    f = setpoint_target(sp)
+    assert f["type_mask"] == IGNORE_POS | IGNORE_YAW | IGNORE_YAW_RATE
+    assert (f["afx"], f["afy"], f["afz"]) == (2.0, 1.0, -3.0)
+    assert (f["vx"], f["vy"], f["vz"]) == (0.0, 0.5, 0.0)
+
+
+def test_acceleration_not_valid_is_ignored_and_sent_as_zeros():
+    f = setpoint_target(TrajectorySetpoint(velocity_valid=True, acceleration_mps2=Vector3(x=math.nan, y=5.0)))
+    assert f["type_mask"] & IGNORE_ACC == IGNORE_ACC
+    assert (f["afx"], f["afy"], f["afz"]) == (0.0, 0.0, 0.0)
+
+
 # ================================================================ telemetry (NED -> ENU)
 
 def test_local_position_ned_becomes_enu_position_and_velocity():
@@ -454,7 +482,7 @@ from aeroperception.schemas import Header  # noqa: E402
 from aeroperception.services.fmu.link import RebootWatch, is_autopilot_heartbeat  # noqa: E402
 from aeroperception.services.fmu.offboard import (  # noqa: E402
     StreamWarmth,
-    BRAKE, FOLLOW, HOLD, PLANNER_SILENT, Envelope, OffboardArbiter,
+    BRAKE, FOLLOW, HOLD, JERK_REFUSED, PLANNER_SILENT, Envelope, OffboardArbiter,
 )
 
 STILL = np.zeros(3)
@@ -489,9 +517,26 @@ def following(resume: int = 3) -> tuple[OffboardArbiter, float]:
     (TrajectorySetpoint(velocity_valid=True, yaw_valid=True, yaw_rad=math.nan), "non-finite yaw"),
     (TrajectorySetpoint(velocity_valid=True, yaw_rate_valid=True, yaw_rate_radps=math.inf), "yaw rate"),
     (TrajectorySetpoint(), "neither position nor velocity"),
+    (TrajectorySetpoint(velocity_valid=True, jerk_valid=True, jerk_mps3=Vector3(x=1.0)), "jerk_valid"),
 ])
 def test_envelope_refuses_non_finite_and_out_of_envelope_setpoints(sp, why):
     assert why in Envelope().problem(sp)
+
+
+def test_a_setpoint_with_jerk_marked_valid_is_refused_counted_and_held_with_the_reason():
+    a, t = following()
+    sp = planner_sp(1_000_000_000)
+    sp.jerk_valid, sp.jerk_mps3 = True, Vector3(x=0.5)
+    assert a.on_setpoint(sp, t + 0.02) is None
+    assert a.counters["setpoints_rejected"] == 1
+    assert a.last_rejection == JERK_REFUSED and "no jerk field" in JERK_REFUSED
+    assert a.phase == BRAKE and a.reason == f"setpoint rejected: {JERK_REFUSED}"
+
+
+def test_envelope_checks_acceleration_feed_forward_only_when_valid():
+    ok = TrajectorySetpoint(velocity_valid=True, acceleration_valid=True, acceleration_mps2=Vector3(x=3.0))
+    assert Envelope().problem(ok) == ""
+    assert Envelope().problem(TrajectorySetpoint(velocity_valid=True, acceleration_mps2=Vector3(x=math.nan))) == ""
 
 
 def test_envelope_ignores_unused_fields_and_accepts_the_planners_setpoints():

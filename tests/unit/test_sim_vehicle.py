@@ -132,6 +132,26 @@ def test_velocity_and_yaw_rate_setpoints():
     assert frames.wrap_pi(v.state.yaw_rad - yaw0) == pytest.approx(math.radians(80), abs=math.radians(8))
 
 
+def test_acceleration_feed_forward_is_added_to_the_velocity_controllers_output():
+    """Like PX4's PositionControl: the feed-forward joins the velocity PID's acceleration, so a
+    hold with 2 m/s^2 east feed-forward accelerates east at first (the loops pull back later)."""
+    hold = Setpoint.hold([0.0, 0.0, 5.0], 0.0)
+
+    def east_speed_after(setpoint: Setpoint) -> float:
+        v = SimVehicle(seed=0)
+        start_offboard(v, [0.0, 0.0, 5.0])
+        fly(v, 6.0, hold)
+        vx0 = v.state.velocity_enu_mps[0]
+        fly(v, 0.4, setpoint)
+        return float(v.state.velocity_enu_mps[0] - vx0)
+
+    with_ff = Setpoint(position_enu_m=hold.position_enu_m, velocity_enu_mps=np.zeros(3),
+                       accel_enu_mps2=np.array([2.0, 0.0, 0.0]), yaw_rad=0.0)
+    gained = east_speed_after(with_ff)
+    assert gained > 0.4, f"2 m/s^2 feed-forward for 0.4 s gave {gained:.2f} m/s"
+    assert abs(east_speed_after(hold)) < 0.05
+
+
 def test_yaw_setpoint_is_followed_at_limited_rate():
     v = SimVehicle(seed=0)
     sp = start_offboard(v, [0.0, 0.0, 3.0], yaw_rad=0.0)
@@ -555,6 +575,15 @@ def test_set_position_target_type_mask_and_frames():
                                                       7, 7, -4.0, 0, 0, 0, 0, 0, 0, 0.0, 0))
     sp = setpoint_from_mavlink(m)
     assert np.isnan(sp.position_enu_m[:2]).all() and sp.position_enu_m[2] == 4.0
+    # acceleration feed-forward NED -> ENU; with FORCE_SET the same numbers are a force: ignored
+    acc_mask = IGNORE_POS | IGNORE_YAW | IGNORE_YAW_RATE
+    m = wire(GCS.set_position_target_local_ned_encode(0, 1, 1, M.MAV_FRAME_LOCAL_NED, acc_mask,
+                                                      0, 0, 0, 0, 0, 0, 1.0, 2.0, -3.0, 0.0, 0))
+    np.testing.assert_allclose(setpoint_from_mavlink(m).accel_enu_mps2, [2.0, 1.0, 3.0])
+    m = wire(GCS.set_position_target_local_ned_encode(0, 1, 1, M.MAV_FRAME_LOCAL_NED,
+                                                      acc_mask | M.POSITION_TARGET_TYPEMASK_FORCE_SET,
+                                                      0, 0, 0, 0, 0, 0, 1.0, 2.0, -3.0, 0.0, 0))
+    assert np.isnan(setpoint_from_mavlink(m).accel_enu_mps2).all()
     m = wire(GCS.set_position_target_local_ned_encode(0, 1, 1, M.MAV_FRAME_BODY_NED, 0, *[0] * 11))
     assert setpoint_from_mavlink(m) is None
 
