@@ -83,8 +83,12 @@ def record(args) -> int:
         raise CliError("no Zenoh router reachable: start the stack with `aero up`, or point --connect at one")
     svc = RecorderService(node, argparse.Namespace(scenario=""))
     node.set_health(svc.health)
-    with node.lock:
-        svc.start()
+    try:
+        with node.lock:
+            svc.start()
+    except ParamError as e:
+        node.close()
+        raise CliError(str(e)) from None
     print(f"recording {', '.join(svc.exprs)} (Ctrl-C to stop)", flush=True)
     t0 = time.monotonic()
     try:

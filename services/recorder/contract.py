@@ -37,6 +37,9 @@ PARAMS = [
     Param("output_dir", "", description="where files go; '' = $AERO_RECORD_DIR or ~/.aero/recordings"),
     Param("prefix", "aero", description="file names: <prefix>_<UTC start>_<split>.mcap"),
     Param("max_bag_size", 1 << 30, "B", 1 << 16, 1 << 40, description="start a new file past this size"),
+    Param("max_total_size", 0, "B", 0, 1 << 50,
+          description="disk budget of the <prefix>_*.mcap files in output_dir (0 = none): before each new file "
+                      "the oldest are deleted so they and a full new file fit; >= 2 x max_bag_size + chunk_size"),
     Param("flush_interval_s", 0.5, "s", 0.05, 1.0, description="chunks written at least this often (kill -9 loses <= this)"),
     Param("chunk_size", 1 << 20, "B", 1 << 12, 1 << 26, description="chunk written early when it reaches this size"),
     Param("compression", "zstd", choices=("zstd", "lz4", "none"), description="chunk compression"),

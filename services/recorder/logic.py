@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import threading
 import time
 from collections import Counter, deque
@@ -122,6 +123,15 @@ class SinkConfig:
     chunk_size: int = 1 << 20
     compression: str = "zstd"
     flush_interval_s: float = 0.5
+    max_total_size: int = 0      # disk budget of <prefix>_*.mcap in output_dir (0: none), see McapSink._rotate
+
+    def check(self) -> None:
+        """A budget must hold a finished split besides the one being written (at most
+        max_bag_size + chunk_size), or every new split would delete the one before it."""
+        least = 2 * self.max_bag_size + self.chunk_size
+        if self.max_total_size and self.max_total_size < least:
+            raise ValueError(f"max_total_size {self.max_total_size} B keeps less than one finished file: "
+                             f"give at least 2 x max_bag_size + chunk_size = {least} B, or lower max_bag_size")
 
 
 _COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
@@ -133,6 +143,50 @@ class SinkStats:
     bytes: int = 0
     files: list[str] = field(default_factory=list)
     per_key: Counter = field(default_factory=Counter)
+    deleted: list[str] = field(default_factory=list)   # split files removed to stay within max_total_size
+    deleted_bytes: int = 0
+    delete_errors: int = 0
+
+
+def split_files(output_dir: Path, prefix: str) -> list[Path]:
+    """The recorder's own files in `output_dir` (<prefix>_<UTC start>_<split>.mcap), oldest first:
+    by start time, then split number (not by name: split 10 sorts before 2). Other files are
+    never listed, so rotation cannot delete what the recorder did not write."""
+    pattern = re.compile(rf"^{re.escape(prefix)}_(\d{{8}}T\d{{6}}Z)_(\d+)\.mcap$")
+    found = []
+    for path in output_dir.glob(f"{prefix}_*.mcap") if output_dir.is_dir() else ():
+        m = pattern.match(path.name)
+        if m:
+            found.append(((m.group(1), int(m.group(2))), path))
+    return [path for _, path in sorted(found)]
+
+
+LIVE_S = 10.0       # an unfinished split file touched this recently may be another recorder's
+_MCAP_MAGIC = b"\x89MCAP0\r\n"
+
+
+def _finished(path: Path) -> bool:
+    """Whether the MCAP file ends with its closing magic (its writer finished it)."""
+    with open(path, "rb") as f:
+        f.seek(0, os.SEEK_END)
+        if f.tell() < 2 * len(_MCAP_MAGIC):
+            return False
+        f.seek(-len(_MCAP_MAGIC), os.SEEK_END)
+        return f.read() == _MCAP_MAGIC
+
+
+def rotation_victims(sizes: list[tuple[Path, int]], max_total_size: int, reserve: int) -> list[Path]:
+    """The oldest files to delete (`sizes`: (path, bytes) oldest first) so that what is left plus
+    `reserve` (bytes that stay: the split about to be written, files in use) fits in
+    `max_total_size`; all of them if it cannot fit."""
+    total = sum(size for _, size in sizes) + reserve
+    victims = []
+    for path, size in sizes:
+        if total <= max_total_size:
+            break
+        victims.append(path)
+        total -= size
+    return victims
 
 
 class McapSink:
@@ -227,8 +281,40 @@ class McapSink:
         self._channels[(key, encoding)] = ch
         return ch
 
+    def _rotate(self) -> None:
+        """Before a new split: delete the oldest split files (this flight's or earlier ones) until
+        they plus a full new split fit in max_total_size. A file being written by another
+        recorder (unfinished, touched in the last LIVE_S) is counted, never deleted. A file that
+        cannot be deleted is counted and the recording goes on (over budget, not stopped)."""
+        now = time.time()
+        candidates, live_bytes = [], 0
+        for path in split_files(self.cfg.output_dir, self.cfg.prefix):
+            try:
+                st = path.stat()
+                live = now - st.st_mtime < LIVE_S and not _finished(path)
+            except OSError:     # deleted meanwhile
+                continue
+            if live:
+                live_bytes += st.st_size
+            else:
+                candidates.append((path, st.st_size))
+        size_of = dict(candidates)
+        reserve = live_bytes + self.cfg.max_bag_size + self.cfg.chunk_size   # the new split's worst case
+        for path in rotation_victims(candidates, self.cfg.max_total_size, reserve):
+            try:
+                path.unlink()
+            except FileNotFoundError:
+                continue
+            except OSError:
+                self.stats.delete_errors += 1
+                continue
+            self.stats.deleted.append(str(path))
+            self.stats.deleted_bytes += size_of[path]
+
     def _open(self) -> None:
         self.cfg.output_dir.mkdir(parents=True, exist_ok=True)
+        if self.cfg.max_total_size:
+            self._rotate()
         self._path = self.cfg.output_dir / f"{self.cfg.prefix}_{self._stamp}_{self._split}.mcap"
         self._split += 1
         self._stream = _FileStream(self._path)

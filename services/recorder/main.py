@@ -11,7 +11,7 @@ from pathlib import Path
 import zenoh
 
 from aeroperception.schemas import DiagnosticStatus, ParamList, SchemaError, decode
-from aeroperception.services.runtime import Health, Service, run
+from aeroperception.services.runtime import Health, ParamError, Service, run
 
 from . import contract
 from .logic import KeyFilter, McapSink, Recording, SinkConfig, default_output_dir, select_keys
@@ -52,7 +52,12 @@ class RecorderService(Service):
         self.exprs = select_keys(p.preset, extra, p.record_images)
         out = Path(p.output_dir).expanduser() if p.output_dir else default_output_dir()
         cfg = SinkConfig(output_dir=out, prefix=p.prefix, max_bag_size=p.max_bag_size, chunk_size=p.chunk_size,
-                         compression=p.compression, flush_interval_s=p.flush_interval_s)
+                         compression=p.compression, flush_interval_s=p.flush_interval_s,
+                         max_total_size=p.max_total_size)
+        try:
+            cfg.check()
+        except ValueError as e:
+            raise ParamError(str(e)) from None
         meta = {"stack_version": stack_version(), "scenario": getattr(self.args, "scenario", "") or "",
                 "vehicle": self.node.vehicle, "preset": p.preset, "keys": ",".join(self.exprs),
                 "record_images": str(p.record_images).lower(),
@@ -64,7 +69,8 @@ class RecorderService(Service):
         self._drops_seen, self._drop_at = 0, float("-inf")
         for i, expr in enumerate(self.exprs):
             self.node.subscribe_raw(self.node.key(expr), self._on_sample_for(i))
-        self.log.info("recording", keys=self.exprs, output_dir=str(out))
+        self.log.info("recording", keys=self.exprs, output_dir=str(out), max_bag_size=p.max_bag_size,
+                      max_total_size=p.max_total_size or None)
         threading.Thread(target=self._record_params, name="recorder-params", daemon=True).start()
 
     def _on_sample_for(self, index: int):
@@ -97,7 +103,8 @@ class RecorderService(Service):
         self.recording.close()
         sink = self.recording.sink
         self.log.info("recording_closed", files=sink.stats.files, messages=sink.stats.messages,
-                      dropped=self.recording.dropped, error=sink.error or None)
+                      dropped=self.recording.dropped, error=sink.error or None,
+                      rotated_out=len(sink.stats.deleted) or None)
 
     def health(self) -> Health:
         sink = self.recording.sink
@@ -105,6 +112,9 @@ class RecorderService(Service):
                   "files": len(sink.stats.files), "file": str(sink.path or ""),
                   "dropped": self.recording.dropped, "buffered_bytes": self.recording.buffer.bytes,
                   "before_clock": self.recording.before_clock,
+                  "rotated_out_files": len(sink.stats.deleted),
+                  "rotated_out_mbytes": round(sink.stats.deleted_bytes / 1e6, 2),
+                  "rotation_errors": sink.stats.delete_errors,
                   "keys": ",".join(self.exprs)}
         if sink.failed:
             return Health(DiagnosticStatus.ERROR, f"recording stopped: {sink.error}", values)

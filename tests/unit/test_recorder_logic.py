@@ -3,10 +3,12 @@ interval, disk errors), recover, replay timing and the Foxglove export."""
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import subprocess
 import sys
 import textwrap
+from pathlib import Path
 
 import msgpack
 import numpy as np
@@ -19,7 +21,7 @@ from aeroperception.schemas import (
 )
 from aeroperception.services.recorder.files import info, is_indexed, recover, scan
 from aeroperception.services.recorder.logic import (
-    KeyFilter, McapSink, Recording, Sample, SinkConfig, select_keys,
+    KeyFilter, McapSink, Recording, Sample, SinkConfig, rotation_victims, select_keys, split_files,
 )
 from aeroperception.services.recorder.replay import CLOCK_KEY, Recorded, Replayer
 from aeroperception.services.runtime.node import encoding_for
@@ -100,6 +102,65 @@ def test_splits_past_max_bag_size_each_file_complete(tmp_path):
         assert fi.metadata["aeroperception"] == {"preset": "x"}          # each split stands alone
         assert (tmp_path / p).stat().st_size <= cfg.max_bag_size + 4096   # + the summary
     assert total == n
+
+
+def dir_bytes(path) -> int:
+    return sum(f.stat().st_size for f in path.glob("*.mcap"))
+
+
+def test_rotation_deletes_the_oldest_first_until_the_new_split_fits(tmp_path):
+    a, b, c = tmp_path / "a", tmp_path / "b", tmp_path / "c"
+    assert rotation_victims([(a, 40), (b, 40), (c, 40)], max_total_size=150, reserve=50) == [a]
+    assert rotation_victims([(a, 40), (b, 40), (c, 40)], max_total_size=170, reserve=50) == []
+    assert rotation_victims([(a, 40), (b, 40)], max_total_size=30, reserve=50) == [a, b]   # cannot fit: all
+
+
+def test_split_files_are_ours_only_oldest_first_by_start_then_split_number(tmp_path):
+    names = ["aero_20260101T000000Z_10.mcap", "aero_20260101T000000Z_2.mcap", "aero_20251231T230000Z_0.mcap",
+             "aero_notes.mcap", "other_20250101T000000Z_0.mcap", "aero_20260101T000000Z_3.mcap.bak"]
+    for n in names:
+        (tmp_path / n).write_bytes(b"x")
+    assert [p.name for p in split_files(tmp_path, "aero")] == \
+        ["aero_20251231T230000Z_0.mcap", "aero_20260101T000000Z_2.mcap", "aero_20260101T000000Z_10.mcap"]
+
+
+def test_a_budget_below_two_splits_is_refused():
+    with pytest.raises(ValueError, match="max_total_size"):
+        SinkConfig(Path("."), max_bag_size=1 << 16, chunk_size=1 << 14, max_total_size=1 << 17).check()
+    SinkConfig(Path("."), max_bag_size=1 << 16, chunk_size=1 << 14, max_total_size=(1 << 17) + (1 << 14)).check()
+
+
+def test_rotation_keeps_the_directory_within_budget_while_recording(tmp_path):
+    """Older flights go first, then this flight's oldest splits; a foreign file and another
+    recorder's live file are never touched; every file left is complete."""
+    budget = 5 * (1 << 16)
+    old_flight = tmp_path / "aero_20200101T000000Z_0.mcap"
+    old_flight.write_bytes(b"\x00" * (1 << 16))                # cut short (no closing magic), long ago
+    os.utime(old_flight, (1e9, 1e9))
+    foreign = tmp_path / "aero_notes.mcap"
+    foreign.write_bytes(b"\x00" * 1000)
+    live = tmp_path / "aero_20200101T000001Z_0.mcap"            # another recorder's file being written
+    live.write_bytes(b"\x89MCAP0\r\n" + b"\x00" * 5000)
+    cfg = SinkConfig(tmp_path, max_bag_size=1 << 16, chunk_size=1 << 14, compression="none", max_total_size=budget)
+    cfg.check()
+    clock = FakeClock()
+    sink = McapSink(cfg, clock=clock)
+    payload = bytes(range(256)) * 4
+    n, peak = 1500, 0
+    for i in range(n):
+        clock.t = i * 0.01
+        sink.write([Sample("blob", "application/octet-stream", payload, i)])
+        peak = max(peak, dir_bytes(tmp_path))
+    sink.close()
+    assert peak <= budget and dir_bytes(tmp_path) <= budget
+    written = sink.stats.files
+    assert len(written) >= 15 and not old_flight.exists() and sink.stats.deleted[0] == str(old_flight)
+    assert foreign.exists() and live.exists()
+    kept = [p for p in written if Path(p).exists()]
+    assert kept == written[-len(kept):] and len(kept) >= 2                # the newest splits are kept
+    assert sink.stats.deleted[1:] == written[:len(written) - len(kept)]   # this flight's oldest went first
+    assert all(is_indexed(p) for p in kept)
+    assert sum(info(p).messages for p in kept) < n                        # (rotation really dropped data)
 
 
 def test_chunks_reach_disk_every_flush_interval_and_recover_indexes_a_cut_file(tmp_path):
