@@ -2,6 +2,8 @@
 
 It publishes nothing but its diagnostics; its inputs are whatever the preset selects.
 """
+from dataclasses import replace
+
 from aeroperception.services.runtime import Param
 
 NAME = "recorder"
@@ -30,7 +32,7 @@ ESSENTIALS = (
 IMAGE_KEYS = ("sensors/camera/*/image",)
 PRESETS = {"essentials": ESSENTIALS, "all": ("**",), "none": ()}
 
-PARAMS = [
+_PARAMS = [
     Param("preset", "essentials", choices=tuple(PRESETS), description="key set: essentials, all, or none (keys only)"),
     Param("keys", "", description="extra key expressions, comma-separated (e.g. sensors/imu,planner/**)"),
     Param("record_images", False, description="also record camera images (sensors/camera/*/image)"),
@@ -46,3 +48,5 @@ PARAMS = [
     Param("max_buffer_mb", 64.0, "MiB", 1.0, 4096.0, description="samples waiting for the disk; beyond it new ones are dropped and counted"),
     Param("params_timeout_s", 1.0, "s", 0.1, 10.0, description="wait for every service's parameters at start (metadata)"),
 ]
+# Every parameter is read once, when the recording starts: a live set is refused, saying so.
+PARAMS = [replace(p, start_only=True) for p in _PARAMS]

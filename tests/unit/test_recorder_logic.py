@@ -19,11 +19,13 @@ from aeroperception.schemas import (
     DiagnosticArray, DiagnosticStatus, Header, Image, MissionStatus, NDArray, OccupancyGrid, Odometry, PointCloud,
     VehicleState, Vector3, encode, schema_id,
 )
+from aeroperception.services.recorder import contract
 from aeroperception.services.recorder.files import info, is_indexed, recover, scan
 from aeroperception.services.recorder.logic import (
     KeyFilter, McapSink, Recording, Sample, SinkConfig, rotation_victims, select_keys, split_files,
 )
 from aeroperception.services.recorder.replay import CLOCK_KEY, Recorded, Replayer
+from aeroperception.services.runtime import ParamError, ParamSet
 from aeroperception.services.runtime.node import encoding_for
 
 
@@ -161,6 +163,14 @@ def test_rotation_keeps_the_directory_within_budget_while_recording(tmp_path):
     assert sink.stats.deleted[1:] == written[:len(written) - len(kept)]   # this flight's oldest went first
     assert all(is_indexed(p) for p in kept)
     assert sum(info(p).messages for p in kept) < n                        # (rotation really dropped data)
+
+
+def test_recorder_parameters_are_read_at_start_so_a_live_set_is_refused():
+    params = ParamSet.from_declarations(contract.PARAMS)
+    params.update({"max_total_size": 1 << 33})                     # start-up values: taken
+    with pytest.raises(ParamError, match="read at start only"):
+        params.apply("max_total_size", 1 << 34)                   # live: refused, not ignored
+    assert params.max_total_size == 1 << 33
 
 
 def test_chunks_reach_disk_every_flush_interval_and_recover_indexes_a_cut_file(tmp_path):
