@@ -83,7 +83,8 @@ class MissionCommand(Message, kw_only=True):
 @schema("PerceptionHealth", 1)
 class PerceptionHealth(Message, kw_only=True):
     """The perception coordinator's verdict (perception/health, 1 Hz + on change): the single
-    input the mission manager gates EXECUTING on. `overall_healthy` is vio_status == HEALTHY.
+    input the mission manager gates EXECUTING on. `overall_healthy` is vio_status == HEALTHY (true
+    in a stack without VIO: nothing gates on it there).
     `lidar_status` (same enum; the LiDAR obstacle service's diagnostics) is reported, not gated on."""
 
     header: Header = msgspec.field(default_factory=Header)
@@ -98,6 +99,7 @@ class PerceptionHealth(Message, kw_only=True):
     HEALTHY = 2
     DEGRADED = 3
     FAILED = 4
+    NOT_CONFIGURED = 5   # the stack runs no such source (e.g. `aero up --sensors camera`: no LiDAR)
 
     @classmethod
     def status_name(cls, value: int) -> str:

@@ -49,6 +49,7 @@ from aeroperception.services.runtime.session import make_config, open_session
 from aeroperception.services.safety.geofence import Geofence
 
 from .bench_flight import _msgid
+from .cmd_up import fed_services
 from .common import CliError
 
 REPO = Path(__file__).resolve().parents[1]
@@ -366,8 +367,9 @@ class SimStack:
                  startup_timeout_s: float = 45.0):
         self.log_dir = Path(log_dir or tempfile.mkdtemp(prefix="aero-chaos-"))
         self.log_dir.mkdir(parents=True, exist_ok=True)
-        self.services = services or profile_services("sim")
+        self.requested = services or profile_services("sim")
         self.sensors, self.speed, self.extra_args = sensors, speed, list(extra_args)
+        self.services = fed_services(self.requested, sensors)[0]
         self.startup_timeout_s = startup_timeout_s
         self.fence = Geofence()
         self.session: zenoh.Session | None = None
@@ -380,6 +382,7 @@ class SimStack:
 
     def start(self) -> None:
         self.starts += 1
+        self.services = fed_services(self.requested, self.sensors)[0]   # what `aero up` starts for them
         self.endpoint = f"tcp/127.0.0.1:{free_port()}"
         sim_port, fmu_port, sim_bind = (free_port(socket.SOCK_DGRAM) for _ in range(3))
         self.gcs_port, self.gcs_remote_port = free_port(socket.SOCK_DGRAM), free_port(socket.SOCK_DGRAM)

@@ -212,6 +212,29 @@ FCU_URL_RE = re.compile(r"^(?:(?:udp|udpin|udpout|udpbcast|tcp|tcpin):[A-Za-z0-9
                         r"|(?:/dev/\S+|COM\d+)(?:,\d+)?)$")
 
 
+# `aero up --sensors`: what the simulator renders for each choice (the IMU always, but with none),
+# and the services that exist only to process one sensor: not started when it is not rendered (a
+# lidar service without scans would say WARN for ever); perception is told which sources run.
+SENSORS_RENDERED = {"all": {"camera", "lidar"}, "camera": {"camera"}, "lidar": {"lidar"}, "imu": set(), "none": set()}
+SENSOR_SERVICES = {"vio": "camera", "detector": "camera", "lidar": "lidar"}
+SENSOR_NAMES = {"camera": "cameras", "lidar": "LiDAR"}
+
+
+def fed_services(names: list[str], sensors: str | None) -> tuple[list[str], dict[str, str]]:
+    """(services to start, {left out: why}) for `--sensors` (None: all); perception is left out
+    when none of its sources (vio, detector, lidar) runs."""
+    from aeroperception.services.perception.logic import SOURCES
+
+    rendered = SENSORS_RENDERED[sensors or "all"]
+    out = {n: f"--sensors {sensors} renders no {SENSOR_NAMES[SENSOR_SERVICES[n]]}"
+           for n in names if n in SENSOR_SERVICES and SENSOR_SERVICES[n] not in rendered}
+    kept = [n for n in names if n not in out]
+    if "perception" in kept and not any(s in kept for s in SOURCES):
+        out["perception"] = "none of its sources (vio, detector, lidar) runs"
+        kept.remove("perception")
+    return kept, out
+
+
 # `aero up --gps-denied`: the sim FC estimates position from the VIO only (SIM_GPS_DENIED); the
 # mission gates EXECUTING on perception/health (seed 000 §4.1 / §5.1).
 GPS_DENIED_NEEDS = ("vio", "perception")
@@ -269,9 +292,14 @@ def validate_args(args, names: list[str]) -> None:
                            f"{_did_you_mean(svc, everything)}")
 
 
-def service_argv(name: str, args, endpoint: str, profile_args: list[str] = ()) -> list[str]:
-    """The child's command line: the profile's flags for it first, so --arg/--fcu-url override them."""
+def service_argv(name: str, args, endpoint: str, profile_args: list[str] = (), running: list[str] = ()) -> list[str]:
+    """The child's command line: the profile's flags for it first, so --arg/--fcu-url override them.
+    `running`: every service started (perception's `sources` are those of them it watches)."""
     argv = [sys.executable, "-m", f"aeroperception.services.{name}", "--connect", endpoint, *profile_args]
+    if name == "perception" and running:
+        from aeroperception.services.perception.logic import SOURCES
+
+        argv += ["--param", "sources=" + ",".join(s for s in SOURCES if s in running)]
     # GPS-denied, the VIO's age is checked (fmu) against the sim's stamps: every service follows
     # sim/clock even at x1, where a sim that fell behind real time re-anchors and lags the wall clock.
     if (args.speed is not None and args.speed != 1.0) or getattr(args, "gps_denied", False):
@@ -374,13 +402,17 @@ def run(args) -> int:
     if args.thin_link:  # the router would refuse them: say so before anything starts
         thin_link_downsampling(args.thin_link, THIN_LINK_HZ if args.thin_link_hz is None else args.thin_link_hz)
     validate_args(args, names)
+    names, unfed = fed_services(names, args.sensors)
+    for n, why in unfed.items():
+        emit(f"aero up: not starting {n}: {why}")
     if args.dry_run:
         endpoint = args.listen.replace("0.0.0.0", "127.0.0.1")
         profile_args = load_profiles()[args.profile]["args"]
         joins = f", joining {', '.join(args.connect)}" if args.connect else ""
         emit(f"aero up: profile {args.profile}, router on {args.listen}{joins}; would start:")
         for n in names:
-            emit(f"  {n:<12} " + " ".join(service_argv(n, args, endpoint, [str(a) for a in profile_args.get(n, [])])))
+            emit(f"  {n:<12} " + " ".join(service_argv(n, args, endpoint, [str(a) for a in profile_args.get(n, [])],
+                                                         names)))
         return 0
     log_dir = Path(args.log_dir or Path.home() / ".aero" / "logs" / time.strftime("%Y%m%d-%H%M%S"))
     log_dir.mkdir(parents=True, exist_ok=True)
@@ -390,7 +422,7 @@ def run(args) -> int:
     vehicle = os.environ.get("AERO_VEHICLE") or "default"
     priorities = load_priorities()
     profile_args = load_profiles()[args.profile]["args"]
-    children = {n: Child(n, service_argv(n, args, endpoint, [str(a) for a in profile_args.get(n, [])]),
+    children = {n: Child(n, service_argv(n, args, endpoint, [str(a) for a in profile_args.get(n, [])], names),
                          log_dir / f"{n}.log", priority=priorities.get(n, Priority())) for n in names}
     lock = threading.Lock()
 

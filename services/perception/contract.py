@@ -12,6 +12,8 @@ OUTPUTS = {
     "perception/health": PerceptionHealth,                # 1 Hz + on every change of a status
 }
 PARAMS = [
+    Param("sources", "vio,detector,lidar",
+          description="sources this stack runs (aero up: those its --sensors feed); the others are NOT_CONFIGURED"),
     Param("vio_timeout_s", 3.0, "s", 0.5, 30.0, description="no state/vio_health this long -> VIO UNKNOWN (unhealthy)"),
     Param("detector_timeout_s", 3.0, "s", 0.5, 30.0, description="no detector health this long -> detector UNKNOWN"),
     Param("lidar_timeout_s", 3.0, "s", 0.5, 30.0, description="no lidar diagnostics this long -> lidar UNKNOWN"),

@@ -2,8 +2,10 @@
 
 Mapping (seed 000 §4.1/§4.3, PerceptionHealth's enum): VIO INIT -> INITIALIZING, TRACKING -> HEALTHY,
 DEGRADED -> DEGRADED, LOST -> FAILED; a DiagnosticStatus OK -> HEALTHY, WARN -> DEGRADED,
-ERROR -> FAILED, STALE -> UNKNOWN; a source silent past its timeout (or never heard) is UNKNOWN.
-overall_healthy iff VIO is HEALTHY: only the VIO gates flight (the detector and LiDAR are reported).
+ERROR -> FAILED, STALE -> UNKNOWN; a source silent past its timeout (or never heard) is UNKNOWN; a
+source the stack does not run (not in `sources`: no camera, no LiDAR) is NOT_CONFIGURED, not broken.
+overall_healthy iff VIO is HEALTHY: only the VIO gates flight (the detector and LiDAR are reported);
+a stack without VIO has nothing to gate on and is healthy.
 """
 from __future__ import annotations
 
@@ -17,6 +19,7 @@ VIO_STATUS = {VioHealth.INIT: PH.INITIALIZING, VioHealth.TRACKING: PH.HEALTHY,
 DIAG_STATUS = {DiagnosticStatus.OK: PH.HEALTHY, DiagnosticStatus.WARN: PH.DEGRADED,
                DiagnosticStatus.ERROR: PH.FAILED, DiagnosticStatus.STALE: PH.UNKNOWN}
 SOURCES = ("vio", "detector", "lidar")
+QUIET = (PH.HEALTHY, PH.NOT_CONFIGURED)   # statuses the verdict's message gives without detail
 
 
 @dataclass
@@ -26,9 +29,19 @@ class _Seen:
     at_s: float | None = None
 
 
+def parse_sources(text: str) -> frozenset[str]:
+    """`sources` ("vio,detector"; "" = none) -> the set; ValueError naming an unknown one."""
+    names = frozenset(s.strip() for s in text.split(",") if s.strip())
+    unknown = sorted(names - set(SOURCES))
+    if unknown:
+        raise ValueError(f"sources: unknown {', '.join(unknown)}; known: {', '.join(SOURCES)}")
+    return names
+
+
 class Coordinator:
-    def __init__(self, timeouts_s: dict[str, float]):
+    def __init__(self, timeouts_s: dict[str, float], sources: frozenset[str] = frozenset(SOURCES)):
         self.timeouts_s = dict(timeouts_s)
+        self.sources = sources
         self.seen = {s: _Seen() for s in SOURCES}
         self.last_key: tuple | None = None
 
@@ -42,6 +55,8 @@ class Coordinator:
         self.seen["lidar"] = _Seen(DIAG_STATUS.get(msg.level, PH.UNKNOWN), msg.message, now_s)
 
     def status(self, source: str, now_s: float) -> tuple[int, str]:
+        if source not in self.sources:
+            return PH.NOT_CONFIGURED, "not in this stack"
         s = self.seen[source]
         if s.at_s is None:
             return PH.UNKNOWN, "no status yet"
@@ -51,8 +66,8 @@ class Coordinator:
 
     def verdict(self, now_s: float, stamp_ns: int) -> PerceptionHealth:
         st = {src: self.status(src, now_s) for src in SOURCES}
-        healthy = st["vio"][0] == PH.HEALTHY
-        parts = [f"{src} {PH.status_name(code)}" + (f" ({detail[:80]})" if detail and code != PH.HEALTHY else "")
+        healthy = st["vio"][0] in (PH.HEALTHY, PH.NOT_CONFIGURED)
+        parts = [f"{src} {PH.status_name(code)}" + (f" ({detail[:80]})" if detail and code not in QUIET else "")
                  for src, (code, detail) in st.items()]
         return PerceptionHealth(header=Header(stamp_ns=stamp_ns), vio_status=st["vio"][0],
                                 detector_status=st["detector"][0], lidar_status=st["lidar"][0],

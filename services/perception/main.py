@@ -4,12 +4,13 @@ from __future__ import annotations
 import time
 
 from aeroperception.schemas import DiagnosticStatus, PerceptionHealth, VioHealth
-from aeroperception.services.runtime import Health, Service, run
+from aeroperception.services.runtime import Health, ParamError, Service, run
 
 from . import contract
-from .logic import SOURCES, Coordinator
+from .logic import SOURCES, Coordinator, parse_sources
 
-LEVEL = {PerceptionHealth.HEALTHY: DiagnosticStatus.OK, PerceptionHealth.FAILED: DiagnosticStatus.ERROR}
+LEVEL = {PerceptionHealth.HEALTHY: DiagnosticStatus.OK, PerceptionHealth.NOT_CONFIGURED: DiagnosticStatus.OK,
+         PerceptionHealth.FAILED: DiagnosticStatus.ERROR}
 
 
 class PerceptionService(Service):
@@ -20,7 +21,7 @@ class PerceptionService(Service):
 
     def start(self) -> None:
         p = self.params
-        self.coord = Coordinator({s: p[f"{s}_timeout_s"] for s in SOURCES})
+        self.coord = Coordinator({s: p[f"{s}_timeout_s"] for s in SOURCES}, parse_sources(p.sources))
         self.params.on_change(self._on_param)
         self.pub = self.node.publisher("perception/health", PerceptionHealth)
         self.last: PerceptionHealth | None = None
@@ -37,6 +38,12 @@ class PerceptionService(Service):
             self.coord.timeouts_s[name[: -len("_timeout_s")]] = value
         elif name == "check_rate_hz":
             self.loop.set_rate(value)
+        elif name == "sources":
+            try:
+                self.coord.sources = parse_sources(value)
+            except ValueError as e:
+                raise ParamError(str(e)) from None
+            self._check()
 
     def _input(self, feed, msg) -> None:
         feed(msg, time.monotonic())

@@ -1,7 +1,9 @@
 """Perception coordinator logic (services/perception/logic.py): seed 000's enum mapping, the
 VIO-only gate, timeouts and the on-change trigger."""
+import pytest
+
 from aeroperception.schemas import DiagnosticStatus, PerceptionHealth, VioHealth
-from aeroperception.services.perception.logic import Coordinator
+from aeroperception.services.perception.logic import Coordinator, parse_sources
 
 PH = PerceptionHealth
 
@@ -47,3 +49,25 @@ def test_stale_diagnostics_are_unknown_and_changes_are_detected_once():
     assert c.changed(m) and not c.changed(c.verdict(0.1, 1))
     c.on_vio(VioHealth(state=VioHealth.TRACKING), 0.2)
     assert c.changed(c.verdict(0.2, 1))
+
+
+def test_a_source_the_stack_does_not_run_is_not_configured_not_broken():
+    """`aero up --sensors camera`: no LiDAR service. Its status is NOT_CONFIGURED (never DEGRADED or
+    UNKNOWN for ever), and a stack without VIO (--sensors lidar) has nothing to gate on."""
+    c = Coordinator({"vio": 3.0, "detector": 3.0, "lidar": 3.0}, parse_sources("vio,detector"))
+    c.on_vio(VioHealth(state=VioHealth.TRACKING), 0.0)
+    c.on_detector(DiagnosticStatus(level=DiagnosticStatus.OK), 0.0)
+    m = c.verdict(2.0, 1)
+    assert (m.vio_status, m.detector_status, m.lidar_status) == (PH.HEALTHY, PH.HEALTHY, PH.NOT_CONFIGURED)
+    assert m.overall_healthy and "lidar NOT_CONFIGURED" in m.message and "(" not in m.message
+    lidar_only = Coordinator({"vio": 3.0, "detector": 3.0, "lidar": 3.0}, parse_sources("lidar"))
+    lidar_only.on_lidar(DiagnosticStatus(level=DiagnosticStatus.OK), 0.0)
+    m = lidar_only.verdict(0.5, 1)
+    assert (m.vio_status, m.detector_status, m.lidar_status) == (PH.NOT_CONFIGURED, PH.NOT_CONFIGURED, PH.HEALTHY)
+    assert m.overall_healthy
+
+
+def test_unknown_sources_are_refused_naming_them():
+    with pytest.raises(ValueError, match="unknown radar; known: vio, detector, lidar"):
+        parse_sources("vio,radar")
+    assert parse_sources("") == frozenset()
