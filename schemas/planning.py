@@ -69,7 +69,14 @@ class Trajectory(Message, kw_only=True):
 
 @schema("TrajectoryStatus", 1)
 class TrajectoryStatus(Message, kw_only=True):
-    """Progress of the trajectory being flown (planner/status, 10 Hz)."""
+    """Progress of the goal being flown (planner/status, 10 Hz).
+
+    progress_percent: share of the leg flown, from where the vehicle was when the goal began to
+    the goal's acceptance radius; elapsed_time_s: since the goal began (frozen on arrival);
+    remaining_time_s: the distance left at the planner's commanded speed profile;
+    current_setpoint: the setpoint last sent to fmu; position_error_m: distance from the vehicle
+    to the goal (holding: to the hold point); velocity_error_mps: |current_setpoint velocity -
+    vehicle velocity|. Without a goal the progress fields are 0."""
 
     header: Header = msgspec.field(default_factory=Header)
     trajectory_id: str = ""

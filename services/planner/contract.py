@@ -14,10 +14,11 @@ INPUTS = {
 }
 OUTPUTS = {
     "fmu/in/trajectory_setpoint": TrajectorySetpoint,   # 50 Hz, always
-    "planner/status": TrajectoryStatus,                  # 10 Hz
+    "planner/status": TrajectoryStatus,                  # 10 Hz (STATUS_RATE_HZ): progress, times, setpoint, errors
     "planner/waypoint_reached": WaypointReached,         # event; index = n-th goal received
 }
 HOLD_FRAME = "hold"
+STATUS_RATE_HZ = 10.0
 PARAMS = [
     Param("max_velocity_mps", 2.0, "m/s", 0.1, 15.0, description="speed cap of the velocity command"),
     Param("kp", 0.8, "1/s", 0.05, 5.0, description="proportional gain on position error"),

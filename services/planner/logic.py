@@ -1,6 +1,7 @@
 """Planner logic, free of Zenoh: state + goal in, setpoint out (ENU, SI)."""
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -13,6 +14,24 @@ class Goal:
     position_m: np.ndarray
     yaw_rad: float | None
     index: int = 0
+
+
+@dataclass
+class Leg:
+    """The way to one goal: where and when the vehicle was when it began, when it arrived."""
+
+    start_m: np.ndarray
+    started_s: float
+    arrived_s: float | None = None
+
+
+@dataclass
+class Progress:
+    """planner/status's progress fields for the active goal."""
+
+    percent: float = 0.0
+    elapsed_s: float = 0.0
+    remaining_s: float = 0.0
 
 
 @dataclass
@@ -47,10 +66,24 @@ class GoalWatchdog:
         return True
 
 
+def time_to_go_s(distance_m: float, max_velocity_mps: float, kp: float, acceptance_radius_m: float) -> float:
+    """Time the P-controller's own speed profile, min(max_velocity, kp * d), takes from
+    `distance_m` to the acceptance radius: cruise until kp * d drops below the cap, then the
+    exponential approach d(t) = d1 * exp(-kp t)."""
+    d, t = distance_m, 0.0
+    slow_from_m = max(max_velocity_mps / kp, acceptance_radius_m)
+    if d > slow_from_m:
+        t, d = (d - slow_from_m) / max_velocity_mps, slow_from_m
+    if d > acceptance_radius_m:
+        t += math.log(d / acceptance_radius_m) / kp
+    return t
+
+
 class WaypointPlanner:
     """P-controller to the current goal; holds position (zero velocity) without one.
 
-    `reached` fires once per goal, the cycle the vehicle enters the acceptance radius.
+    `reached` fires once per goal, the cycle the vehicle enters the acceptance radius. Each goal's
+    leg starts where the vehicle is at the first step after the goal arrived (`leg`, for progress).
     """
 
     def __init__(self, max_velocity_mps: float = 2.0, kp: float = 0.8, acceptance_radius_m: float = 0.5):
@@ -61,6 +94,7 @@ class WaypointPlanner:
         self.hold_position_m: np.ndarray | None = None
         self.hold_yaw_rad: float = 0.0
         self._reached_sent = False
+        self.leg: Leg | None = None
         self.status = TrajectoryStatus.STATUS_IDLE
 
     def set_goal(self, goal: Goal | None) -> None:
@@ -68,11 +102,14 @@ class WaypointPlanner:
                 and np.allclose(goal.position_m, self.goal.position_m))
         if not same:
             self._reached_sent = False
+            self.leg = None
         self.goal = goal
         if goal is None:
             self.hold_position_m = None  # captured from the next state
 
-    def step(self, position_m: np.ndarray, yaw_rad: float) -> StepResult:
+    def step(self, position_m: np.ndarray, yaw_rad: float, now_s: float = 0.0) -> StepResult:
+        if self.goal is not None and self.leg is None:
+            self.leg = Leg(position_m.copy(), now_s)
         if self.goal is None:
             if self.hold_position_m is None:
                 self.hold_position_m, self.hold_yaw_rad = position_m.copy(), yaw_rad
@@ -83,6 +120,7 @@ class WaypointPlanner:
         reached = distance < self.acceptance_radius_m and not self._reached_sent
         if reached:
             self._reached_sent = True
+            self.leg.arrived_s = now_s
         speed = min(self.max_velocity_mps, distance * self.kp)
         velocity = error / distance * speed if distance > 1e-6 else np.zeros(3)
         yaw = self.goal.yaw_rad if self.goal.yaw_rad is not None else yaw_rad
@@ -91,6 +129,31 @@ class WaypointPlanner:
                                 position_m=Vector3.from_array(self.goal.position_m),
                                 velocity_mps=Vector3.from_array(velocity), yaw_rad=yaw)
         return StepResult(sp, distance, reached)
+
+    def progress(self, position_m: np.ndarray, now_s: float) -> Progress:
+        """Progress of the active goal: the share of the leg flown to the acceptance radius
+        (by the straight distance left), time since the leg began (until arrival), and the
+        time the remaining distance takes at the commanded speed profile. Zeros without a goal."""
+        leg, goal = self.leg, self.goal
+        if goal is None or leg is None:
+            return Progress()
+        if leg.arrived_s is not None:
+            return Progress(100.0, leg.arrived_s - leg.started_s, 0.0)
+        left = float(np.linalg.norm(goal.position_m - position_m))
+        span = float(np.linalg.norm(goal.position_m - leg.start_m)) - self.acceptance_radius_m
+        done = 1.0 if span <= 0 else (span - (left - self.acceptance_radius_m)) / span
+        return Progress(100.0 * min(1.0, max(0.0, done)), now_s - leg.started_s,
+                        time_to_go_s(left, self.max_velocity_mps, self.kp, self.acceptance_radius_m))
+
+
+def tracking_errors(setpoint: TrajectorySetpoint, planner: WaypointPlanner, position_m: np.ndarray,
+                    velocity_mps: np.ndarray) -> tuple[float, float]:
+    """(position error, velocity error) of the vehicle against its reference: the distance to
+    the goal (the hold point without one), and the difference between the velocity last sent
+    to fmu and the vehicle's velocity."""
+    ref = planner.goal.position_m if planner.goal is not None else planner.hold_position_m
+    position_error = float(np.linalg.norm(ref - position_m)) if ref is not None else 0.0
+    return position_error, float(np.linalg.norm(setpoint.velocity_mps.to_array() - velocity_mps))
 
 
 hold_setpoint = TrajectorySetpoint.hold   # one home: the schema's hold constructor

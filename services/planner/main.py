@@ -5,13 +5,14 @@ import math
 import time
 
 from aeroperception.schemas import (
-    DiagnosticStatus, Header, OccupancyGrid, PoseStamped, TrajectoryStatus, Vector3, VehicleState, WaypointReached,
+    DiagnosticStatus, Header, OccupancyGrid, PoseStamped, TrajectorySetpoint, TrajectoryStatus, Vector3, VehicleState,
+    WaypointReached,
 )
 from aeroperception.services.runtime import Health, LatestWorker, Service, run
 
 from . import contract
 from .avoidance import AvoidanceConfig, LocalPlanner
-from .logic import Goal, GoalWatchdog, WaypointPlanner
+from .logic import Goal, GoalWatchdog, WaypointPlanner, tracking_errors
 
 
 def avoidance_config(p) -> AvoidanceConfig:
@@ -36,6 +37,7 @@ class PlannerService(Service):
         self.delay_floor_ns: int | None = None
         self.state_rx_s = 0.0
         self.last_distance: float | None = None
+        self.last_setpoint: TrajectorySetpoint | None = None   # what fmu was last sent
         self.goal_msg: PoseStamped | None = None
         self.goals_received = 0
         self.goal_watch = GoalWatchdog(p.goal_timeout_s)
@@ -54,7 +56,7 @@ class PlannerService(Service):
         self.node.subscribe("perception/costmap", OccupancyGrid, self._on_costmap)
         self.last_pub_s = 0.0
         self.loop = self.node.every(1.0 / p.rate_hz, self._tick, name="setpoint")
-        self.node.every(0.1, self._publish_status, name="status")
+        self.node.every(1.0 / contract.STATUS_RATE_HZ, self._publish_status, name="status")
 
     def stop(self) -> None:
         self.replanner.stop()
@@ -123,7 +125,7 @@ class PlannerService(Service):
         if not self.state_fresh():
             return  # no state: send nothing; fmu holds on its own after 100 ms of silence
         st = self.state
-        res = self.planner.step(st.position_m.to_array(), st.yaw_rad)
+        res = self.planner.step(st.position_m.to_array(), st.yaw_rad, time.monotonic())
         if self.params.obstacle_avoidance and self.planner.goal is not None:
             out = self.avoid.adjust(st.position_m.to_array(), self.planner.goal.position_m,
                                     res.setpoint.velocity_mps.to_array(), time.monotonic())
@@ -133,6 +135,7 @@ class PlannerService(Service):
             self.obstacle_state, self.obstacle_reason = "clear", ""   # holding: no verdict about an old goal
         res.setpoint.header = Header(stamp_ns=st.header.stamp_ns, frame_id="map")
         self.pub_sp.publish(res.setpoint)
+        self.last_setpoint = res.setpoint
         self.last_pub_s = time.monotonic()
         self.last_distance = res.distance_m
         if res.reached and self.planner.goal is not None:
@@ -151,12 +154,18 @@ class PlannerService(Service):
 
     def _publish_status(self) -> None:
         self._check_goal_stream()
-        status = self.planner.status if self.state_fresh() else TrajectoryStatus.STATUS_ERROR
-        self.pub_status.publish(TrajectoryStatus(
-            header=self.node.header("map"), status=status,
-            trajectory_id=f"goal-{self.goals_received}",
-            position_error_m=self.last_distance or 0.0,
-            obstacle_state=self.obstacle_state, message=self.obstacle_reason))
+        fresh = self.state_fresh()
+        status = self.planner.status if fresh else TrajectoryStatus.STATUS_ERROR
+        msg = TrajectoryStatus(header=self.node.header("map"), status=status, trajectory_id=f"goal-{self.goals_received}",
+                               obstacle_state=self.obstacle_state, message=self.obstacle_reason)
+        if fresh and self.last_setpoint is not None:
+            position = self.state.position_m.to_array()
+            p = self.planner.progress(position, time.monotonic())
+            msg.progress_percent, msg.elapsed_time_s, msg.remaining_time_s = p.percent, p.elapsed_s, p.remaining_s
+            msg.current_setpoint = self.last_setpoint
+            msg.position_error_m, msg.velocity_error_mps = tracking_errors(self.last_setpoint, self.planner, position,
+                                                                           self.state.velocity_mps.to_array())
+        self.pub_status.publish(msg)
         self._maybe_replan()   # 10 Hz: the vehicle moved on since the last costmap
 
     def health(self) -> Health:

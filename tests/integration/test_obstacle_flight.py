@@ -17,7 +17,9 @@ import numpy as np
 import pytest
 
 from aerotest import wait_until
-from aeroperception.schemas import GoToPositionGoal, TrajectoryStatus, Vector3, VehicleState
+from aeroperception.schemas import (
+    GoalStatus, GoToPositionGoal, TrajectorySetpoint, TrajectoryStatus, Vector3, VehicleState,
+)
 from aeroperception.services.runtime import ActionClient
 from test_flight import diag, ensure_hovering, ensure_landed, free_udp_port, latest, recording  # helpers only
 
@@ -70,6 +72,64 @@ def ostack(stack_module):
         print(st.describe())
         raise
     return st
+
+
+def test_planner_status_reports_progress_times_setpoint_and_errors_of_a_goto(ostack):
+    """planner/status while a GoTo flies 8 m in the open, judged by the sim's truth: 10 Hz; progress
+    from ~0 rising to the goal and ~50 % half way; elapsed time running with the clock; the first
+    remaining-time estimate near the real flight time; current_setpoint exactly a setpoint fmu was
+    sent; position / velocity errors as the truth's distance to the goal and the truth's velocity
+    against that setpoint."""
+    st = ostack
+    ensure_hovering(st, ALT_M)
+    start = latest(st, "sim/truth/state", VehicleState, 2.0).position_m.to_array()
+    goal = np.array([start[0] - 8.0, start[1], ALT_M])                  # west of home: open ground
+    goto = ActionClient(st.session, "mission/action/goto")
+    try:
+        with recording(st, truth=("sim/truth/state", VehicleState), pstatus=("planner/status", TrajectoryStatus),
+                       sent=("fmu/in/trajectory_setpoint", TrajectorySetpoint)) as rec:
+            t0 = time.monotonic()
+            g = goto.send_goal(GoToPositionGoal(position_m=Vector3.from_array(goal)))
+            assert g.success, g.message
+            res = goto.result(g.goal_id, 40)
+            assert res.status == GoalStatus.SUCCEEDED, f"{GoalStatus.name(res.status)}: {res.message}"
+            time.sleep(0.3)
+            statuses, truth, sent = rec.since("pstatus", t0), rec.since("truth", t0), rec.get("sent", t0)
+    finally:
+        goto.close()
+    flying = [(t, m) for t, m in statuses if m.status in (TrajectoryStatus.STATUS_EXECUTING,
+                                                         TrajectoryStatus.STATUS_COMPLETED)]
+    leg_id = flying[0][1].trajectory_id
+    flying = [(t, m) for t, m in flying if m.trajectory_id == leg_id]
+    times = np.array([t for t, _ in flying])
+    pct = np.array([m.progress_percent for _, m in flying])
+    elapsed = np.array([m.elapsed_time_s for _, m in flying])
+    truth_t = np.array([t for t, _ in truth])
+
+    def truth_at(t):
+        return truth[int(np.clip(np.searchsorted(truth_t, t), 0, len(truth) - 1))][1]
+
+    arrived_s = next(t for t, m in truth if np.linalg.norm(m.position_m.to_array() - goal) < 0.5) - times[0]
+    half = next(i for i, t in enumerate(times)
+                if np.linalg.norm(truth_at(t).position_m.to_array()[:2] - goal[:2]) < 4.0 + 0.25)
+    pos_err = [abs(m.position_error_m - np.linalg.norm(truth_at(t).position_m.to_array() - goal)) for t, m in flying]
+    vel_err = [abs(m.velocity_error_mps - np.linalg.norm(m.current_setpoint.velocity_mps.to_array()
+                                                         - truth_at(t).velocity_mps.to_array())) for t, m in flying]
+    print(f"planner/status over a {arrived_s:.1f} s goto: {len(flying) / (times[-1] - times[0]):.1f} Hz, "
+          f"progress {pct[0]:.0f} -> {pct[half]:.0f} (half way) -> {pct[-1]:.0f} %, first remaining "
+          f"{flying[0][1].remaining_time_s:.1f} s, elapsed {elapsed[-1]:.1f} s; errors vs truth: position "
+          f"{np.median(pos_err):.2f} m, velocity {np.median(vel_err):.2f} m/s (max velocity error "
+          f"{max(m.velocity_error_mps for _, m in flying):.2f} m/s)")
+    assert 8.0 < (len(flying) - 1) / (times[-1] - times[0]) < 12.5, "planner/status not at 10 Hz"
+    assert pct[0] < 10 and pct.max() > 90 and np.all(np.diff(pct) > -2.0), pct.round(0)
+    assert 35 < pct[half] < 65, f"{pct[half]:.0f} % half way along the leg"
+    assert elapsed[0] < 0.5 and np.all(np.diff(elapsed) >= 0)
+    assert abs((elapsed[-1] - elapsed[0]) - (times[-1] - times[0])) < 0.5, "elapsed time not running with the clock"
+    assert 0.6 * arrived_s < flying[0][1].remaining_time_s < 1.3 * arrived_s
+    assert flying[-1][1].remaining_time_s < 1.0
+    assert all(m.current_setpoint in sent for _, m in flying), "current_setpoint is not what fmu was sent"
+    assert np.median(pos_err) < 0.3 and np.median(vel_err) < 0.3
+    assert max(m.velocity_error_mps for _, m in flying) > 0.5          # the vehicle lags the command at first
 
 
 @pytest.mark.slow

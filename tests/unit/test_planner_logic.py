@@ -8,7 +8,9 @@ import numpy as np
 import pytest
 
 from aeroperception.schemas import TrajectoryStatus
-from aeroperception.services.planner.logic import Goal, GoalWatchdog, WaypointPlanner, hold_setpoint
+from aeroperception.services.planner.logic import (
+    Goal, GoalWatchdog, Progress, WaypointPlanner, hold_setpoint, time_to_go_s, tracking_errors,
+)
 
 
 def vel(result) -> np.ndarray:
@@ -146,3 +148,70 @@ def test_goal_watchdog_fires_once_when_the_mission_goes_silent_while_tracking():
     off = GoalWatchdog(0.0)
     off.heard(0.0)
     assert not off.expired(1e6, tracking=True)
+
+
+# ---------------------------------------------------------------- planner/status progress fields
+
+def fly_p_law(distance_m: float, vmax: float, kp: float, radius: float, dt: float = 1e-3) -> float:
+    """Time the P law min(vmax, kp d), followed exactly, takes from distance_m to the radius."""
+    d, t = distance_m, 0.0
+    while d >= radius:
+        d -= min(vmax, kp * d) * dt
+        t += dt
+    return t
+
+
+@pytest.mark.parametrize("distance", [0.3, 0.5, 1.0, 2.5, 6.0, 40.0])
+def test_time_to_go_is_the_p_laws_own_flight_time(distance):
+    expected = fly_p_law(distance, 2.0, 0.8, 0.5) if distance > 0.5 else 0.0
+    assert time_to_go_s(distance, 2.0, 0.8, 0.5) == pytest.approx(expected, abs=5e-3)
+
+
+def test_progress_runs_from_where_the_goal_began_to_arrival_then_freezes():
+    planner = WaypointPlanner(max_velocity_mps=2.0, kp=0.8, acceptance_radius_m=0.5)
+    start, goal = np.array([0.0, 0.0, 5.0]), np.array([10.0, 0.0, 5.0])
+    planner.set_goal(Goal(goal, None, index=1))
+    planner.step(start, 0.0, now_s=100.0)
+    p = planner.progress(start, 100.0)
+    assert (p.percent, p.elapsed_s) == (0.0, 0.0)
+    assert p.remaining_s == pytest.approx(time_to_go_s(10.0, 2.0, 0.8, 0.5))
+    here = np.array([4.0, 0.0, 5.0])
+    planner.step(here, 0.0, now_s=103.0)
+    p = planner.progress(here, 103.0)
+    assert p.percent == pytest.approx(100 * 4.0 / 9.5)        # 4 of the 9.5 m to the acceptance radius
+    assert p.elapsed_s == pytest.approx(3.0)
+    assert p.remaining_s == pytest.approx(time_to_go_s(6.0, 2.0, 0.8, 0.5))
+    behind = np.array([-3.0, 0.0, 5.0])                        # pushed back past the start: not negative
+    assert planner.progress(behind, 104.0).percent == 0.0
+    arrived = np.array([9.6, 0.0, 5.0])
+    assert planner.step(arrived, 0.0, now_s=106.5).reached
+    later = planner.progress(goal, 200.0)
+    assert (later.percent, later.elapsed_s, later.remaining_s) == (100.0, pytest.approx(6.5), 0.0)
+
+
+def test_the_same_goal_again_keeps_its_leg_and_a_new_goal_or_a_hold_starts_over():
+    planner = WaypointPlanner()
+    planner.set_goal(Goal(np.array([10.0, 0.0, 5.0]), None, index=1))
+    planner.step(np.array([0.0, 0.0, 5.0]), 0.0, now_s=1.0)
+    planner.set_goal(Goal(np.array([10.0, 0.0, 5.0]), None, index=1))   # re-sent at 2 Hz
+    planner.step(np.array([2.0, 0.0, 5.0]), 0.0, now_s=2.0)
+    assert planner.progress(np.array([2.0, 0.0, 5.0]), 2.0).elapsed_s == pytest.approx(1.0)
+    planner.set_goal(Goal(np.array([2.0, 8.0, 5.0]), None, index=2))
+    planner.step(np.array([2.0, 0.0, 5.0]), 0.0, now_s=3.0)
+    p = planner.progress(np.array([2.0, 0.0, 5.0]), 3.0)
+    assert (p.percent, p.elapsed_s) == (0.0, 0.0)
+    planner.set_goal(None)
+    planner.step(np.array([2.0, 0.0, 5.0]), 0.0, now_s=4.0)
+    assert planner.progress(np.array([2.0, 0.0, 5.0]), 4.0) == Progress()
+
+
+def test_tracking_errors_are_against_the_goal_and_the_velocity_sent():
+    planner = WaypointPlanner()
+    planner.set_goal(Goal(np.array([10.0, 0.0, 5.0]), None))
+    res = planner.step(np.array([0.0, 0.0, 5.0]), 0.0)            # commands 2 m/s east
+    pos_err, vel_err = tracking_errors(res.setpoint, planner, np.array([0.0, 0.0, 5.0]), np.array([0.5, 0.0, 0.0]))
+    assert (pos_err, vel_err) == (pytest.approx(10.0), pytest.approx(1.5))
+    planner.set_goal(None)
+    hold = planner.step(np.array([1.0, 1.0, 5.0]), 0.0)
+    pos_err, vel_err = tracking_errors(hold.setpoint, planner, np.array([1.0, 1.3, 5.0]), np.array([0.0, 0.3, 0.4]))
+    assert (pos_err, vel_err) == (pytest.approx(0.3), pytest.approx(0.5))
