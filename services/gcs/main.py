@@ -136,6 +136,7 @@ class GcsService(Service):
         self.homes = HomeTracker(self.home, busy=self._upload_under_way, apply=self._apply_home)
         self.progress = Progress()       # MISSION_ITEM_REACHED / MISSION_CURRENT for our mission
         self._last_progress: tuple[int, int] = (0, 0)
+        self._held_reason: str | None = None  # the mission's last HOLDING reason told to ground stations
         self.tel.progress = self.progress
         self.speeds = SpeedSchedule()    # the loaded mission's DO_CHANGE_SPEED items, per waypoint
         # (mission_id, waypoints) of the mission our items describe; one loaded some other way
@@ -229,6 +230,11 @@ class GcsService(Service):
         self.link.send(self.tel.home_position(), broadcast=True)
 
     def _on_mission_status(self, msg: MissionStatus) -> None:
+        held = msg.message if msg.state == MissionStatus.STATE_HOLDING else None
+        if held and held != self._held_reason:
+            # why the mission holds (an unreachable waypoint, a failsafe, ...), once per reason
+            self._notify(f"Mission holding: {held}", None, M.MAV_SEVERITY_WARNING)
+        self._held_reason = held
         self.tel.mission = msg
         if msg.mission_id and (msg.mission_id, msg.total_waypoints) != self.synced:
             self._fetch_mission()

@@ -1,8 +1,8 @@
 """Contract of the mission service: keys in/out and parameters."""
 from aeroperception.schemas import (
     ArmReply, ArmRequest, Empty, GetMissionReply, LoadMissionReply, LoadMissionRequest, MissionCommand,
-    MissionStatus, PerceptionHealth, PoseStamped, Reply, SafetyStatus, SetModeReply, SetModeRequest,
-    VehicleState, WaypointReached,
+    MissionStatus, OccupancyGrid, PerceptionHealth, PoseStamped, Reply, SafetyStatus, SetModeReply, SetModeRequest,
+    TrajectoryStatus, VehicleState, WaypointReached,
 )
 from aeroperception.services.runtime import Param
 from aeroperception.services.safety.geofence import GEOFENCE_PARAMS
@@ -13,6 +13,8 @@ INPUTS = {
     "perception/health": PerceptionHealth,
     "mission/command": MissionCommand,      # fire-and-forget operator command
     "safety/status": SafetyStatus,          # a rising recommended_action HOLD/RTH/LAND acts once
+    "planner/status": TrajectoryStatus,     # obstacle_state blocked/unreachable -> blocked_action
+    "perception/costmap": OccupancyGrid,    # a loaded waypoint inside an obstacle is warned about
 }
 LIVELINESS = ["fmu"]                        # fmu's token gone = fmu outage -> HOLDING
 OUTPUTS = {
@@ -48,6 +50,11 @@ PARAMS = [
     Param("mission_file", "",
           description="mission file (JSON or YAML) loaded at start-up (unless a restart restores one "
                       "in flight) and when set live; '' = none (aero up --mission FILE sets it)"),
+    Param("blocked_timeout_s", 5.0, "s", 0.5, 600.0,
+          description="planner/status says the goal is blocked/unreachable this long -> blocked_action"),
+    Param("blocked_action", "hold", choices=("hold", "skip", "rtl"),
+          description="an unreachable goal: hold (HOLDING with the reason, wait for the operator), "
+                      "skip (fly on to the next waypoint; a goto holds) or rtl"),
     Param("state_dir", "", description="where the loaded mission and progress persist; '' = $AERO_STATE_DIR or ~/.aero/state, /<vehicle>/"),
     # limits every mission, goto and takeoff is checked against (with the shared geofence)
     Param("max_takeoff_altitude_m", 50.0, "m", 1.0, 10_000.0,

@@ -68,6 +68,8 @@ class Event(str, Enum):
     SAFETY_HOLD = "SAFETY_HOLD"            # safety/status recommends HOLD
     SAFETY_RTH = "SAFETY_RTH"              # ... return home
     SAFETY_LAND = "SAFETY_LAND"            # ... land here
+    GOAL_BLOCKED = "GOAL_BLOCKED"          # the planner cannot reach the goal: hold (blocked_action hold)
+    GOAL_BLOCKED_RTL = "GOAL_BLOCKED_RTL"  # ... and blocked_action is rtl
 
 
 S, E = State, Event
@@ -119,6 +121,9 @@ TRANSITIONS: dict[tuple[State, Event], State] = {
     (S.TAKEOFF, E.SAFETY_LAND): S.LAND,
     (S.EXECUTING, E.SAFETY_LAND): S.LAND,
     (S.HOLDING, E.SAFETY_LAND): S.LAND,
+    # the planner cannot reach the goal (planner/status blocked or unreachable for blocked_timeout_s)
+    (S.EXECUTING, E.GOAL_BLOCKED): S.HOLDING,
+    (S.EXECUTING, E.GOAL_BLOCKED_RTL): S.LAND,
 }
 
 # safety/status recommended_action -> the event it fires (on a rising recommendation only).
@@ -130,7 +135,9 @@ SAFETY_REACTIONS: dict[int, Event] = {
 SAFETY_ACTION_NAMES = {SafetyStatus.ACTION_NONE: "NONE", SafetyStatus.ACTION_WARN: "WARN",
                        SafetyStatus.ACTION_HOLD: "HOLD", SafetyStatus.ACTION_RTH: "RTH",
                        SafetyStatus.ACTION_LAND: "LAND", SafetyStatus.ACTION_EMERGENCY_STOP: "EMERGENCY_STOP"}
-RTL_EVENTS = (E.RTL_CMD, E.PERCEPTION_TIMEOUT, E.SAFETY_RTH)
+RTL_EVENTS = (E.RTL_CMD, E.PERCEPTION_TIMEOUT, E.SAFETY_RTH, E.GOAL_BLOCKED_RTL)
+BLOCKED_STATES = ("blocked", "unreachable")   # planner/status obstacle_state: no way to the goal
+BLOCKED_ACTIONS = ("hold", "skip", "rtl")
 AIRBORNE = (S.TAKEOFF, S.EXECUTING, S.HOLDING, S.LAND)
 
 
@@ -155,6 +162,8 @@ class Config:
     vehicle_timeout_s: float = 0.5          # state/vehicle older than this = fmu outage
     resume_after_outage: bool = False       # after an fmu outage: resume EXECUTING by itself?
     restore_timeout_s: float = 5.0          # after a restart, wait this long for vehicle state
+    blocked_timeout_s: float = 5.0          # planner says blocked/unreachable this long -> blocked_action
+    blocked_action: str = "hold"            # hold (wait for the operator) | skip (next waypoint) | rtl
 
 
 @dataclass
@@ -206,6 +215,7 @@ class MissionManager:
         self.resume_done: Callable[[bool, str], None] | None = None  # START's outcome (OFFBOARD answer)
         self.restore_deadline_s: float | None = None
         self.restored_note = ""                 # what restore() dropped (a completed mission)
+        self.blocked_since_s: float | None = None   # planner/status blocked/unreachable since (this goal)
         self.message = "ready"
         self.started_s: float | None = None
         self.now_s = 0.0
@@ -255,7 +265,7 @@ class MissionManager:
         self.hold_since_s = self.now_s
         self.hold_reason = {E.PERCEPTION_LOST: "perception", E.LINK_LOST: "link", E.FMU_OUTAGE: "outage",
                             E.FC_MODE_CHANGED: "flight controller", E.RESTARTED_IN_AIR: "restart",
-                            E.SAFETY_HOLD: "safety"}.get(event, "")
+                            E.SAFETY_HOLD: "safety", E.GOAL_BLOCKED: "blocked"}.get(event, "")
         target, self.goto_target = (self.goto_target, None) if event == E.GOTO_DONE else (None, self.goto_target)
         if target is None and event == E.ALTITUDE_REACHED:
             target = self.takeoff_goal  # the takeoff target, not where the tolerance was entered
@@ -277,6 +287,7 @@ class MissionManager:
 
     def _enter_executing(self, prev: State, event: Event) -> None:
         self.hold_reason = ""
+        self.blocked_since_s = None
         mode = self.vehicle.flight_mode if self.vehicle else ""
         then, self.resume_done = self.resume_done, None
         if mode and mode != "OFFBOARD":
@@ -511,6 +522,7 @@ class MissionManager:
         if self.outage:
             return False, f"{self.outage}: holding until fresh vehicle state is back"
         self.goto_target = GoalOut(position_m, yaw_rad, acceptance_radius_m)
+        self.blocked_since_s = None
         if self.state == State.EXECUTING:
             self.publish_goal(self.goto_target)
         elif not self.fire(E.START_CMD, "goto") or self.state != State.EXECUTING:
@@ -664,6 +676,36 @@ class MissionManager:
             elif now_s - self.hold_since_s > self.cfg.perception_recovery_s:
                 self.fire(E.PERCEPTION_TIMEOUT, "perception lost > recovery time: RTL")
 
+    def on_planner(self, obstacle_state: str, message: str, now_s: float) -> None:
+        """planner/status: a goal the planner reports blocked or unreachable for blocked_timeout_s
+        reaches the mission (never EXECUTING silently for ever): blocked_action hold -> HOLDING
+        with the reason (START retries, SET_CURRENT skips, LAND/RTL); skip -> the next waypoint
+        (a goto holds); rtl -> RTL. Each reported in `message`."""
+        self.now_s = now_s
+        if self.state != State.EXECUTING or obstacle_state not in BLOCKED_STATES:
+            self.blocked_since_s = None
+            return
+        if self.blocked_since_s is None:
+            self.blocked_since_s = now_s
+        held_s = now_s - self.blocked_since_s
+        if held_s < self.cfg.blocked_timeout_s:
+            return
+        self.blocked_since_s = None
+        goal = self.goto_target or self._waypoint(self.wp_index)
+        x, y, z = goal.position_m
+        what = "goto target" if self.goto_target is not None else \
+            f"waypoint {self.wp_index + 1}/{len(self.mission.waypoints)}"
+        reason = f"{what} ({x:.1f}, {y:.1f}, {z:.1f}) unreachable for {held_s:.0f} s (planner {obstacle_state}: {message})"
+        action = self.cfg.blocked_action
+        self.log("goal_blocked", goal=what, planner=obstacle_state, reason=message, action=action)
+        if action == "rtl":
+            self.fire(E.GOAL_BLOCKED_RTL, f"{reason}: returning home (blocked_action rtl)")
+        elif action == "skip" and self.goto_target is None:
+            self.message = f"skipped {reason}"
+            self._next_waypoint()
+        else:
+            self.fire(E.GOAL_BLOCKED, f"holding: {reason}; START retries, SET_CURRENT skips, LAND/RTL")
+
     def on_link(self, up: bool) -> None:
         if not up:
             self.fire(E.LINK_LOST, "ground-station link lost: holding")
@@ -687,6 +729,7 @@ class MissionManager:
         return GoalOut(np.array([wp.x, wp.y, wp.z]), math.radians(wp.yaw_deg))
 
     def _publish_waypoint(self) -> None:
+        self.blocked_since_s = None             # a new goal: the planner's verdict starts over
         self.publish_goal(self._waypoint(self.wp_index))
 
     def _progress(self, pos: np.ndarray) -> None:
@@ -702,15 +745,18 @@ class MissionManager:
             self.reached_events.append(self.wp_index)
             self.on_waypoint_reached(self.wp_index, pos)
             self.log("waypoint_reached", index=self.wp_index, error_m=round(float(np.linalg.norm(target - pos)), 3))
-            self.wp_index += 1
-            self._persist()
-            if self.wp_index >= len(self.mission.waypoints):
-                if self.cfg.land_on_complete:
-                    self.fire(E.WAYPOINTS_DONE, "mission complete: landing")
-                else:
-                    self.fire(E.HOLD_CMD, "mission complete: holding")
+            self._next_waypoint()
+
+    def _next_waypoint(self) -> None:
+        self.wp_index += 1
+        self._persist()
+        if self.wp_index >= len(self.mission.waypoints):
+            if self.cfg.land_on_complete:
+                self.fire(E.WAYPOINTS_DONE, "mission complete: landing")
             else:
-                self._publish_waypoint()
+                self.fire(E.HOLD_CMD, "mission complete: holding")
+        else:
+            self._publish_waypoint()
 
     def acceptance_radius_m(self) -> float:
         return self.mission.waypoint_acceptance_radius_m if self.mission else 0.5

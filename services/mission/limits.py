@@ -3,6 +3,8 @@ checked here against the shared geofence (services/safety/geofence.py) and the m
 limits before it is accepted, so nothing unsafe ever reaches the planner.
 
 Never a second geofence: the fence comes from the GEOFENCE_PARAMS the contract declares.
+A waypoint inside an obstacle the costmap already shows is warned about at load (the costmap is
+local and rolling: what it does not show yet is the planner's verdict in flight, blocked_action).
 """
 from __future__ import annotations
 
@@ -10,7 +12,8 @@ import math
 from dataclasses import dataclass, field
 from typing import Any, Mapping
 
-from aeroperception.schemas import Mission
+from aeroperception.schemas import Mission, OccupancyGrid
+from aeroperception.services.planner.avoidance import BLOCKED
 from aeroperception.services.safety.geofence import Geofence
 
 
@@ -64,3 +67,19 @@ class Limits:
             if why:
                 return f"waypoint {i} ({wp.x:g}, {wp.y:g}, {wp.z:g}): {why}"
         return None
+
+
+def waypoints_in_obstacles(mission: Mission, costmap: OccupancyGrid | None) -> list[str]:
+    """The waypoints the costmap already shows inside an obstacle (lethal or inscribed cell, as
+    the planner judges them), each described for the operator; [] without a costmap or when
+    every waypoint is outside it or free. The planner could never reach them."""
+    if costmap is None or costmap.width == 0 or costmap.height == 0:
+        return []
+    cells = costmap.data.to_numpy()
+    ox, oy, res = costmap.origin.position.x, costmap.origin.position.y, costmap.resolution_m
+    out = []
+    for i, wp in enumerate(mission.waypoints):
+        col, row = math.floor((wp.x - ox) / res), math.floor((wp.y - oy) / res)
+        if 0 <= row < costmap.height and 0 <= col < costmap.width and cells[row, col] >= BLOCKED:
+            out.append(f"waypoint {i + 1} ({wp.x:g}, {wp.y:g}, {wp.z:g})")
+    return out

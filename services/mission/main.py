@@ -11,8 +11,9 @@ import numpy as np
 from aeroperception.schemas import (
     ArmReply, ArmRequest, DiagnosticStatus, GcsLink, Empty, GetMissionReply, GoToPositionFeedback,
     GoToPositionGoal, GoToPositionResult, LandFeedback, LandGoal, LandResult, LoadMissionReply,
-    LoadMissionRequest, MissionCommand, PerceptionHealth, Pose, PoseStamped, Quaternion, Reply,
+    LoadMissionRequest, MissionCommand, OccupancyGrid, PerceptionHealth, Pose, PoseStamped, Quaternion, Reply,
     SafetyStatus, SchemaError, SetModeReply, SetModeRequest, TakeoffFeedback, TakeoffGoal, TakeoffResult,
+    TrajectoryStatus,
     VehicleState, Vector3, WaypointReached, load_mission_file, parse_mission,
 )
 from aeroperception.services.runtime import ActionServer, CallError, GoalHandle, Health, Service, run
@@ -21,7 +22,7 @@ from aeroperception.services.safety.geofence import GeofenceError
 
 from . import contract
 from .fsm import Config, GoalOut, MissionManager, State
-from .limits import Limits
+from .limits import Limits, waypoints_in_obstacles
 from .store import MissionStore, default_state_dir
 
 HOLD_FRAME = "hold"
@@ -87,6 +88,10 @@ class MissionService(Service):
                        lambda m: self.mgr.on_perception(m.overall_healthy, time.monotonic()))
         node.subscribe("mission/command", MissionCommand, self._on_command, strict=True)
         node.subscribe("safety/status", SafetyStatus, self._on_safety)
+        self.costmap: OccupancyGrid | None = None   # the latest, for the load-time obstacle check
+        node.subscribe("perception/costmap", OccupancyGrid, lambda m: setattr(self, "costmap", m))
+        node.subscribe("planner/status", TrajectoryStatus,
+                       lambda m: self.mgr.on_planner(m.obstacle_state, m.message, time.monotonic()))
         node.on_liveliness("fmu", lambda name, alive: self.mgr.on_fmu_alive(alive, time.monotonic()))
         node.on_liveliness("planner", lambda name, alive: self.mgr.on_planner_alive(alive, time.monotonic()))
         gcs_up = {"last": None}
@@ -189,6 +194,10 @@ class MissionService(Service):
         ok, message = self.mgr.load(mission)
         if ok:
             self.file_error = ""
+            inside = waypoints_in_obstacles(mission, self.costmap)
+            if inside:
+                message += f"; warning: the costmap shows {', '.join(inside)} inside an obstacle: unreachable"
+                self.log.warn("waypoints_in_obstacles", waypoints=inside)
         return LoadMissionReply(success=ok, message=message, num_waypoints=len(mission.waypoints) if ok else 0)
 
     def _on_get(self, _req: Empty) -> GetMissionReply:

@@ -90,6 +90,24 @@ def recording(st, **keys: tuple[str, type]):
         rec.close()
 
 
+@contextmanager
+def fly_in_background(st, path, *args: str):
+    """`aero mission fly PATH ARGS` against `st`, yielding (proc, out): its stdout+stderr lines
+    as they come. Killed (if still running) and its reader joined on the way out."""
+    out: list[str] = []
+    proc = subprocess.Popen(aero_argv() + ["mission", "fly", str(path), *args], env=clean_env(st.endpoint),
+                            stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    reader = threading.Thread(target=lambda: [out.append(line) for line in proc.stdout], daemon=True)
+    reader.start()
+    try:
+        yield proc, out
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(5)
+        reader.join(5)
+
+
 def latest(st, key: str, cls: type, timeout_s: float = 3.0, pred=None):
     """The next message on `key` (matching pred), or None after timeout_s."""
     try:

@@ -22,7 +22,6 @@ from __future__ import annotations
 import json
 import os
 import signal
-import subprocess
 import threading
 import time
 
@@ -30,7 +29,7 @@ import msgspec
 import numpy as np
 import pytest
 
-from aerotest import aero_argv, clean_env, is_service_process, wait_until
+from aerotest import is_service_process, wait_until
 from aeroperception.schemas import (
     GoalReply, GoalStatus, GoToPositionGoal, LandGoal, LoadMissionReply, LoadMissionRequest,
     MissionCommand, MissionStatus, PoseStamped, Reply, SafetyStatus, SetModeReply, SetModeRequest,
@@ -39,7 +38,7 @@ from aeroperception.schemas import (
 from aeroperception.services.runtime import ActionClient
 from aeroperception.services.runtime.node import call, encoding_for
 from test_flight import (  # helpers only (no test functions: they would be collected twice)
-    SURVEY, diag, free_udp_port, latest, recording, truth, wait_at_rest,
+    SURVEY, diag, fly_in_background, free_udp_port, latest, recording, truth, wait_at_rest,
 )
 
 SERVICES = ["sim", "fmu", "planner", "mission", "diagnostics"]
@@ -140,13 +139,7 @@ def kill9(st, name: str) -> int:
 def test_mission_killed_mid_flight_restarts_holding_then_resumes_and_lands(mstack):
     st = mstack
     ensure_landed(st)
-    out: list[str] = []
-    proc = subprocess.Popen(aero_argv() + ["mission", "fly", str(SURVEY), "--quiet", "--timeout", "150"],
-                            env=clean_env(st.endpoint), stdin=subprocess.DEVNULL,
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    reader = threading.Thread(target=lambda: [out.append(line) for line in proc.stdout], daemon=True)
-    reader.start()
-    try:
+    with fly_in_background(st, SURVEY, "--quiet", "--timeout", "150") as (proc, out):
         wait_status(st, lambda m: m.state == "EXECUTING" and m.active_waypoint >= 2, 60,
                     "survey under way to waypoint index 2")
         persisted = json.loads((st.state_dir / "mission.json").read_text())
@@ -175,11 +168,6 @@ def test_mission_killed_mid_flight_restarts_holding_then_resumes_and_lands(mstac
         assert r.success, r.message
         wait_until(lambda: landed(st), 60, "landed and disarmed (truth)")
         code = proc.wait(20)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait(5)
-        reader.join(5)
     text = "".join(out)
     print(text)
     assert code == 0, text

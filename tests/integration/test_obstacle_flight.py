@@ -193,3 +193,54 @@ def test_goal_inside_a_building_is_unreachable_and_the_vehicle_holds(ostack, sce
     finally:
         goto.close()
         ensure_landed(st)
+
+
+@pytest.mark.slow
+def test_waypoint_on_a_building_face_holds_the_mission_saying_why(ostack, scene, tmp_path):
+    """Issue 18 #13: a waypoint on a building's face (the planner holds short of it, `unreachable`)
+    used to leave the mission EXECUTING for ever with no reason anywhere. Now the mission goes
+    HOLDING with the reason within blocked_timeout_s (5 s), `aero mission fly` prints it, the
+    vehicle holds clear of the building, and loading the mission again while the costmap shows
+    the wall warns about that waypoint."""
+    from aeroperception.schemas import LoadMissionReply, LoadMissionRequest, MissionStatus
+    from aeroperception.services.runtime.node import call
+    from test_flight import fly_in_background
+    from test_mission_faults import command, wait_status
+
+    st = ostack
+    ensure_landed(st)
+    face = (5.0, 13.0)                   # the west face of the building at (12, 15), 14 x 10 m
+    mission = {"mission_id": "face", "takeoff_altitude_m": ALT_M, "waypoint_acceptance_radius_m": 0.5,
+               "waypoints": [{"x": 1.0, "y": 7.0, "z": ALT_M}, {"x": face[0], "y": face[1], "z": ALT_M},
+                             {"x": 1.0, "y": 2.0, "z": ALT_M}]}
+    path = tmp_path / "face.json"
+    path.write_text(json.dumps(mission))
+    rec = recording(st, pstatus=("planner/status", TrajectoryStatus))
+    with fly_in_background(st, path, "--quiet", "--timeout", "120") as (proc, out):
+        s = wait_status(st, lambda m: m.state == "EXECUTING" and m.active_waypoint == 1, 60, "flying to the face")
+        t0 = time.monotonic()
+        with rec as planner:
+            try:
+                s = wait_status(st, lambda m: m.state == "HOLDING", 40, "mission HOLDING with the reason")
+            except AssertionError:
+                seen = [(m.obstacle_state, m.message) for m in planner.get("pstatus")]
+                print("planner said:", sorted(set(seen)), "truth:", latest(st, "sim/truth/state", VehicleState).position_m)
+                raise
+        print(f"HOLDING {time.monotonic() - t0:.1f} s after heading for the face: {s.message}")
+        assert "waypoint 2/3 (5.0, 13.0, 1.5) unreachable for 5 s (planner " in s.message, s.message
+        wait_until(lambda: any("unreachable" in line for line in out), 5, "aero mission fly printing the reason")
+        at = latest(st, "sim/truth/state", VehicleState, 2.0)
+        clearance = float(scene.obstacle_distance_m(np.array([at.position_m.to_array()]))[0])
+        assert clearance >= CLEARANCE_M, f"holding {clearance:.2f} m from the building"
+        time.sleep(2.0)
+        assert latest(st, "mission/status", MissionStatus, 2.0).state == "HOLDING"   # waits for the operator
+
+        r = call(st.session, "mission/srv/load", LoadMissionRequest(mission_json=path.read_text()),
+                 LoadMissionReply, 5.0)
+        assert r.success and "waypoint 2 (5, 13, 1.5) inside an obstacle" in r.message, r.message
+        assert command(st, "LAND").success
+        code = proc.wait(60)
+    text = "".join(out)
+    print(text)
+    assert code == 0, text
+    assert "state HOLDING: holding: waypoint 2/3 (5.0, 13.0, 1.5) unreachable" in text, text
