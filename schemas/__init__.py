@@ -23,6 +23,7 @@ from .planning import (
     parse_mission,
 )
 from .gcs import GcsLink, Joystick
+from .objects import ObjectEvent, TrackedObject, TrackedObjectArray
 from .mission import MissionCommand, MissionStatus, PerceptionHealth, WaypointReached
 from .services import (
     ArmReply, ArmRequest, EmergencyStopReply, EmergencyStopRequest, Empty, GetMissionReply, LoadMissionReply,
@@ -53,6 +54,8 @@ __all__ = [
     "load_mission_file", "MissionStatus", "MissionCommand", "PerceptionHealth", "WaypointReached",
     # ground station link
     "GcsLink", "Joystick",
+    # tracked objects
+    "TrackedObject", "TrackedObjectArray", "ObjectEvent",
     # safety
     "SafetyStatus",
     # services

@@ -216,7 +216,7 @@ FCU_URL_RE = re.compile(r"^(?:(?:udp|udpin|udpout|udpbcast|tcp|tcpin):[A-Za-z0-9
 # and the services that exist only to process one sensor: not started when it is not rendered (a
 # lidar service without scans would say WARN for ever); perception is told which sources run.
 SENSORS_RENDERED = {"all": {"camera", "lidar"}, "camera": {"camera"}, "lidar": {"lidar"}, "imu": set(), "none": set()}
-SENSOR_SERVICES = {"vio": "camera", "detector": "camera", "lidar": "lidar"}
+SENSOR_SERVICES = {"vio": "camera", "detector": "camera", "objects": "camera", "lidar": "lidar"}
 SENSOR_NAMES = {"camera": "cameras", "lidar": "LiDAR"}
 
 

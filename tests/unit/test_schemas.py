@@ -28,6 +28,7 @@ from aeroperception.schemas import (
     TakeoffGoal, TakeoffResult, Trajectory, TrajectorySetpoint, TrajectoryStatus, Twist, UAVMode,
     UAVStatus, Vector3, VehicleState, VehicleStatus, VioHealth, VioResetRequest, Waypoint, WaypointReached, decode,
     encode, from_builtins, load_mission_file, parse_mission, to_builtins,
+    ObjectEvent, TrackedObject, TrackedObjectArray,
 )
 
 # ---------------------------------------------------------------- representative samples
@@ -130,6 +131,13 @@ def _system_samples():
     }
 
 
+def _tracked() -> TrackedObject:
+    return TrackedObject(track_id=7, class_name="person", class_id=0, confirmed=True,
+                         position_m=Vector3(x=18.0, y=1.0, z=0.9), position_covariance_m2=[0.1, 0.0, 0.0, 0.0, 0.1, 0.0, 0.0, 0.0, 0.2],
+                         velocity_mps=Vector3(x=0.5), first_seen_ns=1, last_seen_ns=2, hits=5, best_score=0.91,
+                         range_m=18.2, latitude_deg=47.39, longitude_deg=8.54, altitude_amsl_m=489.0)
+
+
 SAMPLES = {
     "PoseStamped": lambda: PoseStamped(header=H, pose=P),
     "Imu": lambda: Imu(
@@ -154,6 +162,8 @@ SAMPLES = {
                     class_name="person", score=0.87),
         Detection2D(center_x_px=1.0, center_y_px=2.0, size_x_px=3.0, size_y_px=4.0, class_id=2,
                     class_name="car", score=0.5)]),
+    "TrackedObjectArray": lambda: TrackedObjectArray(header=H, objects=[_tracked()]),
+    "ObjectEvent": lambda: ObjectEvent(header=H, event=ObjectEvent.CONFIRMED, object=_tracked()),
     "BatteryState": lambda: BatteryState(
         header=H, voltage_v=15.2, current_a=12.5, remaining_fraction=0.64, temperature_c=31.0, cell_count=4,
         cell_voltages_v=[3.8, 3.8, 3.81, 3.79], time_remaining_s=600.0, warning=BatteryState.WARNING_LOW),

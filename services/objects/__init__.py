@@ -1,0 +1,1 @@
+"""Objects: per-image detections -> tracked objects in the world (ENU + lat/lon about home)."""

@@ -1,0 +1,54 @@
+"""Contract of the objects service: keys in/out and parameters.
+
+Each detection frame is placed in the world at the pose of its image's stamp (stereo disparity in
+the box, else the box's ray to flat ground), tracked, and published with every live track.
+"""
+from aeroperception.schemas import (
+    CameraInfo, Detection2DArray, HomePosition, Image, ObjectEvent, TrackedObjectArray, VehicleState,
+)
+from aeroperception.services.runtime import Param
+
+NAME = "objects"
+INPUTS = {
+    "perception/detections": Detection2DArray,            # <= 10 Hz, the left image's stamp; newest wins
+    "sensors/camera/left/image": Image,                   # 20 Hz: the stereo pair, kept ~1 s by stamp
+    "sensors/camera/right/image": Image,
+    "sensors/camera/left/info": CameraInfo,               # 1 Hz + queryable (latched)
+    "sensors/camera/right/info": CameraInfo,
+    "state/vehicle": VehicleState,                        # 50 Hz: pose history, interpolated at the image's stamp
+    "fmu/out/home_position": HomePosition,                # latched: lat/lon/alt of tracks, and the flat ground's height
+}
+OUTPUTS = {
+    "perception/objects": TrackedObjectArray,             # <= 10 Hz: with each detection frame, every live track (the image's stamp)
+    "perception/objects/events": ObjectEvent,             # event: a track confirmed (new object) or lost
+}
+# Typical sizes (length, width, height; m) of what the detector reports. The ground path aims at
+# an object's mid-height; stereo sees its near face, the centre lies half a footprint behind it.
+TYPICAL_SIZE_M = {
+    "person": (0.45, 0.5, 1.75), "bicycle": (1.75, 0.6, 1.1), "car": (4.5, 1.85, 1.5), "motorcycle": (2.1, 0.8, 1.2),
+    "bus": (12.0, 2.55, 3.2), "truck": (8.0, 2.5, 3.4), "dog": (0.9, 0.3, 0.6), "horse": (2.4, 0.7, 1.7),
+    "cow": (2.4, 0.8, 1.5), "bench": (1.8, 0.6, 0.9), "chair": (0.5, 0.5, 0.9), "fire hydrant": (0.3, 0.3, 0.8),
+    "stop sign": (0.1, 0.75, 2.5), "potted plant": (0.5, 0.5, 0.8),
+}
+DEFAULT_SIZE_M = (1.0, 1.0, 1.0)
+PARAMS = [
+    Param("stereo", True, description="range from the stereo pair's disparity in the box when it is there"),
+    Param("stereo_max_range_m", 15.0, "m", 1.0, 100.0, description="search disparities down to this range"),
+    Param("max_range_m", 60.0, "m", 5.0, 500.0, description="farther placements are dropped (counted)"),
+    Param("ground_z_m", 0.0, "m", -1000.0, 10000.0,
+          description="ENU height of the flat ground before the FC's home is known (then: home's)"),
+    Param("pose_tolerance_s", 0.1, "s", 0.005, 1.0,
+          description="a detection whose stamp has no vehicle pose this close is dropped (counted)"),
+    Param("pixel_sigma_px", 2.0, "px", 0.1, 50.0, description="1 sigma of a box centre"),
+    Param("disparity_sigma_px", 0.25, "px", 0.01, 5.0, description="1 sigma of a box's median disparity"),
+    Param("height_sigma_m", 0.3, "m", 0.0, 5.0, description="1 sigma of an object's mid-height above the ground"),
+    Param("position_sigma_m", 0.1, "m", 0.0, 10.0, description="1 sigma of the vehicle's position"),
+    Param("attitude_sigma_rad", 0.01, "rad", 0.0, 0.5, description="1 sigma of the camera's attitude"),
+    Param("min_score", 0.1, "", 0.0, 1.0, description="detections below are ignored (ByteTrack's low threshold)"),
+    Param("high_score", 0.5, "", 0.0, 1.0, description="only detections at or above start tracks; lower ones extend them"),
+    Param("confirm_hits", 3, "", 1, 100, description="a track is confirmed (event) after this many detections"),
+    Param("lost_timeout_s", 3.0, "s", 0.1, 600.0, description="a confirmed track unseen this long is lost (event) and deleted"),
+    Param("tentative_timeout_s", 0.5, "s", 0.05, 60.0, description="an unconfirmed track unseen this long is deleted"),
+    Param("gate_distance_m", 3.0, "m", 0.1, 50.0, description="a detection farther than this from a track never joins it"),
+    Param("accel_sigma_mps2", 0.5, "m/s^2", 0.0, 20.0, description="constant-velocity model's process noise"),
+]

@@ -1,0 +1,197 @@
+"""One detection frame in, tracks and events out: the objects service without Zenoh.
+
+`ObjectsPipeline` holds what a frame needs besides its boxes (the pose history, the camera
+calibration, the recent stereo pairs by stamp, the FC's home) and counts every detection it could
+not place, by reason, so diagnostics say why a box never became an object.
+"""
+from __future__ import annotations
+
+import time
+from collections import Counter, OrderedDict
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from aeroperception.schemas import (
+    CameraInfo, Detection2DArray, Header, HomePosition, Image, ObjectEvent, TrackedObject, TrackedObjectArray,
+    Vector3, VehicleState,
+)
+from aeroperception.services.mavlink.geo import MapProjection
+
+from . import contract
+from .projection import (
+    Camera, Noise, PoseHistory, box_disparity, fuse, locate_by_disparity, locate_on_ground, to_centre,
+)
+from .tracker import Observation, Track, Tracker, TrackerConfig
+
+
+def tracker_config(p) -> TrackerConfig:
+    return TrackerConfig(confirm_hits=p.confirm_hits, lost_timeout_s=p.lost_timeout_s,
+                         tentative_timeout_s=p.tentative_timeout_s, high_score=p.high_score, low_score=p.min_score,
+                         gate_distance_m=p.gate_distance_m, accel_noise_mps2=p.accel_sigma_mps2)
+
+
+def noise(p) -> Noise:
+    return Noise(pixel_px=p.pixel_sigma_px, disparity_px=p.disparity_sigma_px, height_m=p.height_sigma_m,
+                 position_m=p.position_sigma_m, attitude_rad=p.attitude_sigma_rad)
+
+
+class StereoFrames:
+    """The last few left/right images by stamp, so a detection (which arrives after its image)
+    finds its pair. Decoded images own their payload: kept as they are, converted only where a box
+    needs it."""
+
+    def __init__(self, keep: int = 20):
+        self.keep = keep
+        self.sides: dict[str, OrderedDict[int, Image]] = {"left": OrderedDict(), "right": OrderedDict()}
+
+    def add(self, side: str, img: Image) -> None:
+        frames = self.sides[side]
+        frames[img.header.stamp_ns] = img
+        while len(frames) > self.keep:
+            frames.popitem(last=False)
+
+    def pair(self, stamp_ns: int) -> tuple[np.ndarray, np.ndarray] | None:
+        left, right = self.sides["left"].get(stamp_ns), self.sides["right"].get(stamp_ns)
+        if left is None or right is None:
+            return None
+        return gray(left), gray(right)
+
+
+def gray(img: Image) -> np.ndarray:
+    a = img.to_numpy()
+    if a.ndim == 2:
+        return a if a.dtype == np.uint8 else (a >> 8).astype(np.uint8)
+    code = {"rgb8": cv2.COLOR_RGB2GRAY, "bgr8": cv2.COLOR_BGR2GRAY, "rgba8": cv2.COLOR_RGBA2GRAY,
+            "bgra8": cv2.COLOR_BGRA2GRAY}[img.encoding]
+    return cv2.cvtColor(a, code)
+
+
+@dataclass
+class FrameResult:
+    objects: TrackedObjectArray
+    events: list[ObjectEvent]
+    elapsed_ms: float                   # wall clock
+    cpu_ms: float                       # this thread's CPU: the cost, whatever else shares the cores
+
+
+class ObjectsPipeline:
+    """Feed it state, home, camera infos and images as they come; `process(detections)` per frame."""
+
+    def __init__(self, params):
+        self.params = params
+        self.poses = PoseHistory()
+        self.frames = StereoFrames()
+        self.infos: dict[str, CameraInfo | None] = {"left": None, "right": None}
+        self.camera: Camera | None = None
+        self.home: HomePosition | None = None
+        self.projection: MapProjection | None = None
+        self.tracker = Tracker(tracker_config(params))
+        self.dropped = Counter()               # detections (or frames) not placed, by reason
+        self.placed = Counter()                # detections placed, by method
+        self.last_stamp_ns = 0
+
+    # ------------------------------------------------------------ inputs besides detections
+
+    def on_state(self, msg: VehicleState) -> None:
+        self.poses.add(msg)
+
+    def on_home(self, msg: HomePosition) -> None:
+        self.home = msg
+        self.projection = MapProjection(msg.latitude_deg, msg.longitude_deg)
+
+    def on_info(self, side: str, msg: CameraInfo) -> None:
+        self.infos[side] = msg
+        if self.infos["left"] is not None:
+            self.camera = Camera.from_infos(self.infos["left"], self.infos["right"])
+
+    def on_image(self, side: str, msg: Image) -> None:
+        self.frames.add(side, msg)
+
+    def reconfigure(self) -> None:
+        self.tracker.configure(tracker_config(self.params))
+
+    # ------------------------------------------------------------ one frame
+
+    def ground_z_m(self) -> float:
+        return self.home.position_m.z if self.home is not None else self.params.ground_z_m
+
+    def process(self, dets: Detection2DArray) -> FrameResult | None:
+        """Place, associate, publishable result; None when the frame cannot be used (counted)."""
+        t0 = (time.perf_counter(), time.thread_time())
+        stamp = dets.header.stamp_ns
+        if stamp <= self.last_stamp_ns:
+            self.dropped["frame_out_of_order"] += 1
+            return None
+        if self.camera is None:
+            self.dropped["frame_no_camera_info"] += 1
+            return None
+        pose = self.poses.at(stamp, self.params.pose_tolerance_s)
+        if pose is None:
+            self.dropped["frame_no_pose"] += 1
+            return None
+        self.last_stamp_ns = stamp
+        obs = self._observations(dets, pose)
+        ev = self.tracker.update(stamp, obs)
+        return self._result(stamp, ev, t0)
+
+    def expire(self, stamp_ns: int) -> list[ObjectEvent]:
+        """Lost events for tracks unseen for their timeout while no detection frame came."""
+        ev = self.tracker.expire(stamp_ns)
+        return [self._event(ObjectEvent.LOST, t, stamp_ns) for t in ev.lost]
+
+    def _observations(self, dets: Detection2DArray, pose) -> list[Observation]:
+        p, cam, nz = self.params, self.camera, noise(self.params)
+        pair = self.frames.pair(dets.header.stamp_ns) if p.stereo and cam.baseline_m > 0 else None
+        max_disp = int(np.ceil(cam.fx * cam.baseline_m / p.stereo_max_range_m)) if pair else 0
+        ground = self.ground_z_m()
+        view = cam.world_pose(pose)
+        out = []
+        for d in dets.detections:
+            if d.score < p.min_score:
+                continue
+            u, v = d.center_x_px, d.center_y_px
+            length, width, height = contract.TYPICAL_SIZE_M.get(d.class_name, contract.DEFAULT_SIZE_M)
+            m_ground = locate_on_ground(cam, view, u, v, ground + height / 2, nz, p.max_range_m)
+            m_stereo = None
+            if pair is not None:
+                box = (u - d.size_x_px / 2, v - d.size_y_px / 2, u + d.size_x_px / 2, v + d.size_y_px / 2)
+                disp = box_disparity(pair[0], pair[1], box, max_disp)
+                if disp is not None:
+                    m_stereo = locate_by_disparity(cam, view, u, v, disp, nz)
+                if m_stereo is not None:
+                    m_stereo = to_centre(m_stereo, view[1], (length + width) / 4, abs(length - width) / 4)
+            m = fuse(m_stereo, m_ground)
+            if m is None or m.range_m > p.max_range_m:
+                self.dropped["detection_not_placed"] += 1
+                continue
+            self.placed[m.method] += 1
+            out.append(Observation(m, d.class_id, d.class_name, d.score))
+        return out
+
+    # ------------------------------------------------------------ messages
+
+    def tracked_object(self, t: Track) -> TrackedObject:
+        x = t.x
+        lat = lon = alt = None
+        if self.home is not None and self.projection is not None:
+            h = self.home.position_m
+            lat, lon = self.projection.reproject(float(x[1] - h.y), float(x[0] - h.x))
+            alt = self.home.altitude_amsl_m + float(x[2] - h.z)
+        return TrackedObject(
+            track_id=t.track_id, class_name=t.class_name, class_id=t.class_id, confirmed=t.confirmed,
+            position_m=Vector3.from_array(x[:3]), position_covariance_m2=[float(c) for c in t.P[:3, :3].ravel()],
+            velocity_mps=Vector3.from_array(x[3:]), first_seen_ns=t.first_seen_ns, last_seen_ns=t.last_seen_ns,
+            hits=t.hits, best_score=float(t.best_score), range_m=float(t.range_m),
+            latitude_deg=lat, longitude_deg=lon, altitude_amsl_m=alt)
+
+    def _event(self, kind: str, t: Track, stamp_ns: int) -> ObjectEvent:
+        return ObjectEvent(header=Header(stamp_ns=stamp_ns, frame_id="map"), event=kind, object=self.tracked_object(t))
+
+    def _result(self, stamp: int, ev, t0: tuple[float, float]) -> FrameResult:
+        objs = TrackedObjectArray(header=Header(stamp_ns=stamp, frame_id="map"),
+                                  objects=[self.tracked_object(t) for t in self.tracker.tracks])
+        events = ([self._event(ObjectEvent.CONFIRMED, t, stamp) for t in ev.confirmed]
+                  + [self._event(ObjectEvent.LOST, t, stamp) for t in ev.lost])
+        return FrameResult(objs, events, (time.perf_counter() - t0[0]) * 1e3, (time.thread_time() - t0[1]) * 1e3)

@@ -1,0 +1,247 @@
+"""Where a detection is in the world: a 2D box + the camera's pose at the image's stamp -> an ENU
+point with a covariance.
+
+Two ways to the range, both from the box alone (no per-pixel depth map is ever built):
+- stereo: the median block-matched disparity in the box's inner region (a rectified pair:
+  depth = fx * baseline / disparity);
+- ground: the box centre's ray meets a horizontal plane at the object's mid-height above flat
+  ground (the ground at the flight controller's home altitude, the object's height from its class).
+Each position's covariance is the measurement's first-order propagation (pixel noise, disparity
+noise, object height) plus the pose's own uncertainty, so it grows with range by construction.
+Frames: camera optical (x right, y down, z forward), body FLU, world ENU.
+"""
+from __future__ import annotations
+
+import bisect
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from aeroperception.schemas import CameraInfo, VehicleState
+from aeroperception.services.runtime.rotations import quat_normalize, quat_to_rotmat
+
+
+@dataclass(frozen=True)
+class PoseSample:
+    stamp_ns: int
+    position_m: np.ndarray          # ENU
+    q_enu_flu: np.ndarray           # (w, x, y, z)
+
+
+class PoseHistory:
+    """The vehicle's recent poses (state/vehicle), so a detection is placed where the camera was
+    when the image was taken, not where the vehicle is now that the detector is done."""
+
+    def __init__(self, horizon_s: float = 3.0):
+        self.horizon_ns = int(horizon_s * 1e9)
+        self.samples: list[PoseSample] = []
+
+    def add(self, state: VehicleState) -> None:
+        s = PoseSample(state.header.stamp_ns, state.position_m.to_array(), state.orientation.to_array())
+        if self.samples and s.stamp_ns <= self.samples[-1].stamp_ns:
+            if s.stamp_ns < self.samples[-1].stamp_ns - self.horizon_ns:
+                self.samples.clear()            # the clock went back (sim restart): start over
+            else:
+                return                          # duplicate or out of order: the history stays sorted
+        self.samples.append(s)
+        cut = s.stamp_ns - self.horizon_ns
+        while self.samples and self.samples[0].stamp_ns < cut:
+            self.samples.pop(0)
+
+    def at(self, stamp_ns: int, tolerance_s: float) -> PoseSample | None:
+        """The pose at `stamp_ns`, interpolated between the two samples around it; None when the
+        stamp lies outside the history by more than `tolerance_s` or in a gap wider than twice it."""
+        s, tol = self.samples, int(tolerance_s * 1e9)
+        if not s:
+            return None
+        i = bisect.bisect_left([p.stamp_ns for p in s], stamp_ns)
+        if i == 0:
+            return s[0] if s[0].stamp_ns - stamp_ns <= tol else None
+        if i == len(s):
+            return s[-1] if stamp_ns - s[-1].stamp_ns <= tol else None
+        a, b = s[i - 1], s[i]
+        if b.stamp_ns - a.stamp_ns > 2 * tol:
+            return None
+        f = (stamp_ns - a.stamp_ns) / (b.stamp_ns - a.stamp_ns)
+        qb = b.q_enu_flu if np.dot(a.q_enu_flu, b.q_enu_flu) >= 0 else -b.q_enu_flu
+        return PoseSample(stamp_ns, a.position_m + f * (b.position_m - a.position_m),
+                          quat_normalize(a.q_enu_flu + f * (qb - a.q_enu_flu)))
+
+
+@dataclass(frozen=True)
+class Camera:
+    """A pinhole camera on the body: intrinsics, and (for a stereo pair) the baseline."""
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    r_body_cam: np.ndarray
+    t_body_cam_m: np.ndarray
+    baseline_m: float = 0.0
+
+    @classmethod
+    def from_infos(cls, left: CameraInfo, right: CameraInfo | None = None) -> "Camera":
+        k = left.K.to_numpy()
+        baseline = 0.0
+        if right is not None:
+            p = right.P.to_numpy()
+            baseline = -p[0, 3] / p[0, 0] if p[0, 0] else 0.0
+            if baseline <= 0.0:
+                baseline = float(np.linalg.norm(right.T_body_camera.position.to_array()
+                                                - left.T_body_camera.position.to_array()))
+        return cls(float(k[0, 0]), float(k[1, 1]), float(k[0, 2]), float(k[1, 2]),
+                   quat_to_rotmat(left.T_body_camera.orientation.to_array()),
+                   left.T_body_camera.position.to_array(), float(baseline))
+
+    def world_pose(self, pose: PoseSample) -> tuple[np.ndarray, np.ndarray]:
+        """(R_world_cam, camera origin in ENU) at this vehicle pose: once per frame."""
+        r_wb = quat_to_rotmat(pose.q_enu_flu)
+        return r_wb @ self.r_body_cam, pose.position_m + r_wb @ self.t_body_cam_m
+
+    def rays(self, u_px: np.ndarray, v_px: np.ndarray) -> np.ndarray:
+        """(k, 3) directions (optical frame, z = 1) through pixels in the continuous convention
+        (the image spans [0, W]: pixel centres at i + 0.5, the pinhole's at i)."""
+        return np.stack([(u_px - 0.5 - self.cx) / self.fx, (v_px - 0.5 - self.cy) / self.fy, np.ones_like(u_px)], 1)
+
+
+@dataclass(frozen=True)
+class Noise:
+    """1-sigma noise of what a position is computed from (contract parameters)."""
+
+    pixel_px: float = 2.0               # box centre
+    disparity_px: float = 0.25          # median disparity in the box
+    height_m: float = 0.3               # object's mid-height above the ground (class table)
+    position_m: float = 0.1             # vehicle position
+    attitude_rad: float = 0.01          # vehicle/camera attitude
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """One detection placed in the world."""
+
+    position_m: np.ndarray              # ENU, the object's centre
+    covariance_m2: np.ndarray           # 3x3 ENU
+    range_m: float
+    method: str                         # "stereo" or "ground"
+
+
+def _propagate(fn, x: np.ndarray, sigmas: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """fn(x) and its covariance for independent input noise `sigmas` (central differences, step =
+    one sigma: the linearisation is over the noise's own scale). `fn` maps (k, n) inputs to (k, 3)
+    points, NaN where undefined; None when it is undefined anywhere in the neighbourhood."""
+    n = len(x)
+    steps = np.diag(sigmas)
+    pts = fn(np.vstack([x, x + steps, x - steps]))
+    if np.isnan(pts).any():
+        return None
+    jac = (pts[1:n + 1] - pts[n + 1:]).T / 2.0
+    return pts[0], jac @ jac.T
+
+
+def _measure(points, x: np.ndarray, sigmas: np.ndarray, origin: np.ndarray, noise: Noise,
+             method: str) -> Measurement | None:
+    """points(x) as a Measurement: the measurement's propagated covariance plus the pose's (the
+    vehicle's position, and its attitude times the range)."""
+    out = _propagate(points, x, sigmas)
+    if out is None:
+        return None
+    p, cov = out
+    r = float(np.linalg.norm(p - origin))
+    return Measurement(p, cov + np.eye(3) * (noise.position_m ** 2 + (r * noise.attitude_rad) ** 2), r, method)
+
+
+def locate_on_ground(cam: Camera, view: tuple[np.ndarray, np.ndarray], u_px: float, v_px: float, centre_height_m: float,
+                     noise: Noise, max_range_m: float) -> Measurement | None:
+    """The box centre's ray meets the horizontal plane z = centre_height_m (ENU). None when the ray
+    does not descend to it within max_range_m (at or above the horizon)."""
+    r_wc, origin = view
+
+    def points(x: np.ndarray) -> np.ndarray:
+        d = cam.rays(x[:, 0], x[:, 1]) @ r_wc.T
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = (x[:, 2] - origin[2]) / d[:, 2]
+        p = origin + d * t[:, None]
+        bad = ~(t > 0) | (np.abs(d[:, 2]) < 1e-9) | (np.linalg.norm(p - origin, axis=1) > max_range_m)
+        p[bad] = np.nan
+        return p
+
+    return _measure(points, np.array([u_px, v_px, centre_height_m]),
+                    np.array([noise.pixel_px, noise.pixel_px, noise.height_m]), origin, noise, "ground")
+
+
+def locate_by_disparity(cam: Camera, view: tuple[np.ndarray, np.ndarray], u_px: float, v_px: float, disparity_px: float,
+                        noise: Noise) -> Measurement | None:
+    """The box centre at depth fx * baseline / disparity along the optical axis."""
+    r_wc, origin = view
+
+    def points(x: np.ndarray) -> np.ndarray:
+        with np.errstate(divide="ignore"):
+            depth = np.where(x[:, 2] > 0, cam.fx * cam.baseline_m / x[:, 2], np.nan)
+        return origin + (cam.rays(x[:, 0], x[:, 1]) * depth[:, None]) @ r_wc.T
+
+    return _measure(points, np.array([u_px, v_px, disparity_px]),
+                    np.array([noise.pixel_px, noise.pixel_px, noise.disparity_px]), origin, noise, "stereo")
+
+
+def to_centre(m: Measurement, origin: np.ndarray, half_depth_m: float, sigma_m: float) -> Measurement:
+    """Stereo measures the object's visible face; its centre lies about half its footprint farther
+    along the (horizontal) line of sight. `sigma_m` (how much the footprint depends on the
+    object's unknown heading) widens the covariance along that line."""
+    d = m.position_m - origin
+    d[2] = 0.0
+    n = float(np.linalg.norm(d))
+    if n < 1e-6:
+        return m
+    d /= n
+    cov = m.covariance_m2 + sigma_m ** 2 * np.outer(d, d)
+    return Measurement(m.position_m + d * half_depth_m, cov, m.range_m + half_depth_m, m.method)
+
+
+def box_disparity(left: np.ndarray, right: np.ndarray, box_xyxy: tuple[float, float, float, float],
+                  max_disparity_px: int, inner_fraction: float = 0.5, min_valid: int = 8) -> float | None:
+    """Median block-matched disparity (px, 1/16 resolution) over the inner `inner_fraction` of the
+    box, from a rectified grayscale pair; None with fewer than `min_valid` matched pixels.
+
+    Only a strip around the box is matched (the box plus the search range to its left), so the cost
+    follows the box's size, not the image's."""
+    h, w = left.shape[:2]
+    block = 7
+    ndisp = max(16, (max_disparity_px + 15) // 16 * 16)
+    x0, y0, x1, y1 = box_xyxy
+    mx, my = (x1 - x0) * (1 - inner_fraction) / 2, (y1 - y0) * (1 - inner_fraction) / 2
+    ix0, ix1 = int(np.floor(x0 + mx)), int(np.ceil(x1 - mx))
+    iy0, iy1 = int(np.floor(y0 + my)), int(np.ceil(y1 - my))
+    ix0, iy0, ix1, iy1 = max(ix0, 0), max(iy0, 0), min(ix1, w), min(iy1, h)
+    if ix1 - ix0 < 2 or iy1 - iy0 < 2:
+        return None
+    pad = block // 2 + 1
+    sx0, sx1 = max(ix0 - ndisp - pad, 0), min(ix1 + pad, w)
+    sy0, sy1 = max(iy0 - pad, 0), min(iy1 + pad, h)
+    if sx1 - sx0 < ndisp + block:
+        return None
+    bm = cv2.StereoBM_create(numDisparities=ndisp, blockSize=block)
+    bm.setTextureThreshold(5)
+    bm.setUniquenessRatio(10)
+    disp = bm.compute(np.ascontiguousarray(left[sy0:sy1, sx0:sx1]), np.ascontiguousarray(right[sy0:sy1, sx0:sx1]))
+    inner = disp[iy0 - sy0:iy1 - sy0, ix0 - sx0:ix1 - sx0]
+    valid = inner[inner > 0]
+    if valid.size < min_valid:
+        return None
+    return float(np.median(valid)) / 16.0
+
+
+def fuse(a: Measurement | None, b: Measurement | None, gate: float = 3.0) -> Measurement | None:
+    """Both measurements combined by their information when they agree (squared Mahalanobis
+    distance of the difference under gate**2 per axis); else the tighter one (smaller trace)."""
+    if a is None or b is None:
+        return a or b
+    diff = a.position_m - b.position_m
+    s = a.covariance_m2 + b.covariance_m2
+    if float(diff @ np.linalg.solve(s, diff)) > 3 * gate ** 2:
+        return a if np.trace(a.covariance_m2) <= np.trace(b.covariance_m2) else b
+    ia, ib = np.linalg.inv(a.covariance_m2), np.linalg.inv(b.covariance_m2)
+    cov = np.linalg.inv(ia + ib)
+    p = cov @ (ia @ a.position_m + ib @ b.position_m)
+    return Measurement(p, cov, a.range_m, f"{a.method}+{b.method}")

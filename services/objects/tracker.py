@@ -1,0 +1,193 @@
+"""Multi-object tracker over world positions: ByteTrack-style two-pass association, a constant-
+velocity Kalman filter per track.
+
+Why two passes: a detection the detector is unsure of (low score) is still good evidence for a
+track that already exists, but not enough to start one. So high-score detections are matched
+first to every track, low-score ones then to the tracks left over; only unmatched high-score
+detections start tracks. A track never changes class (detections match only tracks of their
+class), is confirmed after `confirm_hits` hits and is deleted after `lost_timeout_s` unseen.
+Matching is optimal per pass (Hungarian) over the squared Mahalanobis distance, gated by it and by
+a plain distance (a far detection's wide covariance must not capture a track metres away).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from .projection import Measurement
+
+CHI2_3DOF_99 = 11.345                   # squared Mahalanobis gate, 3 degrees of freedom, 99 %
+_FAR = 1e9
+
+
+@dataclass(frozen=True)
+class TrackerConfig:
+    confirm_hits: int = 3
+    lost_timeout_s: float = 3.0
+    tentative_timeout_s: float = 0.5
+    high_score: float = 0.5
+    low_score: float = 0.1
+    gate_distance_m: float = 3.0
+    accel_noise_mps2: float = 0.5       # constant-velocity model: white acceleration, 1 sigma
+    initial_speed_mps: float = 2.0      # 1 sigma of a new track's unknown velocity
+
+
+@dataclass
+class Observation:
+    """One detection placed in the world (projection.Measurement) with its class and score."""
+
+    measurement: Measurement
+    class_id: int
+    class_name: str
+    score: float
+
+
+@dataclass
+class Track:
+    track_id: int
+    class_id: int
+    class_name: str
+    x: np.ndarray                       # [east, north, up, ve, vn, vu]
+    P: np.ndarray                       # 6x6
+    stamp_ns: int                       # time x is for
+    first_seen_ns: int
+    last_seen_ns: int
+    hits: int = 1
+    best_score: float = 0.0
+    range_m: float = 0.0
+    confirmed: bool = False
+
+
+@dataclass
+class Events:
+    confirmed: list[Track] = field(default_factory=list)
+    lost: list[Track] = field(default_factory=list)
+
+
+class Tracker:
+    """Step it with `update(stamp_ns, observations)` once per detection frame, in stamp order."""
+
+    def __init__(self, config: TrackerConfig):
+        self.tracks: list[Track] = []
+        self.next_id = 1
+        self.configure(config)
+
+    def configure(self, config: TrackerConfig) -> None:
+        self.config = config
+        self._motions: dict[float, tuple[np.ndarray, np.ndarray]] = {}
+
+    # ------------------------------------------------------------ Kalman filter
+
+    def _predict(self, t: Track, stamp_ns: int) -> None:
+        dt = (stamp_ns - t.stamp_ns) * 1e-9
+        if dt <= 0:
+            return
+        f, q = self._motion(dt)
+        t.x, t.P, t.stamp_ns = f @ t.x, f @ t.P @ f.T + q, stamp_ns
+
+    def _motion(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """Transition and process noise for a step of dt s (most tracks share a frame's dt)."""
+        hit = self._motions.get(dt)
+        if hit is not None:
+            return hit
+        if len(self._motions) > 32:
+            self._motions.clear()
+        f = np.eye(6)
+        f[:3, 3:] = np.eye(3) * dt
+        q = self.config.accel_noise_mps2 ** 2 * np.kron([[dt ** 4 / 4, dt ** 3 / 2], [dt ** 3 / 2, dt ** 2]], np.eye(3))
+        self._motions[dt] = (f, q)
+        return f, q
+
+    @staticmethod
+    def _correct(t: Track, m: Measurement) -> None:
+        k = t.P[:, :3] @ np.linalg.inv(t.P[:3, :3] + m.covariance_m2)       # 6x3 gain
+        t.x = t.x + k @ (m.position_m - t.x[:3])
+        p = t.P - k @ t.P[:3, :]
+        t.P = (p + p.T) / 2
+
+    # ------------------------------------------------------------ association
+
+    def _costs(self, tracks: list[Track], obs: list[Observation]) -> np.ndarray:
+        """Squared Mahalanobis distance of every (track, observation) pair; _FAR where the class
+        differs or a gate refuses. One batched solve per frame: the cost stays flat in Python."""
+        pos = np.array([t.x[:3] for t in tracks])                               # (T, 3)
+        cov = np.array([t.P[:3, :3] for t in tracks])                           # (T, 3, 3)
+        z = np.array([o.measurement.position_m for o in obs])                   # (O, 3)
+        r = np.array([o.measurement.covariance_m2 for o in obs])                # (O, 3, 3)
+        diff = z[None, :, :] - pos[:, None, :]                                  # (T, O, 3)
+        d2 = np.einsum("toi,toi->to", diff, np.linalg.solve(cov[:, None] + r[None], diff[..., None])[..., 0])
+        same = np.array([t.class_id for t in tracks])[:, None] == np.array([o.class_id for o in obs])[None, :]
+        ok = same & (np.linalg.norm(diff, axis=2) <= self.config.gate_distance_m) & (d2 <= CHI2_3DOF_99)
+        return np.where(ok, d2, _FAR)
+
+    def _match(self, tracks: list[Track], obs: list[Observation]) -> tuple[list[tuple[int, int]], list[int], list[int]]:
+        """(track index, observation index) pairs, unmatched tracks, unmatched observations."""
+        if not tracks or not obs:
+            return [], list(range(len(tracks))), list(range(len(obs)))
+        c = self._costs(tracks, obs)
+        rows, cols = linear_sum_assignment(c)
+        pairs = [(i, j) for i, j in zip(rows, cols) if c[i, j] < _FAR]
+        mt, mo = {i for i, _ in pairs}, {j for _, j in pairs}
+        return pairs, [i for i in range(len(tracks)) if i not in mt], [j for j in range(len(obs)) if j not in mo]
+
+    # ------------------------------------------------------------ one frame
+
+    def update(self, stamp_ns: int, observations: list[Observation]) -> Events:
+        cfg, ev = self.config, Events()
+        for t in self.tracks:
+            self._predict(t, stamp_ns)
+        high = [o for o in observations if o.score >= cfg.high_score]
+        low = [o for o in observations if cfg.low_score <= o.score < cfg.high_score]
+        pairs, left, new = self._match(self.tracks, high)
+        for i, j in pairs:
+            self._hit(self.tracks[i], high[j], stamp_ns, ev)
+        remaining = [self.tracks[i] for i in left]
+        pairs_low, _, _ = self._match(remaining, low)
+        for i, j in pairs_low:
+            self._hit(remaining[i], low[j], stamp_ns, ev)
+        for j in new:
+            self._start(high[j], stamp_ns, ev)
+        self._expire(stamp_ns, ev)
+        return ev
+
+    def expire(self, stamp_ns: int) -> Events:
+        """Delete tracks unseen for their timeout at `stamp_ns` (also while no frame comes)."""
+        ev = Events()
+        self._expire(stamp_ns, ev)
+        return ev
+
+    def _hit(self, t: Track, o: Observation, stamp_ns: int, ev: Events) -> None:
+        self._correct(t, o.measurement)
+        t.hits += 1
+        t.last_seen_ns = stamp_ns
+        t.best_score = max(t.best_score, o.score)
+        t.range_m = o.measurement.range_m
+        if not t.confirmed and t.hits >= self.config.confirm_hits:
+            t.confirmed = True
+            ev.confirmed.append(t)
+
+    def _start(self, o: Observation, stamp_ns: int, ev: Events) -> None:
+        p = np.zeros((6, 6))
+        p[:3, :3] = o.measurement.covariance_m2
+        p[3:, 3:] = np.eye(3) * self.config.initial_speed_mps ** 2
+        t = Track(self.next_id, o.class_id, o.class_name, np.concatenate([o.measurement.position_m, np.zeros(3)]), p,
+                  stamp_ns, stamp_ns, stamp_ns, best_score=o.score, range_m=o.measurement.range_m)
+        self.next_id += 1
+        self.tracks.append(t)
+        if self.config.confirm_hits <= 1:
+            t.confirmed = True
+            ev.confirmed.append(t)
+
+    def _expire(self, stamp_ns: int, ev: Events) -> None:
+        keep = []
+        for t in self.tracks:
+            unseen_s = (stamp_ns - t.last_seen_ns) * 1e-9
+            if t.confirmed and unseen_s > self.config.lost_timeout_s:
+                ev.lost.append(t)
+            elif not t.confirmed and unseen_s > self.config.tentative_timeout_s:
+                pass                            # never confirmed: dropped without an event
+            else:
+                keep.append(t)
+        self.tracks = keep
