@@ -53,8 +53,8 @@ PARAMS = [
     Param("min_altitude_m", -10.0, "m", -1000.0, 0.0, description="envelope: position setpoint z (up) lower limit"),
     Param("max_yaw_rate_radps", 6.0, "rad/s", 0.1, 20.0, description="envelope: yaw rate setpoint limit"),
     Param("fcu_peer", "", description="udpin: only this HOST:PORT is the flight controller ('' = lock onto the "
-                                      "first autopilot HEARTBEAT)"),
-    Param("fcu_relock_s", 3.0, "s", 0.0, 600.0,
+                                      "first autopilot HEARTBEAT)", start_only=True),
+    Param("fcu_relock_s", 3.0, "s", 0.0, 600.0, start_only=True,
           description="udpin: locked FC silent this long -> lock onto the next autopilot HEARTBEAT (0: never)"),
     Param("reboot_gap_s", 2.0, "s", 0.5, 60.0,
           description="FC heartbeat missing this long (or time_boot_ms going back) -> redo the link set-up"),
@@ -67,7 +67,9 @@ PARAMS = [
           description="an OFFBOARD request waits (within command_timeout_s) until fmu has streamed setpoints "
                       "this long, and is re-sent while the FC answers TEMPORARILY_REJECTED (PX4 needs a stream "
                       "before it accepts OFFBOARD)"),
-    Param("publish_imu", False, description="republish HIGHRES_IMU as sensors/imu (real hardware, no sim)"),
-    Param("source_system", 1, "", 1, 255, description="our MAVLink system id"),
-    Param("source_component", 191, "", 1, 255, description="our component id (191 = onboard computer)"),
+    Param("publish_imu", False, start_only=True,
+          description="republish HIGHRES_IMU as sensors/imu (real hardware, no sim)"),
+    Param("source_system", 1, "", 1, 255, start_only=True, description="our MAVLink system id"),
+    Param("source_component", 191, "", 1, 255, start_only=True,
+          description="our component id (191 = onboard computer)"),
 ]

@@ -6,6 +6,7 @@ from aeroperception.schemas import (
     SetModeReply, SetModeRequest, VehicleState, VehicleStatus, WaypointReached,
 )
 from aeroperception.services.runtime import Param
+from aeroperception.services.runtime.params import start_only_but
 
 NAME = "gcs"
 INPUTS = {
@@ -52,7 +53,7 @@ DEFAULT_HOME_LAT_DEG = 35.736805
 DEFAULT_HOME_LON_DEG = 139.539676
 DEFAULT_HOME_ALT_M = 10.0
 
-PARAMS = [
+_DECLARED = [
     Param("gcs_ip", "127.0.0.1", description="ground station address while none is heard"),
     Param("remote_port", DEFAULT_REMOTE_PORT, "", 1, 65535, description="ground station UDP port (initial)"),
     Param("local_port", DEFAULT_LOCAL_PORT, "", 0, 65535, description="UDP port we bind (0 = any)"),
@@ -84,4 +85,7 @@ PARAMS = [
           "empty = env AERO_GCS_SIGNING_KEY (hex), else no signing. When set, unsigned packets are refused"),
     Param("signing_link_id", 0, "", 0, 255, description="MAVLink 2 signing link id of our packets"),
 ]
+# gcs builds its link, schedulers and tables from its parameters at start: all but call_timeout_s
+# are read there only, so a live set (aero param, a ground station's PARAM_SET) is refused, saying so.
+PARAMS = start_only_but(_DECLARED, live=("call_timeout_s",))
 SIGNING_KEY_ENV = "AERO_GCS_SIGNING_KEY"

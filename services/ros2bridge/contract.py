@@ -7,6 +7,7 @@ from aeroperception.schemas import (
     Detection2DArray, GoalReply, GoToPositionGoal, Image, Imu, Odometry, PointCloud, VehicleState,
 )
 from aeroperception.services.runtime import Param
+from aeroperception.services.runtime.params import start_only_but
 
 NAME = "ros2bridge"
 INPUTS = {
@@ -24,7 +25,7 @@ CALLS = {
     "mission/action/goto/goal": (GoToPositionGoal, GoalReply),
 }
 ACTIONS = ["mission/action/goto"]
-PARAMS = [
+_DECLARED = [
     Param("domain_id", 0, "", 0, 232, description="ROS_DOMAIN_ID of the ROS 2 graph to join"),
     Param("namespace", "/aero", description="ROS namespace of the bridge node and its topics"),
     Param("node_name", "aero_bridge", description="ROS node name"),
@@ -33,3 +34,5 @@ PARAMS = [
     Param("max_rate_hz", 20.0, "Hz", 0.1, 200.0, description="per-topic cap: extra samples are dropped, never queued"),
     Param("goal_topic", "goal", description="PoseStamped goal topic under the namespace (empty: no ROS commands)"),
 ]
+# The bridge declares its ROS entities from its parameters at start: a live set is refused, saying so.
+PARAMS = start_only_but(_DECLARED)

@@ -12,6 +12,7 @@ is what runs, and the reason goes back in the reply.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import threading
 from dataclasses import dataclass, field
@@ -174,6 +175,13 @@ class ParamSet:
             self.update(data)
         except ParamError as e:
             raise ParamError(f"{p}: {e}") from None
+
+
+def start_only_but(params: Iterable[Param], live: Iterable[str] = ()) -> list[Param]:
+    """For a service that builds itself from its parameters at start (sockets, tables, a pipeline):
+    every parameter but those named in `live` declared start_only."""
+    live = set(live)
+    return [p if p.name in live else dataclasses.replace(p, start_only=True) for p in params]
 
 
 def parse_overrides(items: Iterable[str]) -> dict[str, str]:

@@ -1,6 +1,7 @@
 """Contract of vio: keys in/out and parameters (stereo-inertial odometry, seed 003 / 000 §4.1)."""
 from aeroperception.schemas import CameraInfo, Image, Imu, Odometry, Reply, VioHealth, VioResetRequest
 from aeroperception.services.runtime import Param
+from aeroperception.services.runtime.params import start_only_but
 
 from .backend import BackendConfig
 from .drift import DriftConfig
@@ -28,31 +29,27 @@ SERVICES = {                                 # queryables served: request -> rep
     "vio/srv/reset": (VioResetRequest, Reply),
 }
 QUERIES = ("sensors/camera/left/info", "sensors/camera/right/info")
-# Every parameter configures the strategy built at start (vio_config): a live set is refused, naming
-# that, instead of being reported as in force while the old strategy runs.
-PARAMS = [
-    Param("strategy", "klt_stereo", start_only=True,
-          description="VioStrategy: klt_stereo, klt_mono (okvis2, vins_mono: not built)"),
-    Param("max_features", FrontEndConfig.max_features, "", 20, 1000, start_only=True,
-          description="features per keyframe"),
-    Param("keyframe_max_age_s", 0.5, "s", 0.05, 5.0, start_only=True,
-          description="new keyframe at least this often (< 0.9 lag_s)"),
-    Param("ransac_threshold_px", 1.5, "px", 0.3, 10.0, description="PnP RANSAC inlier threshold", start_only=True),
-    Param("lag_s", 1.5, "s", 0.3, 10.0, description="fixed-lag smoother window", start_only=True),
-    Param("lost_after_frames", 10, "", 1, 1000, description="frames without a visual fix before LOST", start_only=True),
-    Param("gyro_noise_density", ImuNoise.gyro_noise_density, "rad/s/sqrt(Hz)", 1e-6, 1.0, start_only=True),
-    Param("accel_noise_density", ImuNoise.accel_noise_density, "m/s^2/sqrt(Hz)", 1e-6, 10.0, start_only=True),
-    Param("gyro_random_walk", ImuNoise.gyro_random_walk, "rad/s^2/sqrt(Hz)", 1e-9, 1.0, start_only=True),
-    Param("accel_random_walk", ImuNoise.accel_random_walk, "m/s^3/sqrt(Hz)", 1e-9, 1.0, start_only=True),
+_DECLARED = [
+    Param("strategy", "klt_stereo", description="VioStrategy at start: klt_stereo, klt_mono (okvis2, vins_mono: not built)"),
+    Param("max_features", FrontEndConfig.max_features, "", 20, 1000, description="features per keyframe"),
+    Param("keyframe_max_age_s", 0.5, "s", 0.05, 5.0, description="new keyframe at least this often (< 0.9 lag_s)"),
+    Param("ransac_threshold_px", 1.5, "px", 0.3, 10.0, description="PnP RANSAC inlier threshold"),
+    Param("lag_s", 1.5, "s", 0.3, 10.0, description="fixed-lag smoother window"),
+    Param("lost_after_frames", 10, "", 1, 1000, description="frames without a visual fix before LOST"),
+    Param("gyro_noise_density", ImuNoise.gyro_noise_density, "rad/s/sqrt(Hz)", 1e-6, 1.0),
+    Param("accel_noise_density", ImuNoise.accel_noise_density, "m/s^2/sqrt(Hz)", 1e-6, 10.0),
+    Param("gyro_random_walk", ImuNoise.gyro_random_walk, "rad/s^2/sqrt(Hz)", 1e-9, 1.0),
+    Param("accel_random_walk", ImuNoise.accel_random_walk, "m/s^3/sqrt(Hz)", 1e-9, 1.0),
     Param("drift_xy_pct", 100 * DriftConfig.drift_xy_frac, "%", 0.0, 10.0,
-          description="1-sigma horizontal drift per axis as % of distance flown, added to the window's covariance",
-          start_only=True),
+          description="1-sigma horizontal drift per axis as % of distance flown, added to the window's covariance"),
     Param("drift_z_pct", 100 * DriftConfig.drift_z_frac, "%", 0.0, 10.0,
-          description="1-sigma vertical drift as % of distance flown", start_only=True),
-    Param("imu_gap_warn_s", 0.05, "s", 0.005, 1.0, start_only=True,
-          description="longer IMU gap: DEGRADED for that frame"),
-    Param("imu_gap_reset_s", 1.0, "s", 0.05, 10.0, description="longer IMU gap: re-initialise", start_only=True),
+          description="1-sigma vertical drift as % of distance flown"),
+    Param("imu_gap_warn_s", 0.05, "s", 0.005, 1.0, description="longer IMU gap: DEGRADED for that frame"),
+    Param("imu_gap_reset_s", 1.0, "s", 0.05, 10.0, description="longer IMU gap: re-initialise"),
 ]
+# Every parameter configures the strategy built at start (vio_config): a live set is refused, saying
+# so, instead of being reported as in force while the old strategy runs.
+PARAMS = start_only_but(_DECLARED)
 
 
 def vio_config(p) -> VioConfig:

@@ -10,6 +10,7 @@ from aeroperception.schemas import (
     VehicleState, VioHealth, WaypointReached,
 )
 from aeroperception.services.runtime import Param
+from aeroperception.services.runtime.params import start_only_but
 
 NAME = "viz"
 INPUTS = {
@@ -36,7 +37,7 @@ INPUTS = {
 OUTPUTS: dict = {}
 CALLS = {"mission/srv/get": (Empty, GetMissionReply)}   # the mission's waypoints, when its id changes
 
-PARAMS = [
+_DECLARED = [
     # where the view goes (any combination; none at all = data is converted and dropped)
     Param("web_port", 9090, "", 0, 65535, description="serve the web viewer on this HTTP port (0 = off); implies the gRPC server"),
     Param("grpc_port", 9876, "", 0, 65535, description="port of the gRPC server viewers connect to (rerun+http://HOST:PORT/proxy)"),
@@ -59,3 +60,7 @@ PARAMS = [
     Param("flush_timeout_s", 0.5, "s", 0.05, 5.0,
           description="a viewer that has not taken the data within this is slow: drop until it catches up"),
 ]
+# viz opens its outputs and builds its adapters from its parameters at start: all but the rates
+# and show_truth (read per sample) are read there only, so a live set of one is refused, saying so.
+PARAMS = start_only_but(_DECLARED, live=("show_truth", "pose_rate_hz", "image_rate_hz", "cloud_rate_hz",
+                                          "costmap_rate_hz", "setpoint_rate_hz"))

@@ -24,7 +24,7 @@ from aeroperception.services.runtime import (
     RateLoop,
 )
 from aeroperception.services.runtime.node import LIVELINESS_ROOT, call, encoding_for
-from aeroperception.services.runtime.params import parse_overrides
+from aeroperception.services.runtime.params import parse_overrides, start_only_but
 
 
 # ================================================================ parameters
@@ -129,6 +129,12 @@ def test_params_start_only_refused_live_naming_that():
     with pytest.raises(ParamError, match="strategy is read at start only.*still 'b'"):
         ps.apply("strategy", "c")
     assert ps["strategy"] == "b" and ps.apply("gain", 2.0) == 2.0
+
+
+def test_start_only_but_marks_every_parameter_but_the_live_ones():
+    marked = start_only_but(DECL, live=("retries",))
+    assert [p.name for p in marked if not p.start_only] == ["retries"]
+    assert [p.default for p in marked] == [p.default for p in DECL] and not any(p.start_only for p in DECL)
 
 
 def test_params_load_flat_file(tmp_path):
