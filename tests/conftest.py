@@ -15,12 +15,18 @@ Fixtures:
                     A start-up failure raises StackStartError carrying aero up's output and
                     every service log. Teardown: SIGINT to `aero up`, bounded wait, then kill.
     stack_module    the same factory, module-scoped (one stack shared by a test module)
+    px4_build       a PX4 SITL build dir (bin/px4 + etc/): $AERO_PX4_DIR or the bundle
+                    ../shared/px4/px4-sitl-sih.tar.gz extracted once per session; skips without
+                    either (fails under CI=true)
     lan             factory: lan(["vehicle", "ground"]) -> netns.Lan, hosts as network namespaces
                     on one switch (10.77.0.0/24 inside them only); skips when namespaces cannot
                     be made (not root). Teardown stops their processes and deletes them.
 """
 from __future__ import annotations
 
+import os
+import tarfile
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -108,6 +114,32 @@ def lan():
     finally:
         for n in reversed(made):
             n.close()
+
+
+# ---------------------------------------------------------------- PX4 SITL
+
+
+PX4_BUNDLE = Path(__file__).resolve().parents[1].parent / "shared" / "px4" / "px4-sitl-sih.tar.gz"
+
+
+@pytest.fixture(scope="session")
+def px4_build(tmp_path_factory) -> Path:
+    """A PX4 SITL build (bin/px4 + etc/): $AERO_PX4_DIR, else the bundle ../shared/px4 beside the
+    repository, extracted once per session. Neither: skip saying what to point AERO_PX4_DIR at; but
+    under CI=true (the bundle must be there) fail."""
+    own = os.environ.get("AERO_PX4_DIR")
+    if own:
+        return Path(own)
+    if not PX4_BUNDLE.is_file():
+        why = (f"no PX4 build: set AERO_PX4_DIR to one (the directory holding bin/px4 and etc/, e.g. "
+               f"PX4-Autopilot/build/px4_sitl_default) or put px4-sitl-sih.tar.gz at {PX4_BUNDLE}")
+        if os.environ.get("CI", "").lower() == "true":
+            pytest.fail(why)
+        pytest.skip(why)
+    out = tmp_path_factory.mktemp("px4-build")
+    with tarfile.open(PX4_BUNDLE) as tar:
+        tar.extractall(out, filter="tar")
+    return out
 
 
 # ---------------------------------------------------------------- aero up

@@ -27,6 +27,7 @@ import math
 import os
 import re
 import shutil
+import signal
 import subprocess
 import sys
 import textwrap
@@ -46,6 +47,7 @@ from aeroperception.services.runtime.supervision import (
     EXIT_DUPLICATE, SUPERVISOR_ENV, Priority, apply_priority, terminate,
 )
 
+from . import px4_sitl
 from .cmd_router import THIN_LINK_HZ, thin_link_downsampling
 from .cmd_topic import LEVEL_NAMES as LEVELS
 from .cmd_topic import decode_sample
@@ -102,6 +104,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--sensors", default=None, choices=["all", "lidar", "camera", "imu", "none"],
                    help="sim: which scenario sensors to render (none: vehicle and truth only, least CPU)")
     p.add_argument("--fcu-url", default=None, help="fmu: MAVLink URL of the flight controller")
+    p.add_argument("--px4", default=None, metavar="DIR",
+                   help=f"px4 profile: the PX4 build to run as SITL (bin/px4 + etc/, e.g. "
+                        f"PX4-Autopilot/build/px4_sitl_default; default ${px4_sitl.DIR_ENV})")
+    p.add_argument("--px4-instance", type=int, default=None, metavar="N",
+                   help="px4 profile: PX4 instance N (ports 14540+N / 14580+N, /tmp/px4_lock-N; default 0)")
     p.add_argument("--gps-denied", action="store_true",
                    help="sim: the flight controller has no GPS-like position, only the VIO (fused with its "
                         "IMU); the mission waits for and holds on perception health (VIO TRACKING)")
@@ -133,10 +140,19 @@ class Child:
     token: bool = False         # aero/alive/<vehicle>/<name> exists (ours or another instance's)
     waiting_since: float | None = None  # refused as a duplicate; waiting for the other to stop
     last_error: str = ""
+    # A process that is not one of our services (PX4 SITL): its own environment and clean-stop
+    # signal; it has no liveliness token of its own, so aero up holds one for it while it runs and
+    # its log has shown `booted`.
+    extra_env: dict[str, str] = field(default_factory=dict)
+    stop_signal: int = signal.SIGTERM
+    booted: str = ""
+    proxy_token: zenoh.LivelinessToken | None = None
+    log_offset: int = 0
 
     def start(self, env: dict[str, str]) -> None:
+        self.log_offset = self.log_path.stat().st_size if self.log_path.exists() else 0
         log = open(self.log_path, "ab")
-        self.proc = subprocess.Popen(self.argv, stdout=log, stderr=subprocess.STDOUT, env=env,
+        self.proc = subprocess.Popen(self.argv, stdout=log, stderr=subprocess.STDOUT, env={**env, **self.extra_env},
                                      start_new_session=True)
         log.close()
         self.started_at = time.monotonic()
@@ -153,6 +169,23 @@ class Child:
             emit(f"aero up: {self.name} not started: the same service is already running for this "
                  f"vehicle (see {self.log_path}); starting it when that one stops")
         return True
+
+    def hold_token(self, session: zenoh.Session, key: str) -> None:
+        """For a process with `booted`: declare its liveliness token once its log says it booted,
+        undeclare it when it exits."""
+        running = self.proc is not None and self.proc.poll() is None
+        if running and self.proxy_token is None:
+            with open(self.log_path, "rb") as f:
+                f.seek(self.log_offset)
+                if self.booted.encode() in f.read():
+                    self.proxy_token = session.liveliness().declare_token(key)
+        elif not running:
+            self.drop_token()
+
+    def drop_token(self) -> None:
+        if self.proxy_token is not None:
+            self.proxy_token.undeclare()
+            self.proxy_token = None
 
     def status(self) -> str:
         if self.proc is None and self.last_exit == EXIT_DUPLICATE:
@@ -292,6 +325,40 @@ def validate_args(args, names: list[str]) -> None:
                            f"{_did_you_mean(svc, everything)}")
 
 
+@dataclass(frozen=True)
+class Px4Plan:
+    """The PX4 SITL a px4 profile starts: checked build dir and a free instance."""
+
+    build: Path
+    instance: int
+
+    def child(self, log_dir: Path, priority: Priority) -> Child:
+        workdir = px4_sitl.work_dir(log_dir)
+        c = Child(px4_sitl.NAME, px4_sitl.argv(self.build, self.instance, workdir), log_dir / f"{px4_sitl.NAME}.log",
+                  priority=priority, extra_env=px4_sitl.boot_env(), stop_signal=signal.SIGINT,
+                  booted=px4_sitl.BOOTED)
+        c.health = {"level": 0, "message": px4_sitl.describe(self.instance, workdir)}
+        return c
+
+
+def plan_px4(args, names: list[str]) -> Px4Plan | None:
+    """With px4 in the selection: its build and instance checked before anything starts, and fmu
+    pointed at it. Without: --px4 / --px4-instance are refused, not ignored."""
+    px4_dir, instance = getattr(args, "px4", None), getattr(args, "px4_instance", None)
+    if px4_sitl.NAME not in names:
+        if px4_dir is not None or instance is not None:
+            flag = "--px4" if px4_dir is not None else "--px4-instance"
+            raise CliError(f"{flag}: profile {args.profile} starts no PX4 (use --profile px4)")
+        return None
+    if args.fcu_url is not None:
+        raise CliError(f"--fcu-url: fmu talks to the PX4 this profile starts ({px4_sitl.fcu_url(instance or 0)}); "
+                       "drop --fcu-url, or use --profile vehicle for a flight controller of your own")
+    plan = Px4Plan(px4_sitl.build_dir(px4_dir), 0 if instance is None else instance)
+    px4_sitl.check_instance(plan.instance)
+    args.fcu_url = px4_sitl.fcu_url(plan.instance)
+    return plan
+
+
 def service_argv(name: str, args, endpoint: str, profile_args: list[str] = (), running: list[str] = ()) -> list[str]:
     """The child's command line: the profile's flags for it first, so --arg/--fcu-url override them.
     `running`: every service started (perception's `sources` are those of them it watches)."""
@@ -405,14 +472,19 @@ def run(args) -> int:
     names, unfed = fed_services(names, args.sensors)
     for n, why in unfed.items():
         emit(f"aero up: not starting {n}: {why}")
+    px4 = plan_px4(args, names)
+    services = [n for n in names if n != px4_sitl.NAME]
     if args.dry_run:
         endpoint = args.listen.replace("0.0.0.0", "127.0.0.1")
         profile_args = load_profiles()[args.profile]["args"]
         joins = f", joining {', '.join(args.connect)}" if args.connect else ""
         emit(f"aero up: profile {args.profile}, router on {args.listen}{joins}; would start:")
-        for n in names:
+        if px4:
+            env = " ".join(f"{k}={v}" for k, v in px4_sitl.boot_env().items())
+            emit(f"  {px4_sitl.NAME:<12} {env} " + " ".join(px4_sitl.argv(px4.build, px4.instance, "<log-dir>/px4-XXXX")))
+        for n in services:
             emit(f"  {n:<12} " + " ".join(service_argv(n, args, endpoint, [str(a) for a in profile_args.get(n, [])],
-                                                         names)))
+                                                         services)))
         return 0
     log_dir = Path(args.log_dir or Path.home() / ".aero" / "logs" / time.strftime("%Y%m%d-%H%M%S"))
     log_dir.mkdir(parents=True, exist_ok=True)
@@ -422,8 +494,10 @@ def run(args) -> int:
     vehicle = os.environ.get("AERO_VEHICLE") or "default"
     priorities = load_priorities()
     profile_args = load_profiles()[args.profile]["args"]
-    children = {n: Child(n, service_argv(n, args, endpoint, [str(a) for a in profile_args.get(n, [])], names),
-                         log_dir / f"{n}.log", priority=priorities.get(n, Priority())) for n in names}
+    children = {n: Child(n, service_argv(n, args, endpoint, [str(a) for a in profile_args.get(n, [])], services),
+                         log_dir / f"{n}.log", priority=priorities.get(n, Priority())) for n in services}
+    if px4:   # the flight controller first: fmu finds it booting rather than absent
+        children = {px4_sitl.NAME: px4.child(log_dir, priorities.get(px4_sitl.NAME, Priority())), **children}
     lock = threading.Lock()
 
     stop = ShutdownFlag().install().event
@@ -465,6 +539,8 @@ def run(args) -> int:
     pids_path = log_dir / "pids.json"
     for c in children.values():
         c.start(env)
+    if px4:
+        emit(f"aero up: {children[px4_sitl.NAME].health['message']}; log {children[px4_sitl.NAME].log_path}")
     write_pids(pids_path, children.values())
     emit("aero up: scheduling: " + ", ".join(f"{c.name} {c.sched}" for c in [router.child, *children.values()]))
 
@@ -493,6 +569,8 @@ def run(args) -> int:
                     c.restarts += 1
                     c.start(env)
                     changed = True
+                if c.booted:
+                    c.hold_token(session, f"{LIVELINESS_ROOT}/{vehicle}/{c.name}")
             if changed:
                 write_pids(pids_path, children.values())
             table = format_table(children.values(), None if tty else 240)  # logs: long lines are fine
@@ -503,6 +581,8 @@ def run(args) -> int:
             next_table = now + args.status_interval
     emit("aero up: stopping")
     shutdown(children.values())
+    for c in children.values():
+        c.drop_token()
     pids_path.unlink(missing_ok=True)
     for s in subs:
         s.undeclare()
@@ -569,4 +649,7 @@ def format_table(children, width: int | None = None) -> str:
 
 
 def shutdown(children) -> None:
-    terminate([c.proc for c in children if c.proc is not None], timeout_s=3.0, kill_wait_s=1.0)
+    """Each child's clean-stop signal (SIGTERM; PX4: SIGINT) at once, then SIGTERM / SIGKILL."""
+    signals = {c.proc.pid: c.stop_signal for c in children if c.proc is not None}
+    terminate([c.proc for c in children if c.proc is not None], timeout_s=3.0, kill_wait_s=1.0,
+              first_signal=lambda p: signals.get(p.pid, signal.SIGTERM))

@@ -116,21 +116,36 @@ def set_parent_death_signal(sig: int = signal.SIGTERM) -> bool:
     return libc.prctl(PR_SET_PDEATHSIG, int(sig), 0, 0, 0) == 0
 
 
-def terminate(procs, timeout_s: float, kill_wait_s: float = 5.0) -> None:
-    """SIGTERM every live process at once, wait for all within one shared timeout_s, SIGKILL the rest."""
+def terminate(procs, timeout_s: float, kill_wait_s: float = 5.0,
+              first_signal: Callable[[subprocess.Popen], int] = lambda p: signal.SIGTERM) -> None:
+    """Ask every live process to stop at once (SIGTERM, or `first_signal(p)`: PX4 stops on SIGINT),
+    wait for all within one shared timeout_s; the rest get SIGTERM if they were asked otherwise,
+    then SIGKILL after kill_wait_s."""
     live = [p for p in procs if p.poll() is None]
+    asked = {id(p): first_signal(p) for p in live}
     for p in live:
-        try:
-            p.send_signal(signal.SIGTERM)
-        except ProcessLookupError:
-            pass
+        _signal(p, asked[id(p)])
     deadline = time.monotonic() + timeout_s
     for p in live:
         try:
             p.wait(max(0.0, deadline - time.monotonic()))
         except subprocess.TimeoutExpired:
+            if asked[id(p)] != signal.SIGTERM:
+                _signal(p, signal.SIGTERM)
+                try:
+                    p.wait(kill_wait_s)
+                    continue
+                except subprocess.TimeoutExpired:
+                    pass
             p.kill()
             p.wait(kill_wait_s)
+
+
+def _signal(p: subprocess.Popen, sig: int) -> None:
+    try:
+        p.send_signal(sig)
+    except ProcessLookupError:
+        pass
 
 
 def _pid_exists(pid: int) -> bool:

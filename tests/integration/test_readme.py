@@ -56,6 +56,14 @@ HOW: dict[str, tuple] = {
     "aero up --arg gcs:--gcs-ip=192.168.1.20": (DRY, None, "--gcs-ip=192.168.1.20"),
     "mavproxy.py --master=udpin:127.0.0.1:14550": (SKIP, None, "interactive ground station: test_gcs drives MAVProxy"),
     "aero up --arg gcs:--signing-key-file=/etc/aero/gcs.key": (DRY, None, "--signing-key-file=/etc/aero/gcs.key"),
+    "aero up --profile px4 --px4 ~/PX4-Autopilot/build/px4_sitl_default": (
+        SKIP, ["aero", "up", "--help"], "needs a PX4 build: test_px4 flies the bundle through this profile"),
+    "aero up --profile px4 --px4 DIR --px4-instance 1": (
+        SKIP, ["aero", "up", "--help"], "test_px4 runs PX4 as a free instance >= 1; test_px4_sitl the checks"),
+    "aero up --profile px4 --px4 DIR --dry-run": (
+        SKIP, ["aero", "up", "--help"], "test_px4_sitl checks PX4's environment and command line"),
+    "DIR/bin/px4-commander --instance 0 mode auto:loiter": (
+        SKIP, None, "test_px4 switches its PX4 to HOLD this way mid-mission"),
     "aero up --profile vehicle": (DRY, None, "--param publish_imu=true"),
     "aero up --profile vehicle --fcu-url udpin:0.0.0.0:14540": (DRY, None, "--fcu-url udpin:0.0.0.0:14540"),
     "aero up --profile vehicle --fcu-url /dev/ttyACM0,921600": (DRY, None, "--fcu-url /dev/ttyACM0,921600"),
