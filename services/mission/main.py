@@ -16,7 +16,7 @@ from aeroperception.schemas import (
     TrajectoryStatus,
     VehicleState, Vector3, WaypointReached, load_mission_file, parse_mission,
 )
-from aeroperception.services.runtime import ActionServer, CallError, GoalHandle, Health, Service, run
+from aeroperception.services.runtime import ActionServer, CallError, GoalHandle, Health, ParamError, Service, run
 
 from aeroperception.services.safety.geofence import GeofenceError
 
@@ -79,7 +79,9 @@ class MissionService(Service):
             self.log.warn("mission_file_skipped", path=p.mission_file, reason=f"restored mission "
                           f"{self.mgr.mission.mission_id or '(unnamed)'} in progress")
         elif p.mission_file:
-            self._load_file(p.mission_file)
+            self.file_error = self._load_file(p.mission_file)
+            if self.file_error:
+                self.mgr.message = self.file_error
         self.pub_status = node.publisher("mission/status", contract.OUTPUTS["mission/status"])
         self.pub_goal = node.publisher("mission/active_goal", PoseStamped)
         self.pub_reached = node.publisher("mission/waypoint_reached", WaypointReached)
@@ -120,29 +122,35 @@ class MissionService(Service):
         node.every(1.0 / p.status_rate_hz, self._tick, name="status")
         node.every(0.1, lambda: self.mgr.tick(time.monotonic()), name="watchdog")  # outage within ~0.1 s
 
-    def _load_file(self, path: str) -> None:
-        """mission_file (at start-up unless a restart restored a mission in progress: that one is
-        the vehicle's; and when set live). A refusal is logged and in the diagnostics; never fatal."""
+    def _load_file(self, path: str) -> str:
+        """Load mission_file `path` (at start-up unless a restart restored a mission in progress:
+        that one is the vehicle's; and when set live): "" when loaded, else why (logged)."""
         try:
             ok, message = self.mgr.load(load_mission_file(path))
         except SchemaError as e:
             ok, message = False, str(e)
-        self.file_error = "" if ok else f"mission_file {path}: {message}"
         if ok:
             self.log.info("mission_file_loaded", path=path, message=message)
-        else:
-            self.log.error("mission_file_refused", path=path, error=message)
-            self.mgr.message = self.file_error
+            return ""
+        self.log.error("mission_file_refused", path=path, error=message)
+        return f"mission_file {path}: {message}"
 
     def _on_param(self, name, value) -> None:
+        """A live set that cannot be honoured is refused (ParamError: the old value stays): a mission
+        file that does not load, geofence values that do not make a fence. At start-up a bad file
+        is reported in the diagnostics instead (the service runs without a mission)."""
+        try:
+            limits = Limits.from_params(self.params)
+        except GeofenceError as e:
+            raise ParamError(str(e)) from None
         if name == "mission_file" and value:
-            self._load_file(value)
+            why = self._load_file(value)
+            if why:
+                raise ParamError(why)
+            self.file_error = ""
         if hasattr(self.mgr.cfg, name):
             setattr(self.mgr.cfg, name, value)
-        try:
-            self.mgr.limits = Limits.from_params(self.params)
-        except GeofenceError as e:
-            self.log.warn("geofence_param_invalid", error=str(e))
+        self.mgr.limits = limits
 
     def _persist(self, snapshot: dict) -> None:
         try:

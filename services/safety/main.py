@@ -24,7 +24,6 @@ class SafetyService(Service):
     def start(self) -> None:
         node = self.node
         self.monitor = SafetyMonitor(Config.from_params(self.params))  # a bad polygon fails at start
-        self.good_params = dict(self.params.values)
         self.params.on_change(self._on_param)
         self.pub = node.publisher("safety/status", SafetyStatus)
         self.last: SafetyStatus | None = None
@@ -58,10 +57,8 @@ class SafetyService(Service):
             return
         try:
             cfg = Config.from_params(self.params)
-        except GeofenceError as e:  # e.g. a polygon that does not parse: refuse, keep the fence in force
-            self.params.set(name, self.good_params[name])
+        except GeofenceError as e:  # e.g. a polygon that does not parse: refused (the old value is kept)
             raise ParamError(str(e)) from None
-        self.good_params = dict(self.params.values)
         self.monitor.cfg = cfg
         self._check()
 

@@ -63,6 +63,16 @@ def test_aero_up_mission_yaml_at_start_and_both_formats_through_the_service(stac
     r = st.aero("param", "set", "mission", "mission_file", str(j))
     assert r.returncode == 0, r.stderr
     status(st, lambda m: m.mission_id == "json_line", "mission_file set live")
+    # a live set it cannot honour is refused with the reason, and the parameter keeps what runs
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(YAML_MISSION.replace("mission_id", "mission_name"))
+    for name, value, words in [("mission_file", str(bad), "mission_name"),
+                               ("geofence_polygon", "not a polygon", "geofence_polygon")]:
+        r = st.aero("param", "set", "mission", name, value)
+        assert r.returncode == 1 and words in r.stderr, (name, r.stderr)
+        assert st.aero("param", "get", "mission", name).stdout.strip() != value
+    assert st.aero("param", "get", "mission", "mission_file").stdout.strip() == str(j)
+    assert status(st, lambda m: True, "status").mission_id == "json_line"
 
 
 def test_a_bad_start_up_mission_is_refused_in_one_line_before_anything_starts(tmp_path):
