@@ -121,8 +121,8 @@ class ParamSet:
 
     def apply(self, name: str, value: Any) -> Any:
         """A live update: refused (ParamError, old value kept) when unknown, invalid, start-only,
-        or when an apply callback refuses it by raising ParamError. On a refusal the callbacks
-        that had already taken the new value are given the old one back."""
+        or when an apply callback refuses it by raising ParamError (or fails: that exception is
+        re-raised). Then the callbacks that had already taken the new value get the old one back."""
         p = self._declared(name)
         if p.start_only:
             raise ParamError(f"{name} is read at start only (restart the service with --param {name}=...); "
@@ -135,7 +135,7 @@ class ParamSet:
             for cb in list(self._listeners):
                 cb(name, v)
                 done.append(cb)
-        except ParamError:
+        except Exception:   # a refusal (ParamError) or a callback that failed: either way not applied
             with self._lock:
                 self.values[name] = old
             for cb in done:

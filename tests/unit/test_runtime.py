@@ -121,6 +121,10 @@ def test_params_live_set_refused_by_apply_callback_keeps_what_runs():
         ps.apply("max_velocity_mps", 9)
     assert ps["max_velocity_mps"] == 2.0 and applied == [9.0, 2.0]
     assert ps.apply("max_velocity_mps", 4) == 4.0 and ps["max_velocity_mps"] == 4.0
+    ps.on_change(lambda n, v: 1 / 0 if v == 3 else None)        # a callback that fails: not applied either
+    with pytest.raises(ZeroDivisionError):
+        ps.apply("max_velocity_mps", 3)
+    assert ps["max_velocity_mps"] == 4.0
 
 
 def test_params_start_only_refused_live_naming_that():
