@@ -5,7 +5,10 @@
   extent of the pixels brighter than 0.5 in the letterboxed input and reports it as a YOLOv8
   box of class = channel (red 0, green 1, blue 2). Boxes come out where the pixels really are
   after letterboxing, so decoding them back proves the whole geometry, not just its algebra.
+  With layout "end2end" it answers like a YOLO26 (NMS-free) export: [1, anchors, 6] rows of
+  x1, y1, x2, y2, score, class and `end2end: True` in the metadata.
 - `classifier_model`: a valid ONNX whose output [1, 1000] is no YOLOv8 layout.
+- `metadata` (planted_model, box_finder_model): extra export metadata, e.g. a YOLO11 description.
 """
 from __future__ import annotations
 
@@ -20,10 +23,10 @@ OPSET = 13
 
 
 def _save(graph: onnx.GraphProto, path: Path, names: Sequence[str] | None, stride: int | None = None,
-          imgsz: tuple[int, int] | None = None) -> Path:
+          imgsz: tuple[int, int] | None = None, metadata: dict[str, str] | None = None) -> Path:
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", OPSET)])
     model.ir_version = 8
-    meta = {}
+    meta = dict(metadata or {})
     if names is not None:
         meta["names"] = repr({i: n for i, n in enumerate(names)})
     if stride is not None:
@@ -43,8 +46,10 @@ def _input(input_hw: tuple[int, int] | None) -> onnx.ValueInfoProto:
 
 
 def planted_model(path: Path, rows: np.ndarray, layout: str = "channels_first",
-                  input_hw: tuple[int, int] = (640, 640), names: Sequence[str] | None = None) -> Path:
-    """rows: (N, 4 + nc) = cx, cy, w, h (model px), class scores. Output [1, 4+nc, N] or [1, N, 4+nc]."""
+                  input_hw: tuple[int, int] = (640, 640), names: Sequence[str] | None = None,
+                  metadata: dict[str, str] | None = None) -> Path:
+    """rows: (N, 4 + nc) = cx, cy, w, h (model px), class scores. Output [1, 4+nc, N] or [1, N, 4+nc]
+    (channels_last also plants end-to-end rows (N, 6) as [1, N, 6])."""
     rows = np.asarray(rows, np.float32)
     const = rows.T[None] if layout == "channels_first" else rows[None]
     nodes = [
@@ -58,12 +63,13 @@ def planted_model(path: Path, rows: np.ndarray, layout: str = "channels_first",
         [helper.make_tensor_value_info("output0", TensorProto.FLOAT, list(const.shape))],
         initializer=[numpy_helper.from_array(np.ascontiguousarray(const), "planted"),
                      numpy_helper.from_array(np.zeros((), np.float32), "zero")])
-    return _save(graph, path, names)
+    return _save(graph, path, names, metadata=metadata)
 
 
 def box_finder_model(path: Path, input_hw: tuple[int, int] | None = (640, 640), layout: str = "channels_first",
                      names: Sequence[str] | None = ("red", "green", "blue"), anchors: int = 8,
-                     stride: int | None = None, imgsz: tuple[int, int] | None = None) -> Path:
+                     stride: int | None = None, imgsz: tuple[int, int] | None = None,
+                     metadata: dict[str, str] | None = None) -> Path:
     """See the module docstring. input_hw None: dynamic height/width axes (imgsz: the size
     Ultralytics records in the metadata of such an export)."""
     assert anchors >= 3
@@ -97,7 +103,16 @@ def box_finder_model(path: Path, input_hw: tuple[int, int] | None = (640, 640), 
         helper.make_node("Concat", ["found", "empty"], ["first"], axis=2),                 # [1, 7, anchors]
     ]
     out_shape = [1, 7, anchors]
-    if layout == "channels_first":
+    if layout == "end2end":
+        for v in ("x1", "y1", "x2", "y2", "sc"):
+            nodes.append(helper.make_node("Unsqueeze", [v, "ax2"], [f"{v}_e"]))             # [1, 3, 1]
+        nodes += [
+            helper.make_node("Concat", ["x1_e", "y1_e", "x2_e", "y2_e", "sc_e", "cls_ids"], ["e2e_rows"], axis=2),
+            helper.make_node("Concat", ["e2e_rows", "empty_e2e"], ["output0"], axis=1),         # [1, anchors, 6]
+        ]
+        out_shape = [1, anchors, 6]
+        metadata = {"end2end": "True", **(metadata or {})}
+    elif layout == "channels_first":
         nodes.append(helper.make_node("Identity", ["first"], ["output0"]))
     else:
         nodes.append(helper.make_node("Transpose", ["first"], ["output0"], perm=[0, 2, 1]))
@@ -110,10 +125,13 @@ def box_finder_model(path: Path, input_hw: tuple[int, int] | None = (640, 640), 
         numpy_helper.from_array(np.array([1], np.int64), "ax1"),
         numpy_helper.from_array(np.eye(3, dtype=np.float32)[None], "eye"),
         numpy_helper.from_array(np.zeros((1, 7, anchors - 3), np.float32), "empty"),
+        numpy_helper.from_array(np.array([2], np.int64), "ax2"),
+        numpy_helper.from_array(np.arange(3, dtype=np.float32).reshape(1, 3, 1), "cls_ids"),
+        numpy_helper.from_array(np.zeros((1, anchors - 3, 6), np.float32), "empty_e2e"),
     ]
     graph = helper.make_graph(nodes, "box_finder", [_input(input_hw)],
                               [helper.make_tensor_value_info("output0", f, out_shape)], initializer=init)
-    return _save(graph, path, names, stride, imgsz)
+    return _save(graph, path, names, stride, imgsz, metadata)
 
 
 def classifier_model(path: Path, classes: int = 1000) -> Path:

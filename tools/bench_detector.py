@@ -5,6 +5,8 @@ is in the package) and a YOLOv8n-sized graph (tools/yolov8n_graph.py, built here
 threads, fp32 and int8 (onnxruntime dynamic quantization). The baseline, measured interleaved in
 the same run on the same session, is a bare `session.run` on a ready tensor: the ratio says
 what the detector's own code adds around inference. The frame is a village render from the sim.
+Every row runs on the ONNX Runtime execution provider asked for (`--provider`, the detector's
+`execution_provider`: cpu by default) and says which provider the session really ran on.
 """
 from __future__ import annotations
 
@@ -17,7 +19,7 @@ import numpy as np
 
 from aeroperception.services.detector import contract
 from aeroperception.services.detector.logic import resolve_model_path
-from aeroperception.services.detector.yolo import ModelError, YoloModel, letterbox
+from aeroperception.services.detector.yolo import ModelError, YoloModel, letterbox, session_providers
 
 WARMUP = 3
 
@@ -36,17 +38,25 @@ def village_frame(scenario: str = "village") -> np.ndarray:
     return left if left.ndim == 3 else np.repeat(left[:, :, None], 3, axis=2)
 
 
+def ort_providers() -> list[str]:
+    import onnxruntime as ort
+
+    return ort.get_available_providers()
+
+
 def _stats(ms: list[float]) -> tuple[float, float]:
     a = np.asarray(ms)
     return float(np.median(a)), float(np.percentile(a, 99))
 
 
-def bench_model(path: Path, threads: int, input_hw: tuple[int, int] | None, image: np.ndarray, n: int) -> dict:
+def bench_model(path: Path, threads: int, input_hw: tuple[int, int] | None, image: np.ndarray, n: int,
+                provider: str = "cpu") -> dict:
     """Stage times (ms lists) of `n` frames through YoloModel, and bare session.run interleaved."""
-    m = YoloModel.load(path, threads=threads, input_hw=input_hw)
+    m = YoloModel.load(path, threads=threads, input_hw=input_hw, provider=provider)
     bare_tensor, _ = m.preprocess(image, "rgb")
     feed = {m.input_name: bare_tensor}
-    out = {"pre": [], "infer": [], "post": [], "total": [], "bare": [], "dets": 0, "input_hw": m.input_hw}
+    out = {"pre": [], "infer": [], "post": [], "total": [], "bare": [], "dets": 0, "input_hw": m.input_hw,
+           "provider": m.session.get_providers()[0]}
     for i in range(n + WARMUP):
         t0 = time.perf_counter()
         tensor, info = m.preprocess(image, "rgb")
@@ -104,22 +114,25 @@ def _models(tmp: Path, image: np.ndarray, sizes: list[int],
 
 
 def run(n: int = 30, scenario: str = "village", sizes: tuple[int, ...] = (640, 320),
-        threads: tuple[int, ...] = (1, 2), models: tuple[str, ...] = ()) -> int:
+        threads: tuple[int, ...] = (1, 2), models: tuple[str, ...] = (), provider: str = "cpu") -> int:
     extra = [Path(m).expanduser() for m in models]
-    for m in extra:
-        try:
-            YoloModel.load(m)
-        except ModelError as e:
-            print(f"aero bench detector: {e}", file=sys.stderr)
-            return 2
+    try:
+        session_providers(provider, ort_providers())
+        for m in extra:
+            YoloModel.load(m, provider=provider)
+    except ModelError as e:
+        print(f"aero bench detector: {e}", file=sys.stderr)
+        return 2
     image = village_frame(scenario)
     rows = []
     with tempfile.TemporaryDirectory(prefix="aero-bench-detector-") as d:
         for label, path, hw in _models(Path(d), image, list(sizes), extra):
             for t in threads:
-                r = bench_model(path, t, hw, image, n)
+                r = bench_model(path, t, hw, image, n, provider)
                 rows.append((label, r, t))
-    print(f"{n} frames per row ({WARMUP} warm-up), {image.shape[1]}x{image.shape[0]} {scenario} render; ms")
+    ran = sorted({r["provider"] for _, r, _ in rows})
+    print(f"{n} frames per row ({WARMUP} warm-up), {image.shape[1]}x{image.shape[0]} {scenario} render; ms; "
+          f"execution provider {provider}: ran on {', '.join(ran)}")
     print(f"{'model':<18} {'input':>7} {'thr':>3} | {'pre p50':>7} {'p99':>6} | {'infer p50':>9} {'p99':>6} | "
           f"{'post p50':>8} {'p99':>6} | {'total p50':>9} {'p99':>6} {'Hz':>5} | {'bare run p50':>12} {'p99':>6} | "
           f"{'x bare':>6} {'dets':>4}")

@@ -39,10 +39,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--scenario", default="village", help="the rendered frame's scenario")
     p.add_argument("--sizes", default="640,320", help="input sizes (square), comma-separated")
     p.add_argument("--threads", default="1,2", help="onnxruntime intra-op thread counts, comma-separated")
-    p.add_argument("--model", action="append", default=[], metavar="ONNX", help="also bench this YOLOv8 export (repeatable)")
+    p.add_argument("--model", action="append", default=[], metavar="ONNX",
+                   help="also bench this YOLOv8 / YOLO11 / YOLO26 export (repeatable)")
+    p.add_argument("--provider", default="cpu", help="ONNX Runtime execution provider: cpu, cuda or tensorrt")
     p.set_defaults(func=lambda a: importlib.import_module("aeroperception.tools.bench_detector").run(
         a.n, a.scenario, tuple(int(s) for s in a.sizes.split(",")), tuple(int(t) for t in a.threads.split(",")),
-        tuple(a.model)))
+        tuple(a.model), a.provider))
     p = bsub.add_parser("record", help="recorder cost with images on: messages/s, MB/s, drops, CPU %%")
     p.add_argument("--duration", type=float, default=10.0, help="seconds per compression setting")
     p.add_argument("--compression", default="zstd,lz4,none", help="settings to compare (comma-separated)")

@@ -6,6 +6,8 @@ the same form the simulator's sim/truth/boxes uses, so the two compare directly.
 from aeroperception.schemas import Detection2DArray, DiagnosticStatus, Image
 from aeroperception.services.runtime import Param
 
+from .yolo import PROVIDERS
+
 NAME = "detector"
 INPUTS = {
     "sensors/camera/left/image": Image,                   # 20 Hz sim camera; newest frame wins
@@ -17,16 +19,18 @@ OUTPUTS = {
 # The bundled model, relative to this package (tools/train_detector.py makes it; models/MODEL_CARD.md).
 BUNDLED_MODEL = "models/aero_sim_det.onnx"
 # Changing one of these loads a new model beside the running one (swapped only if it works).
-RELOAD_PARAMS = ("model_path", "classes_file", "intra_op_threads", "input_width", "input_height")
+RELOAD_PARAMS = ("model_path", "classes_file", "intra_op_threads", "input_width", "input_height", "execution_provider")
 PARAMS = [
     Param("model_path", BUNDLED_MODEL,
-          description="YOLOv8-format ONNX (relative: working directory, else the detector package); live"),
+          description="YOLOv8 / YOLO11 / YOLO26 (end-to-end) ONNX export (relative: working directory, else the detector package); live"),
     Param("classes_file", "",
           description="class names, one a line; used when the model has no 'names' metadata (80 classes: COCO)"),
     Param("confidence_threshold", 0.40, "", 0.0, 1.0, description="best class score must exceed this"),
     Param("nms_threshold", 0.45, "", 0.0, 1.0, description="same-class boxes overlapping more (IoU) are suppressed"),
     Param("inference_frequency_hz", 10.0, "Hz", 0.1, 60.0, description="at most this many frames per second"),
     Param("intra_op_threads", 1, "", 1, 16, description="onnxruntime threads for one inference"),
+    Param("execution_provider", "cpu", choices=tuple(PROVIDERS),
+          description="ONNX Runtime execution provider; one this onnxruntime lacks is refused, naming what it has"),
     Param("input_width", 0, "px", 0, 4096, description="model input width; 0: the model's (dynamic: 640)"),
     Param("input_height", 0, "px", 0, 4096, description="model input height; 0: the model's (dynamic: 640)"),
     Param("max_detections", 300, "", 1, 1000, description="per image, best first"),

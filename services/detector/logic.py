@@ -43,12 +43,13 @@ class LoadRequest:
     classes_file: str = ""
     threads: int = 1
     input_hw: tuple[int, int] | None = None
+    provider: str = "cpu"
 
     @classmethod
     def from_params(cls, p) -> "LoadRequest":
         hw = (p["input_height"], p["input_width"])
         return cls(model_path=p["model_path"], classes_file=p["classes_file"], threads=p["intra_op_threads"],
-                   input_hw=hw if all(hw) else None)
+                   input_hw=hw if all(hw) else None, provider=p["execution_provider"])
 
 
 class ModelHolder:
@@ -70,7 +71,8 @@ class ModelHolder:
         path = resolve_model_path(req.model_path)
         classes = str(resolve_model_path(req.classes_file)) if req.classes_file else None
         try:
-            new = self._loader(path, threads=req.threads, input_hw=req.input_hw, classes_file=classes)
+            new = self._loader(path, threads=req.threads, input_hw=req.input_hw, classes_file=classes,
+                               provider=req.provider)
         except ModelError as e:
             with self._lock:
                 self.error, self.failed_request = str(e), req
@@ -160,7 +162,7 @@ def detector_health(holder: ModelHolder, times: StageTimes, rate_hz: float,
     values: dict[str, object] = {"model_swaps": holder.swaps, "model_load_failures": holder.failures}
     if m is not None:
         values.update(model=m.path, input=f"{m.input_hw[1]}x{m.input_hw[0]}", classes=m.num_classes,
-                      layout=m.layout, threads=m.threads, load_ms=round(m.load_ms, 1))
+                      layout=m.layout, threads=m.threads, load_ms=round(m.load_ms, 1), execution_provider=m.provider)
     if holder.error:
         values["model_refused"] = holder.error
     values.update(times.summary())

@@ -1,5 +1,10 @@
-"""YOLOv8-format ONNX detection as plain functions over numpy: letterbox, decode with class-aware
-NMS, class names, and `YoloModel` (a validated onnxruntime session running the three stages).
+"""YOLO ONNX detection as plain functions over numpy: letterbox, decode with class-aware NMS, class
+names, and `YoloModel` (a validated onnxruntime session running the three stages).
+
+Output layouts read: YOLOv8 / YOLO11 heads ([1, 4+nc, N] or [1, N, 4+nc]: cx, cy, w, h, class
+scores; NMS here) and end-to-end exports (YOLO26, or any Ultralytics export with `nms=True`;
+metadata `end2end: True` or args `nms: True`; [1, N, 6]: x1, y1, x2, y2, score, class, already
+suppressed). Anything else is refused naming its shape.
 
 Why one module without Zenoh: the detector service, `aero eval detector` and `aero bench detector`
 must run the exact same pre- and post-processing, so an evaluation or a benchmark measures what
@@ -21,6 +26,13 @@ PAD_VALUE = 114                      # Ultralytics' letterbox grey
 DEFAULT_STRIDE = 32
 DEFAULT_INPUT_HW = (640, 640)        # for models exported with dynamic input axes
 COCO_NAMES_FILE = Path(__file__).with_name("coco_classes.txt")
+# execution_provider parameter -> ONNX Runtime's provider, and what it falls back to for operators
+# it does not run (ONNX Runtime's own order: TensorRT, CUDA, CPU).
+PROVIDERS = {
+    "cpu": ("CPUExecutionProvider",),
+    "cuda": ("CUDAExecutionProvider", "CPUExecutionProvider"),
+    "tensorrt": ("TensorrtExecutionProvider", "CUDAExecutionProvider", "CPUExecutionProvider"),
+}
 
 Detection = tuple[float, float, float, float, float, int]   # x1, y1, x2, y2 (original px), score, class_id
 
@@ -146,6 +158,48 @@ def yolov8_layout(shape: Sequence[Any], num_classes: int | None = None) -> str:
     if min(a, b) < 5:
         raise ModelError(f"model output shape {dims} is not {expected} (needs at least 4 box values + 1 class)")
     return "channels_first" if a <= b else "channels_last"
+
+
+END2END = "end2end"
+
+
+def is_end2end_export(meta: dict[str, str]) -> bool:
+    """Whether Ultralytics' export metadata says the output is already final boxes: `end2end`
+    (YOLO26 and other NMS-free heads) or an export made with `nms=True` (args)."""
+    if meta.get("end2end", "").strip().lower() == "true":
+        return True
+    try:
+        args = ast.literal_eval(meta.get("args", "")) if meta.get("args") else {}
+    except (ValueError, SyntaxError):
+        return False
+    return isinstance(args, dict) and args.get("nms") is True
+
+
+def output_layout(shape: Sequence[Any], meta: dict[str, str], num_classes: int | None = None) -> str:
+    """The output layout of a model with this output shape and export metadata: END2END for
+    [1, N, 6] final boxes, else yolov8_layout's. ModelError naming the shape for anything else."""
+    if not is_end2end_export(meta):
+        return yolov8_layout(shape, num_classes)
+    dims = list(shape)
+    if len(dims) != 3 or dims[0] != 1 or dims[2] != 6:
+        raise ModelError(f"model output shape {dims} is not an end-to-end detection output [1, N, 6] "
+                         "(x1, y1, x2, y2, score, class), which its metadata (end2end / nms) announces")
+    return END2END
+
+
+def decode_end2end_array(output: np.ndarray, conf_thresh: float, info: LetterboxInfo,
+                         original_hw: tuple[int, int], num_classes: int, max_det: int = 300) -> np.ndarray:
+    """End-to-end output [1, N, 6] (x1, y1, x2, y2 in model-input pixels, score, class id) -> (K, 6)
+    [x1, y1, x2, y2, score, class_id] in the original image's pixels, best first. The model has
+    already suppressed duplicates (no NMS here); rows with a class id outside the model's classes
+    are dropped."""
+    rows = np.asarray(output, np.float64).reshape(-1, 6)
+    cls = np.rint(rows[:, 5])
+    rows = rows[(rows[:, 4] > conf_thresh) & (cls >= 0) & (cls < num_classes)]
+    rows = rows[np.argsort(-rows[:, 4], kind="stable")[:max_det]]
+    if len(rows) == 0:
+        return np.zeros((0, 6))
+    return np.column_stack([info.to_original(rows[:, :4], original_hw), rows[:, 4], np.rint(rows[:, 5])])
 
 
 def nms(boxes_xyxy: np.ndarray, scores: np.ndarray, iou_thresh: float,
@@ -295,6 +349,7 @@ class YoloModel:
     threads: int = 1
     load_ms: float = 0.0
     metadata: dict[str, str] = field(default_factory=dict)
+    provider: str = "cpu"                # the execution provider the session runs on
 
     @property
     def num_classes(self) -> int:
@@ -302,8 +357,9 @@ class YoloModel:
 
     @classmethod
     def load(cls, path: str | Path, threads: int = 1, input_hw: tuple[int, int] | None = None,
-             classes_file: str | Path | None = None) -> "YoloModel":
-        """Open and validate; raises ModelError with a one-line reason."""
+             classes_file: str | Path | None = None, provider: str = "cpu") -> "YoloModel":
+        """Open and validate on `provider` (a PROVIDERS name); raises ModelError with a one-line
+        reason, for a provider this onnxruntime lacks or cannot start too."""
         t0 = time.perf_counter()
         p = Path(path)
         if not p.is_file():
@@ -320,10 +376,16 @@ class YoloModel:
         so.log_severity_level = 3
         # Idle worker threads must not spin on a 2-core machine shared with the control path.
         so.add_session_config_entry("session.intra_op.allow_spinning", "0")
+        chain = session_providers(provider, ort.get_available_providers())
         try:
-            session = ort.InferenceSession(str(p), so, providers=["CPUExecutionProvider"])
+            session = ort.InferenceSession(str(p), so, providers=list(chain))
         except Exception as e:  # noqa: BLE001 - onnxruntime raises several types for bad files
             raise ModelError(f"{p}: not a loadable ONNX model ({_first_line(e)})") from None
+        if session.get_providers()[0] != chain[0]:
+            # ONNX Runtime falls back to the next provider when one fails to start (missing CUDA
+            # libraries): running on something else than asked must not pass unseen.
+            raise ModelError(f"execution provider {provider} ({chain[0]}) failed to start: the session runs on "
+                             f"{session.get_providers()[0]} (check the CUDA / TensorRT libraries)")
         inputs = session.get_inputs()
         if len(inputs) != 1:
             raise ModelError(f"{p}: expected one image input, the model has {len(inputs)}")
@@ -358,14 +420,19 @@ class YoloModel:
         out_shape = tuple(int(d) for d in np.shape(outs[0]))
         meta_nc = len(parse_names_metadata(meta["names"])) if "names" in meta else None
         try:
-            layout = yolov8_layout(out_shape, meta_nc)
+            layout = output_layout(out_shape, meta, meta_nc)
         except ModelError as e:
             raise ModelError(f"{p}: {e}") from None
-        nc = (out_shape[1] if layout == "channels_first" else out_shape[2]) - 4
-        names = class_names_from_model(session, classes_file or None, nc)
+        if layout == END2END:
+            names = class_names_from_model(session, classes_file or None)
+            if not names:
+                raise ModelError(f"{p}: an end-to-end output carries no class count: give classes_file")
+        else:
+            nc = (out_shape[1] if layout == "channels_first" else out_shape[2]) - 4
+            names = class_names_from_model(session, classes_file or None, nc)
         return cls(session=session, path=str(p), input_name=inp.name, input_hw=hw, input_dtype=dtypes[inp.type],
                    stride=stride, layout=layout, output_shape=out_shape, names=names, threads=int(threads),
-                   load_ms=(time.perf_counter() - t0) * 1e3, metadata=meta)
+                   load_ms=(time.perf_counter() - t0) * 1e3, metadata=meta, provider=provider)
 
     # The three stages, separately timed by callers (service diagnostics, bench).
 
@@ -378,6 +445,11 @@ class YoloModel:
 
     def postprocess(self, output: np.ndarray, info: LetterboxInfo, original_hw: tuple[int, int],
                     conf_thresh: float, nms_thresh: float, max_det: int = 300) -> list[Detection]:
+        """Boxes in the original image; `nms_thresh` applies to YOLOv8-layout heads only (an
+        end-to-end model has suppressed its duplicates itself)."""
+        if self.layout == END2END:
+            arr = decode_end2end_array(output, conf_thresh, info, original_hw, self.num_classes, max_det)
+            return [(float(a), float(b), float(c), float(d), float(sc), int(k)) for a, b, c, d, sc, k in arr]
         return decode_yolov8(output, conf_thresh, nms_thresh, info, original_hw, self.num_classes, max_det)
 
     def detect(self, image: np.ndarray, conf_thresh: float = 0.40, nms_thresh: float = 0.45,
@@ -391,6 +463,21 @@ class YoloModel:
         dets = self.postprocess(out, info, image.shape[:2], conf_thresh, nms_thresh, max_det)
         t3 = time.perf_counter()
         return dets, {"pre": (t1 - t0) * 1e3, "infer": (t2 - t1) * 1e3, "post": (t3 - t2) * 1e3}
+
+
+def session_providers(provider: str, available: Sequence[str]) -> tuple[str, ...]:
+    """ONNX Runtime providers for the `execution_provider` name `provider`: the asked one first,
+    then its fallbacks this onnxruntime has. ModelError naming what exists when it is unknown or
+    not in this onnxruntime."""
+    have = [name for name, chain in PROVIDERS.items() if chain[0] in available]
+    if provider not in PROVIDERS:
+        raise ModelError(f"execution provider {provider!r} is unknown (one of {', '.join(PROVIDERS)}; "
+                         f"this onnxruntime has {', '.join(have)})")
+    chain = PROVIDERS[provider]
+    if chain[0] not in available:
+        raise ModelError(f"execution provider {provider} ({chain[0]}) is not in this onnxruntime: it has "
+                         f"{', '.join(have)} ({', '.join(available)}); install onnxruntime-gpu for cuda/tensorrt")
+    return tuple(c for c in chain if c in available)
 
 
 def _imgsz(text: str) -> tuple[int, int] | None:

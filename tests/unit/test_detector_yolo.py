@@ -11,8 +11,8 @@ import pytest
 from detector_graphs import box_finder_model, classifier_model, paint_blocks, planted_model
 
 from aeroperception.services.detector.yolo import (
-    LetterboxInfo, ModelError, YoloModel, coco_names, decode_yolov8, letterbox, letterbox_info, nms,
-    parse_names_metadata, yolov8_layout,
+    END2END, LetterboxInfo, ModelError, YoloModel, coco_names, decode_yolov8, letterbox, letterbox_info, nms,
+    parse_names_metadata, session_providers, yolov8_layout,
 )
 
 LAYOUTS = ("channels_first", "channels_last")
@@ -199,3 +199,126 @@ def test_input_size_from_the_model_or_the_override(tmp_path):
     with pytest.raises(ModelError, match="fixed at 640x640"):
         YoloModel.load(fixed, input_hw=(320, 320))
     assert YoloModel.load(fixed, input_hw=(640, 640)).input_hw == (640, 640)
+
+
+# ------------------------------------------------------------------ YOLO11, YOLO26 (end-to-end), providers
+
+YOLO11_META = {"description": "Ultralytics YOLO11n model trained on coco.yaml", "task": "detect", "end2end": "False",
+               "args": "{'batch': 1, 'half': False, 'nms': False}"}
+
+
+def test_yolo11_export_reads_like_yolov8(tmp_path):
+    """YOLO11's head has YOLOv8's output layout: [1, 4+nc, N], NMS on our side."""
+    model = YoloModel.load(box_finder_model(tmp_path / "y11.onnx", metadata=YOLO11_META))
+    assert model.layout == "channels_first"
+    blocks = _blocks((480, 640))
+    dets, _ = model.detect(paint_blocks((480, 640), blocks, "rgb"), channels="rgb")
+    assert sorted(d[5] for d in dets) == [0, 1, 2]
+    for x1, y1, x2, y2, _, cls in dets:
+        assert np.abs(np.array([x1, y1, x2, y2]) - blocks[cls]).max() <= 1.0
+
+
+@pytest.mark.parametrize("input_hw", [(640, 640), (320, 480)])
+def test_yolo26_end_to_end_export_finds_the_blocks_at_their_pixels(tmp_path, input_hw):
+    """An end-to-end graph ([1, N, 6]: x1, y1, x2, y2, score, class; metadata end2end) locates the
+    blocks in the letterboxed tensor; they come back where they were painted."""
+    model = YoloModel.load(box_finder_model(tmp_path / "y26.onnx", input_hw, layout="end2end"))
+    assert model.layout == END2END and model.output_shape == (1, 8, 6) and model.names == ["red", "green", "blue"]
+    for hw in ASPECTS:
+        blocks = _blocks(hw)
+        dets, _ = model.detect(paint_blocks(hw, blocks, "bgr"), channels="bgr")
+        assert sorted(d[5] for d in dets) == [0, 1, 2], (hw, dets)
+        info = letterbox_info(hw, input_hw)
+        tol = max(1.0, 1.0 / min(info.gains())) if min(info.gains()) < 0.5 else 1.0
+        for x1, y1, x2, y2, score, cls in dets:
+            assert np.abs(np.array([x1, y1, x2, y2]) - blocks[cls]).max() <= tol + 1e-6, (hw, cls)
+            assert score == pytest.approx(0.9, abs=1e-6)
+
+
+def test_end_to_end_rows_decode_best_first_without_nms(tmp_path):
+    rows = np.array([
+        [100, 100, 200, 300, 0.70, 0],
+        [102, 101, 201, 299, 0.65, 0],      # overlaps the first: the model kept both, so do we
+        [300, 300, 400, 400, 0.90, 1],
+        [10, 10, 20, 20, 0.30, 1],          # below the 0.40 threshold
+        [10, 10, 20, 20, 0.95, 7],          # a class the model does not have
+        [0, 0, 0, 0, 0.0, 0],               # padding rows of a fixed-size output
+    ], np.float32)
+    path = planted_model(tmp_path / "e2e.onnx", rows, "channels_last", names=["person", "car"],
+                         metadata={"end2end": "True"})
+    model = YoloModel.load(path)
+    assert model.layout == END2END
+    dets, _ = model.detect(np.zeros((640, 640, 3), np.uint8), conf_thresh=0.4, nms_thresh=0.1)
+    assert [(d[5], round(d[4], 2)) for d in dets] == [(1, 0.9), (0, 0.7), (0, 0.65)]
+    np.testing.assert_allclose(dets[0][:4], [300, 300, 400, 400], atol=1e-3)
+    assert len(model.detect(np.zeros((640, 640, 3), np.uint8), max_det=2)[0]) == 2
+
+
+def test_an_export_made_with_nms_reads_as_end_to_end(tmp_path):
+    rows = np.array([[50, 60, 150, 260, 0.8, 1]], np.float32)
+    path = planted_model(tmp_path / "nms.onnx", rows, "channels_last", names=["a", "b"],
+                         metadata={"args": "{'batch': 1, 'nms': True, 'conf': 0.25}"})
+    model = YoloModel.load(path)
+    assert model.layout == END2END
+    assert [d[5] for d in model.detect(np.zeros((640, 640, 3), np.uint8))[0]] == [1]
+
+
+def test_unknown_layouts_are_still_refused_by_name(tmp_path):
+    v8_rows = np.zeros((12, 7), np.float32)
+    with pytest.raises(ModelError, match=r"output shape \[1, 12, 7\] is not an end-to-end detection output \[1, N, 6\]"):
+        YoloModel.load(planted_model(tmp_path / "liar.onnx", v8_rows, "channels_last", metadata={"end2end": "True"}))
+    with pytest.raises(ModelError, match="end-to-end output carries no class count: give classes_file"):
+        YoloModel.load(planted_model(tmp_path / "anon.onnx", np.zeros((4, 6), np.float32), "channels_last",
+                                     metadata={"end2end": "True"}))
+    classes = tmp_path / "classes.txt"
+    classes.write_text("person\ncar\n")
+    assert YoloModel.load(tmp_path / "anon.onnx", classes_file=classes).names == ["person", "car"]
+    with pytest.raises(ModelError, match=r"output shape \[1, 1000\] is not a YOLOv8"):
+        YoloModel.load(classifier_model(tmp_path / "cls.onnx"))
+
+
+def test_execution_provider_defaults_to_cpu_and_absent_ones_are_refused_by_name(tmp_path):
+    import onnxruntime as ort
+
+    path = box_finder_model(tmp_path / "f.onnx")
+    assert YoloModel.load(path).provider == "cpu"
+    with pytest.raises(ModelError, match=r"execution provider 'npu' is unknown \(one of cpu, cuda, tensorrt; this onnxruntime has cpu"):
+        YoloModel.load(path, provider="npu")
+    if "TensorrtExecutionProvider" not in ort.get_available_providers():
+        with pytest.raises(ModelError, match=r"execution provider tensorrt \(TensorrtExecutionProvider\) is not in this "
+                                             r"onnxruntime: it has cpu.*install onnxruntime-gpu"):
+            YoloModel.load(path, provider="tensorrt")
+
+
+def test_provider_chains_fall_back_only_to_what_is_there():
+    gpu = ["TensorrtExecutionProvider", "CUDAExecutionProvider", "CPUExecutionProvider"]
+    assert session_providers("tensorrt", gpu) == tuple(gpu)
+    assert session_providers("cuda", gpu) == ("CUDAExecutionProvider", "CPUExecutionProvider")
+    assert session_providers("cpu", gpu) == ("CPUExecutionProvider",)
+    with pytest.raises(ModelError, match="it has cpu, cuda"):
+        session_providers("tensorrt", ["CUDAExecutionProvider", "CPUExecutionProvider"])
+
+
+def test_a_provider_change_the_runtime_lacks_keeps_the_running_model(tmp_path):
+    import onnxruntime as ort
+    from aeroperception.services.detector.logic import LoadRequest, ModelHolder
+
+    if "CUDAExecutionProvider" in ort.get_available_providers():
+        pytest.skip("this onnxruntime has CUDA")
+    h = ModelHolder()
+    path = str(box_finder_model(tmp_path / "f.onnx"))
+    assert h.load(LoadRequest(path))
+    running = h.model
+    assert not h.load(LoadRequest(path, provider="cuda"))
+    assert h.model is running and "execution provider cuda (CUDAExecutionProvider) is not in this onnxruntime" in h.error
+
+
+def test_bench_says_which_provider_ran_and_refuses_an_absent_one(tmp_path, capsys):
+    import onnxruntime as ort
+    from aeroperception.tools.bench_detector import bench_model, run
+
+    r = bench_model(box_finder_model(tmp_path / "f.onnx"), 1, None, paint_blocks((480, 640), {0: (1, 2, 30, 40)}), 2)
+    assert r["provider"] == "CPUExecutionProvider"
+    if "TensorrtExecutionProvider" not in ort.get_available_providers():
+        assert run(n=1, provider="tensorrt") == 2
+        assert "execution provider tensorrt (TensorrtExecutionProvider) is not in this onnxruntime" in capsys.readouterr().err
