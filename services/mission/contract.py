@@ -55,7 +55,8 @@ PARAMS = [
     Param("blocked_action", "hold", choices=("hold", "skip", "rtl"),
           description="an unreachable goal: hold (HOLDING with the reason, wait for the operator), "
                       "skip (fly on to the next waypoint; a goto holds) or rtl"),
-    Param("state_dir", "", description="where the loaded mission and progress persist; '' = $AERO_STATE_DIR or ~/.aero/state, /<vehicle>/"),
+    Param("state_dir", "", start_only=True,
+          description="where the loaded mission and progress persist; '' = $AERO_STATE_DIR or ~/.aero/state, /<vehicle>/"),
     # limits every mission, goto and takeoff is checked against (with the shared geofence)
     Param("max_takeoff_altitude_m", 50.0, "m", 1.0, 10_000.0,
           description="highest takeoff altitude accepted (also capped by geofence_max_altitude_m)"),

@@ -119,7 +119,7 @@ class MissionService(Service):
                                  self._goto_goal, self._cancel_to_hold),
         }
         self.last_goal: PoseStamped | None = None
-        node.every(1.0 / p.status_rate_hz, self._tick, name="status")
+        self.status_loop = node.every(1.0 / p.status_rate_hz, self._tick, name="status")
         node.every(0.1, lambda: self.mgr.tick(time.monotonic()), name="watchdog")  # outage within ~0.1 s
 
     def _load_file(self, path: str) -> str:
@@ -148,6 +148,8 @@ class MissionService(Service):
             if why:
                 raise ParamError(why)
             self.file_error = ""
+        if name == "status_rate_hz":
+            self.status_loop.set_rate(value)
         if hasattr(self.mgr.cfg, name):
             setattr(self.mgr.cfg, name, value)
         self.mgr.limits = limits
