@@ -20,6 +20,7 @@ import fcntl
 import os
 import shutil
 import socket
+import struct
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -91,32 +92,21 @@ def lock_path(instance: int) -> Path:
 
 
 def lock_holder(instance: int) -> int | None:
-    """The pid of the PX4 holding /tmp/px4_lock-N (PX4 takes an exclusive flock on it), 0 if held by
-    a process /proc/locks does not name, None if free."""
-    path = lock_path(instance)
+    """The pid of the PX4 holding /tmp/px4_lock-N (PX4 takes a POSIX write lock on it), None if free.
+    Asked with F_GETLK, which takes no lock itself (a PX4 starting at that moment is not disturbed)."""
     try:
-        fd = os.open(path, os.O_RDONLY)
+        fd = os.open(lock_path(instance), os.O_RDONLY)
     except OSError:
         return None             # no file: nobody holds it
     try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        fcntl.flock(fd, fcntl.LOCK_UN)
-        return None
-    except BlockingIOError:
-        return _lock_pid(os.fstat(fd).st_ino)
+        query = struct.pack(_FLOCK, fcntl.F_WRLCK, os.SEEK_SET, 0, 0, 0)
+        l_type, _whence, _start, _len, pid = struct.unpack(_FLOCK, fcntl.fcntl(fd, fcntl.F_GETLK, query))
     finally:
         os.close(fd)
+    return None if l_type == fcntl.F_UNLCK else pid
 
 
-def _lock_pid(inode: int) -> int:
-    try:
-        for line in Path("/proc/locks").read_text().splitlines():
-            f = line.split()    # "1: POSIX ADVISORY WRITE 8726 fe:00:2146481 0 EOF"
-            if len(f) > 5 and f[5].rsplit(":", 1)[-1] == str(inode):
-                return int(f[4])
-    except (OSError, ValueError):
-        pass
-    return 0
+_FLOCK = "hhqqi4x"              # struct flock on 64-bit Linux: type, whence, start, len, pid
 
 
 def _udp_free(host: str, port: int) -> bool:
@@ -152,8 +142,7 @@ def check_instance(instance: int) -> None:
     hint = f"--px4-instance {other}" if other is not None else f"another --px4-instance (0..{MAX_INSTANCE} are all taken)"
     pid = lock_holder(instance)
     if pid is not None:
-        who = f"pid {pid}" if pid else "another process"
-        raise CliError(f"PX4 instance {instance} is already running ({who} holds {lock_path(instance)}): "
+        raise CliError(f"PX4 instance {instance} is already running (pid {pid} holds {lock_path(instance)}): "
                        f"stop it, or start this one as another instance with {hint}")
     busy = busy_ports(instance)
     if busy:

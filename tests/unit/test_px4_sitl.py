@@ -3,7 +3,6 @@ and stops it, without running PX4 (tests/integration/test_px4.py flies it)."""
 from __future__ import annotations
 
 import argparse
-import fcntl
 import os
 import signal
 import socket
@@ -58,15 +57,18 @@ def test_a_running_px4_instance_is_refused_naming_its_pid_and_a_free_one(tmp_pat
     assert px4_sitl.lock_holder(3) is None                    # no file
     lock.write_text("")
     assert px4_sitl.lock_holder(3) is None                    # a file nobody holds (PX4 killed -9)
-    fd = os.open(lock, os.O_RDWR)
+    holder = subprocess.Popen([sys.executable, "-c", "import fcntl, os, sys, time\n"     # what PX4 does
+                               f"fd = os.open({str(lock)!r}, os.O_RDWR)\nfcntl.lockf(fd, fcntl.LOCK_EX)\n"
+                               "print('locked', flush=True)\ntime.sleep(60)"], stdout=subprocess.PIPE, text=True)
     try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)          # what PX4 does
-        assert px4_sitl.lock_holder(3) == os.getpid()
-        with pytest.raises(CliError, match=rf"PX4 instance 3 is already running \(pid {os.getpid()} holds "
+        assert holder.stdout.readline().strip() == "locked"
+        assert px4_sitl.lock_holder(3) == holder.pid
+        with pytest.raises(CliError, match=rf"PX4 instance 3 is already running \(pid {holder.pid} holds "
                                            r".*px4_lock-3\): stop it, or .* --px4-instance 0"):
             px4_sitl.check_instance(3)
     finally:
-        os.close(fd)
+        holder.kill()
+        holder.wait(5)
     px4_sitl.check_instance(3)
 
 

@@ -1,0 +1,321 @@
+"""The stack flying real PX4: `aero up --profile px4` runs PX4 SITL (SIH quadrotor, physics inside
+PX4) from the `px4_build` fixture as a supervised process beside fmu, planner, mission and
+diagnostics. One PX4 + stack serve the module (each test starts from the ground, disarmed).
+
+What happened is judged by PX4: its position estimate (state/vehicle, what fmu reads from PX4's
+LOCAL_POSITION_NED) and SIH's ground truth (HIL_STATE_QUATERNION on its display link, UDP
+19410+N), never by the mission's own account.
+
+- survey_01 by `aero mission fly`: every waypoint reached (reports and PX4's track), landed and
+  disarmed, landing error vs the take-off point.
+- a pilot switches PX4 to HOLD mid-mission (`px4-commander mode auto:loiter`): mission HOLDING
+  with the reason, the vehicle stays put; START resumes the survey to its landing.
+- fmu kill -9 mid-mission: the vehicle stays in the air near where it was (PX4's offboard-loss
+  failsafe, then the restarted fmu holding), the mission HOLDING until told; LAND lands it.
+"""
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import threading
+import time
+
+import numpy as np
+import pytest
+from pymavlink.dialects.v20 import common as mavlink
+
+from aerotest import aero_argv, clean_env, is_service_process, wait_for_message, wait_until
+from aeroperception.schemas import (
+    MissionCommand, MissionStatus, Reply, VehicleState, WaypointReached, load_mission_file,
+)
+from aeroperception.services.mavlink.geo import MapProjection
+from aeroperception.services.runtime.node import call
+from aeroperception.tools import px4_sitl
+from aeroperception.tools.cmd_chaos import Recorder
+from test_flight import SURVEY
+
+pytestmark = [pytest.mark.px4, pytest.mark.slow]
+
+SERVICES = ["px4", "fmu", "planner", "mission", "diagnostics"]
+SIH_DISPLAY_PORT = 19410      # + instance: where PX4's SIH display link sends HIL_STATE_QUATERNION
+
+
+class SihTruth:
+    """SIH's ground truth (HIL_STATE_QUATERNION at 25 Hz) as ENU metres about the first sample (the
+    vehicle on its pad): (monotonic time, [x, y, z]) in `track`."""
+
+    def __init__(self, port: int):
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", port))
+        self.sock.settimeout(0.2)
+        self.mav = mavlink.MAVLink(None)
+        self.track: list[tuple[float, np.ndarray]] = []
+        self.lock = threading.Lock()
+        self.origin: tuple[MapProjection, float] | None = None
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
+        while not self.stop.is_set():
+            try:
+                data = self.sock.recv(65535)
+            except OSError:
+                continue
+            try:
+                msgs = self.mav.parse_buffer(data) or []
+            except mavlink.MAVError:
+                continue
+            for m in msgs:
+                if m.get_type() == "HIL_STATE_QUATERNION":
+                    self._add(m.lat * 1e-7, m.lon * 1e-7, m.alt * 1e-3)
+
+    def _add(self, lat: float, lon: float, alt: float) -> None:
+        if self.origin is None:
+            self.origin = (MapProjection(lat, lon), alt)
+        proj, alt0 = self.origin
+        north, east = proj.project(lat, lon)
+        with self.lock:
+            self.track.append((time.monotonic(), np.array([east, north, alt - alt0])))
+
+    def now(self) -> np.ndarray:
+        wait_until(lambda: self.track, 5, "SIH ground truth (HIL_STATE_QUATERNION)")
+        with self.lock:
+            return self.track[-1][1]
+
+    def at_rest(self, timeout_s: float, within_m: float = 0.15, for_s: float = 1.0) -> np.ndarray:
+        """The position once the vehicle has stayed within `within_m` for `for_s`."""
+        def settled():
+            recent = self.since(time.monotonic() - for_s)
+            span = time.monotonic() - self.track[0][0] if self.track else 0.0
+            if len(recent) > 5 and span > for_s and float(np.ptp(recent, axis=0).max()) < within_m:
+                return [recent[-1]]
+            return None
+        return wait_until(settled, timeout_s, f"the vehicle at rest (within {within_m} m for {for_s} s)")[0]
+
+    def since(self, t: float) -> np.ndarray:
+        with self.lock:
+            return np.array([p for ts, p in self.track if ts >= t])
+
+    def close(self) -> None:
+        self.stop.set()
+        self.thread.join(2)
+        self.sock.close()
+
+
+@pytest.fixture(scope="module")
+def px4(stack_module, px4_build, tmp_path_factory):
+    instance = px4_sitl.free_instance(1)
+    assert instance is not None, "no free PX4 instance in 1..9"
+    truth = SihTruth(SIH_DISPLAY_PORT + instance)
+    state_dir = tmp_path_factory.mktemp("mission-state")
+    try:
+        st = stack_module(SERVICES, profile="px4", timeout_s=60, extra_args=[
+            "--px4", str(px4_build), "--px4-instance", str(instance),
+            "--arg", f"mission:--param=state_dir={state_dir}"])
+        st.px4_instance, st.px4_bin, st.truth = instance, px4_build / "bin", truth
+        try:
+            wait_until(lambda: "Ready for takeoff" in st.service_log("px4"), 60, "PX4: Ready for takeoff")
+            wait_until(lambda: state(st, lambda m: m.connected), 20, "state/vehicle connected (fmu <-> PX4)")
+            wait_until(lambda: mission_status(st), 15, "mission/status")
+        except BaseException:
+            print(st.describe())
+            raise
+        yield st
+    finally:
+        truth.close()
+
+
+# ---------------------------------------------------------------- helpers
+
+
+def latest(st, key: str, cls: type, pred=None, timeout_s: float = 2.0):
+    try:
+        return wait_for_message(st.session, key, cls, pred, timeout_s)
+    except AssertionError:
+        return None
+
+
+def state(st, pred=None) -> VehicleState | None:
+    return latest(st, "state/vehicle", VehicleState, pred)
+
+
+def mission_status(st, pred=None) -> MissionStatus | None:
+    return latest(st, "mission/status", MissionStatus, pred)
+
+
+def command(st, cmd: str) -> Reply:
+    r = call(st.session, "mission/srv/command", MissionCommand(command=cmd), Reply, 15.0)
+    assert r.success, f"{cmd}: {r.message}"
+    return r
+
+
+def px4_shell(st, *args: str) -> str:
+    """A PX4 shell command against the stack's instance (`bin/px4-commander --instance N mode ...`)."""
+    r = subprocess.run([str(st.px4_bin / f"px4-{args[0]}"), "--instance", str(st.px4_instance), *args[1:]],
+                       capture_output=True, text=True, timeout=10)
+    assert r.returncode == 0, f"px4-{' '.join(args)}: exit {r.returncode}: {r.stdout}{r.stderr}"
+    return r.stdout
+
+
+def on_ground_disarmed(st) -> bool:
+    """By PX4's land detector: its local z on the ground is not 0 (0.55 m measured: EKF2's height
+    origin is taken at boot and drifts with the baro) as the built-in sim's is."""
+    s = state(st)
+    return s is not None and not s.armed and s.landed
+
+
+def ensure_landed(st) -> None:
+    if not on_ground_disarmed(st):
+        s = mission_status(st)
+        if s is not None and s.state not in ("LAND", "IDLE"):
+            command(st, "LAND")
+        wait_until(lambda: on_ground_disarmed(st), 60, "landed and disarmed (PX4)")
+    wait_until(lambda: mission_status(st, lambda m: m.state == "IDLE"), 15, "mission IDLE")
+
+
+def start_survey(st) -> None:
+    ensure_landed(st)
+    text = SURVEY.read_text()
+    r = call(st.session, "mission/srv/command", MissionCommand(command="LOAD", mission_json=text), Reply, 5.0)
+    assert r.success, r.message
+    command(st, "TAKEOFF")
+    command(st, "START")
+    wait_until(lambda: mission_status(st, lambda m: m.state == "EXECUTING"), 40, "mission EXECUTING")
+
+
+def kill9(st, name: str) -> int:
+    pid = st.pids().get(name)
+    assert pid is not None and is_service_process(pid, name), f"no running {name} in pids.json"
+    os.kill(pid, signal.SIGKILL)
+    return pid
+
+
+# ---------------------------------------------------------------- supervision
+
+
+def test_px4_is_supervised_like_a_service_restarted_stopped_and_gone_with_aero_up(stack, px4_build):
+    instance = px4_sitl.free_instance(1)
+    assert instance is not None, "no free PX4 instance in 1..9"
+    args = ["--px4", str(px4_build), "--px4-instance", str(instance)]
+
+    def px4_gone(pid: int) -> bool:
+        return not os.path.exists(f"/proc/{pid}") and px4_sitl.lock_holder(instance) is None
+
+    st = stack(["px4"], profile="px4", extra_args=args, timeout_s=30)   # waits for its token
+    first = st.pids()["px4"]
+    assert px4_sitl.lock_holder(instance) == first
+    os.kill(first, signal.SIGKILL)                                      # PX4 crashes: aero up restarts it
+    wait_until(lambda: st.pids().get("px4") not in (None, first), 10, "aero up restarted px4")
+    wait_until(lambda: st.alive("px4"), 20, "the restarted PX4 booted (its token)")
+    second = st.pids()["px4"]
+    st.stop()                                                           # SIGINT to aero up: PX4 stops cleanly
+    wait_until(lambda: px4_gone(second), 5, "PX4 stopped with the stack")
+    assert "PX4 Exiting" in st.service_log("px4")
+
+    st = stack(["px4"], profile="px4", extra_args=args, timeout_s=30)
+    pid = st.pids()["px4"]
+    st.proc.kill()                                                      # aero up killed -9: the kernel tells PX4
+    wait_until(lambda: px4_gone(pid), 5, "PX4 stopped after aero up was killed -9")
+
+
+# ---------------------------------------------------------------- (a) survey_01
+
+
+def test_px4_flies_survey_01_to_landing_reaching_every_waypoint(px4):
+    st = px4
+    ensure_landed(st)
+    pad = st.truth.now()
+    home = state(st).position_m.to_array()
+    rec = Recorder(st.session, {"state": ("state/vehicle", VehicleState),
+                                "reached": ("mission/waypoint_reached", WaypointReached)})
+    t0 = time.monotonic()
+    try:
+        r = subprocess.run(aero_argv() + ["mission", "fly", str(SURVEY), "--quiet", "--timeout", "150"],
+                           env=clean_env(st.endpoint), capture_output=True, text=True, timeout=170,
+                           stdin=subprocess.DEVNULL)
+        wait_until(lambda: on_ground_disarmed(st), 10, "on the ground, disarmed (PX4)")
+    finally:
+        rec.close()
+    flight_s = time.monotonic() - t0
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "landed and disarmed" in r.stdout, r.stdout
+    waypoints = [np.array([w.x, w.y, w.z]) for w in load_mission_file(SURVEY).waypoints]
+    reached = [m.index for m in rec.get("reached")]
+    assert reached == list(range(len(waypoints))), f"waypoints reached {reached}"
+    track = np.array([m.position_m.to_array() for m in rec.get("state")])
+    closest = [float(np.min(np.linalg.norm(track - w, axis=1))) for w in waypoints]
+    end = state(st).position_m.to_array()
+    error_est = float(np.linalg.norm((end - home)[:2]))
+    error_truth = float(np.linalg.norm((st.truth.now() - pad)[:2]))
+    print(f"PX4 survey_01: {flight_s:.1f} s; closest approach per waypoint (PX4 estimate) "
+          f"{', '.join(f'{d:.2f}' for d in closest)} m; landing error vs take-off point "
+          f"{error_est:.2f} m (PX4 estimate), {error_truth:.2f} m (SIH truth)")
+    assert max(closest) < 0.5 + 0.3, closest          # the survey's acceptance radius + tracking
+    assert error_est < 1.0 and error_truth < 1.0, (error_est, error_truth)
+
+
+# ---------------------------------------------------------------- (b) pilot HOLD -> resume
+
+
+def test_px4_switched_to_hold_by_a_pilot_holds_the_mission_and_start_resumes(px4):
+    st = px4
+    start_survey(st)
+    rec = Recorder(st.session, {"reached": ("mission/waypoint_reached", WaypointReached)})
+    try:
+        wait_until(lambda: mission_status(st, lambda m: m.state == "EXECUTING" and m.active_waypoint == 1
+                                          and (m.distance_to_goal_m or 0) > 4.0), 40, "flying to waypoint 1")
+        px4_shell(st, "commander", "mode", "auto:loiter")
+        t_pilot = time.monotonic()
+        s = wait_until(lambda: mission_status(st, lambda m: m.state == "HOLDING"), 5, "mission HOLDING")
+        print(f"mission HOLDING {time.monotonic() - t_pilot:.2f} s after `commander mode auto:loiter`: {s.message}")
+        assert "flight controller switched to HOLD" in s.message, s.message
+        wait_until(lambda: state(st, lambda m: m.flight_mode == "HOLD"), 3, "PX4 reports HOLD")
+        held = st.truth.at_rest(10)            # PX4 brakes to its hold point
+        n_reached = len(rec.get("reached"))
+        time.sleep(3.0)
+        drift = float(np.linalg.norm(st.truth.now() - held))
+        print(f"while PX4 holds: moved {drift:.2f} m in 3 s (SIH truth)")
+        assert drift < 0.5, f"vehicle moved {drift:.2f} m while HOLDING"
+        assert len(rec.get("reached")) == n_reached and mission_status(st).state == "HOLDING"
+
+        command(st, "START")
+        wait_until(lambda: state(st, lambda m: m.flight_mode == "OFFBOARD"), 10, "PX4 back in OFFBOARD")
+        wait_until(lambda: mission_status(st, lambda m: m.state in ("LAND", "IDLE")), 90, "survey complete")
+        wait_until(lambda: on_ground_disarmed(st), 60, "landed and disarmed (PX4)")
+        reached = [m.index for m in rec.get("reached")]
+    finally:
+        rec.close()
+    assert reached[-3:] == [1, 2, 3], f"waypoints reached {reached}"
+
+
+# ---------------------------------------------------------------- (c) fmu kill -9
+
+
+def test_px4_fmu_killed_mid_mission_the_vehicle_stays_safe_and_holds(px4):
+    st = px4
+    start_survey(st)
+    wait_until(lambda: mission_status(st, lambda m: m.state == "EXECUTING" and m.active_waypoint == 1), 40,
+               "flying to waypoint 1")
+    at_kill = st.truth.now()
+    old = kill9(st, "fmu")
+    t_kill = time.monotonic()
+    s = wait_until(lambda: mission_status(st, lambda m: m.state == "HOLDING"), 5, "mission HOLDING")
+    assert "fmu" in s.message and "outage" in s.message, s.message
+    wait_until(lambda: st.pids().get("fmu") not in (None, old), 20, "aero up restarted fmu")
+    back = wait_until(lambda: state(st, lambda m: m.connected), 20, "fmu back, PX4 connected")
+    t_back = time.monotonic()
+    print(f"fmu back {t_back - t_kill:.1f} s after kill -9; PX4 in {back.flight_mode}")
+    time.sleep(5.0)
+    track = st.truth.since(t_kill)
+    end = st.truth.now()
+    s = mission_status(st)
+    away = float(np.max(np.linalg.norm(track[:, :2] - at_kill[:2], axis=1)))
+    print(f"after fmu kill -9: lowest {track[:, 2].min():.2f} m, farthest {away:.2f} m from the kill point, "
+          f"at {end.round(2).tolist()} (SIH truth); mission {s.state}: {s.message}; PX4 {state(st).flight_mode}")
+    assert track[:, 2].min() > 2.0, "the vehicle came down after the fmu was killed"
+    assert s.state == "HOLDING", s
+    st.truth.at_rest(10, within_m=0.3)     # holding still, not flying on
+    ensure_landed(st)
