@@ -24,7 +24,7 @@ from .planning import (
 )
 from .gcs import GcsLink, Joystick
 from .objects import ObjectEvent, TrackedObject, TrackedObjectArray
-from .mission import MissionCommand, MissionStatus, PerceptionHealth, WaypointReached
+from .mission import MissionCommand, MissionGoal, MissionStatus, PerceptionHealth, WaypointReached
 from .services import (
     ArmReply, ArmRequest, EmergencyStopReply, EmergencyStopRequest, Empty, GetMissionReply, LoadMissionReply,
     LoadMissionRequest, Reply, SelectPluginReply, SelectPluginRequest, SetModeReply, SetModeRequest,
@@ -51,7 +51,7 @@ __all__ = [
     "VehicleStatus", "LocalPosition", "Attitude", "HomePosition", "GpsPosition", "EstimatorStatus",
     # planning and mission
     "Trajectory", "TrajectoryStatus", "CollisionConstraint", "Waypoint", "Mission", "parse_mission",
-    "load_mission_file", "MissionStatus", "MissionCommand", "PerceptionHealth", "WaypointReached",
+    "load_mission_file", "MissionStatus", "MissionCommand", "MissionGoal", "PerceptionHealth", "WaypointReached",
     # ground station link
     "GcsLink", "Joystick",
     # tracked objects

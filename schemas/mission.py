@@ -9,10 +9,10 @@ from __future__ import annotations
 import msgspec
 
 from ._base import Header, Message, schema
-from ._checks import check_choice, enum_names
-from .geometry import Vector3
+from ._checks import check_choice, check_finite, enum_names
+from .geometry import Pose, Vector3
 
-__all__ = ["MissionStatus", "MissionCommand", "PerceptionHealth", "WaypointReached"]
+__all__ = ["MissionStatus", "MissionCommand", "MissionGoal", "PerceptionHealth", "WaypointReached"]
 
 
 @schema("MissionStatus", 1)
@@ -115,3 +115,25 @@ class WaypointReached(Message, kw_only=True):
     mission_id: str = ""
     index: int = 0
     position_m: Vector3 = msgspec.field(default_factory=Vector3)
+
+
+@schema("MissionGoal", 1)
+class MissionGoal(Message, kw_only=True):
+    """The goal the mission hands the planner (mission/active_goal, on change + 2 Hz): fly to
+    `pose` (ENU, `header.frame_id` "map"); frame_id "hold" = stop and hold where you are.
+    `max_speed_mps` caps the commanded speed for this goal (a goto's velocity_mps) and
+    `max_vertical_speed_mps` its vertical part (a takeoff's climb or a landing's descent rate);
+    0 = the planner's own limit."""
+
+    header: Header = msgspec.field(default_factory=Header)
+    pose: Pose = msgspec.field(default_factory=Pose)
+    max_speed_mps: float = 0.0
+    max_vertical_speed_mps: float = 0.0
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        for name in ("max_speed_mps", "max_vertical_speed_mps"):
+            value = getattr(self, name)
+            check_finite(name, value)
+            if value < 0:
+                raise ValueError(f"field `{name}` must be >= 0 (0 = the planner's own limit), got {value!r}")

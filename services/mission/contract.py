@@ -1,7 +1,7 @@
 """Contract of the mission service: keys in/out and parameters."""
 from aeroperception.schemas import (
     ArmReply, ArmRequest, Empty, GetMissionReply, LoadMissionReply, LoadMissionRequest, MissionCommand,
-    MissionStatus, OccupancyGrid, PerceptionHealth, PoseStamped, Reply, SafetyStatus, SetModeReply, SetModeRequest,
+    MissionGoal, MissionStatus, OccupancyGrid, PerceptionHealth, Reply, SafetyStatus, SetModeReply, SetModeRequest,
     TrajectoryStatus, VehicleState, WaypointReached,
 )
 from aeroperception.services.runtime import Param
@@ -19,7 +19,7 @@ INPUTS = {
 LIVELINESS = ["fmu"]                        # fmu's token gone = fmu outage -> HOLDING
 OUTPUTS = {
     "mission/status": MissionStatus,        # 2 Hz
-    "mission/active_goal": PoseStamped,     # on change; frame_id "hold" = hold position
+    "mission/active_goal": MissionGoal,     # on change + 2 Hz; frame_id "hold" = hold position
     "mission/waypoint_reached": WaypointReached,
 }
 SERVICES = {                                # queryables served: request -> reply
@@ -55,6 +55,9 @@ PARAMS = [
     Param("blocked_action", "hold", choices=("hold", "skip", "rtl"),
           description="an unreachable goal: hold (HOLDING with the reason, wait for the operator), "
                       "skip (fly on to the next waypoint; a goto holds) or rtl"),
+    Param("land_handoff_altitude_m", 1.0, "m", 0.3, 10.0,
+          description="a landing at a target or with a descent rate is flown by the planner down to this "
+                      "height above the landing point, then the flight controller lands"),
     Param("state_dir", "", start_only=True,
           description="where the loaded mission and progress persist; '' = $AERO_STATE_DIR or ~/.aero/state, /<vehicle>/"),
     # limits every mission, goto and takeoff is checked against (with the shared geofence)

@@ -164,6 +164,7 @@ class Config:
     restore_timeout_s: float = 5.0          # after a restart, wait this long for vehicle state
     blocked_timeout_s: float = 5.0          # planner says blocked/unreachable this long -> blocked_action
     blocked_action: str = "hold"            # hold (wait for the operator) | skip (next waypoint) | rtl
+    land_handoff_altitude_m: float = 1.0    # a landing flown by the planner hands over to the FC here
 
 
 @dataclass
@@ -173,6 +174,20 @@ class GoalOut:
     position_m: np.ndarray | None
     yaw_rad: float | None = None
     acceptance_radius_m: float | None = None  # goto goals carry their own; None: the mission's
+    max_speed_mps: float = 0.0                # the planner's caps for this goal (0: its own)
+    max_vertical_speed_mps: float = 0.0
+
+
+@dataclass
+class LandPlan:
+    """A landing flown by the planner first (LandGoal target / descent rate): to above the target
+    (approach), down at the descent rate to land_handoff_altitude_m above it (descend), then the
+    flight controller's LAND (fc)."""
+
+    target_m: np.ndarray                      # the landing point: x, y and the ground's z there
+    approach_z_m: float
+    descent_rate_mps: float = 0.0
+    phase: str = "approach"
 
 
 class MissionManager:
@@ -192,6 +207,8 @@ class MissionManager:
         self.goto_target: GoalOut | None = None
         self.takeoff_altitude_m: float | None = None
         self.takeoff_goal: GoalOut | None = None  # where the takeoff ends: held after ALTITUDE_REACHED
+        self.climb_rate_mps = 0.0               # the takeoff's climb rate cap (0: the planner's)
+        self.land_plan: LandPlan | None = None  # a landing the planner flies before the FC's LAND
         self.vehicle: VehicleState | None = None
         self.vehicle_rx_s: float | None = None
         self.last_tick_s: float | None = None
@@ -248,6 +265,8 @@ class MissionManager:
         self.goto_target = None
         self.takeoff_altitude_m = None
         self.takeoff_goal = None
+        self.climb_rate_mps = 0.0
+        self.land_plan = None
         self.expected_mode = None
         self.publish_goal(GoalOut(None))
 
@@ -257,12 +276,14 @@ class MissionManager:
         self.takeoff_altitude_m = alt
         self.started_s = self.now_s
         self.armed_seen = bool(self.vehicle and self.vehicle.armed)
-        self.takeoff_goal = GoalOut(np.array([pos[0], pos[1], alt]), self.vehicle.yaw_rad if self.vehicle else None)
+        self.takeoff_goal = GoalOut(np.array([pos[0], pos[1], alt]), self.vehicle.yaw_rad if self.vehicle else None,
+                                    max_vertical_speed_mps=self.climb_rate_mps)
         self.publish_goal(self.takeoff_goal)
         self._request_mode("OFFBOARD")
 
     def _enter_holding(self, prev: State, event: Event) -> None:
         self.hold_since_s = self.now_s
+        self.land_plan = None
         self.hold_reason = {E.PERCEPTION_LOST: "perception", E.LINK_LOST: "link", E.FMU_OUTAGE: "outage",
                             E.FC_MODE_CHANGED: "flight controller", E.RESTARTED_IN_AIR: "restart",
                             E.SAFETY_HOLD: "safety", E.GOAL_BLOCKED: "blocked"}.get(event, "")
@@ -308,7 +329,36 @@ class MissionManager:
         self.land_mode = "RTL" if event in RTL_EVENTS else "LAND"
         self.on_ground_since_s = None
         self.disarm_sent = False
-        self._request_mode(self.land_mode)
+        if event != E.LAND_CMD:
+            self.land_plan = None
+        if self.land_plan is not None:
+            self._land_goal()
+        else:
+            self._request_mode(self.land_mode)
+
+    def _land_goal(self) -> None:
+        """The goal of the landing plan's phase; the last phase hands over to the FC's LAND."""
+        plan = self.land_plan
+        x, y, ground_z = plan.target_m
+        if plan.phase == "approach":
+            self.publish_goal(GoalOut(np.array([x, y, plan.approach_z_m])))
+        elif plan.phase == "descend":
+            self.publish_goal(GoalOut(np.array([x, y, ground_z + self.cfg.land_handoff_altitude_m]),
+                                      max_vertical_speed_mps=plan.descent_rate_mps))
+        else:
+            self._request_mode(self.land_mode)
+
+    def _land_progress(self, pos: np.ndarray) -> None:
+        plan = self.land_plan
+        if plan.phase == "approach" and np.linalg.norm(plan.target_m[:2] - pos[:2]) < self.acceptance_radius_m():
+            plan.phase = "descend" if plan.descent_rate_mps > 0 else "fc"
+        elif plan.phase == "descend" and \
+                pos[2] <= plan.target_m[2] + self.cfg.land_handoff_altitude_m + self.cfg.altitude_tolerance_m:
+            plan.phase = "fc"
+        else:
+            return
+        self.log("land_phase", phase=plan.phase, position=[round(float(v), 2) for v in pos])
+        self._land_goal()
 
     def _bridge_done(self, what: str, then: Callable[[bool, str], None] | None = None) -> Callable[[bool, str], None]:
         def done(ok: bool, message: str) -> None:
@@ -477,10 +527,14 @@ class MissionManager:
         done(False, message)
         return False, message
 
-    def takeoff(self, altitude_m: float | None, done: Callable[[bool, str], None]) -> tuple[bool, str]:
-        """Arm if needed, then TAKEOFF. `done` reports the arm/offboard outcome."""
+    def takeoff(self, altitude_m: float | None, done: Callable[[bool, str], None],
+                climb_rate_mps: float = 0.0) -> tuple[bool, str]:
+        """Arm if needed, then TAKEOFF (climbing at most at `climb_rate_mps`, 0: the planner's
+        speed). `done` reports the arm/offboard outcome."""
         if self.restoring():
             return self._refuse(done, "restarting: waiting for vehicle state; retry")
+        if not (math.isfinite(climb_rate_mps) and climb_rate_mps >= 0):
+            return self._refuse(done, f"field `climb_rate_mps` must be >= 0 (0 = default), got {climb_rate_mps!r}")
         if self.state != State.IDLE:
             return self._refuse(done, f"TAKEOFF only from IDLE (now {self.state.value})")
         if self.vehicle is None or not self.vehicle.connected:
@@ -491,6 +545,7 @@ class MissionManager:
             if why:
                 return self._refuse(done, f"takeoff refused: {why}")
         self.takeoff_altitude_m = altitude_m
+        self.climb_rate_mps = climb_rate_mps
         self.takeoff_pending = True
 
         def armed(ok: bool, message: str) -> None:
@@ -512,8 +567,11 @@ class MissionManager:
         return True, "taking off"
 
     def goto(self, position_m: np.ndarray, yaw_rad: float | None,
-             acceptance_radius_m: float | None = None) -> tuple[bool, str]:
+             acceptance_radius_m: float | None = None, velocity_mps: float = 0.0) -> tuple[bool, str]:
+        """Fly to `position_m` at most at `velocity_mps` (0: the planner's speed)."""
         position_m = np.asarray(position_m, float)
+        if not (math.isfinite(velocity_mps) and velocity_mps >= 0):
+            return False, f"goto refused: field `velocity_mps` must be >= 0 (0 = default), got {velocity_mps!r}"
         why = self.limits.check_goto(*position_m, acceptance_radius_m)
         if why:
             return False, f"goto refused: {why}"
@@ -521,13 +579,38 @@ class MissionManager:
             return False, f"GOTO needs the vehicle in the air (HOLDING/EXECUTING), now {self.state.value}"
         if self.outage:
             return False, f"{self.outage}: holding until fresh vehicle state is back"
-        self.goto_target = GoalOut(position_m, yaw_rad, acceptance_radius_m)
+        self.goto_target = GoalOut(position_m, yaw_rad, acceptance_radius_m, max_speed_mps=velocity_mps)
         self.blocked_since_s = None
         if self.state == State.EXECUTING:
             self.publish_goal(self.goto_target)
         elif not self.fire(E.START_CMD, "goto") or self.state != State.EXECUTING:
             return False, self.message
         return True, "going"
+
+    def land(self, target_m: np.ndarray | None, descent_rate_mps: float = 0.0) -> tuple[bool, str]:
+        """LAND, at `target_m` (x, y and the ground's z there; None: here) and/or descending at
+        most at `descent_rate_mps` down to land_handoff_altitude_m (then the FC lands)."""
+        if not (math.isfinite(descent_rate_mps) and descent_rate_mps >= 0):
+            return False, f"field `descent_rate_mps` must be >= 0 (0 = default), got {descent_rate_mps!r}"
+        if target_m is None and descent_rate_mps == 0:
+            return self.command("LAND")
+        if self.restoring() or self.state not in (State.TAKEOFF, State.EXECUTING, State.HOLDING):
+            return False, f"LAND not possible in {self.state.value}"
+        pos = self._position()
+        if target_m is not None:
+            target_m = np.asarray(target_m, float)
+            why = self.limits.check_goto(target_m[0], target_m[1], pos[2], None)
+            if why:
+                return False, f"land refused: target_position_m: {why}"
+        target = target_m if target_m is not None else np.array([pos[0], pos[1], 0.0])
+        self.land_plan = LandPlan(target, float(pos[2]), descent_rate_mps,
+                                  "approach" if target_m is not None else "descend")
+        where = f" at ({target[0]:.1f}, {target[1]:.1f})" if target_m is not None else ""
+        rate = f", descending at {descent_rate_mps:g} m/s" if descent_rate_mps > 0 else ""
+        if not self.fire(E.LAND_CMD, f"operator LAND{where}{rate}"):
+            self.land_plan = None
+            return False, f"LAND not possible in {self.state.value}"
+        return True, self.message
 
     def on_vehicle(self, st: VehicleState, now_s: float) -> None:
         self.vehicle = st
@@ -555,6 +638,8 @@ class MissionManager:
         elif self.state == State.EXECUTING:
             self._progress(pos)
         elif self.state == State.LAND:
+            if self.land_plan is not None and self.land_plan.phase != "fc":
+                self._land_progress(pos)
             if not on_ground:
                 self.on_ground_since_s = None
             elif self.on_ground_since_s is None:
@@ -571,7 +656,8 @@ class MissionManager:
         mode = st.flight_mode
         if not mode or self.expected_mode is None:
             return
-        ours = ("LAND", "RTL") if self.state == State.LAND else (self.expected_mode,)
+        landing = self.state == State.LAND and self.expected_mode in ("LAND", "RTL")
+        ours = ("LAND", "RTL") if landing else (self.expected_mode,)
         if mode in ours:
             self.mode_confirmed = True
             return

@@ -11,7 +11,7 @@ import numpy as np
 from aeroperception.schemas import (
     ArmReply, ArmRequest, DiagnosticStatus, GcsLink, Empty, GetMissionReply, GoToPositionFeedback,
     GoToPositionGoal, GoToPositionResult, LandFeedback, LandGoal, LandResult, LoadMissionReply,
-    LoadMissionRequest, MissionCommand, OccupancyGrid, PerceptionHealth, Pose, PoseStamped, Quaternion, Reply,
+    LoadMissionRequest, MissionCommand, MissionGoal, OccupancyGrid, PerceptionHealth, Pose, Quaternion, Reply,
     SafetyStatus, SchemaError, SetModeReply, SetModeRequest, TakeoffFeedback, TakeoffGoal, TakeoffResult,
     TrajectoryStatus,
     VehicleState, Vector3, WaypointReached, load_mission_file, parse_mission,
@@ -83,7 +83,7 @@ class MissionService(Service):
             if self.file_error:
                 self.mgr.message = self.file_error
         self.pub_status = node.publisher("mission/status", contract.OUTPUTS["mission/status"])
-        self.pub_goal = node.publisher("mission/active_goal", PoseStamped)
+        self.pub_goal = node.publisher("mission/active_goal", MissionGoal)
         self.pub_reached = node.publisher("mission/waypoint_reached", WaypointReached)
         node.subscribe("state/vehicle", VehicleState, lambda m: self.mgr.on_vehicle(m, time.monotonic()))
         node.subscribe("perception/health", PerceptionHealth,
@@ -118,7 +118,7 @@ class MissionService(Service):
             "goto": ActionServer(node, "mission/action/goto", GoToPositionGoal, GoToPositionResult,
                                  self._goto_goal, self._cancel_to_hold),
         }
-        self.last_goal: PoseStamped | None = None
+        self.last_goal: MissionGoal | None = None
         self.status_loop = node.every(1.0 / p.status_rate_hz, self._tick, name="status")
         node.every(0.1, lambda: self.mgr.tick(time.monotonic()), name="watchdog")  # outage within ~0.1 s
 
@@ -221,12 +221,13 @@ class MissionService(Service):
 
     def _publish_goal(self, goal: GoalOut) -> None:
         if goal.position_m is None:
-            msg = PoseStamped(header=self.node.header(HOLD_FRAME))
+            msg = MissionGoal(header=self.node.header(HOLD_FRAME))
         else:
             yaw = goal.yaw_rad if goal.yaw_rad is not None else (self.mgr.vehicle.yaw_rad if self.mgr.vehicle else 0.0)
-            msg = PoseStamped(header=self.node.header("map"),
+            msg = MissionGoal(header=self.node.header("map"),
                               pose=Pose(position=Vector3.from_array(goal.position_m),
-                                        orientation=Quaternion.from_yaw(yaw)))
+                                        orientation=Quaternion.from_yaw(yaw)),
+                              max_speed_mps=goal.max_speed_mps, max_vertical_speed_mps=goal.max_vertical_speed_mps)
         self.last_goal = msg
         self.pub_goal.publish(msg)
 
@@ -254,14 +255,16 @@ class MissionService(Service):
         def done(ok: bool, message: str) -> None:
             if not ok and h.active:
                 h.abort(TakeoffResult(success=False, message=message, final_altitude_m=self._altitude()))
-        ok, message = self.mgr.takeoff(h.goal.target_altitude_m, done)
+        ok, message = self.mgr.takeoff(h.goal.target_altitude_m, done, h.goal.climb_rate_mps)
         if not ok:
             return message
         self.actions.append(("takeoff", h))
         return None
 
     def _land_goal(self, h: GoalHandle) -> str | None:
-        ok, message = self.mgr.command("LAND")
+        g: LandGoal = h.goal
+        target = None if g.land_at_current_position else g.target_position_m.to_array()
+        ok, message = self.mgr.land(target, g.descent_rate_mps)
         if not ok:
             return message
         self.actions.append(("land", h))
@@ -270,7 +273,7 @@ class MissionService(Service):
     def _goto_goal(self, h: GoalHandle) -> str | None:
         g: GoToPositionGoal = h.goal
         yaw = g.yaw_rad if g.yaw_rad is not None and math.isfinite(g.yaw_rad) else None
-        ok, message = self.mgr.goto(g.position_m.to_array(), yaw, g.acceptance_radius_m)
+        ok, message = self.mgr.goto(g.position_m.to_array(), yaw, g.acceptance_radius_m, g.velocity_mps)
         if not ok:
             return message
         self.actions.append(("goto", h))

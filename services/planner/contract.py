@@ -1,14 +1,14 @@
 """Contract of the planner: keys in/out (ENU) and parameters."""
 from aeroperception.schemas import (
-    OccupancyGrid, PoseStamped, TrajectorySetpoint, TrajectoryStatus, VehicleState, WaypointReached,
+    MissionGoal, OccupancyGrid, TrajectorySetpoint, TrajectoryStatus, VehicleState, WaypointReached,
 )
 from aeroperception.services.runtime import Param
 
 NAME = "planner"
 INPUTS = {
     "state/vehicle": VehicleState,
-    # The goal to fly to. header.frame_id == "hold" means: stop and hold where you are.
-    "mission/active_goal": PoseStamped,
+    # The goal to fly to (with its own speed caps). header.frame_id == "hold" means: stop and hold where you are.
+    "mission/active_goal": MissionGoal,
     # The lidar service's rolling costmap: obstacle-aware velocity (planner/avoidance.py).
     "perception/costmap": OccupancyGrid,
 }

@@ -14,6 +14,8 @@ class Goal:
     position_m: np.ndarray
     yaw_rad: float | None
     index: int = 0
+    max_speed_mps: float = 0.0            # this goal's speed cap (0: max_velocity_mps only)
+    max_vertical_speed_mps: float = 0.0   # ... and vertical speed cap (climb / descent rate; 0: none)
 
 
 @dataclass
@@ -122,7 +124,12 @@ class WaypointPlanner:
             self._reached_sent = True
             self.leg.arrived_s = now_s
         speed = min(self.max_velocity_mps, distance * self.kp)
+        if self.goal.max_speed_mps > 0:
+            speed = min(speed, self.goal.max_speed_mps)
         velocity = error / distance * speed if distance > 1e-6 else np.zeros(3)
+        vz_cap = self.goal.max_vertical_speed_mps
+        if vz_cap > 0 and abs(velocity[2]) > vz_cap:
+            velocity *= vz_cap / abs(velocity[2])   # the same straight line, slower
         yaw = self.goal.yaw_rad if self.goal.yaw_rad is not None else yaw_rad
         self.status = TrajectoryStatus.STATUS_COMPLETED if self._reached_sent else TrajectoryStatus.STATUS_EXECUTING
         sp = TrajectorySetpoint(velocity_valid=True, yaw_valid=True,

@@ -5,7 +5,7 @@ import math
 import time
 
 from aeroperception.schemas import (
-    DiagnosticStatus, Header, OccupancyGrid, PoseStamped, TrajectorySetpoint, TrajectoryStatus, Vector3, VehicleState,
+    DiagnosticStatus, Header, MissionGoal, OccupancyGrid, TrajectorySetpoint, TrajectoryStatus, Vector3, VehicleState,
     WaypointReached,
 )
 from aeroperception.services.runtime import Health, LatestWorker, Service, run
@@ -38,7 +38,7 @@ class PlannerService(Service):
         self.state_rx_s = 0.0
         self.last_distance: float | None = None
         self.last_setpoint: TrajectorySetpoint | None = None   # what fmu was last sent
-        self.goal_msg: PoseStamped | None = None
+        self.goal_msg: MissionGoal | None = None
         self.goals_received = 0
         self.goal_watch = GoalWatchdog(p.goal_timeout_s)
         self.pub_sp = self.node.publisher("fmu/in/trajectory_setpoint", contract.OUTPUTS["fmu/in/trajectory_setpoint"],
@@ -46,7 +46,7 @@ class PlannerService(Service):
         self.pub_status = self.node.publisher("planner/status", TrajectoryStatus)
         self.pub_reached = self.node.publisher("planner/waypoint_reached", WaypointReached)
         self.node.subscribe("state/vehicle", VehicleState, self._on_state)
-        self.node.subscribe("mission/active_goal", PoseStamped, self._on_goal, strict=True)
+        self.node.subscribe("mission/active_goal", MissionGoal, self._on_goal, strict=True)
         # Obstacles: plans run on their own thread (10-30 ms), the setpoint path only steers.
         self.avoid = LocalPlanner(avoidance_config(p))
         self.obstacle_state, self.obstacle_reason = ("off", "") if not p.obstacle_avoidance else ("no_costmap", "")
@@ -104,7 +104,7 @@ class PlannerService(Service):
         if time.monotonic() - self.last_pub_s > 1.25 * self.loop.period_s:
             self._cycle()
 
-    def _on_goal(self, msg: PoseStamped) -> None:
+    def _on_goal(self, msg: MissionGoal) -> None:
         if self.goal_watch.heard(time.monotonic()):
             self.log.info("mission_back", note="goal stream resumed: following the mission's goal")
         if msg == self.goal_msg:
@@ -116,7 +116,8 @@ class PlannerService(Service):
         q = msg.pose.orientation
         yaw = math.atan2(2 * (q.w * q.z + q.x * q.y), 1 - 2 * (q.y * q.y + q.z * q.z))
         self.goals_received += 1
-        self.planner.set_goal(Goal(msg.pose.position.to_array(), yaw, self.goals_received))
+        self.planner.set_goal(Goal(msg.pose.position.to_array(), yaw, self.goals_received,
+                                   msg.max_speed_mps, msg.max_vertical_speed_mps))
 
     def state_fresh(self) -> bool:
         return self.state is not None and time.monotonic() - self.state_rx_s < self.params.state_timeout_s

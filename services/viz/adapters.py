@@ -21,7 +21,7 @@ import rerun as rr
 
 from aeroperception.schemas import (
     BatteryState, Detection2DArray, DiagnosticStatus, GetMissionReply, Image, MissionStatus, Message,
-    OccupancyGrid, Odometry, PointCloud, PoseStamped, Quaternion, SafetyStatus, TrajectorySetpoint,
+    MissionGoal, OccupancyGrid, Odometry, PointCloud, Quaternion, SafetyStatus, TrajectorySetpoint,
     TrajectoryStatus, VehicleState, VioHealth, WaypointReached, parse_mission,
 )
 from aeroperception.services.runtime.rotations import quat_from_rotmat
@@ -306,7 +306,7 @@ class MissionStatusAdapter:
         return out
 
 
-def active_goal(msg: PoseStamped) -> list[Log]:
+def active_goal(msg: MissionGoal) -> list[Log]:
     path = f"{WORLD}/mission/active_goal"
     if msg.header.frame_id == "hold":
         return [log(path, rr.Clear(recursive=False))]
@@ -476,7 +476,7 @@ def build_adapters(p) -> list[Adapter]:
         Adapter("perception/ground", PointCloud, cloud_adapter("ground", GROUND_COLOR, 0.03), "cloud_rate_hz"),
         Adapter("perception/costmap", OccupancyGrid, costmap, "costmap_rate_hz"),
         Adapter("mission/status", MissionStatus, MissionStatusAdapter()),
-        Adapter("mission/active_goal", PoseStamped, active_goal),
+        Adapter("mission/active_goal", MissionGoal, active_goal),
         Adapter("mission/waypoint_reached", WaypointReached, WaypointReachedAdapter()),
         Adapter("planner/status", TrajectoryStatus, PlannerStatusAdapter()),
         Adapter("fmu/in/trajectory_setpoint", TrajectorySetpoint, setpoint, "setpoint_rate_hz"),

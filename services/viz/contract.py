@@ -6,7 +6,7 @@ slow or absent viewer costs dropped frames (counted), never a queue or a slower 
 """
 from aeroperception.schemas import (
     BatteryState, Detection2DArray, DiagnosticStatus, Empty, GetMissionReply, Image, MissionStatus,
-    OccupancyGrid, Odometry, PointCloud, PoseStamped, SafetyStatus, TrajectorySetpoint, TrajectoryStatus,
+    MissionGoal, OccupancyGrid, Odometry, PointCloud, SafetyStatus, TrajectorySetpoint, TrajectoryStatus,
     VehicleState, VioHealth, WaypointReached,
 )
 from aeroperception.services.runtime import Param
@@ -26,7 +26,7 @@ INPUTS = {
     "perception/ground": PointCloud,
     "perception/costmap": OccupancyGrid,           # drawn on the ground plane
     "mission/status": MissionStatus,               # state changes as text; distance to goal
-    "mission/active_goal": PoseStamped,
+    "mission/active_goal": MissionGoal,
     "mission/waypoint_reached": WaypointReached,
     "planner/status": TrajectoryStatus,
     "fmu/in/trajectory_setpoint": TrajectorySetpoint,   # the planner's velocity as an arrow on the vehicle

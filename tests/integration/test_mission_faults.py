@@ -32,7 +32,7 @@ import pytest
 from aerotest import is_service_process, wait_until
 from aeroperception.schemas import (
     GoalReply, GoalStatus, GoToPositionGoal, LandGoal, LoadMissionReply, LoadMissionRequest,
-    MissionCommand, MissionStatus, PoseStamped, Reply, SafetyStatus, SetModeReply, SetModeRequest,
+    MissionCommand, MissionGoal, MissionStatus, Reply, SafetyStatus, SetModeReply, SetModeRequest,
     TakeoffGoal, Vector3, VehicleState, WaypointReached, decode, encode, load_mission_file,
 )
 from aeroperception.services.runtime import ActionClient
@@ -184,7 +184,7 @@ def test_fc_switched_to_hold_mid_mission_holds_and_start_resumes_to_completion(m
     start_survey(st)
     with recording(st, status=("mission/status", MissionStatus), truth=("sim/truth/state", VehicleState),
                    reached=("mission/waypoint_reached", WaypointReached),
-                   goal=("mission/active_goal", PoseStamped)) as rec:
+                   goal=("mission/active_goal", MissionGoal)) as rec:
         wait_status(st, lambda m: m.state == "EXECUTING" and m.active_waypoint == 1
                     and (m.distance_to_goal_m or 0) > 6.0, 40, "flying to waypoint index 1")
         time.sleep(1.0)

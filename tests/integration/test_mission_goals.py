@@ -5,6 +5,9 @@ sim's truth (sim/truth/state) and the real state file:
 - issue 18 #9: a finished flight leaves nothing to restore; a restarted mission service on the
   ground comes up with no mission (and one killed after completing its waypoints never
   reports "waypoint 5/4").
+- issue 18 #4: the takeoff / land / goto actions' fields are honoured, judged by the truth:
+  climb and descent rate 0.5 vs 1.5 m/s give measurably different vertical speeds, a goto's
+  velocity_mps caps the horizontal speed, a land at target_position_m lands there.
 - issue 18 #5: MAVSDK's set_current_mission_item while the mission flies to item 1 makes the
   vehicle fly to item 3 next (truth: items 1 and 2 are never approached), as PX4 jumps.
 """
@@ -17,9 +20,12 @@ import numpy as np
 import pytest
 
 from aerotest import wait_until
-from aeroperception.schemas import MissionStatus, VehicleState
+from aeroperception.schemas import (
+    GoalStatus, GoToPositionGoal, LandGoal, LandResult, MissionStatus, TakeoffGoal, Vector3, VehicleState,
+)
+from aeroperception.services.runtime import ActionClient
 from aeroperception.tools.cmd_chaos import Recorder
-from test_flight import flight_stack, latest, truth
+from test_flight import flight_stack, latest, recording, truth, wait_at_rest
 from test_mission_faults import command, ensure_landed, kill9, load, wait_status
 
 SHORT = {"mission_id": "short_hop", "takeoff_altitude_m": 2.5,
@@ -127,3 +133,50 @@ def test_mavsdk_set_current_mission_item_makes_the_vehicle_jump(stack):
           f"{jumped['message']}")
     assert near[3] < 0.6, f"never reached item 3 at {enu[3]}"
     assert near[1] > 1.5 and near[2] > 1.5, f"flew on to the skipped items: {near}"
+
+
+def run_goal(st, action: str, goal, timeout_s: float = 60.0) -> tuple[list[VehicleState], object]:
+    """Send one mission action goal, wait for SUCCEEDED; the true states meanwhile and its result."""
+    client = ActionClient(st.session, f"mission/action/{action}")
+    try:
+        with recording(st, truth=("sim/truth/state", VehicleState)) as rec:
+            g = client.send_goal(goal)
+            assert g.success, f"{action} refused: {g.message}"
+            res = client.result(g.goal_id, timeout_s)
+            assert res.status == GoalStatus.SUCCEEDED, f"{action}: {GoalStatus.name(res.status)} {res.message}"
+            return rec.get("truth"), res
+    finally:
+        client.close()
+
+
+def vertical_speeds(track: list[VehicleState], z_from: float, z_to: float) -> np.ndarray:
+    """The true vertical speeds while the vehicle was between two heights."""
+    lo, hi = sorted((z_from, z_to))
+    return np.array([m.velocity_mps.z for m in track if lo < m.position_m.z < hi])
+
+
+def test_takeoff_land_goto_fields_are_honoured_by_truth(gstack):
+    st = gstack
+    ensure_landed(st)
+    slow_up, _ = run_goal(st, "takeoff", TakeoffGoal(target_altitude_m=3.0, climb_rate_mps=0.5))
+    wait_at_rest(st)
+    track, _ = run_goal(st, "goto", GoToPositionGoal(position_m=Vector3(x=4.0, y=0.0, z=3.0), velocity_mps=0.6))
+    goto_speed = max(np.hypot(m.velocity_mps.x, m.velocity_mps.y) for m in track)
+    target = np.array([0.0, 3.0])
+    slow_down, res = run_goal(st, "land", LandGoal(land_at_current_position=False, descent_rate_mps=0.5,
+                                                   target_position_m=Vector3(x=0.0, y=3.0, z=0.0)))
+    landed_at = truth(st).position_m
+    miss = float(np.hypot(landed_at.x - target[0], landed_at.y - target[1]))
+
+    fast_up, _ = run_goal(st, "takeoff", TakeoffGoal(target_altitude_m=5.0, climb_rate_mps=1.5))
+    wait_at_rest(st)
+    fast_down, _ = run_goal(st, "land", LandGoal(descent_rate_mps=1.5))
+
+    climb = {0.5: vertical_speeds(slow_up, 0.3, 2.7).max(), 1.5: vertical_speeds(fast_up, 0.3, 4.7).max()}
+    descent = {0.5: -vertical_speeds(slow_down, 2.7, 1.3).min(), 1.5: -vertical_speeds(fast_down, 4.7, 1.3).min()}
+    print(f"climb m/s {climb}; descent m/s {descent}; goto 0.6 m/s cap: {goto_speed:.2f} m/s; "
+          f"landed {miss:.2f} m from the target {target} ({LandResult.__name__}: {res.message})")
+    assert climb[0.5] < 0.65 and climb[1.5] > 1.1, climb
+    assert descent[0.5] < 0.65 and descent[1.5] > 1.1, descent
+    assert 0.45 < goto_speed < 0.75, goto_speed
+    assert miss < 0.5 and not truth(st).armed, f"landed at {landed_at}, {miss:.2f} m from {target}"

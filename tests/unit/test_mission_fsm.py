@@ -1403,3 +1403,54 @@ def test_unreachable_goal_returns_home_with_blocked_action_rtl():
     report_blocked(rig, 5.3)
     assert rig.mgr.state == State.LAND and rig.bridge.modes()[-1] == "RTL"
     assert "returning home (blocked_action rtl)" in rig.mgr.message
+
+
+# ================================================================ goal fields honoured (issue 18 #4)
+
+def test_takeoff_climb_rate_and_goto_speed_reach_the_planner_as_caps():
+    rig = Rig()
+    rig.feed(vehicle())
+    assert rig.mgr.takeoff(4.0, rig.on_result, climb_rate_mps=0.5)[0]
+    rig.feed(flying(z=0.5))
+    assert rig.mgr.state == State.TAKEOFF and rig.goals[-1].max_vertical_speed_mps == 0.5
+    rig.feed(flying(z=4.0))
+    assert rig.mgr.goto(np.array([5.0, 0.0, 4.0]), None, 0.5, velocity_mps=0.8)[0]
+    assert rig.goals[-1].max_speed_mps == 0.8 and rig.goals[-1].max_vertical_speed_mps == 0.0
+    assert rig.mgr.goto(np.array([5.0, 0.0, 4.0]), None, 0.5, velocity_mps=-1.0) == (
+        False, "goto refused: field `velocity_mps` must be >= 0 (0 = default), got -1.0")
+    assert "`climb_rate_mps`" in Rig().mgr.takeoff(3.0, lambda ok, m: None, climb_rate_mps=math.nan)[1]
+
+
+def test_land_at_a_target_flies_there_descends_at_the_rate_then_the_fc_lands():
+    rig = Rig(Config(land_handoff_altitude_m=1.0))
+    rig.to_holding()                                  # at (0, 0, 5)
+    ok, msg = rig.mgr.land(np.array([6.0, 2.0, 0.0]), descent_rate_mps=0.5)
+    assert ok and msg == "operator LAND at (6.0, 2.0), descending at 0.5 m/s", msg
+    assert rig.mgr.state == State.LAND and rig.bridge.modes() == ["OFFBOARD"]   # no FC LAND yet
+    assert_goal(rig.goals[-1], [6.0, 2.0, 5.0])      # approach at the current altitude
+    rig.feed(flying(3.0, 1.0, 5.0))
+    assert_goal(rig.goals[-1], [6.0, 2.0, 5.0])
+    rig.feed(flying(5.8, 2.1, 5.0))                   # above the target: descend, capped
+    assert_goal(rig.goals[-1], [6.0, 2.0, 1.0])
+    assert rig.goals[-1].max_vertical_speed_mps == 0.5
+    rig.feed(flying(6.0, 2.0, 3.0))
+    assert rig.bridge.modes() == ["OFFBOARD"]
+    rig.feed(flying(6.0, 2.0, 1.2))                   # the handoff height: the FC lands
+    assert rig.bridge.modes() == ["OFFBOARD", "LAND"] and rig.mgr.state == State.LAND
+    rig.feed(fc(6.0, 2.0, 0.5, mode="OFFBOARD"))      # the FC's heartbeat lags: no mode change judged
+    rig.feed(fc(6.0, 2.0, 0.0, mode="LAND", armed=False, landed=LandedState.ON_GROUND))
+    assert rig.mgr.state == State.IDLE
+
+
+def test_land_in_place_with_only_a_descent_rate_and_refusals():
+    rig = Rig()
+    rig.to_executing()
+    rig.feed(flying(1.0, 0.0, 5.0))
+    ok, msg = rig.mgr.land(None, descent_rate_mps=1.5)
+    assert ok and rig.mgr.state == State.LAND
+    assert_goal(rig.goals[-1], [1.0, 0.0, 1.0]) and rig.goals[-1].max_vertical_speed_mps == 1.5
+    rig2 = Rig()
+    rig2.to_holding()
+    assert "`descent_rate_mps` must be >= 0" in rig2.mgr.land(None, -0.5)[1]
+    assert rig2.mgr.land(np.array([1e5, 0.0, 0.0]))[1].startswith("land refused: target_position_m:")
+    assert rig2.mgr.state == State.HOLDING

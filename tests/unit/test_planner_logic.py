@@ -215,3 +215,21 @@ def test_tracking_errors_are_against_the_goal_and_the_velocity_sent():
     hold = planner.step(np.array([1.0, 1.0, 5.0]), 0.0)
     pos_err, vel_err = tracking_errors(hold.setpoint, planner, np.array([1.0, 1.3, 5.0]), np.array([0.0, 0.3, 0.4]))
     assert (pos_err, vel_err) == (pytest.approx(0.3), pytest.approx(0.5))
+
+
+def test_a_goals_own_speed_caps_limit_the_command():
+    """mission/active_goal's max_speed_mps (a goto's velocity_mps) and max_vertical_speed_mps (a
+    takeoff's climb / a landing's descent rate) cap the velocity, on the same straight line."""
+    from aeroperception.services.planner.logic import Goal, WaypointPlanner
+
+    p = WaypointPlanner(max_velocity_mps=2.0, kp=0.8)
+    p.set_goal(Goal(np.array([10.0, 0.0, 0.0]), None, 1, max_speed_mps=0.7))
+    v = p.step(np.zeros(3), 0.0).setpoint.velocity_mps.to_array()
+    np.testing.assert_allclose(v, [0.7, 0.0, 0.0])
+    p.set_goal(Goal(np.array([0.0, 0.0, 5.0]), None, 2, max_vertical_speed_mps=0.5))
+    np.testing.assert_allclose(p.step(np.zeros(3), 0.0).setpoint.velocity_mps.to_array(), [0.0, 0.0, 0.5])
+    p.set_goal(Goal(np.array([4.0, 0.0, -4.0]), None, 3, max_vertical_speed_mps=0.5))
+    v = p.step(np.zeros(3), 0.0).setpoint.velocity_mps.to_array()
+    np.testing.assert_allclose(v, [0.5, 0.0, -0.5])           # direction kept, vertical part capped
+    p.set_goal(Goal(np.array([0.0, 0.0, 5.0]), None, 4))
+    np.testing.assert_allclose(p.step(np.zeros(3), 0.0).setpoint.velocity_mps.to_array(), [0.0, 0.0, 2.0])

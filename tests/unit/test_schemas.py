@@ -21,7 +21,7 @@ from aeroperception.schemas import (
     Empty, EstimatorStatus, GetMissionReply, GoalReply, GoalStatus, GoToPositionFeedback, GoToPositionGoal,
     GoToPositionResult, GpsPosition, Header,
     HomePosition, Image, Imu, LandedState, LandFeedback, LandGoal, LandResult, LoadMissionReply,
-    LoadMissionRequest, LocalPosition, Message, Mission, MissionCommand, MissionStatus, NDArray,
+    LoadMissionRequest, LocalPosition, Message, Mission, MissionCommand, MissionGoal, MissionStatus, NDArray,
     OccupancyGrid, Odometry, PerceptionHealth, PointCloud, Pose, PoseStamped, Quaternion, Reply,
     ResultRequest, SafetyStatus, SchemaError, SelectPluginReply, SelectPluginRequest, SetModeReply,
     SetModeRequest, SetTrajectoryFeedback, SetTrajectoryGoal, SetTrajectoryResult, TakeoffFeedback,
@@ -227,6 +227,7 @@ SAMPLES = {
         total_waypoints=4, elapsed_time_s=33.5, perception_healthy=True, distance_to_goal_m=3.2,
         message="flying to wp 2"),
     "MissionCommand": lambda: MissionCommand(header=H, command="LOAD", mission_json=_mission().to_json()),
+    "MissionGoal": lambda: MissionGoal(header=H, pose=P, max_speed_mps=1.5, max_vertical_speed_mps=0.5),
     "PerceptionHealth": lambda: PerceptionHealth(
         header=H, vio_status=PerceptionHealth.HEALTHY, detector_status=PerceptionHealth.DEGRADED,
         overall_healthy=True, message="detector slow"),
