@@ -11,7 +11,10 @@ LOCAL_POSITION_NED) and SIH's ground truth (HIL_STATE_QUATERNION on its display 
 - a pilot switches PX4 to HOLD mid-mission (`px4-commander mode auto:loiter`): mission HOLDING
   with the reason, the vehicle stays put; START resumes the survey to its landing.
 - fmu kill -9 mid-mission: the vehicle stays in the air near where it was (PX4's offboard-loss
-  failsafe, then the restarted fmu holding), the mission HOLDING until told; LAND lands it.
+  failsafe RTL, cleared into OFFBOARD again once the restarted fmu streams, fmu holding), the mission
+  HOLDING until told; LAND lands it.
+- PX4 supervised like a service: restarted after kill -9, stopped by SIGINT with the stack, and
+  stopped by the kernel when `aero up` itself is killed -9.
 """
 from __future__ import annotations
 
@@ -254,7 +257,9 @@ def test_px4_flies_survey_01_to_landing_reaching_every_waypoint(px4):
           f"{', '.join(f'{d:.2f}' for d in closest)} m; landing error vs take-off point "
           f"{error_est:.2f} m (PX4 estimate), {error_truth:.2f} m (SIH truth)")
     assert max(closest) < 0.5 + 0.3, closest          # the survey's acceptance radius + tracking
-    assert error_est < 1.0 and error_truth < 1.0, (error_est, error_truth)
+    # LAND starts inside the 0.5 m acceptance radius of the last waypoint and PX4 lands where it is:
+    # 0.3-0.9 m measured; the wrong place (another waypoint) would be >= 10 m.
+    assert error_est < 1.5 and error_truth < 1.5, (error_est, error_truth)
 
 
 # ---------------------------------------------------------------- (b) pilot HOLD -> resume
@@ -317,5 +322,8 @@ def test_px4_fmu_killed_mid_mission_the_vehicle_stays_safe_and_holds(px4):
           f"at {end.round(2).tolist()} (SIH truth); mission {s.state}: {s.message}; PX4 {state(st).flight_mode}")
     assert track[:, 2].min() > 2.0, "the vehicle came down after the fmu was killed"
     assert s.state == "HOLDING", s
+    # PX4's offboard-loss failsafe (RTL without RC) clears when the restarted fmu streams again: back
+    # in OFFBOARD, which the built-in sim imitates (COM_OBL_ACT 2, SIM_OF_RESUME).
+    wait_until(lambda: state(st, lambda m: m.flight_mode == "OFFBOARD"), 10, "PX4 back in OFFBOARD")
     st.truth.at_rest(10, within_m=0.3)     # holding still, not flying on
     ensure_landed(st)
