@@ -2,7 +2,7 @@
 schemas, so Foxglove's 3D, Image, Plot and Log panels understand it without our schemas.
 
 Mapping (ENU stays ENU: Foxglove's frames are right-handed like ours):
-  VehicleState, Odometry, PoseStamped -> foxglove.PoseInFrame (+ foxglove.FrameTransform
+  VehicleState, Odometry, PoseStamped, MissionGoal -> foxglove.PoseInFrame (+ foxglove.FrameTransform
   `<key>/tf` map->base_link for VehicleState, so the 3D panel can follow the vehicle);
   Image -> foxglove.RawImage; PointCloud -> foxglove.PointCloud (x, y, z float32 [+ intensity]);
   OccupancyGrid -> foxglove.Grid (int8 cost); DiagnosticStatus/Array -> foxglove.Log (one per
@@ -166,7 +166,8 @@ def _diag_array(key: str, m):
 
 
 CONVERTERS: dict[str, Callable[[str, Any], Iterator[tuple[str, str, dict]]]] = {
-    "VehicleState": _vehicle_state, "Odometry": _odometry, "PoseStamped": _pose_stamped, "Image": _image,
+    "VehicleState": _vehicle_state, "Odometry": _odometry, "PoseStamped": _pose_stamped,
+    "MissionGoal": _pose_stamped, "Image": _image,
     "PointCloud": _point_cloud, "OccupancyGrid": _grid, "DiagnosticStatus": _diag, "DiagnosticArray": _diag_array,
 }
 
