@@ -5,7 +5,10 @@ touching anything the costmap calls inscribed or lethal:
 - a path: Dijkstra from the vehicle's cell over a coarsened copy of the costmap (cells >= 99
   blocked, inflation costs make it keep its distance), to the reachable cell that minimises
   path cost + straight distance on to the goal — so a goal outside the window or behind a
-  building is approached around it, and a goal inside an obstacle is reported unreachable;
+  building is approached around it, and a goal inside an obstacle is reported unreachable.
+  Never-seen cells are not a way, but they do not box the vehicle in either: a goal cut off
+  only by them (a person's LiDAR shadow across the way round them) is approached as far as the
+  seen cells go, where the new viewpoint sees into the shadow;
 - a goal nearer to an obstacle than the clearance (a waypoint 1.3 m from a parked car) is still
   a goal: near it the clearance is relaxed to the goal's own distance from the obstacle, never
   below `goal_clearance_m` (nearer than that: unreachable) — judging it by the full clearance
@@ -13,8 +16,8 @@ touching anything the costmap calls inscribed or lethal:
 - a carrot `lookahead_m` along that path gives the direction; the speed is the waypoint
   planner's, scaled down as the nearest obstacle ahead comes within `slow_distance_m`;
 - a last check: a velocity whose next `check_horizon_s` crosses a blocked cell becomes zero.
-Boxed in (no path) -> hold, with the reason. A costmap that stops coming (the lidar service
-died) -> hold until it is fresh again: flying on would be flying blind into what was just seen.
+Boxed in (no path, not even through never-seen cells) -> hold, with the reason. A costmap that
+stops coming (the lidar service died) -> hold until it is fresh again: flying on would be flying blind into what was just seen.
 Never had one (a stack without LiDAR) -> the velocity is left alone (`no_costmap`). Vertical motion is left to the waypoint planner:
 the costmap is 2D at the flight altitude.
 Plain numpy + scipy.sparse.csgraph (Dijkstra in C); replanned per costmap, not per setpoint.
@@ -150,6 +153,15 @@ class CostmapView:
     def blocked_along(self, xy: np.ndarray, slack_cells: int = 0) -> np.ndarray:
         xy = np.atleast_2d(np.asarray(xy, float))
         return self.distance_along(xy) < self.threshold(xy) - slack_cells * self.res
+
+
+def unseen_way(passable: np.ndarray, start_xy: np.ndarray, goal_xy: np.ndarray) -> bool:
+    """Whether the goal cell connects to the start cell through `passable` cells (4-connected)."""
+    from scipy.ndimage import label
+
+    labels, _ = label(passable)
+    here = labels[start_xy[1], start_xy[0]]
+    return bool(here) and labels[goal_xy[1], goal_xy[0]] == here
 
 
 def clearance_grid(view: CostmapView, relief) -> np.ndarray | float:
@@ -312,11 +324,13 @@ class LocalPlanner:
         goal_idx = int(gcell[1] * w + gcell[0]) if view.inside(gcell) else None
         if goal_idx is not None and reach[goal_idx]:
             best = goal_idx                          # go there, however long the way
-        elif goal_idx is not None and not view.unknown[gcell[1], gcell[0]]:
+        elif goal_idx is not None and not unseen_way(free | (view.unknown & ~view.blocked), start, gcell):
             return None, ("blocked", "boxed in: no way to the goal on the costmap")
         else:
-            # The goal is outside the window or not seen yet: the reachable cell nearest to it
-            # (the shorter way on ties), then replan from there as the window moves on.
+            # The goal is outside the window, not seen yet, or cut off only by cells never seen
+            # (the shadow of a person or a pole, one viewpoint's strip of unknown across the way):
+            # the reachable cell nearest to it (the shorter way on ties), then replan from there
+            # as the window moves on and the new viewpoint sees what was hidden.
             centres = view.centre(np.stack(np.unravel_index(np.arange(h * w), (h, w)), axis=1))
             to_go = np.hypot(centres[:, 0] - g[0], centres[:, 1] - g[1])
             score = np.where(reach, dist + GO_WEIGHT * to_go, np.inf)

@@ -101,6 +101,55 @@ def test_boxed_in_holds_with_the_reason():
     assert out.state == "blocked" and "boxed in" in out.reason and out.velocity_mps[:2] == pytest.approx([0, 0])
 
 
+def test_a_way_cut_only_by_a_shadow_goes_to_look_and_then_reaches_the_goal():
+    """The obstacle mission's last leg (issue 18): past a parked car, a person 1.35 m beside it
+    closes the gap, and the person's LiDAR shadow (a strip of never-seen cells) runs from behind
+    them to the window's edge, cutting the way round them off from the goal. That was "boxed in"
+    (the vehicle held for minutes where it stood, seeing the same shadow). Now the planner flies
+    the seen way to where the goal is nearest, the new viewpoint sees into the shadow, and the
+    goal is reached, never nearer the obstacles than the clearance zone allows."""
+    car, person, wall = (1.5, -3.4, 6.0, -1.6), (5.5, -0.25, 6.0, 0.25), (-10.0, -6.5, 10.0, -6.3)
+    walls = [car, person, wall]
+    goal = (8.75, -2.5)
+    grid, origin, res = costmap(walls)
+    o = origin[0]
+    rows = slice(round((-0.2 - o) / res), round((0.2 - o) / res))   # y -0.2..0.2: two planning cells
+    grid[rows, round((7.6 - o) / res):] = -1                   # beyond the person's inflation
+    lp = LocalPlanner(AvoidanceConfig())
+    lp.set_costmap(grid, origin, res, stamp_s=0.0)
+    p = np.array([-3.0, -0.5])
+    track, states = [p.copy()], set()
+    for _ in range(600):
+        if p[0] > 7.6 and p[1] > 0.1:                            # past the person: the shadow is seen
+            lp.set_costmap(*costmap(walls), stamp_s=0.0)
+        if np.hypot(*(p - goal)) < 0.3:
+            break
+        if lp.needs_plan(p, goal):
+            lp.replan(p, goal)
+        err = np.array(goal) - p
+        v = np.array([*(err / np.hypot(*err) * min(2.0, np.hypot(*err))), 0.0])
+        out = lp.adjust(np.array([*p, 1.5]), np.array([*goal, 1.5]), v, now_s=0.0)
+        states.add(out.state)
+        p = p + out.velocity_mps[:2] * 0.1
+        track.append(p.copy())
+    track = np.array(track)
+    assert "blocked" not in states, states
+    assert np.hypot(*(track[-1] - goal)) < 0.3, f"stopped at {track[-1].round(2)}: {out.state} {out.reason}"
+    assert lethal_distance(track, walls) > 1.0                 # the clearance zone, less the slack cells
+
+
+def test_a_goal_walled_off_on_the_costmap_is_boxed_in_although_unknown_cells_are_about():
+    """Unknown cells elsewhere do not make a known wall passable: still boxed in."""
+    walls = [(4.0, -10.0, 4.4, 10.0)]                           # across the whole window
+    g, origin, res = costmap(walls)
+    g[:20, :20] = -1                                           # an unseen corner far from the wall
+    lp = LocalPlanner(AvoidanceConfig())
+    lp.set_costmap(g, origin, res, stamp_s=0.0)
+    lp.replan(np.array([0.0, 0.0]), np.array([8.0, 0.0]))
+    out = lp.adjust(np.array([0, 0, 3.0]), np.array([8, 0, 3.0]), np.array([2.0, 0, 0]), 0.0)
+    assert out.state == "blocked" and "boxed in" in out.reason
+
+
 def test_never_commands_into_a_blocked_cell_even_when_told_to():
     lp = planner([(1.0, -5, 1.2, 5)], goal=(9, 0))        # a long wall 1 m ahead
     out = lp.adjust(np.array([0, 0, 3.0]), np.array([9, 0, 3.0]), np.array([2.0, 0, 0]), 0.0)
