@@ -2,8 +2,8 @@
 from aeroperception.schemas import (
     ArmReply, ArmRequest, BatteryState, Empty, EstimatorStatus, GcsLink, GetMissionReply, GpsPosition, HomePosition,
     Joystick, LoadMissionReply,
-    LoadMissionRequest, MissionCommand, MissionStatus, ParamList, ParamSet, ParamSetReply, Reply, SafetyStatus,
-    SetModeReply, SetModeRequest, VehicleState, VehicleStatus, WaypointReached,
+    LoadMissionRequest, MissionCommand, MissionStatus, ObjectEvent, ParamList, ParamSet, ParamSetReply, Reply,
+    SafetyStatus, SetModeReply, SetModeRequest, TrackedObjectArray, VehicleState, VehicleStatus, WaypointReached,
 )
 from aeroperception.services.runtime import Param
 from aeroperception.services.runtime.params import start_only_but
@@ -19,6 +19,8 @@ INPUTS = {
     "mission/waypoint_reached": WaypointReached,    # MISSION_ITEM_REACHED
     "safety/status": SafetyStatus,                  # SYS_STATUS geofence bits; warnings/errors -> STATUSTEXT
     "fmu/out/vehicle_status": VehicleStatus,        # identity=companion: the flight controller's system id
+    "perception/objects/events": ObjectEvent,       # new / lost object -> STATUSTEXT
+    "perception/objects": TrackedObjectArray,       # confirmed objects -> ADSB_VEHICLE at 1 Hz (map labels)
 }
 OUTPUTS = {
     "gcs/link": GcsLink,                            # on change + 1 Hz: ground station heartbeat up/down

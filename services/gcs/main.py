@@ -21,8 +21,8 @@ from pymavlink.dialects.v20 import common as M
 from aeroperception.schemas import (
     ArmReply, ArmRequest, BatteryState, DiagnosticStatus, Empty, EstimatorStatus, GcsLink, GetMissionReply, GoalReply,
     GoToPositionGoal, GpsPosition, HomePosition, Joystick, LoadMissionReply, LoadMissionRequest, MissionCommand, MissionStatus,
-    ParamList, ParamSet, ParamSetReply, Reply, SafetyStatus, SchemaError, SetModeReply, SetModeRequest, TakeoffGoal,
-    Vector3, VehicleState, VehicleStatus, WaypointReached, parse_mission,
+    ObjectEvent, ParamList, ParamSet, ParamSetReply, Reply, SafetyStatus, SchemaError, SetModeReply, SetModeRequest, TakeoffGoal,
+    TrackedObjectArray, Vector3, VehicleState, VehicleStatus, WaypointReached, parse_mission,
 )
 from aeroperception.services.runtime import CallError, Health, Service, run
 
@@ -37,6 +37,7 @@ from .missions import (
 )
 from .params import ParamTable, decode_param_id, decode_value
 from .presence import GroundStationFilter, LinkVerdict, ListeningClock
+from .objects_relay import ObjectsRelay, event_text
 from .safety_relay import SafetyRelay
 from .telemetry import Scheduler, TelemetryState
 
@@ -125,6 +126,7 @@ class GcsService(Service):
         if self.companion:   # the flight controller sends the vehicle's telemetry itself
             self.sched.periods = {M.MAVLINK_MSG_ID_HEARTBEAT: 1.0}
         self.safety = SafetyRelay()
+        self.objects = ObjectsRelay()
         self.table = ParamTable(p.param_services.split(","))
         self.missions = MissionProtocol(self.link.send, self._load, p.mission_item_timeout_s,
                                         p.mission_retries, p.max_mission_items, log=self.log.warn,
@@ -160,6 +162,8 @@ class GcsService(Service):
         node.subscribe("mission/status", MissionStatus, self._on_mission_status)
         node.subscribe("mission/waypoint_reached", WaypointReached, self._on_reached)
         node.subscribe("safety/status", SafetyStatus, self._on_safety)
+        node.subscribe("perception/objects/events", ObjectEvent, self._on_object_event)
+        node.subscribe("perception/objects", TrackedObjectArray, self._on_objects)
         if self.companion:
             node.subscribe("fmu/out/vehicle_status", VehicleStatus, self._on_vehicle_status)
         self._refresh_params()
@@ -191,6 +195,15 @@ class GcsService(Service):
         self.tel.safety, self.tel.safety_rx_s = msg, time.monotonic()
         for severity, text in self.safety.update(msg):
             self._notify(text, None, severity)
+
+    def _on_object_event(self, msg: ObjectEvent) -> None:
+        said = event_text(msg)
+        if said is not None:
+            self._notify(said[1], None, said[0])
+
+    def _on_objects(self, msg: TrackedObjectArray) -> None:
+        for m in self.objects.contacts(msg, time.monotonic()):
+            self.link.send(m, broadcast=True)
 
     def _on_vehicle_status(self, msg: VehicleStatus) -> None:
         """identity=companion: take the flight controller's system id (we are a component of it)."""
@@ -233,7 +246,7 @@ class GcsService(Service):
         held = msg.message if msg.state == MissionStatus.STATE_HOLDING else None
         if held and held != self._held_reason:
             # why the mission holds (an unreachable waypoint, a failsafe, ...), once per reason
-            self._notify(f"Mission holding: {held}", None, M.MAV_SEVERITY_WARNING)
+            self._notify(f"Mission HOLDING: {held}", None, M.MAV_SEVERITY_WARNING)
         self._held_reason = held
         self.tel.mission = msg
         if msg.mission_id and (msg.mission_id, msg.total_waypoints) != self.synced:

@@ -20,6 +20,7 @@ ESSENTIALS = (
     "state/visual_odometry",
     "state/vio_health",
     "perception/detections",
+    "perception/objects",               # every live track with each detection frame (events derive from it)
     "perception/health",
     "mission/status",
     "mission/active_goal",

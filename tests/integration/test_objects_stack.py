@@ -1,14 +1,17 @@
 """The objects service on a real stack (`aero up --sensors camera`: sim rendering the stereo pair,
-fmu, the bundled detector, objects): a person and a car standing a few metres ahead of the
+fmu, the bundled detector, objects, gcs): a person and a car standing a few metres ahead of the
 landed vehicle become confirmed tracks of their class within 1 m of where the world put them,
-each once, with lat/lon about the FC's home; diagnostics/objects reports the per-frame cost."""
+each once, with lat/lon about the FC's home; diagnostics/objects reports the per-frame cost; a
+ground station on UDP hears each as a STATUSTEXT and sees it as an ADS-B contact at that lat/lon."""
 from __future__ import annotations
 
 import socket
+import threading
 import time
 
 import numpy as np
 import pytest
+from pymavlink.dialects.v20 import common as M
 
 from aerotest import wait_for_message, wait_until
 
@@ -44,14 +47,58 @@ def free_udp_port() -> int:
         return s.getsockname()[1]
 
 
+class GroundStation:
+    """A UDP port gcs sends to: STATUSTEXTs and ADSB_VEHICLEs as they arrive (bounded by stop())."""
+
+    def __init__(self):
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.settimeout(0.2)
+        self.port = self.sock.getsockname()[1]
+        self.texts: list[str] = []
+        self.contacts: dict[str, object] = {}
+        self.running = True
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _run(self):
+        mav = M.MAVLink(None)
+        mav.robust_parsing = True
+        while self.running:
+            try:
+                data = self.sock.recv(65535)
+            except OSError:
+                continue
+            for m in mav.parse_buffer(bytearray(data)) or []:
+                if m.get_type() == "STATUSTEXT":
+                    self.texts.append(m.text)
+                elif m.get_type() == "ADSB_VEHICLE":
+                    self.contacts[m.callsign.rstrip("\x00")] = m
+
+    def stop(self):
+        self.running = False
+        self.thread.join(2.0)
+        self.sock.close()
+
+
 def test_targets_in_view_become_confirmed_tracks_at_their_true_positions(stack, tmp_path):
     path = tmp_path / "near_targets.yaml"
     path.write_text(SCENARIO)
     truth = {b.class_name: b.center_enu_m for b in get_scene(load_scenario(str(path))).target_boxes}
-    fcu, sim_bind = free_udp_port(), free_udp_port()
-    st = stack(["sim", "fmu", "detector", "objects"], extra_args=[
-        "--scenario", str(path), "--sensors", "camera", "--fcu-url", f"udpin:127.0.0.1:{fcu}",
-        "--arg", f"sim:--target=127.0.0.1:{fcu}", "--arg", f"sim:--bind=127.0.0.1:{sim_bind}"], timeout_s=60)
+    fcu, sim_bind, gcs_port = free_udp_port(), free_udp_port(), free_udp_port()
+    gs = GroundStation()
+    try:
+        st = stack(["sim", "fmu", "detector", "objects", "gcs"], extra_args=[
+            "--scenario", str(path), "--sensors", "camera", "--fcu-url", f"udpin:127.0.0.1:{fcu}",
+            "--arg", f"sim:--target=127.0.0.1:{fcu}", "--arg", f"sim:--bind=127.0.0.1:{sim_bind}",
+            "--arg", f"gcs:--local-port={gcs_port}", "--arg", f"gcs:--remote-port={gs.port}",
+            "--arg", "gcs:--bind-ip=127.0.0.1"], timeout_s=60)
+        check_objects(st, gs, truth)
+    finally:
+        gs.stop()
+
+
+def check_objects(st, gs: GroundStation, truth: dict) -> None:
     events: list[ObjectEvent] = []                        # list.append: safe from zenoh's thread
     sub = st.session.declare_subscriber("perception/objects/events",
                                         lambda s: events.append(decode(s.payload.to_bytes(), ObjectEvent)))
@@ -82,4 +129,10 @@ def test_targets_in_view_become_confirmed_tracks_at_their_true_positions(stack, 
         assert o.latitude_deg is not None
         north, east = MapProjection(home.latitude_deg, home.longitude_deg).project(o.latitude_deg, o.longitude_deg)
         assert abs(east + home.position_m.x - o.position_m.x) < 0.01 and abs(north + home.position_m.y - o.position_m.y) < 0.01
+        # The ground station: told once, and shown on the map where the track is.
+        wait_until(lambda: f"{cls.upper()}{o.track_id}" in gs.contacts, 5, f"ADSB_VEHICLE {cls.upper()}{o.track_id}")
+        told = [t for t in list(gs.texts) if t.startswith(f"Object: {cls} #{o.track_id} at ")]
+        assert len(told) == 1, list(gs.texts)
+        c = gs.contacts[f"{cls.upper()}{o.track_id}"]
+        assert abs(c.lat * 1e-7 - o.latitude_deg) < 2e-6 and abs(c.lon * 1e-7 - o.longitude_deg) < 3e-6
     assert float(diag.values["frame_cpu_ms_p50"]) < 5.0, dict(diag.values)

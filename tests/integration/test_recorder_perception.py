@@ -119,7 +119,7 @@ class Odoms:
 def recording(stack_module, tmp_path_factory):
     base = tmp_path_factory.mktemp("recperc")
     fcu, sim_bind = free_udp_port(), free_udp_port()
-    st = stack_module(["sim", "fmu", "planner", "mission", "diagnostics", "lidar", "perception", "detector"],
+    st = stack_module(["sim", "fmu", "planner", "mission", "diagnostics", "lidar", "perception", "detector", "objects"],
                       extra_args=["--scenario", "village", "--fcu-url", f"udpin:127.0.0.1:{fcu}",
                                   "--arg", f"sim:--target=127.0.0.1:{fcu}",
                                   "--arg", f"sim:--bind=127.0.0.1:{sim_bind}"],
