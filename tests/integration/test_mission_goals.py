@@ -8,6 +8,8 @@ sim's truth (sim/truth/state) and the real state file:
 - issue 18 #4: the takeoff / land / goto actions' fields are honoured, judged by the truth:
   climb and descent rate 0.5 vs 1.5 m/s give measurably different vertical speeds, a goto's
   velocity_mps caps the horizontal speed, a land at target_position_m lands there.
+- issue 18 #13 (the ground-station side): why the mission holds reaches ground stations as a
+  STATUSTEXT, once per reason.
 - issue 18 #5: MAVSDK's set_current_mission_item while the mission flies to item 1 makes the
   vehicle fly to item 3 next (truth: items 1 and 2 are never approached), as PX4 jumps.
 """
@@ -15,6 +17,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import time
 
 import numpy as np
 import pytest
@@ -180,3 +183,36 @@ def test_takeoff_land_goto_fields_are_honoured_by_truth(gstack):
     assert descent[0.5] < 0.65 and descent[1.5] > 1.1, descent
     assert 0.45 < goto_speed < 0.75, goto_speed
     assert miss < 0.5 and not truth(st).armed, f"landed at {landed_at}, {miss:.2f} m from {target}"
+
+
+def test_why_the_mission_holds_reaches_ground_stations_once(zenoh_router, make_node, tmp_path):
+    from pymavlink.dialects.v20 import common as M
+    from test_gcs_ground_stations import GcsProcess, Station, free_udp_port
+
+    reason = ("holding: waypoint 2/3 (5.0, 13.0, 1.5) unreachable for 5 s (planner unreachable: goal "
+              "(5.0, 13.0) is inside an obstacle); START retries, SET_CURRENT skips, LAND/RTL")
+    pub = make_node("test-mission").publisher("mission/status", MissionStatus)
+    port = free_udp_port()
+    gcs = GcsProcess(zenoh_router, tmp_path / "gcs.log", port, free_udp_port()).start()
+    station = Station(port)
+    station.beating.set()
+    try:
+        wait_until(lambda: station.messages("HEARTBEAT"), 10, "gcs heartbeats")
+        t = time.monotonic()
+        for state, message in [("EXECUTING", "mission started")] + [("HOLDING", reason)] * 8:
+            pub.publish(MissionStatus(mission_id="face", state=state, active_waypoint=1, total_waypoints=3,
+                                      message=message))
+            time.sleep(0.25)
+
+        def texts() -> list[str]:
+            chunks: dict[int, list] = {}
+            for m in station.messages("STATUSTEXT", since=t):
+                chunks.setdefault(m.id, []).append(m)
+            return ["".join(c.text for c in sorted(cs, key=lambda c: c.chunk_seq)) for cs in chunks.values()
+                    if cs[0].severity == M.MAV_SEVERITY_WARNING]
+        wait_until(lambda: any(reason in x for x in texts()), 5, "the STATUSTEXT with the reason")
+        time.sleep(0.5)
+        assert texts() == [f"Mission HOLDING: {reason}"], texts()       # once, not at every 2 Hz status
+    finally:
+        gcs.stop()
+        station.close()
