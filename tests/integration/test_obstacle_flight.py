@@ -3,7 +3,8 @@ legs pass through a street-light pole, a building corner and a parked car comple
 true track (sim/truth/state) keeps >= 1 m from every obstacle surface of the scenario geometry.
 The straight legs are proven to collide first (their clearance from the same geometry is below
 the vehicle's radius), so obstacle handling is what keeps the vehicle clear. A goal inside a
-building is reported unreachable by the planner and the vehicle holds.
+building is reported unreachable by the planner and the vehicle holds. On the same stack, a GoTo in
+the open pins planner/status's progress, times, current setpoint and tracking errors against truth.
 
 Real processes: sim (IMU + LiDAR rendering, no cameras), lidar, planner, fmu, mission over Zenoh
 and MAVLink; ground truth from the simulator only for judging.
