@@ -248,6 +248,8 @@ def test_unsafe_setpoints_never_reach_the_fc_fmu_holds_and_counts_them(fst):
         "100 km away": TrajectorySetpoint(position_valid=True, position_m=Vector3(x=1e5, z=3.0)),
         "10 km up": TrajectorySetpoint(position_valid=True, position_m=Vector3(z=1e4)),
         "NaN yaw": TrajectorySetpoint(velocity_valid=True, yaw_valid=True, yaw_rad=math.nan),
+        "NaN acceleration": TrajectorySetpoint(velocity_valid=True, acceleration_valid=True,
+                                               acceleration_mps2=Vector3(y=math.nan)),
     }
     t0 = time.monotonic()
     for sp in bad.values():

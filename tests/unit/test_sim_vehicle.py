@@ -673,9 +673,9 @@ def test_setpoint_truth_counts_non_finite_used_fields_and_the_fastest_velocity(m
                                       M.POSITION_TARGET_TYPEMASK_Z_IGNORE))
     nan = float("nan")
 
-    def sp(mask, pos, vel):
+    def sp(mask, pos, vel, acc=(0, 0, 0)):
         return wire(GCS.set_position_target_local_ned_encode(0, 1, 1, M.MAV_FRAME_LOCAL_NED, mask, *pos, *vel,
-                                                              0, 0, 0, 0, 0))
+                                                              *acc, 0, 0))
     mod.handle(sp(ignore_pos, (nan, nan, nan), (3.0, 4.0, 0.0)))      # NaN only where ignored: fine
     assert mod.diagnostics()["setpoints_nonfinite"] == 0
     assert mod.diagnostics()["setpoint_max_speed_mps"] == pytest.approx(5.0)
@@ -684,6 +684,9 @@ def test_setpoint_truth_counts_non_finite_used_fields_and_the_fastest_velocity(m
     mod.handle(sp(ignore_pos, (0, 0, 0), (1000.0, 0.0, 0.0)))
     d = mod.diagnostics()
     assert d["setpoints_nonfinite"] == 2 and d["setpoint_max_speed_mps"] == pytest.approx(1000.0)
+    mod.handle(sp(ignore_pos | IGNORE_ACC, (0, 0, 0), (0, 0, 0), (nan, 0, 0)))   # ignored acceleration: fine
+    mod.handle(sp(ignore_pos, (0, 0, 0), (0, 0, 0), (0, nan, 0)))                # used: counted
+    assert mod.diagnostics()["setpoints_nonfinite"] == 3
 
 
 def test_telemetry_is_ned(mod):

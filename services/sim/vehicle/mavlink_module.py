@@ -383,9 +383,10 @@ class MavlinkModule:
 
     def _record_setpoint_truth(self, m) -> None:
         """What reached the FC, for tests of the sender: used (not type_mask-ignored) fields that
-        are not finite, and the fastest velocity setpoint."""
+        are not finite (acceleration included), and the fastest velocity setpoint."""
         tm = m.type_mask
-        used = [v for v, bit in zip((m.x, m.y, m.z, m.vx, m.vy, m.vz), _IGNORE_POS + _IGNORE_VEL) if not tm & bit]
+        used = [v for v, bit in zip((m.x, m.y, m.z, m.vx, m.vy, m.vz, m.afx, m.afy, m.afz),
+                                    _IGNORE_POS + _IGNORE_VEL + _IGNORE_ACC) if not tm & bit]
         if not tm & M.POSITION_TARGET_TYPEMASK_YAW_IGNORE:
             used.append(m.yaw)
         if not tm & M.POSITION_TARGET_TYPEMASK_YAW_RATE_IGNORE:
