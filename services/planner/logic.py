@@ -123,19 +123,26 @@ class WaypointPlanner:
         if reached:
             self._reached_sent = True
             self.leg.arrived_s = now_s
-        speed = min(self.max_velocity_mps, distance * self.kp)
-        if self.goal.max_speed_mps > 0:
-            speed = min(speed, self.goal.max_speed_mps)
+        speed = min(self.speed_cap_mps(error), distance * self.kp)
         velocity = error / distance * speed if distance > 1e-6 else np.zeros(3)
-        vz_cap = self.goal.max_vertical_speed_mps
-        if vz_cap > 0 and abs(velocity[2]) > vz_cap:
-            velocity *= vz_cap / abs(velocity[2])   # the same straight line, slower
         yaw = self.goal.yaw_rad if self.goal.yaw_rad is not None else yaw_rad
         self.status = TrajectoryStatus.STATUS_COMPLETED if self._reached_sent else TrajectoryStatus.STATUS_EXECUTING
         sp = TrajectorySetpoint(velocity_valid=True, yaw_valid=True,
                                 position_m=Vector3.from_array(self.goal.position_m),
                                 velocity_mps=Vector3.from_array(velocity), yaw_rad=yaw)
         return StepResult(sp, distance, reached)
+
+    def speed_cap_mps(self, error_m: np.ndarray) -> float:
+        """Speed cap along the straight line to the goal: max_velocity_mps, the goal's own cap,
+        and its vertical cap (climb / descent rate) as a cap on the whole line (the same line,
+        slower)."""
+        cap = self.max_velocity_mps
+        if self.goal.max_speed_mps > 0:
+            cap = min(cap, self.goal.max_speed_mps)
+        climb = abs(float(error_m[2]))
+        if self.goal.max_vertical_speed_mps > 0 and climb > 1e-9:
+            cap = min(cap, self.goal.max_vertical_speed_mps * float(np.linalg.norm(error_m)) / climb)
+        return cap
 
     def progress(self, position_m: np.ndarray, now_s: float) -> Progress:
         """Progress of the active goal: the share of the leg flown to the acceptance radius
@@ -146,11 +153,12 @@ class WaypointPlanner:
             return Progress()
         if leg.arrived_s is not None:
             return Progress(100.0, leg.arrived_s - leg.started_s, 0.0)
-        left = float(np.linalg.norm(goal.position_m - position_m))
+        error = goal.position_m - position_m
+        left = float(np.linalg.norm(error))
         span = float(np.linalg.norm(goal.position_m - leg.start_m)) - self.acceptance_radius_m
         done = 1.0 if span <= 0 else (span - (left - self.acceptance_radius_m)) / span
         return Progress(100.0 * min(1.0, max(0.0, done)), now_s - leg.started_s,
-                        time_to_go_s(left, self.max_velocity_mps, self.kp, self.acceptance_radius_m))
+                        time_to_go_s(left, self.speed_cap_mps(error), self.kp, self.acceptance_radius_m))
 
 
 def tracking_errors(setpoint: TrajectorySetpoint, planner: WaypointPlanner, position_m: np.ndarray,

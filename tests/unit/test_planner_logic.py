@@ -233,3 +233,13 @@ def test_a_goals_own_speed_caps_limit_the_command():
     np.testing.assert_allclose(v, [0.5, 0.0, -0.5])           # direction kept, vertical part capped
     p.set_goal(Goal(np.array([0.0, 0.0, 5.0]), None, 4))
     np.testing.assert_allclose(p.step(np.zeros(3), 0.0).setpoint.velocity_mps.to_array(), [0.0, 0.0, 2.0])
+
+
+def test_remaining_time_is_at_the_goals_own_speed_caps():
+    planner = WaypointPlanner(max_velocity_mps=2.0, kp=0.8, acceptance_radius_m=0.5)
+    planner.set_goal(Goal(np.array([10.0, 0.0, 5.0]), None, max_speed_mps=0.6))
+    planner.step(np.array([0.0, 0.0, 5.0]), 0.0, now_s=0.0)
+    assert planner.progress(np.array([0.0, 0.0, 5.0]), 0.0).remaining_s == pytest.approx(time_to_go_s(10.0, 0.6, 0.8, 0.5))
+    planner.set_goal(Goal(np.array([0.0, 0.0, 1.0]), None, index=2, max_vertical_speed_mps=0.5))   # 4 m down
+    planner.step(np.array([0.0, 0.0, 5.0]), 0.0, now_s=1.0)
+    assert planner.progress(np.array([0.0, 0.0, 5.0]), 1.0).remaining_s == pytest.approx(time_to_go_s(4.0, 0.5, 0.8, 0.5))
