@@ -46,8 +46,9 @@ class TrackedObjectArray(Message, kw_only=True):
 
 @schema("ObjectEvent", 1)
 class ObjectEvent(Message, kw_only=True):
-    """perception/objects/events: a track became confirmed (a new object) or was lost (unseen
-    for the track timeout); `object` is the track as it was at that moment."""
+    """perception/objects/events: a track became confirmed (a new object), was lost (unseen for
+    the track timeout) or was reacquired (a lost object seen again, same id); `object` is the
+    track as it was at that moment."""
 
     header: Header = msgspec.field(default_factory=Header)
     event: str = ""
@@ -55,3 +56,4 @@ class ObjectEvent(Message, kw_only=True):
 
     CONFIRMED = "confirmed"
     LOST = "lost"
+    REACQUIRED = "reacquired"

@@ -1,4 +1,4 @@
-"""`aero eval lidar|vio|detector`: accuracy of the perception services against truth (simulator truth or
+"""`aero eval lidar|vio|detector|objects`: accuracy of the perception services against truth (simulator truth or
 real recordings), printed as a table and written as JSON (+ PNG for vio)."""
 from __future__ import annotations
 
@@ -60,6 +60,20 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--json", default=None, metavar="FILE", help="write the figures as JSON")
     add_session_arguments(p)
     p.set_defaults(func=_detector)
+    _register_objects(esub)
+
+
+def _register_objects(esub) -> None:
+    p = esub.add_parser("objects", help="tracked objects vs the scenario's targets: found / missed / duplicated, "
+                                        "false tracks, position error, ID switches (live)")
+    p.add_argument("--live", action="store_true", required=True, help="a running stack's perception/objects")
+    p.add_argument("--scenario", default="village", help="the running sim's scenario (name or YAML path)")
+    p.add_argument("--duration", type=float, default=60.0, help="seconds to score (at most, with --until-landed)")
+    p.add_argument("--until-landed", action="store_true",
+                   help="stop once the vehicle (sim truth) has flown and is down and disarmed again")
+    p.add_argument("--json", default=None, metavar="FILE", help="write the figures as JSON")
+    add_session_arguments(p)
+    p.set_defaults(func=lambda a: importlib.import_module("aeroperception.tools.eval_objects").run_live(a))
 
 
 def _detector(a) -> int:

@@ -170,3 +170,13 @@ class FlightWatch:
             self.flew.set()
         elif self.flew.is_set() and not armed and z_m < 0.2:
             self.down.set()
+
+    def on_sample(self, sample) -> None:
+        """Subscriber callback for sim/truth/state (payloads that do not decode are skipped)."""
+        from aeroperception.schemas import VehicleState, decode
+
+        try:
+            m = decode(sample.payload.to_bytes(), VehicleState)
+        except SchemaError:
+            return
+        self.update(m.armed, m.position_m.z)

@@ -154,7 +154,7 @@ def collect_live(session, duration_s: float, prefix: str, detections: bool, max_
     calling on_pair(other, truth) in this thread for each stamp-paired frame (at most one per
     period_s, max_frames in all). Pairs wait in a short newest-wins queue so a slow evaluation
     never holds frames in memory; those it drops are counted."""
-    from aeroperception.schemas import (Detection2DArray, DiagnosticStatus, Image, SchemaError, VehicleState,
+    from aeroperception.schemas import (Detection2DArray, DiagnosticStatus, Image, SchemaError,
                                         decode)
 
     lock = threading.Lock()
@@ -190,13 +190,6 @@ def collect_live(session, duration_s: float, prefix: str, detections: bool, max_
         with lock:
             win.health[min(len(win.health), 1):] = [dict(m.values)]     # [first, latest]
 
-    def on_state(sample) -> None:
-        try:
-            m = decode(sample.payload.to_bytes(), VehicleState)
-        except SchemaError:
-            return
-        watch.update(m.armed, m.position_m.z)
-
     def on_count(sample) -> None:
         with lock:
             win.camera += 1
@@ -209,7 +202,7 @@ def collect_live(session, duration_s: float, prefix: str, detections: bool, max_
     if detections:
         subs.append(session.declare_subscriber(prefix + "sensors/camera/left/image", on_count))
     if until_landed:
-        subs.append(session.declare_subscriber(prefix + "sim/truth/state", on_state))
+        subs.append(session.declare_subscriber(prefix + "sim/truth/state", watch.on_sample))
     t0 = time.monotonic()
     try:
         end = t0 + duration_s

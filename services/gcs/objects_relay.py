@@ -1,5 +1,5 @@
-"""Tracked objects -> ground stations (no Zenoh): a STATUSTEXT for each new confirmed object and
-each lost one, and every confirmed object as an ADSB_VEHICLE so QGroundControl and Mission Planner
+"""Tracked objects -> ground stations (no Zenoh): a STATUSTEXT for each new confirmed object, each
+lost one and each seen again, and every confirmed object as an ADSB_VEHICLE so QGroundControl and Mission Planner
 draw it on their map under its label ("PERSON7").
 
 Why ADSB_VEHICLE: it is the one common MAVLink message carrying a position that ground stations
@@ -42,6 +42,8 @@ def event_text(e: ObjectEvent) -> tuple[int, str] | None:
         return M.MAV_SEVERITY_NOTICE, f"{PREFIX}{label(o)} at {where(o)} ({o.best_score:.2f})"
     if e.event == ObjectEvent.LOST:
         return M.MAV_SEVERITY_INFO, f"{PREFIX}{label(o)} lost at {where(o)}"
+    if e.event == ObjectEvent.REACQUIRED:
+        return M.MAV_SEVERITY_INFO, f"{PREFIX}{label(o)} seen again at {where(o)}"
     return None
 
 

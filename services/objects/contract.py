@@ -20,7 +20,7 @@ INPUTS = {
 }
 OUTPUTS = {
     "perception/objects": TrackedObjectArray,             # <= 10 Hz: with each detection frame, every live track (the image's stamp)
-    "perception/objects/events": ObjectEvent,             # event: a track confirmed (new object) or lost
+    "perception/objects/events": ObjectEvent,             # event: a track confirmed (new object), lost or reacquired
 }
 # Typical sizes (length, width, height; m) of what the detector reports. The ground path aims at
 # an object's mid-height; stereo sees its near face, the centre lies half a footprint behind it.
@@ -47,8 +47,11 @@ PARAMS = [
     Param("min_score", 0.1, "", 0.0, 1.0, description="detections below are ignored (ByteTrack's low threshold)"),
     Param("high_score", 0.5, "", 0.0, 1.0, description="only detections at or above start tracks; lower ones extend them"),
     Param("confirm_hits", 3, "", 1, 100, description="a track is confirmed (event) after this many detections"),
-    Param("lost_timeout_s", 3.0, "s", 0.1, 600.0, description="a confirmed track unseen this long is lost (event) and deleted"),
-    Param("tentative_timeout_s", 0.5, "s", 0.05, 60.0, description="an unconfirmed track unseen this long is deleted"),
+    Param("lost_timeout_s", 3.0, "s", 0.1, 600.0, description="a confirmed track unseen this long is lost (event)"),
+    Param("forget_s", 600.0, "s", 0.0, 86400.0,
+          description="a lost track is remembered this long: seen again within gate_distance_m it is reacquired (same id, event)"),
+    Param("tentative_timeout_s", 1.0, "s", 0.05, 60.0,
+          description="an unconfirmed track unseen this long is deleted (longer than the detection period)"),
     Param("gate_distance_m", 3.0, "m", 0.1, 50.0, description="a detection farther than this from a track never joins it"),
     Param("accel_sigma_mps2", 0.5, "m/s^2", 0.0, 20.0, description="constant-velocity model's process noise"),
 ]

@@ -29,7 +29,7 @@ from .tracker import Observation, Track, Tracker, TrackerConfig
 def tracker_config(p) -> TrackerConfig:
     return TrackerConfig(confirm_hits=p.confirm_hits, lost_timeout_s=p.lost_timeout_s,
                          tentative_timeout_s=p.tentative_timeout_s, high_score=p.high_score, low_score=p.min_score,
-                         gate_distance_m=p.gate_distance_m, accel_noise_mps2=p.accel_sigma_mps2)
+                         gate_distance_m=p.gate_distance_m, accel_noise_mps2=p.accel_sigma_mps2, forget_s=p.forget_s)
 
 
 def noise(p) -> Noise:
@@ -91,6 +91,7 @@ class ObjectsPipeline:
         self.dropped = Counter()               # detections (or frames) not placed, by reason
         self.placed = Counter()                # detections placed, by method
         self.last_stamp_ns = 0
+        self.last_frame_mono_s = 0.0           # when the frame of last_stamp_ns was placed (monotonic)
 
     # ------------------------------------------------------------ inputs besides detections
 
@@ -131,13 +132,18 @@ class ObjectsPipeline:
         if pose is None:
             self.dropped["frame_no_pose"] += 1
             return None
-        self.last_stamp_ns = stamp
+        self.last_stamp_ns, self.last_frame_mono_s = stamp, time.monotonic()
         obs = self._observations(dets, pose)
         ev = self.tracker.update(stamp, obs)
         return self._result(stamp, ev, t0)
 
-    def expire(self, stamp_ns: int) -> list[ObjectEvent]:
-        """Lost events for tracks unseen for their timeout while no detection frame came."""
+    def expire(self, now_mono_s: float) -> list[ObjectEvent]:
+        """Lost events for tracks unseen for their timeout while no detection frame came. Time runs
+        on from the last frame's stamp (the image clock: sim time lags the wall clock when the sim
+        runs slower than real time, and a wall-clock deadline would drop live tracks)."""
+        if not self.last_stamp_ns:
+            return []
+        stamp_ns = self.last_stamp_ns + int((now_mono_s - self.last_frame_mono_s) * 1e9)
         ev = self.tracker.expire(stamp_ns)
         return [self._event(ObjectEvent.LOST, t, stamp_ns) for t in ev.lost]
 
@@ -193,5 +199,6 @@ class ObjectsPipeline:
         objs = TrackedObjectArray(header=Header(stamp_ns=stamp, frame_id="map"),
                                   objects=[self.tracked_object(t) for t in self.tracker.tracks])
         events = ([self._event(ObjectEvent.CONFIRMED, t, stamp) for t in ev.confirmed]
+                  + [self._event(ObjectEvent.REACQUIRED, t, stamp) for t in ev.reacquired]
                   + [self._event(ObjectEvent.LOST, t, stamp) for t in ev.lost])
         return FrameResult(objs, events, (time.perf_counter() - t0[0]) * 1e3, (time.thread_time() - t0[1]) * 1e3)

@@ -8,6 +8,7 @@ stamp, calibration, home) under the node lock, which the worker takes while it p
 """
 from __future__ import annotations
 
+import time
 from collections import deque
 
 import numpy as np
@@ -34,7 +35,7 @@ class ObjectsService(Service):
         self.pipeline = ObjectsPipeline(self.params)
         self.frame_ms: deque[tuple[float, float]] = deque(maxlen=100)    # (wall, CPU) per frame
         self.received = 0
-        self.events_sent = {ObjectEvent.CONFIRMED: 0, ObjectEvent.LOST: 0}
+        self.events_sent = {ObjectEvent.CONFIRMED: 0, ObjectEvent.LOST: 0, ObjectEvent.REACQUIRED: 0}
         self.pub_objects = node.publisher("perception/objects", TrackedObjectArray)
         self.pub_events = node.publisher("perception/objects/events", ObjectEvent)
         self.worker = LatestWorker(self._process, "objects-frame", on_error=self._on_error)
@@ -71,7 +72,7 @@ class ObjectsService(Service):
         self._send(result.events)
 
     def _expire(self) -> None:
-        self._send(self.pipeline.expire(self.node.now_ns()))
+        self._send(self.pipeline.expire(time.monotonic()))         # the timer holds the node lock
 
     def _send(self, events: list[ObjectEvent]) -> None:
         for e in events:
@@ -89,7 +90,7 @@ class ObjectsService(Service):
             "frames_received": self.received, "frames_processed": self.worker.processed,
             "frames_dropped_busy": self.worker.dropped,
             "tracks": len(tracks), "tracks_confirmed": sum(t.confirmed for t in tracks),
-            "events_confirmed": self.events_sent[ObjectEvent.CONFIRMED], "events_lost": self.events_sent[ObjectEvent.LOST],
+            **{f"events_{k}": n for k, n in self.events_sent.items()}, "tracks_lost_remembered": len(pl.tracker.lost),
             **{f"dropped[{k}]": n for k, n in pl.dropped.items()},
             **{f"placed[{k}]": n for k, n in pl.placed.items()},
             "home_known": pl.home is not None, "stereo_baseline_m": round(pl.camera.baseline_m, 3) if pl.camera else 0.0,

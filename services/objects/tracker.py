@@ -32,6 +32,7 @@ class TrackerConfig:
     gate_distance_m: float = 3.0
     accel_noise_mps2: float = 0.5       # constant-velocity model: white acceleration, 1 sigma
     initial_speed_mps: float = 2.0      # 1 sigma of a new track's unknown velocity
+    forget_s: float = 600.0             # a lost track is remembered this long: seen again, it is reacquired
 
 
 @dataclass
@@ -64,6 +65,7 @@ class Track:
 class Events:
     confirmed: list[Track] = field(default_factory=list)
     lost: list[Track] = field(default_factory=list)
+    reacquired: list[Track] = field(default_factory=list)
 
 
 class Tracker:
@@ -71,6 +73,7 @@ class Tracker:
 
     def __init__(self, config: TrackerConfig):
         self.tracks: list[Track] = []
+        self.lost: list[Track] = []     # confirmed tracks unseen for lost_timeout_s, kept for forget_s
         self.next_id = 1
         self.configure(config)
 
@@ -147,10 +150,31 @@ class Tracker:
         pairs_low, _, _ = self._match(remaining, low)
         for i, j in pairs_low:
             self._hit(remaining[i], low[j], stamp_ns, ev)
-        for j in new:
-            self._start(high[j], stamp_ns, ev)
+        new = self._reacquire([high[j] for j in new], stamp_ns, ev)
+        for o in new:
+            self._start(o, stamp_ns, ev)
         self._expire(stamp_ns, ev)
         return ev
+
+    def _reacquire(self, obs: list[Observation], stamp_ns: int, ev: Events) -> list[Observation]:
+        """Match what would start new tracks against lost ones first: an object the vehicle comes
+        back to (the next leg of a search) keeps its track id instead of becoming a duplicate.
+        Lost tracks stand still (velocity zeroed when lost); their covariance grows with the time
+        unseen, so the distance gate decides. Returns the observations left to start tracks."""
+        self._forget(stamp_ns)
+        if not self.lost or not obs:
+            return obs
+        for t in self.lost:
+            self._predict(t, stamp_ns)
+        pairs, _, rest = self._match(self.lost, obs)
+        for i, j in pairs:
+            t = self.lost[i]
+            self.tracks.append(t)
+            self._hit(t, obs[j], stamp_ns, ev)
+            ev.reacquired.append(t)
+        revived = {id(self.lost[i]) for i, _ in pairs}
+        self.lost = [t for t in self.lost if id(t) not in revived]
+        return [obs[j] for j in rest]
 
     def expire(self, stamp_ns: int) -> Events:
         """Delete tracks unseen for their timeout at `stamp_ns` (also while no frame comes)."""
@@ -186,8 +210,14 @@ class Tracker:
             unseen_s = (stamp_ns - t.last_seen_ns) * 1e-9
             if t.confirmed and unseen_s > self.config.lost_timeout_s:
                 ev.lost.append(t)
+                t.x[3:] = 0.0
+                self.lost.append(t)
             elif not t.confirmed and unseen_s > self.config.tentative_timeout_s:
                 pass                            # never confirmed: dropped without an event
             else:
                 keep.append(t)
         self.tracks = keep
+        self._forget(stamp_ns)
+
+    def _forget(self, stamp_ns: int) -> None:
+        self.lost = [t for t in self.lost if (stamp_ns - t.last_seen_ns) * 1e-9 <= self.config.forget_s]

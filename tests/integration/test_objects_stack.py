@@ -22,7 +22,7 @@ from aeroperception.services.mavlink.geo import MapProjection
 from aeroperception.services.sim.world.scenario import load_scenario
 from aeroperception.services.sim.world.scene import get_scene
 
-pytestmark = pytest.mark.timeout(120)
+pytestmark = pytest.mark.timeout(180)
 
 SCENARIO = """\
 name: near_targets
@@ -94,8 +94,18 @@ def test_targets_in_view_become_confirmed_tracks_at_their_true_positions(stack, 
             "--arg", f"gcs:--local-port={gcs_port}", "--arg", f"gcs:--remote-port={gs.port}",
             "--arg", "gcs:--bind-ip=127.0.0.1"], timeout_s=60)
         check_objects(st, gs, truth)
+        check_eval(st, path)
     finally:
         gs.stop()
+
+
+def check_eval(st, scenario) -> None:
+    """`aero eval objects --live` on the same stack: both targets found once, nothing false."""
+    r = st.aero("eval", "objects", "--live", "--scenario", str(scenario), "--duration", "2", timeout_s=60)
+    assert r.returncode == 0, r.stderr
+    rows = {line.split()[0]: line.split() for line in r.stdout.splitlines() if line.startswith(("person", "car"))}
+    # class targets found missed dup false >2s ...
+    assert rows["person"][1:6] == ["1", "1", "0", "0", "0"] and rows["car"][1:6] == ["1", "1", "0", "0", "0"], r.stdout
 
 
 def check_objects(st, gs: GroundStation, truth: dict) -> None:

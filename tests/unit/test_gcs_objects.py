@@ -23,6 +23,8 @@ def test_new_and_lost_objects_are_told_with_their_position():
     assert sev == M.MAV_SEVERITY_NOTICE and text == "Object: person #7 at 47.398123, 8.545732 (0.91)"
     sev, text = event_text(ObjectEvent(event=ObjectEvent.LOST, object=person(geo=False)))
     assert sev == M.MAV_SEVERITY_INFO and text == "Object: person #7 lost at E 12.3 N 4.1 m"
+    assert event_text(ObjectEvent(event=ObjectEvent.REACQUIRED, object=person()))[1] == \
+        "Object: person #7 seen again at 47.398123, 8.545732"
     assert event_text(ObjectEvent(event="renamed", object=person())) is None
     # Over MAVLink: fits one STATUSTEXT (50 characters) or goes out in chunks that reassemble.
     msgs = statustext(M.MAV_SEVERITY_NOTICE, text, 3)

@@ -75,6 +75,21 @@ def test_a_person_becomes_a_confirmed_track_at_its_position_with_lat_lon_about_h
     assert pl.placed == {"ground": 4}
 
 
+def test_tracks_are_lost_on_the_image_clock_when_frames_stop():
+    """Sim time may lag the wall clock (a sim slower than real time): the timeout runs on from the
+    last frame's stamp, so a track is lost lost_timeout_s after its last frame arrived, not sooner."""
+    pl = pipeline(stereo=False, confirm_hits=2, lost_timeout_s=3.0)
+    truth = np.array([20.0, 3.0, 0.875])
+    feed_states(pl, T0 + 300 * MS)
+    for k in range(3):
+        pl.process(frame(T0 + k * 100 * MS, [person_box(truth)]))
+    placed_at = pl.last_frame_mono_s
+    assert pl.expire(placed_at + 2.5) == []
+    lost = pl.expire(placed_at + 3.2)
+    assert [(e.event, e.object.track_id) for e in lost] == [(ObjectEvent.LOST, 1)] and pl.tracker.tracks == []
+    assert ObjectsPipeline(pl.params).expire(1e9) == []                  # no frame yet: nothing to lose
+
+
 def test_frames_without_a_pose_camera_info_or_in_order_are_counted_not_placed():
     pl = pipeline()
     assert pl.process(frame(T0, [(320, 300, 10, 30)])) is None

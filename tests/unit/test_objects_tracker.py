@@ -95,3 +95,16 @@ def test_two_people_crossing_keep_their_ids_by_their_velocity():
             seen.setdefault(tk.track_id, []).append(float(tk.x[0]))
     assert sorted(seen) == [1, 2]
     assert seen[1][-1] > 13.0 and seen[2][-1] < 11.0            # each went on the way it came
+
+
+def test_a_lost_object_seen_again_is_reacquired_under_its_id_until_forgotten():
+    tr = Tracker(TrackerConfig(confirm_hits=2, lost_timeout_s=1.0, forget_s=60.0))
+    for k in range(3):
+        tr.update(k * 100 * MS, [obs((10.0, 2.0)), obs((30.0, 0.0), CAR)])
+    assert [t.track_id for t in tr.update(1500 * MS, []).lost] == [1, 2]
+    ev = tr.update(40_000 * MS, [obs((10.8, 2.3))])                   # the next leg, 40 s later
+    assert [t.track_id for t in ev.reacquired] == [1] and ev.confirmed == []
+    assert [t.track_id for t in tr.tracks] == [1] and tr.tracks[0].hits == 4
+    assert tr.update(40_100 * MS, [obs((10.8, 2.3), CAR)]).reacquired == []   # another class: a new track
+    assert tr.update(70_000 * MS, [obs((30.0, 0.0), CAR)]).reacquired == []   # car forgotten after 60 s
+    assert 2 not in [t.track_id for t in tr.lost + tr.tracks]

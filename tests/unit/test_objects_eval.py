@@ -1,0 +1,58 @@
+"""`aero eval objects` scoring: found / missed / duplicated per class, false tracks and their
+lifetime, position error at 5-30 m, ID switches, time to confirmation."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from aeroperception.schemas import TrackedObject, TrackedObjectArray, Vector3
+from aeroperception.tools.eval_objects import ObjectsEval, Target, scenario_targets, table
+
+S = 1_000_000_000
+TARGETS = [Target(0, "person", np.array([10.0, 0.0, 0.9])), Target(1, "person", np.array([20.0, 5.0, 0.9])),
+           Target(2, "car", np.array([30.0, -5.0, 0.75]))]
+
+
+def track(tid, cls, xyz, first_s=0.0, last_s=1.0, range_m=15.0, confirmed=True) -> TrackedObject:
+    return TrackedObject(track_id=tid, class_name=cls, confirmed=confirmed, position_m=Vector3.from_array(xyz),
+                         first_seen_ns=int(first_s * S), last_seen_ns=int(last_s * S), range_m=range_m)
+
+
+def test_found_missed_duplicates_false_tracks_and_errors_per_class():
+    ev = ObjectsEval(TARGETS)
+    ev.add(TrackedObjectArray(objects=[
+        track(1, "person", [10.3, 0.0, 0.9], 0.0, 0.4),                  # target 0, 0.3 m off
+        track(2, "person", [10.0, 0.6, 0.9], 0.0, 0.5),                  # a second track on target 0
+        track(3, "person", [40.0, 40.0, 0.9], 0.0, 3.0),                 # nothing there: false, lived 3 s
+        track(4, "car", [30.0, -5.0, 0.75], range_m=40.0),               # beyond 30 m: found, no error sample
+        track(5, "person", [20.0, 5.0, 0.9], confirmed=False),           # unconfirmed: not counted
+    ]))
+    r = ev.summary()
+    p, c = r["classes"]["person"], r["classes"]["car"]
+    assert (p["targets"], p["found"], p["missed"], p["duplicates"]) == (2, 1, 1, 1)
+    assert (p["false_tracks"], p["false_tracks_over_2s"]) == (1, 1)
+    assert p["error_samples"] == 2 and p["error_median_m"] == pytest.approx(0.45)
+    assert (c["found"], c["missed"], c["error_samples"], c["error_median_m"]) == (1, 0, 0, None)
+    assert r["confirm_s_median"] == pytest.approx(0.75) and r["confirm_s_max"] == pytest.approx(3.0)
+    assert "person" in table(r) and "ID switches 0" in table(r)
+
+
+def test_a_target_handed_to_another_track_is_an_id_switch():
+    ev = ObjectsEval(TARGETS)
+    ev.add(TrackedObjectArray(objects=[track(1, "person", [10.0, 0.0, 0.9])]))
+    ev.add(TrackedObjectArray(objects=[track(1, "person", [10.1, 0.0, 0.9])]))
+    ev.add(TrackedObjectArray(objects=[track(7, "person", [10.0, 0.1, 0.9])]))
+    assert ev.summary()["id_switches"] == 1
+
+
+def test_a_track_of_another_class_on_a_target_is_false():
+    ev = ObjectsEval(TARGETS)
+    ev.add(TrackedObjectArray(objects=[track(1, "truck", [30.0, -5.0, 0.75])]))
+    r = ev.summary()
+    assert r["classes"]["car"]["found"] == 0 and r["classes"]["truck"]["false_tracks"] == 1
+
+
+def test_targets_come_from_the_scenario():
+    t = scenario_targets("open_field")
+    assert sorted(x.class_name for x in t) == ["car", "person", "person"]
+    assert any(np.allclose(x.center_m[:2], [18, 1]) for x in t)
