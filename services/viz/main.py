@@ -77,11 +77,20 @@ class VizService(Service):
             raise RuntimeError(f"viz: {e}") from None
         self.sink.write(self.node.now_ns() or time.time_ns(), static_scene())
         self.adapters = build_adapters(p)
-        for ad in self.adapters:
-            if ad.rate_param and p[ad.rate_param] <= 0:
-                continue      # off: not even subscribed (an image stream costs the router bandwidth)
-            self.node.subscribe(ad.key, ad.schema, lambda msg, ad=ad: self._on_msg(ad, msg))
+        self.subscribed: set[str] = set()
+        self._subscribe_enabled()
+        self.params.on_change(lambda _name, _value: self._subscribe_enabled())
         self.log.info("viewer", outputs=self.sink.describe())
+
+    def _subscribe_enabled(self) -> None:
+        """Subscribe each key whose rate is on. A key whose rate is 0 is not even subscribed (an
+        image stream costs the router bandwidth); a live set that turns it on subscribes it then.
+        Turned off again, it stays subscribed and the sampler drops everything."""
+        for ad in self.adapters:
+            if ad.key in self.subscribed or (ad.rate_param and self.params[ad.rate_param] <= 0):
+                continue
+            self.subscribed.add(ad.key)
+            self.node.subscribe(ad.key, ad.schema, lambda msg, ad=ad: self._on_msg(ad, msg))
 
     def stop(self) -> None:
         for w in list(self.workers.values()):

@@ -112,3 +112,22 @@ def test_absent_viewer_means_counted_drops_not_a_queue_and_a_prompt_stop(make_no
         svc.stop()
         stop_s = time.monotonic() - t
     assert stop_s < 2.0, f"stop took {stop_s:.2f} s with an absent viewer"
+
+
+def test_a_rate_turned_on_live_subscribes_its_key(make_node, tmp_path):
+    """A key whose rate is 0 at start is not subscribed; a live set that turns it on must take
+    effect (it was accepted and then ignored: nothing subscribed the key)."""
+    svc = start_viz(make_node, pose_rate_hz=0.0, save_path=str(tmp_path / "v.rrd"))
+    try:
+        pub = make_node("test-fmu").publisher("state/vehicle", VehicleState)
+        publish_states(pub, 1.0)
+        assert svc.received["state/vehicle"] == 0
+        svc.node.params.apply("pose_rate_hz", 10.0)
+        publish_states(pub, 2.0)
+        assert svc.received["state/vehicle"] > 50 and svc.logged["state/vehicle"] > 5, (svc.received, svc.logged)
+        svc.node.params.apply("pose_rate_hz", 0.0)
+        before = svc.logged["state/vehicle"]
+        publish_states(pub, 1.0)
+        assert svc.logged["state/vehicle"] <= before + 1          # off again: sampled out
+    finally:
+        svc.stop()
