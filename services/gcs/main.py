@@ -24,6 +24,7 @@ from aeroperception.schemas import (
     ObjectEvent, ParamList, ParamSet, ParamSetReply, Reply, SafetyStatus, SchemaError, SetModeReply, SetModeRequest, TakeoffGoal,
     TrackedObjectArray, Vector3, VehicleState, VehicleStatus, WaypointReached, parse_mission,
 )
+from aeroperception.services.mavlink import ftp
 from aeroperception.services.runtime import CallError, Health, Service, run
 
 from . import contract
@@ -42,25 +43,6 @@ from .safety_relay import SafetyRelay
 from .telemetry import Scheduler, TelemetryState
 
 SPEED_SERVICE, SPEED_PARAM = "planner", "max_velocity_mps"   # DO_CHANGE_SPEED sets this
-FTP_OPCODE_NAK = 129
-FTP_ERR_FILE_NOT_FOUND = 10
-
-
-def ftp_nak(msg) -> M.MAVLink_file_transfer_protocol_message:
-    """Answer any MAVFTP request with NAK (FileNotFound): MAVProxy / QGC then fall back to the
-    plain parameter and mission protocols at once instead of waiting for a timeout."""
-    req = bytes(msg.payload)
-    seq = int.from_bytes(req[0:2], "little") if len(req) >= 2 else 0
-    session = req[2] if len(req) > 2 else 0
-    opcode = req[3] if len(req) > 3 else 0
-    payload = bytearray(251)
-    payload[0:2] = ((seq + 1) & 0xFFFF).to_bytes(2, "little")
-    payload[2] = session
-    payload[3] = FTP_OPCODE_NAK
-    payload[4] = 1              # size of data
-    payload[5] = opcode         # req_opcode
-    payload[12] = FTP_ERR_FILE_NOT_FOUND
-    return M.MAVLink_file_transfer_protocol_message(0, msg.get_srcSystem(), msg.get_srcComponent(), list(payload))
 
 
 class GcsService(Service):
@@ -399,7 +381,7 @@ class GcsService(Service):
                                           z=msg.z / 1000.0, r=msg.r / 1000.0, buttons=msg.buttons,
                                           source_system=msg.get_srcSystem()))
         elif t == "FILE_TRANSFER_PROTOCOL":
-            self.link.send(ftp_nak(msg))
+            self.link.send(ftp.nak(msg, ftp.ERR_FILE_NOT_FOUND))   # ground stations fall back at once
         elif t == "TIMESYNC":
             if msg.tc1 == 0:
                 self.link.send(M.MAVLink_timesync_message(time.monotonic_ns(), msg.ts1))

@@ -32,6 +32,8 @@ from typing import Any, Iterable
 
 from pymavlink.dialects.v20 import common as M
 
+from aeroperception.services.mavlink.param_value import encode_value, float_bits_to_int
+
 PREFIXES = {"planner": "PLN", "mission": "MIS", "fmu": "FMU", "gcs": "GCS", "safety": "SAF",
             "vio": "VIO", "detector": "DET", "lidar": "LID", "perception": "PRC", "sim": "SIM",
             "diagnostics": "DIA", "recorder": "REC", "viz": "VIZ"}
@@ -120,25 +122,14 @@ def param_type_of(value: Any, declared: str = "") -> int | None:
     return None
 
 
-def encode_value(value: Any, ptype: int) -> float:
-    """Our value -> PARAM_VALUE.param_value (byte-wise for integer types)."""
-    if ptype == M.MAV_PARAM_TYPE_REAL32:
-        return float(value)
-    if ptype == M.MAV_PARAM_TYPE_UINT8:
-        raw = struct.pack("<I", 1 if value else 0)
-    else:
-        raw = struct.pack("<i", int(value))
-    return struct.unpack("<f", raw)[0]
-
-
 def decode_value(param_value: float, ptype: int, declared_type: int) -> Any:
     """PARAM_SET.param_value -> our value. Integer types arrive byte-wise; a ground station that
     sends an integer as a plain float (cast) is accepted too when the bytes are implausible."""
     if declared_type == M.MAV_PARAM_TYPE_REAL32:
         if ptype in (M.MAV_PARAM_TYPE_INT32, M.MAV_PARAM_TYPE_UINT8, M.MAV_PARAM_TYPE_UINT32):
-            return float(_bytewise_int(param_value, ptype))
+            return float(float_bits_to_int(param_value, ptype))
         return shortest_float32(param_value)
-    as_int = _bytewise_int(param_value, ptype if ptype != M.MAV_PARAM_TYPE_REAL32 else M.MAV_PARAM_TYPE_INT32)
+    as_int = float_bits_to_int(param_value, ptype if ptype != M.MAV_PARAM_TYPE_REAL32 else M.MAV_PARAM_TYPE_INT32)
     if ptype == M.MAV_PARAM_TYPE_REAL32 and math.isfinite(param_value) and float(param_value).is_integer():
         as_int = int(param_value)  # cast encoding (e.g. MAVProxy): 1.0 means 1
     if declared_type == M.MAV_PARAM_TYPE_UINT8:
@@ -158,15 +149,6 @@ def shortest_float32(value: float) -> float:
         if struct.unpack("<f", struct.pack("<f", candidate))[0] == f32:
             return candidate
     return f32
-
-
-def _bytewise_int(param_value: float, ptype: int) -> int:
-    raw = struct.pack("<f", param_value)
-    if ptype == M.MAV_PARAM_TYPE_UINT8:
-        return raw[0]
-    if ptype in (M.MAV_PARAM_TYPE_UINT32,):
-        return struct.unpack("<I", raw)[0]
-    return struct.unpack("<i", raw)[0]
 
 
 def decode_param_id(param_id: Any) -> str:

@@ -20,7 +20,6 @@ from aeroperception.services.gcs.home import HomeTracker, home_from_msg, origin_
 from aeroperception.services.gcs.link import (
     Parser, UdpLink, load_signing_key, make_mav, parse_signing_key, signing_timestamp,
 )
-from aeroperception.services.gcs.main import ftp_nak
 from aeroperception.services.gcs.messages import extension_fields, statustext
 from aeroperception.services.gcs.missions import (
     SPEED_DEFAULT, Home, Item, MissionConversionError, MissionProtocol, Progress, SpeedSchedule, convert_items,
@@ -30,7 +29,7 @@ from aeroperception.services.gcs.params import (
     ParamTable, decode_value, encode_value, mavlink_name,
 )
 from aeroperception.services.gcs.telemetry import CAPABILITIES, Scheduler, TelemetryState
-from aeroperception.services.mavlink import px4
+from aeroperception.services.mavlink import ftp, px4
 from aeroperception.services.mavlink.geo import MapProjection
 from aeroperception.schemas.system import ParamDescriptor
 
@@ -668,7 +667,7 @@ def test_udp_link_learns_the_ground_station_address():
 
 def test_ftp_is_nakked():
     req = from_gcs(M.MAVLink_file_transfer_protocol_message(0, 1, 1, [7, 0, 0, 4] + [0] * 247))
-    nak = ftp_nak(req)
+    nak = ftp.nak(req, ftp.ERR_FILE_NOT_FOUND)
     assert nak.payload[3] == 129 and nak.payload[5] == 4 and nak.payload[0] == 8 and nak.target_system == 255
 
 

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import logging
 import math
-import struct
 import time
 from collections import Counter
 from typing import Callable
@@ -20,7 +19,8 @@ from typing import Callable
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
-from aeroperception.services.mavlink import frames, px4
+from aeroperception.services.mavlink import frames, ftp, px4
+from aeroperception.services.mavlink.param_value import float_bits_to_int, int_to_float_bits
 from aeroperception.services.runtime.params import ParamError
 
 from .commander import ACCEPTED, DENIED, Ack
@@ -82,9 +82,6 @@ _IGNORE_VEL = (M.POSITION_TARGET_TYPEMASK_VX_IGNORE, M.POSITION_TARGET_TYPEMASK_
 _IGNORE_ACC = (M.POSITION_TARGET_TYPEMASK_AX_IGNORE, M.POSITION_TARGET_TYPEMASK_AY_IGNORE,
                M.POSITION_TARGET_TYPEMASK_AZ_IGNORE)
 
-_FTP_OPCODE_NAK = 129
-_FTP_ERR_UNKNOWN_COMMAND = 7
-
 
 def _masked_ned(values, type_mask: int, bits) -> np.ndarray:
     """NED triple with the axes the type_mask ignores set to NaN, converted to ENU."""
@@ -108,14 +105,6 @@ def setpoint_from_mavlink(m) -> Setpoint | None:
         yaw_rate_radps=math.nan if tm & M.POSITION_TARGET_TYPEMASK_YAW_RATE_IGNORE
         else frames.yaw_rate_ned_to_enu(m.yaw_rate),
     )
-
-
-def _float_bits_to_int(value: float) -> int:
-    return struct.unpack("<i", struct.pack("<f", value))[0]
-
-
-def _int_to_float_bits(value: int) -> float:
-    return struct.unpack("<f", struct.pack("<i", value))[0]
 
 
 class MavlinkModule:
@@ -438,7 +427,7 @@ class MavlinkModule:
         if isinstance(value, float):
             wire, ptype = value, M.MAV_PARAM_TYPE_REAL32
         else:  # int and bool travel bytewise in the float field, as PX4 sends them
-            wire, ptype = _int_to_float_bits(int(value)), M.MAV_PARAM_TYPE_INT32
+            wire, ptype = int_to_float_bits(int(value)), M.MAV_PARAM_TYPE_INT32
         self.counters["params_sent"] += 1
         return self.enc.param_value_encode(name.encode(), wire, ptype, len(self._param_names), index)
 
@@ -470,7 +459,7 @@ class MavlinkModule:
         if decl.type is float:
             candidates = [m.param_value]
         else:  # bytewise (PX4) first, then a C cast (ArduPilot-style senders)
-            raw = [_float_bits_to_int(m.param_value)] if m.param_type != M.MAV_PARAM_TYPE_REAL32 else []
+            raw = [float_bits_to_int(m.param_value)] if m.param_type != M.MAV_PARAM_TYPE_REAL32 else []
             candidates = raw + ([int(m.param_value)] if float(m.param_value).is_integer() else [])
             candidates = [bool(c) if decl.type is bool and c in (0, 1) else c for c in candidates]
         for value in candidates:
@@ -501,16 +490,7 @@ class MavlinkModule:
         at once instead of timing out (MAVProxy waits ~11 s otherwise)."""
         if m.target_system not in (0, self.system_id):
             return []
-        req = bytes(m.payload)
-        seq = (int.from_bytes(req[0:2], "little") + 1) & 0xFFFF
-        payload = bytearray(251)
-        payload[0:2] = seq.to_bytes(2, "little")
-        payload[2] = req[2]                       # session
-        payload[3] = _FTP_OPCODE_NAK
-        payload[4] = 1                            # data size
-        payload[5] = req[3]                       # the request's opcode
-        payload[12] = _FTP_ERR_UNKNOWN_COMMAND
-        return [self.enc.file_transfer_protocol_encode(0, m.get_srcSystem(), m.get_srcComponent(), list(payload))]
+        return [ftp.nak(m, ftp.ERR_UNKNOWN_COMMAND)]
 
     # ------------------------------------------------------------------ telemetry builders
 
