@@ -1,8 +1,9 @@
 """The small shared runtime every service is built on: Node (Zenoh session, typed pub/sub,
-queryables, liveliness, diagnostics, parameters), the action pattern, rate loops, the clock,
-structured logs and the process shell (`Service`, `run`)."""
+queryables, liveliness, diagnostics, parameters), the contract vocabulary (Topic, Query), the
+action pattern, rate loops, the clock, structured logs and the process shell (`Service`, `run`)."""
 from .actions import ActionClient, ActionServer, GoalHandle
 from .clock import Clock
+from .keys import Queries, Query, Topic, Topics
 from .latest import LatestWorker
 from .log import Logger
 from .node import CallError, Health, Node, Publisher, call
@@ -11,6 +12,7 @@ from .rate import LoopStats, RateLoop
 from .service import Service, run
 
 __all__ = [
-    "ActionClient", "ActionServer", "GoalHandle", "Clock", "LatestWorker", "Logger", "CallError", "Health", "Node",
-    "Publisher", "call", "Param", "ParamError", "ParamSet", "LoopStats", "RateLoop", "Service", "run",
+    "ActionClient", "ActionServer", "GoalHandle", "Clock", "Queries", "Query", "Topic", "Topics", "LatestWorker",
+    "Logger", "CallError", "Health", "Node", "Publisher", "call", "Param", "ParamError", "ParamSet", "LoopStats",
+    "RateLoop", "Service", "run",
 ]
