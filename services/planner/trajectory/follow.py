@@ -1,0 +1,76 @@
+"""Flying a path in time: the reference the planner streams, and how far along it is.
+
+The reference runs on its own clock from the moment the path was taken up, but it never runs away
+from the vehicle: while the vehicle is within `lag_m / 2` of it, time advances at full rate, then
+slower, and not at all from `lag_m` on. A gust, a slow climb or a vehicle weaker than the limits
+then costs time, not a reference metres ahead that the controller would cut corners to catch.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from aeroperception.schemas import Trajectory, TrajectorySetpoint, Vector3
+
+from .core import Path, State
+
+
+@dataclass
+class FollowStep:
+    setpoint: TrajectorySetpoint
+    reference: State
+    tracking_error_m: float      # vehicle to the reference position
+    finished: bool               # the reference is at its end and the vehicle within lag_m / 2 of it
+
+
+def setpoint_of(ref: State, setpoint_type: int) -> TrajectorySetpoint:
+    """The setpoint fields a trajectory's `setpoint_type` provides: position only; position and
+    heading; or the full state (velocity, acceleration and yaw rate as feed-forward)."""
+    sp = TrajectorySetpoint(position_valid=True, position_m=Vector3.from_array(ref.position_m))
+    if setpoint_type != Trajectory.SETPOINT_POSITION_ONLY and ref.yaw_rad is not None:
+        sp.yaw_valid, sp.yaw_rad = True, ref.yaw_rad
+    if setpoint_type == Trajectory.SETPOINT_FULL_STATE:
+        sp.velocity_valid, sp.velocity_mps = True, Vector3.from_array(ref.velocity_mps)
+        sp.acceleration_valid, sp.acceleration_mps2 = True, Vector3.from_array(ref.acceleration_mps2)
+        if ref.yaw_rad is not None:
+            sp.yaw_rate_valid, sp.yaw_rate_radps = True, ref.yaw_rate_radps
+    return sp
+
+
+class Follower:
+    """One path being flown from `start_s` (its time 0; a later start waits at the path's
+    beginning). `step` once per setpoint; `progress` for planner/status."""
+
+    def __init__(self, path: Path, start_s: float, setpoint_type: int = Trajectory.SETPOINT_FULL_STATE,
+                 lag_m: float = 1.5):
+        self.path = path
+        self.setpoint_type = setpoint_type
+        self.lag_m = lag_m
+        self.started_s = start_s
+        self.t_s = 0.0                  # the reference's own time along the path
+        self.last_s: float | None = None
+
+    def step(self, position_m: np.ndarray, now_s: float) -> FollowStep:
+        if self.last_s is not None and now_s > self.last_s:
+            ref = self.path.sample(self.t_s)
+            error = float(np.linalg.norm(ref.position_m - position_m))
+            rate = float(np.clip(2.0 * (self.lag_m - error) / self.lag_m, 0.0, 1.0))
+            self.t_s = min(self.path.duration_s, self.t_s + rate * (now_s - self.last_s))
+        if now_s >= self.started_s:     # a path given a later start waits at its beginning
+            self.last_s = now_s
+        ref = self.path.sample(self.t_s)
+        error = float(np.linalg.norm(ref.position_m - position_m))
+        finished = self.t_s >= self.path.duration_s and error < self.lag_m / 2
+        return FollowStep(setpoint_of(ref, self.setpoint_type), ref, error, finished)
+
+    def progress(self, now_s: float) -> tuple[float, float, float]:
+        """(percent of the path's time flown, seconds since it was taken up, seconds of path left)."""
+        duration = self.path.duration_s
+        percent = 100.0 if duration <= 0 else 100.0 * self.t_s / duration
+        return percent, now_s - self.started_s, max(0.0, duration - self.t_s)
+
+    def ahead_xy(self, horizon_s: float, step_s: float = 0.1) -> np.ndarray:
+        """The reference's horizontal positions over the next `horizon_s` (obstacle checks)."""
+        ts = np.arange(self.t_s, min(self.path.duration_s, self.t_s + horizon_s) + 1e-9, step_s)
+        return np.array([self.path.sample(float(t)).position_m[:2] for t in ts]).reshape(-1, 2)

@@ -1,0 +1,92 @@
+"""Flying a path in time (Follower) and turning a Trajectory message into a path (path_for)."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from aeroperception.schemas import Header, Pose, PoseStamped, Quaternion, Trajectory, Vector3
+from aeroperception.services.planner.trajectory import Limits, TrajectoryRefused, smooth
+from aeroperception.services.planner.trajectory.follow import Follower, setpoint_of
+from aeroperception.services.planner.trajectory.generators import path_for
+
+LINE = np.array([[0, 0, 3], [10, 0, 3]], float)
+
+
+def waypoint(x, y, z, yaw=0.0) -> PoseStamped:
+    return PoseStamped(header=Header(frame_id="map"),
+                       pose=Pose(position=Vector3(x=x, y=y, z=z), orientation=Quaternion.from_yaw(yaw)))
+
+
+def test_reference_runs_in_time_while_the_vehicle_keeps_up_and_waits_when_it_lags():
+    path = smooth(LINE, Limits(), 0.5)
+    f = Follower(path, start_s=100.0, lag_m=1.5)
+    for k in range(101):                              # a vehicle exactly on the reference
+        now = 100.0 + 0.02 * k
+        step = f.step(path.sample(f.t_s).position_m, now)
+    assert f.t_s == pytest.approx(2.0, abs=1e-9) and step.tracking_error_m < 0.05
+    stuck = step.reference.position_m.copy() - np.array([2.0, 0, 0])    # 2 m behind: beyond lag_m
+    t = f.t_s
+    for k in range(50):
+        step = f.step(stuck, 102.0 + 0.02 * (k + 1))
+    assert f.t_s == pytest.approx(t) and not step.finished      # time stood still: no run-away reference
+    for k in range(2000):                             # caught up again: flies on and finishes
+        step = f.step(path.sample(f.t_s).position_m, 103.0 + 0.02 * (k + 1))
+        if step.finished:
+            break
+    assert step.finished and np.allclose(step.reference.position_m, LINE[-1])
+    percent, elapsed, remaining = f.progress(103.0 + 0.02 * (k + 1))
+    assert percent == pytest.approx(100.0) and remaining == 0.0 and elapsed > path.duration_s
+
+
+def test_a_later_start_waits_at_the_beginning():
+    path = smooth(LINE, Limits(), 0.5)
+    f = Follower(path, start_s=10.0)
+    for now in (5.0, 7.0, 9.99):
+        assert np.allclose(f.step(LINE[0], now).reference.position_m, LINE[0]) and f.t_s == 0.0
+    f.step(LINE[0], 10.0)
+    f.step(LINE[0], 10.1)
+    assert f.t_s == pytest.approx(0.1)
+
+
+def test_setpoint_type_says_which_fields_are_valid():
+    ref = smooth(LINE, Limits(), 0.5, yaws_rad=[0.0, 0.0]).sample(1.0)
+    only = setpoint_of(ref, Trajectory.SETPOINT_POSITION_ONLY)
+    assert only.position_valid and not (only.velocity_valid or only.acceleration_valid or only.yaw_valid)
+    yaw = setpoint_of(ref, Trajectory.SETPOINT_POSITION_YAW)
+    assert yaw.position_valid and yaw.yaw_valid and not yaw.velocity_valid
+    full = setpoint_of(ref, Trajectory.SETPOINT_FULL_STATE)
+    assert full.velocity_valid and full.acceleration_valid and full.yaw_rate_valid and not full.jerk_valid
+    assert full.acceleration_mps2.x == pytest.approx(ref.acceleration_mps2[0])
+
+
+def test_smooth_message_starts_where_the_vehicle_is_and_passes_every_waypoint():
+    msg = Trajectory(generator_name="smooth", setpoint_type=Trajectory.SETPOINT_FULL_STATE,
+                     waypoints=[waypoint(5, 0, 3), waypoint(5, 5, 3, math.pi / 2)])
+    here = np.array([0.0, 0.0, 3.0])
+    path = path_for(msg, here, 0.3, Limits(), 0.5)
+    assert np.allclose(path.sample(0).position_m, here) and path.sample(0).yaw_rad == pytest.approx(0.3)
+    assert np.allclose(path.sample(path.duration_s).position_m, [5, 5, 3])
+    assert path.sample(path.duration_s).yaw_rad == pytest.approx(math.pi / 2)
+
+
+def test_messages_the_planner_cannot_fly_as_given_are_refused_naming_why():
+    here = np.array([0.0, 0.0, 3.0])
+    cases = [
+        (Trajectory(generator_name="min_snap", waypoints=[waypoint(5, 0, 3)]), "generator_name"),
+        (Trajectory(generator_name="smooth", total_duration_s=9.0, waypoints=[waypoint(5, 0, 3)]), "total_duration_s"),
+        (Trajectory(generator_name="smooth"), "waypoints"),
+        # 10 m in 1 s: 10 m/s against a 2 m/s cap
+        (Trajectory(trajectory_type=Trajectory.TRAJECTORY_POLYNOMIAL, total_duration_s=1.0, poly_order=1,
+                    poly_coeffs_x=[0, 10], poly_coeffs_y=[0, 0], poly_coeffs_z=[3, 0]), "MPC_XY_VEL_MAX"),
+        # starts 20 m away from the vehicle
+        (Trajectory(trajectory_type=Trajectory.TRAJECTORY_POLYNOMIAL, total_duration_s=20.0, poly_order=1,
+                    poly_coeffs_x=[20, 0.1], poly_coeffs_y=[0, 0], poly_coeffs_z=[3, 0]), "starts 20.0 m"),
+    ]
+    for msg, why in cases:
+        with pytest.raises(TrajectoryRefused, match=why):
+            path_for(msg, here, 0.0, Limits(), 0.5)
+    ok = Trajectory(trajectory_type=Trajectory.TRAJECTORY_POLYNOMIAL, total_duration_s=10.0, poly_order=1,
+                    poly_coeffs_x=[0, 1.0], poly_coeffs_y=[0, 0], poly_coeffs_z=[3, 0])
+    assert path_for(ok, here, 0.0, Limits(), 0.5).duration_s == 10.0
