@@ -4,18 +4,20 @@ Boxes are in the input image's pixels (continuous convention: the image spans [0
 the same form the simulator's sim/truth/boxes uses, so the two compare directly.
 """
 from aeroperception.schemas import Detection2DArray, DiagnosticStatus, Image
-from aeroperception.services.runtime import Param
+from aeroperception.services.runtime import Param, Topic, Topics
 
 from .yolo import PROVIDERS
 
 NAME = "detector"
-INPUTS = {
-    "sensors/camera/left/image": Image,                   # 20 Hz sim camera; newest frame wins
-}
-OUTPUTS = {
-    "perception/detections": Detection2DArray,            # <= 10 Hz (inference_frequency_hz), the image's stamp
-    "perception/detector_health": DiagnosticStatus,       # 1 Hz, OK / WARN (slow, no images) / ERROR (no model)
-}
+INPUTS = Topics(
+    Topic("sensors/camera/left/image", Image, note="newest frame wins"),
+)
+OUTPUTS = Topics(
+    Topic("perception/detections", Detection2DArray, 10.0,
+          note="at most inference_frequency_hz; stamped with the image's stamp"),
+    Topic("perception/detector_health", DiagnosticStatus, 1.0,
+          note="OK / WARN (slow, no images) / ERROR (no model)"),
+)
 # The bundled model, relative to this package (tools/train_detector.py makes it; models/MODEL_CARD.md).
 BUNDLED_MODEL = "models/aero_sim_det.onnx"
 # Changing one of these loads a new model beside the running one (swapped only if it works).
