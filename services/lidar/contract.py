@@ -5,19 +5,19 @@ mount_* parameters); everything published is ENU world ("map"), placed with the 
 from state/vehicle nearest the scan's stamp.
 """
 from aeroperception.schemas import Imu, OccupancyGrid, PointCloud, VehicleState
-from aeroperception.services.runtime import Param
+from aeroperception.services.runtime import Param, Topic, Topics
 
 NAME = "lidar"
-INPUTS = {
-    "sensors/lidar/points": PointCloud,      # 10 Hz, sensor frame
-    "state/vehicle": VehicleState,           # pose at the scan stamp (levelling + costmap placement)
-    "sensors/imu": Imu,                      # gravity direction: levelling when no pose is fresh
-}
-OUTPUTS = {
-    "perception/obstacles": PointCloud,      # 10 Hz, ENU "map", voxel-downsampled obstacle points
-    "perception/ground": PointCloud,         # 1 Hz, ENU "map", ground points
-    "perception/costmap": OccupancyGrid,     # 10 Hz, rolling grid centred on the vehicle
-}
+INPUTS = Topics(
+    Topic("sensors/lidar/points", PointCloud, note="sensor frame"),
+    Topic("state/vehicle", VehicleState, note="pose at the scan stamp (levelling + costmap placement)"),
+    Topic("sensors/imu", Imu, note="gravity direction: levelling when no pose is fresh"),
+)
+OUTPUTS = Topics(
+    Topic("perception/obstacles", PointCloud, 10.0, note='ENU "map", voxel-downsampled obstacle points'),
+    Topic("perception/ground", PointCloud, 1.0, note='ENU "map", ground points'),
+    Topic("perception/costmap", OccupancyGrid, 10.0, note="rolling grid centred on the vehicle"),
+)
 PARAMS = [
     # seed 004 §3.1 pcl_filter
     Param("voxel_leaf_m", 0.05, "m", 0.01, 1.0, description="voxel grid leaf size"),
