@@ -6,22 +6,27 @@ the box, else the box's ray to flat ground), tracked, and published with every l
 from aeroperception.schemas import (
     CameraInfo, Detection2DArray, HomePosition, Image, ObjectEvent, TrackedObjectArray, VehicleState,
 )
-from aeroperception.services.runtime import Param
+from aeroperception.services.runtime import Param, Queries, Query, Topic, Topics
 
 NAME = "objects"
-INPUTS = {
-    "perception/detections": Detection2DArray,            # <= 10 Hz, the left image's stamp; newest wins
-    "sensors/camera/left/image": Image,                   # 20 Hz: the stereo pair, kept ~1 s by stamp
-    "sensors/camera/right/image": Image,
-    "sensors/camera/left/info": CameraInfo,               # 1 Hz + queryable (latched)
-    "sensors/camera/right/info": CameraInfo,
-    "state/vehicle": VehicleState,                        # 50 Hz: pose history, interpolated at the image's stamp
-    "fmu/out/home_position": HomePosition,                # latched: lat/lon/alt of tracks, and the flat ground's height
-}
-OUTPUTS = {
-    "perception/objects": TrackedObjectArray,             # <= 10 Hz: with each detection frame, every live track (the image's stamp)
-    "perception/objects/events": ObjectEvent,             # event: a track confirmed (new object), lost or reacquired
-}
+INPUTS = Topics(
+    Topic("perception/detections", Detection2DArray, note="the left image's stamp; newest wins"),
+    Topic("sensors/camera/left/image", Image, note="the stereo pair, kept ~1 s by stamp"),
+    Topic("sensors/camera/right/image", Image),
+    Topic("sensors/camera/left/info", CameraInfo),
+    Topic("sensors/camera/right/info", CameraInfo),
+    Topic("state/vehicle", VehicleState, note="pose history, interpolated at the image's stamp"),
+    Topic("fmu/out/home_position", HomePosition, note="latched: lat/lon/alt of tracks, and the flat ground's height"),
+)
+OUTPUTS = Topics(
+    Topic("perception/objects", TrackedObjectArray, 10.0,
+          note="at most: with each detection frame, every live track (the image's stamp)"),
+    Topic("perception/objects/events", ObjectEvent, note="event: a track confirmed (new object), lost or reacquired"),
+)
+CALLS = Queries(
+    Query("sensors/camera/left/info", None, CameraInfo, note="once at start (the latched camera model)"),
+    Query("sensors/camera/right/info", None, CameraInfo),
+)
 # Typical sizes (length, width, height; m) of what the detector reports. The ground path aims at
 # an object's mid-height; stereo sees its near face, the centre lies half a footprint behind it.
 TYPICAL_SIZE_M = {
