@@ -1,16 +1,16 @@
 """Contract of the perception coordinator: keys in/out and parameters."""
 from aeroperception.schemas import DiagnosticStatus, PerceptionHealth, VioHealth
-from aeroperception.services.runtime import Param
+from aeroperception.services.runtime import Param, Topic, Topics
 
 NAME = "perception"
-INPUTS = {
-    "state/vio_health": VioHealth,                        # vio: 1 Hz + on change
-    "perception/detector_health": DiagnosticStatus,       # detector (seed 000 §4.2: OK / WARN / ERROR)
-    "diagnostics/lidar": DiagnosticStatus,                # the LiDAR obstacle service's own health
-}
-OUTPUTS = {
-    "perception/health": PerceptionHealth,                # 1 Hz + on every change of a status
-}
+INPUTS = Topics(
+    Topic("state/vio_health", VioHealth, note="vio's tracking state"),
+    Topic("perception/detector_health", DiagnosticStatus, note="detector (seed 000 §4.2: OK / WARN / ERROR)"),
+    Topic("diagnostics/lidar", DiagnosticStatus, note="the LiDAR obstacle service's own health"),
+)
+OUTPUTS = Topics(
+    Topic("perception/health", PerceptionHealth, 1.0, note="and at once on every change of a status"),
+)
 PARAMS = [
     Param("sources", "vio,detector,lidar",
           description="sources this stack runs (aero up: those its --sensors feed); the others are NOT_CONFIGURED"),
