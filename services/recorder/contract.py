@@ -4,11 +4,11 @@ It publishes nothing but its diagnostics; its inputs are whatever the preset sel
 """
 from dataclasses import replace
 
-from aeroperception.services.runtime import Param
+from aeroperception.services.runtime import Param, Topics
 
 NAME = "recorder"
-INPUTS: dict = {}      # any key: raw samples, recorded with their own encoding (see PRESETS)
-OUTPUTS: dict = {}
+INPUTS = Topics()      # any key (Node.subscribe_raw): raw samples, recorded with their own encoding (see PRESETS)
+OUTPUTS = Topics()
 
 # Seed 000 §7.1's `essentials` list mapped to our keys (docs/ARCHITECTURE.md §4):
 #   /aeroperception/vehicle_state, /flight_mode -> state/vehicle (flight_mode is a field of it)
