@@ -4,27 +4,24 @@ Its ROS side (rmw_zenoh keys `<domain>/<namespace>/<topic>/<type>/<hash>`, `@ros
 not part of the stack's key space: see convert.CATALOG for the topic each key becomes.
 """
 from aeroperception.schemas import (
-    Detection2DArray, GoalReply, GoToPositionGoal, Image, Imu, Odometry, PointCloud, VehicleState,
+    Detection2DArray, Image, Imu, Odometry, PointCloud, VehicleState,
 )
-from aeroperception.services.runtime import Param
+from aeroperception.services.runtime import Param, Topic, Topics
 from aeroperception.services.runtime.params import start_only_but
 
 NAME = "ros2bridge"
-INPUTS = {
-    "state/vehicle": VehicleState,                # -> <ns>/odom nav_msgs/Odometry
-    "state/visual_odometry": Odometry,            # -> <ns>/vio/odom nav_msgs/Odometry
-    "sensors/imu": Imu,                           # -> <ns>/imu sensor_msgs/Imu
-    "sensors/camera/left/image": Image,           # -> <ns>/camera/left/image_raw sensor_msgs/Image
-    "sensors/camera/right/image": Image,          # -> <ns>/camera/right/image_raw
-    "sensors/lidar/points": PointCloud,           # -> <ns>/lidar/points sensor_msgs/PointCloud2
-    "perception/obstacles": PointCloud,           # -> <ns>/perception/obstacles sensor_msgs/PointCloud2
-    "perception/detections": Detection2DArray,    # -> <ns>/detections vision_msgs/Detection2DArray
-}
-CALLS = {
-    # <ns>/goal geometry_msgs/PoseStamped (ENU "map") -> a goto goal, checked by the mission as any other.
-    "mission/action/goto/goal": (GoToPositionGoal, GoalReply),
-}
-ACTIONS = ["mission/action/goto"]
+INPUTS = Topics(
+    Topic("state/vehicle", VehicleState, note="-> <ns>/odom nav_msgs/Odometry"),
+    Topic("state/visual_odometry", Odometry, note="-> <ns>/vio/odom nav_msgs/Odometry"),
+    Topic("sensors/imu", Imu, note="-> <ns>/imu sensor_msgs/Imu"),
+    Topic("sensors/camera/left/image", Image, note="-> <ns>/camera/left/image_raw sensor_msgs/Image"),
+    Topic("sensors/camera/right/image", Image, note="-> <ns>/camera/right/image_raw"),
+    Topic("sensors/lidar/points", PointCloud, note="-> <ns>/lidar/points sensor_msgs/PointCloud2"),
+    Topic("perception/obstacles", PointCloud, note="-> <ns>/perception/obstacles sensor_msgs/PointCloud2"),
+    Topic("perception/detections", Detection2DArray, note="-> <ns>/detections vision_msgs/Detection2DArray"),
+)
+# <ns>/goal geometry_msgs/PoseStamped (ENU "map") -> a goto goal, checked by the mission as any other.
+ACTION_CALLS = ("mission/action/goto",)
 _DECLARED = [
     Param("domain_id", 0, "", 0, 232, description="ROS_DOMAIN_ID of the ROS 2 graph to join"),
     Param("namespace", "/aero", description="ROS namespace of the bridge node and its topics"),
