@@ -9,33 +9,35 @@ from aeroperception.schemas import (
     MissionGoal, OccupancyGrid, Odometry, PointCloud, SafetyStatus, TrajectorySetpoint, TrajectoryStatus,
     VehicleState, VioHealth, WaypointReached,
 )
-from aeroperception.services.runtime import Param
+from aeroperception.services.runtime import Param, Queries, Query, Topic, Topics
 from aeroperception.services.runtime.params import start_only_but
 
 NAME = "viz"
-INPUTS = {
-    "state/vehicle": VehicleState,                 # pose, trajectory, altitude / speed / battery series
-    "sim/truth/state": VehicleState,               # sim only: the true pose and track beside it (show_truth)
-    "state/visual_odometry": Odometry,             # VIO pose, track and covariance ellipsoid
-    "state/vio_health": VioHealth,
-    "sensors/camera/left/image": Image,            # <= image_rate_hz
-    "sensors/camera/right/image": Image,
-    "perception/detections": Detection2DArray,     # boxes on the image of the same stamp
-    "sim/truth/boxes": Detection2DArray,           # sim only (show_truth)
-    "perception/obstacles": PointCloud,            # ENU "map"
-    "perception/ground": PointCloud,
-    "perception/costmap": OccupancyGrid,           # drawn on the ground plane
-    "mission/status": MissionStatus,               # state changes as text; distance to goal
-    "mission/active_goal": MissionGoal,
-    "mission/waypoint_reached": WaypointReached,
-    "planner/status": TrajectoryStatus,
-    "fmu/in/trajectory_setpoint": TrajectorySetpoint,   # the planner's velocity as an arrow on the vehicle
-    "fmu/out/battery_status": BatteryState,
-    "safety/status": SafetyStatus,
-    "diagnostics/*": DiagnosticStatus,             # level/message changes as text; loop timing series
-}
-OUTPUTS: dict = {}
-CALLS = {"mission/srv/get": (Empty, GetMissionReply)}   # the mission's waypoints, when its id changes
+INPUTS = Topics(
+    Topic("state/vehicle", VehicleState, note="pose, trajectory, altitude / speed / battery series"),
+    Topic("sim/truth/state", VehicleState, note="sim only: the true pose and track beside it (show_truth)"),
+    Topic("state/visual_odometry", Odometry, note="VIO pose, track and covariance ellipsoid"),
+    Topic("state/vio_health", VioHealth),
+    Topic("sensors/camera/left/image", Image, note="<= image_rate_hz"),
+    Topic("sensors/camera/right/image", Image),
+    Topic("perception/detections", Detection2DArray, note="boxes on the image of the same stamp"),
+    Topic("sim/truth/boxes", Detection2DArray, note="sim only (show_truth)"),
+    Topic("perception/obstacles", PointCloud, note='ENU "map"'),
+    Topic("perception/ground", PointCloud),
+    Topic("perception/costmap", OccupancyGrid, note="drawn on the ground plane"),
+    Topic("mission/status", MissionStatus, note="state changes as text; distance to goal"),
+    Topic("mission/active_goal", MissionGoal),
+    Topic("mission/waypoint_reached", WaypointReached),
+    Topic("planner/status", TrajectoryStatus),
+    Topic("fmu/in/trajectory_setpoint", TrajectorySetpoint, note="the planner's velocity as an arrow on the vehicle"),
+    Topic("fmu/out/battery_status", BatteryState),
+    Topic("safety/status", SafetyStatus),
+    Topic("diagnostics/*", DiagnosticStatus, note="level/message changes as text; loop timing series"),
+)
+OUTPUTS = Topics()
+CALLS = Queries(
+    Query("mission/srv/get", Empty, GetMissionReply, note="the mission's waypoints, when its id changes"),
+)
 
 _DECLARED = [
     # where the view goes (any combination; none at all = data is converted and dropped)
