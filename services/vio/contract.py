@@ -1,6 +1,6 @@
 """Contract of vio: keys in/out and parameters (stereo-inertial odometry, seed 003 / 000 §4.1)."""
 from aeroperception.schemas import CameraInfo, Image, Imu, Odometry, Reply, VioHealth, VioResetRequest
-from aeroperception.services.runtime import Param
+from aeroperception.services.runtime import Param, Queries, Query, Topic, Topics
 from aeroperception.services.runtime.params import start_only_but
 
 from .backend import BackendConfig
@@ -10,25 +10,28 @@ from .imu import ImuNoise
 from .strategy import VioConfig
 
 NAME = "vio"
-INPUTS = {
-    "sensors/camera/left/image": Image,      # mono8 / rgb8, stamped at exposure
-    "sensors/camera/right/image": Image,     # same stamp as its left image (klt_stereo)
-    "sensors/camera/left/info": CameraInfo,  # also queried once at start (latched queryable)
-    "sensors/camera/right/info": CameraInfo,
-    "sensors/imu": Imu,                      # body FLU, specific force incl. gravity, 100-400 Hz
-}
-OUTPUTS = {
+INPUTS = Topics(
+    Topic("sensors/camera/left/image", Image, note="mono8 / rgb8, stamped at exposure"),
+    Topic("sensors/camera/right/image", Image, note="same stamp as its left image (klt_stereo)"),
+    Topic("sensors/camera/left/info", CameraInfo),
+    Topic("sensors/camera/right/info", CameraInfo),
+    Topic("sensors/imu", Imu, note="body FLU, specific force incl. gravity, 100-400 Hz"),
+)
+OUTPUTS = Topics(
     # Pose of base_link in odom (gravity-aligned, z up, origin/yaw where VIO initialised) with
     # 6x6 covariances: the smoother's marginals plus the drift accumulated since initialisation
-    # (drift.py: grows with distance flown and yaw turned); one per processed frame.
-    "state/visual_odometry": Odometry,
-    "state/vio_health": VioHealth,           # 1 Hz and on every state change
-}
-SERVICES = {                                 # queryables served: request -> reply
-    # restart from a known odom pose (seed 003 reset_to_warm_start); INIT until the next good frame
-    "vio/srv/reset": (VioResetRequest, Reply),
-}
-QUERIES = ("sensors/camera/left/info", "sensors/camera/right/info")
+    # (drift.py: grows with distance flown and yaw turned).
+    Topic("state/visual_odometry", Odometry, note="one per processed frame"),
+    Topic("state/vio_health", VioHealth, 1.0, note="and on every state change"),
+)
+SERVICES = Queries(
+    Query("vio/srv/reset", VioResetRequest, Reply,
+          note="restart from a known odom pose (a warm start); INIT until the next good frame"),
+)
+CALLS = Queries(
+    Query("sensors/camera/left/info", None, CameraInfo, note="once at start (the latched camera model)"),
+    Query("sensors/camera/right/info", None, CameraInfo),
+)
 _DECLARED = [
     Param("strategy", "klt_stereo", description="VioStrategy at start: klt_stereo, klt_mono (okvis2, vins_mono: not built)"),
     Param("max_features", FrontEndConfig.max_features, "", 20, 1000, description="features per keyframe"),
