@@ -3,29 +3,29 @@ from aeroperception.schemas import (
     BatteryState, DiagnosticStatus, EmergencyStopReply, EmergencyStopRequest, GcsLink, PerceptionHealth,
     SafetyStatus, VehicleState, VehicleStatus,
 )
-from aeroperception.services.runtime import Param
+from aeroperception.services.runtime import Param, Queries, Query, Topic, Topics
 
 from .geofence import GEOFENCE_PARAMS
 
 NAME = "safety"
-INPUTS = {
-    "aero/alive/<vehicle>/*": None,                 # liveliness of the required services
-    "state/vehicle": VehicleState,                  # FC link (connected + freshness), armed/in air, position, battery
-    "fmu/out/battery_status": BatteryState,         # battery (preferred over state/vehicle's copy)
-    "fmu/out/vehicle_status": VehicleStatus,        # the FC's own failsafe flag and mode (reported)
-    "gcs/link": GcsLink,                            # ground station heard or lost
-    "perception/health": PerceptionHealth,          # optional: unknown while absent
-    "diagnostics/*": DiagnosticStatus,              # a required service reporting ERROR is unhealthy
-}
-OUTPUTS = {
-    "safety/status": SafetyStatus,                  # 1 Hz and at once on a change of level/action/rules
-}
-SERVICES = {
-    "safety/srv/emergency_stop": (EmergencyStopRequest, EmergencyStopReply),
-}
-CALLS = {
-    "fmu/srv/emergency_stop": (EmergencyStopRequest, EmergencyStopReply),   # FC flight termination
-}
+INPUTS = Topics(
+    Topic("state/vehicle", VehicleState, note="FC link (connected + freshness), armed/in air, position, battery"),
+    Topic("fmu/out/battery_status", BatteryState, note="battery (preferred over state/vehicle's copy)"),
+    Topic("fmu/out/vehicle_status", VehicleStatus, note="the FC's own failsafe flag and mode (reported)"),
+    Topic("gcs/link", GcsLink, note="ground station heard or lost"),
+    Topic("perception/health", PerceptionHealth, note="optional: unknown while absent"),
+    Topic("diagnostics/*", DiagnosticStatus, note="a required service reporting ERROR is unhealthy"),
+)
+OUTPUTS = Topics(
+    Topic("safety/status", SafetyStatus, 1.0, note="and at once on a change of level/action/rules"),
+)
+LIVELINESS = ("*",)     # the required services (required_services) must be alive
+SERVICES = Queries(
+    Query("safety/srv/emergency_stop", EmergencyStopRequest, EmergencyStopReply),
+)
+CALLS = Queries(
+    Query("fmu/srv/emergency_stop", EmergencyStopRequest, EmergencyStopReply, note="FC flight termination"),
+)
 # PX4's GF_ACTION values; 4 (terminate) is deliberately not offered: a multirotor falls. The only
 # way to stop the motors is an operator's safety/srv/emergency_stop.
 GEOFENCE_ACTIONS = {0: "none", 1: "warn", 2: "hold", 3: "return", 5: "land"}
