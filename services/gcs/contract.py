@@ -5,37 +5,38 @@ from aeroperception.schemas import (
     LoadMissionRequest, MissionCommand, MissionStatus, ObjectEvent, ParamList, ParamSet, ParamSetReply, Reply,
     SafetyStatus, SetModeReply, SetModeRequest, TrackedObjectArray, VehicleState, VehicleStatus, WaypointReached,
 )
-from aeroperception.services.runtime import Param
+from aeroperception.services.runtime import Param, Queries, Query, Topic, Topics
 from aeroperception.services.runtime.params import start_only_but
 
 NAME = "gcs"
-INPUTS = {
-    "state/vehicle": VehicleState,                  # pose (ENU), mode, armed, landed, battery
-    "fmu/out/battery_status": BatteryState,         # real battery for SYS_STATUS / BATTERY_STATUS
-    "fmu/out/home_position": HomePosition,          # the FC's home: geodetic <-> local (else the home_* params)
-    "fmu/out/vehicle_gps_position": GpsPosition,    # GPS_RAW_INT: the FC's fix (NO_GPS without one)
-    "fmu/out/estimator_status": EstimatorStatus,    # ESTIMATOR_STATUS (vision-only position: REL without ABS)
-    "mission/status": MissionStatus,                # MISSION_CURRENT
-    "mission/waypoint_reached": WaypointReached,    # MISSION_ITEM_REACHED
-    "safety/status": SafetyStatus,                  # SYS_STATUS geofence bits; warnings/errors -> STATUSTEXT
-    "fmu/out/vehicle_status": VehicleStatus,        # identity=companion: the flight controller's system id
-    "perception/objects/events": ObjectEvent,       # new / lost object -> STATUSTEXT
-    "perception/objects": TrackedObjectArray,       # confirmed objects -> ADSB_VEHICLE at 1 Hz (map labels)
-}
-OUTPUTS = {
-    "gcs/link": GcsLink,                            # on change + 1 Hz: ground station heartbeat up/down
-    "gcs/joystick": Joystick,                       # MANUAL_CONTROL, as received
-}
-CALLS = {
-    "mission/srv/load": (LoadMissionRequest, LoadMissionReply),
-    "mission/srv/get": (Empty, GetMissionReply),    # a mission loaded without us, for downloads
-    "mission/srv/command": (MissionCommand, Reply),
-    "fmu/srv/arm": (ArmRequest, ArmReply),
-    "fmu/srv/set_mode": (SetModeRequest, SetModeReply),
-    "config/<service>/@params": (None, ParamList),
-    "config/<service>/@set": (ParamSet, ParamSetReply),
-}
-ACTIONS = ["mission/action/takeoff", "mission/action/land", "mission/action/goto"]
+INPUTS = Topics(
+    Topic("state/vehicle", VehicleState, note="pose (ENU), mode, armed, landed, battery"),
+    Topic("fmu/out/battery_status", BatteryState, note="real battery for SYS_STATUS / BATTERY_STATUS"),
+    Topic("fmu/out/home_position", HomePosition, note="the FC's home: geodetic <-> local (else the home_* params)"),
+    Topic("fmu/out/vehicle_gps_position", GpsPosition, note="GPS_RAW_INT: the FC's fix (NO_GPS without one)"),
+    Topic("fmu/out/estimator_status", EstimatorStatus,
+          note="ESTIMATOR_STATUS (vision-only position: REL without ABS)"),
+    Topic("mission/status", MissionStatus, note="MISSION_CURRENT"),
+    Topic("mission/waypoint_reached", WaypointReached, note="MISSION_ITEM_REACHED"),
+    Topic("safety/status", SafetyStatus, note="SYS_STATUS geofence bits; warnings/errors -> STATUSTEXT"),
+    Topic("fmu/out/vehicle_status", VehicleStatus, note="identity=companion: the flight controller's system id"),
+    Topic("perception/objects/events", ObjectEvent, note="new / lost object -> STATUSTEXT"),
+    Topic("perception/objects", TrackedObjectArray, note="confirmed objects -> ADSB_VEHICLE at 1 Hz (map labels)"),
+)
+OUTPUTS = Topics(
+    Topic("gcs/link", GcsLink, 1.0, note="ground station heartbeat up/down; also at once on a change"),
+    Topic("gcs/joystick", Joystick, note="MANUAL_CONTROL, as received"),
+)
+CALLS = Queries(
+    Query("mission/srv/load", LoadMissionRequest, LoadMissionReply),
+    Query("mission/srv/get", Empty, GetMissionReply, note="a mission loaded without us, for downloads"),
+    Query("mission/srv/command", MissionCommand, Reply),
+    Query("fmu/srv/arm", ArmRequest, ArmReply),
+    Query("fmu/srv/set_mode", SetModeRequest, SetModeReply),
+    Query("config/<service>/@params", None, ParamList),
+    Query("config/<service>/@set", ParamSet, ParamSetReply),
+)
+ACTION_CALLS = ("mission/action/takeoff", "mission/action/goto")   # goals only (landing: mission/srv/command)
 
 # Seed 001 §5.1 / §14: bind 14551, send to the ground station at 14550 until one talks; then to every
 # ground station heard (link.py).
