@@ -1,37 +1,39 @@
 """Contract of the mission service: keys in/out and parameters."""
 from aeroperception.schemas import (
-    ArmReply, ArmRequest, Empty, GetMissionReply, LoadMissionReply, LoadMissionRequest, MissionCommand,
+    ArmReply, ArmRequest, Empty, GcsLink, GetMissionReply, LoadMissionReply, LoadMissionRequest, MissionCommand,
     MissionGoal, MissionStatus, OccupancyGrid, PerceptionHealth, Reply, SafetyStatus, SetModeReply, SetModeRequest,
     TrajectoryStatus, VehicleState, WaypointReached,
 )
-from aeroperception.services.runtime import Param
+from aeroperception.services.runtime import Param, Queries, Query, Topic, Topics
 from aeroperception.services.safety.geofence import GEOFENCE_PARAMS
 
 NAME = "mission"
-INPUTS = {
-    "state/vehicle": VehicleState,
-    "perception/health": PerceptionHealth,
-    "mission/command": MissionCommand,      # fire-and-forget operator command
-    "safety/status": SafetyStatus,          # a rising recommended_action HOLD/RTH/LAND acts once
-    "planner/status": TrajectoryStatus,     # obstacle_state blocked/unreachable -> blocked_action
-    "perception/costmap": OccupancyGrid,    # a loaded waypoint inside an obstacle is warned about
-}
-LIVELINESS = ["fmu"]                        # fmu's token gone = fmu outage -> HOLDING
-OUTPUTS = {
-    "mission/status": MissionStatus,        # 2 Hz
-    "mission/active_goal": MissionGoal,     # on change + 2 Hz; frame_id "hold" = hold position
-    "mission/waypoint_reached": WaypointReached,
-}
-SERVICES = {                                # queryables served: request -> reply
-    "mission/srv/load": (LoadMissionRequest, LoadMissionReply),
-    "mission/srv/command": (MissionCommand, Reply),
-    "mission/srv/get": (Empty, GetMissionReply),    # the loaded mission (gcs serves it to downloads)
-}
-ACTIONS = ["takeoff", "land", "goto"]       # mission/action/<name>/{goal,cancel,feedback,result}
-CALLS = {                                   # queryables used (served by fmu)
-    "fmu/srv/arm": (ArmRequest, ArmReply),
-    "fmu/srv/set_mode": (SetModeRequest, SetModeReply),
-}
+INPUTS = Topics(
+    Topic("state/vehicle", VehicleState),
+    Topic("perception/health", PerceptionHealth),
+    Topic("mission/command", MissionCommand, note="fire-and-forget operator command"),
+    Topic("safety/status", SafetyStatus, note="a rising recommended_action HOLD/RTH/LAND acts once"),
+    Topic("planner/status", TrajectoryStatus, note="obstacle_state blocked/unreachable -> blocked_action"),
+    Topic("perception/costmap", OccupancyGrid, note="a loaded waypoint inside an obstacle is warned about"),
+    Topic("gcs/link", GcsLink, note="a ground station once heard going down -> hold"),
+)
+# fmu's or the planner's token gone = an outage -> HOLDING until it is back and re-checked.
+LIVELINESS = ("fmu", "planner")
+OUTPUTS = Topics(
+    Topic("mission/status", MissionStatus, 2.0, note="FSM state, current waypoint, distance to goal (status_rate_hz)"),
+    Topic("mission/active_goal", MissionGoal, 2.0, note='also at once on a change; frame_id "hold" = hold position'),
+    Topic("mission/waypoint_reached", WaypointReached, note="event: a mission waypoint reached"),
+)
+SERVICES = Queries(
+    Query("mission/srv/load", LoadMissionRequest, LoadMissionReply),
+    Query("mission/srv/command", MissionCommand, Reply),
+    Query("mission/srv/get", Empty, GetMissionReply, note="the loaded mission (gcs serves it to downloads)"),
+)
+ACTIONS = ("mission/action/takeoff", "mission/action/land", "mission/action/goto")
+CALLS = Queries(
+    Query("fmu/srv/arm", ArmRequest, ArmReply),
+    Query("fmu/srv/set_mode", SetModeRequest, SetModeReply),
+)
 PARAMS = [
     Param("takeoff_altitude_m", 3.0, "m", 0.5, 120.0, description="default takeoff altitude (seed: 3 m)"),
     Param("altitude_tolerance_m", 0.3, "m", 0.05, 2.0, description="takeoff counts as done inside this"),
