@@ -15,38 +15,18 @@ import time
 import numpy as np
 
 from aeroperception.schemas import (
-    CameraInfo, Clock, DiagnosticStatus, Detection2DArray, Header, Image, Imu, NDArray,
-    PointCloud, Pose, Quaternion, Vector3, VehicleState,
+    CameraInfo, Clock, DiagnosticStatus, Header, Imu, NDArray, Pose, Quaternion, Vector3, VehicleState,
 )
-from aeroperception.services.runtime import Health, Param, Service, run
+from aeroperception.services.runtime import Health, Service, run
 from aeroperception.services.runtime.rotations import quat_from_rotmat
 
+from .contract import NAME, OUTPUTS, PARAMS
 from .qos import qos_for
 from .render import RenderProcess
 from .sensors.rig import build_sensors
 from .truth import VehicleTruth
-from .vehicle import PARAMS as VEHICLE_PARAMS
 from .vehicle import PX4_SITL_BIND, PX4_SITL_TARGET, MavlinkEndpoint, SimVehicle, SimVehicleRunner, parse_address
 from .world.scenario import ScenarioError, load_scenario
-
-NAME = "sim"
-OUTPUTS = {
-    "sim/clock": Clock,                                  # 100 Hz (sim time)
-    "sim/truth/state": VehicleState,                     # 100 Hz: pose, velocity, acceleration (ENU)
-    "sim/truth/boxes": Detection2DArray,                 # with each left image: projected targets
-    "sim/truth/lidar_labels": PointCloud,                # with each scan: per-point labels
-    "sensors/imu": Imu,                                  # 200 Hz, FLU
-    "sensors/camera/left/image": Image,                  # 20 Hz
-    "sensors/camera/right/image": Image,
-    "sensors/camera/left/info": CameraInfo,              # 1 Hz + queryable (latched)
-    "sensors/camera/right/info": CameraInfo,
-    "sensors/camera/down/image": Image,                  # optional
-    "sensors/lidar/points": PointCloud,                  # 10 Hz, sensor frame
-}
-SHELL_PARAMS = [
-    Param("truth_rate_hz", 100.0, "Hz", 1.0, 250.0, description="sim/truth/state and sim/clock rate"),
-]
-PARAMS = [*VEHICLE_PARAMS, *SHELL_PARAMS]
 
 
 def camera_info_msg(info, stamp_ns: int) -> CameraInfo:
