@@ -1,4 +1,4 @@
-"""`aero eval lidar|vio|detector|objects`: accuracy of the perception services against truth (simulator truth or
+"""`aero eval lidar|vio|detector|objects|trajectory`: accuracy of the perception services against truth (simulator truth or
 real recordings), printed as a table and written as JSON (+ PNG for vio)."""
 from __future__ import annotations
 
@@ -61,6 +61,19 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_session_arguments(p)
     p.set_defaults(func=_detector)
     _register_objects(esub)
+    _register_trajectory(esub)
+
+
+def _register_trajectory(esub) -> None:
+    p = esub.add_parser("trajectory", help="a flight against its mission's legs by sim truth: time, cross-track "
+                                           "RMS/max, peak speed/acceleration/jerk, corner overshoot, tracking error")
+    p.add_argument("--live", action="store_true", required=True, help="a running stack flying a mission")
+    p.add_argument("--duration", type=float, default=120.0, help="seconds to record (at most, with --until-landed)")
+    p.add_argument("--until-landed", action="store_true",
+                   help="stop once the vehicle (sim truth) has flown and is down and disarmed again")
+    p.add_argument("--json", default=None, metavar="FILE", help="write the figures as JSON")
+    add_session_arguments(p)
+    p.set_defaults(func=lambda a: importlib.import_module("aeroperception.tools.eval_trajectory").run_live(a))
 
 
 def _register_objects(esub) -> None:
