@@ -22,7 +22,7 @@ import rerun as rr
 from aeroperception.schemas import (
     BatteryState, Detection2DArray, DiagnosticStatus, GetMissionReply, Image, MissionStatus, Message,
     MissionGoal, OccupancyGrid, Odometry, PointCloud, Quaternion, SafetyStatus, TrajectorySetpoint,
-    TrajectoryStatus, VehicleState, VioHealth, WaypointReached, parse_mission,
+    TrackedObjectArray, TrajectoryStatus, VehicleState, VioHealth, WaypointReached, parse_mission,
 )
 from aeroperception.services.runtime.rotations import quat_from_rotmat
 
@@ -38,6 +38,7 @@ OBSTACLE_COLOR = (230, 60, 60)
 GROUND_COLOR = (150, 130, 100)
 GOAL_COLOR = (255, 0, 200)
 SETPOINT_COLOR = (255, 0, 200)
+TENTATIVE_COLOR = (160, 160, 160)
 
 
 class Log(NamedTuple):
@@ -308,7 +309,7 @@ class MissionStatusAdapter:
 
 def active_goal(msg: MissionGoal) -> list[Log]:
     path = f"{WORLD}/mission/active_goal"
-    if msg.header.frame_id == "hold":
+    if msg.header.frame_id == MissionGoal.HOLD_FRAME:
         return [log(path, rr.Clear(recursive=False))]
     p = msg.pose.position
     return [log(path, rr.Points3D([[p.x, p.y, p.z]], colors=[GOAL_COLOR], radii=0.25, labels=["goal"]))]
@@ -337,6 +338,42 @@ class WaypointReachedAdapter:
         return [log(f"{WORLD}/mission/reached", rr.Points3D(list(self.points), colors=[TRUTH_COLOR], radii=0.12)),
                 log("logs/mission", rr.TextLog(f"waypoint {msg.index + 1} reached at ({p.x:.1f}, {p.y:.1f}, {p.z:.1f})",
                                                level=rr.TextLogLevel.INFO))]
+
+
+class ObjectsAdapter:
+    """perception/objects: each live track as a labelled point where it is ("person #7 0.91";
+    tentative tracks grey), and every track's history as a line (bounded per track, and tracks
+    gone for `forget_after` messages are dropped from the view's memory)."""
+
+    def __init__(self, max_points: int = 200, forget_after: int = 600):
+        self.max_points, self.forget_after = max_points, forget_after
+        self.history: dict[int, deque[list[float]]] = {}
+        self.last_seen: dict[int, int] = {}
+        self.count = 0
+
+    def __call__(self, msg: TrackedObjectArray) -> list[Log]:
+        self.count += 1
+        points, labels, colors, class_ids = [], [], [], []
+        for o in msg.objects:
+            p = [o.position_m.x, o.position_m.y, o.position_m.z]
+            if not all(math.isfinite(v) for v in p):
+                continue
+            points.append(p)
+            labels.append(f"{o.class_name} #{o.track_id} {o.best_score:.2f}")
+            colors.append(DETECTION_COLOR if o.confirmed else TENTATIVE_COLOR)
+            class_ids.append(o.class_id)
+            if o.confirmed:
+                self.history.setdefault(o.track_id, deque(maxlen=self.max_points)).append(p)
+                self.last_seen[o.track_id] = self.count
+        for tid in [t for t, seen in self.last_seen.items() if self.count - seen > self.forget_after]:
+            del self.history[tid], self.last_seen[tid]
+        path = f"{WORLD}/objects"
+        out = [log(f"{path}/tracks", rr.Points3D(points, colors=colors, radii=0.25, labels=labels,
+                                                 class_ids=class_ids) if points else rr.Clear(recursive=False))]
+        lines = [list(h) for h in self.history.values() if len(h) > 1]
+        if lines:
+            out.append(log(f"{path}/history", rr.LineStrips3D(lines, colors=[DETECTION_COLOR], radii=0.04)))
+        return out
 
 
 def setpoint(msg: TrajectorySetpoint) -> list[Log]:
@@ -475,6 +512,7 @@ def build_adapters(p) -> list[Adapter]:
         Adapter("perception/obstacles", PointCloud, cloud_adapter("obstacles", OBSTACLE_COLOR, 0.06), "cloud_rate_hz"),
         Adapter("perception/ground", PointCloud, cloud_adapter("ground", GROUND_COLOR, 0.03), "cloud_rate_hz"),
         Adapter("perception/costmap", OccupancyGrid, costmap, "costmap_rate_hz"),
+        Adapter("perception/objects", TrackedObjectArray, ObjectsAdapter(), "objects_rate_hz"),
         Adapter("mission/status", MissionStatus, MissionStatusAdapter()),
         Adapter("mission/active_goal", MissionGoal, active_goal),
         Adapter("mission/waypoint_reached", WaypointReached, WaypointReachedAdapter()),

@@ -7,7 +7,7 @@ slow or absent viewer costs dropped frames (counted), never a queue or a slower 
 from aeroperception.schemas import (
     BatteryState, Detection2DArray, DiagnosticStatus, Empty, GetMissionReply, Image, MissionStatus,
     MissionGoal, OccupancyGrid, Odometry, PointCloud, SafetyStatus, TrajectorySetpoint, TrajectoryStatus,
-    VehicleState, VioHealth, WaypointReached,
+    TrackedObjectArray, VehicleState, VioHealth, WaypointReached,
 )
 from aeroperception.services.runtime import Param, Queries, Query, Topic, Topics
 from aeroperception.services.runtime.params import start_only_but
@@ -25,6 +25,7 @@ INPUTS = Topics(
     Topic("perception/obstacles", PointCloud, note='ENU "map"'),
     Topic("perception/ground", PointCloud),
     Topic("perception/costmap", OccupancyGrid, note="drawn on the ground plane"),
+    Topic("perception/objects", TrackedObjectArray, note="tracks as labelled points and their history lines"),
     Topic("mission/status", MissionStatus, note="state changes as text; distance to goal"),
     Topic("mission/active_goal", MissionGoal),
     Topic("mission/waypoint_reached", WaypointReached),
@@ -57,6 +58,7 @@ _DECLARED = [
     Param("cloud_rate_hz", 5.0, "Hz", 0.0, 20.0, description="obstacle / ground point clouds (0 = off)"),
     Param("costmap_rate_hz", 2.0, "Hz", 0.0, 10.0, description="costmap grid (0 = off)"),
     Param("setpoint_rate_hz", 5.0, "Hz", 0.0, 50.0, description="planner setpoint arrow (0 = off)"),
+    Param("objects_rate_hz", 5.0, "Hz", 0.0, 20.0, description="tracked objects and their history (0 = off)"),
     Param("trail_period_s", 0.5, "s", 0.05, 10.0, description="trajectory lines are re-sent this often"),
     Param("trail_max_points", 5000, "", 10, 100000, description="points kept per trajectory line (oldest dropped)"),
     Param("flush_timeout_s", 0.5, "s", 0.05, 5.0,
@@ -65,4 +67,4 @@ _DECLARED = [
 # viz opens its outputs and builds its adapters from its parameters at start: all but the rates
 # and show_truth (read per sample) are read there only, so a live set of one is refused, saying so.
 PARAMS = start_only_but(_DECLARED, live=("show_truth", "pose_rate_hz", "image_rate_hz", "cloud_rate_hz",
-                                          "costmap_rate_hz", "setpoint_rate_hz"))
+                                          "costmap_rate_hz", "setpoint_rate_hz", "objects_rate_hz"))

@@ -14,7 +14,7 @@ from aerotest import free_port
 from aeroperception.schemas import (
     BatteryState, Detection2D, Detection2DArray, DiagnosticStatus, GetMissionReply, Header, Image,
     MissionStatus, NDArray, OccupancyGrid, Odometry, PointCloud, Pose, PoseStamped, Quaternion,
-    TrajectorySetpoint, Vector3, VehicleState, VioHealth, WaypointReached,
+    TrackedObject, TrackedObjectArray, TrajectorySetpoint, Vector3, VehicleState, VioHealth, WaypointReached,
 )
 from aeroperception.services.runtime.params import ParamSet
 from aeroperception.services.viz import adapters as A
@@ -151,6 +151,29 @@ def test_detections_become_labelled_boxes_on_the_camera_of_their_frame():
     assert arrow(boxes, "labels") == ["car 0.90"] and arrow(boxes, "class_ids") == [2]
     empty = A.BoxesAdapter("truth_boxes", (0, 0, 0))(Detection2DArray(header=Header(frame_id="camera_left_optical")))
     one(empty, "camera/left/image/truth_boxes", rr.Clear)
+
+
+def test_tracks_are_labelled_points_with_their_history_and_tentative_ones_grey():
+    ad = A.ObjectsAdapter(max_points=3, forget_after=2)
+
+    def frame(*tracks):
+        return TrackedObjectArray(header=Header(stamp_ns=1, frame_id="map"), objects=[
+            TrackedObject(track_id=tid, class_name=name, class_id=cid, confirmed=conf, best_score=score,
+                          position_m=Vector3(x=x, y=0.0, z=0.5)) for tid, name, cid, conf, score, x in tracks])
+
+    for x in (1.0, 2.0, 3.0, 4.0):
+        logs = ad(frame((7, "person", 0, True, 0.91, x), (8, "car", 2, False, 0.40, 10.0)))
+    tracks = one(logs, "world/objects/tracks", rr.Points3D)
+    assert arrow(tracks, "labels") == ["person #7 0.91", "car #8 0.40"]
+    assert arrow(tracks, "positions") == [[4.0, 0.0, 0.5], [10.0, 0.0, 0.5]]
+    colors = arrow(tracks, "colors")
+    assert colors[0] != colors[1]                        # the tentative car is drawn apart
+    history = one(logs, "world/objects/history", rr.LineStrips3D)
+    assert arrow(history, "strips") == [[[2.0, 0.0, 0.5], [3.0, 0.0, 0.5], [4.0, 0.0, 0.5]]]   # bounded, confirmed only
+    for _ in range(3):                                   # the person is gone: cleared, then forgotten
+        logs = ad(frame())
+    one(logs, "world/objects/tracks", rr.Clear)
+    assert 7 not in ad.history
 
 
 # ---------------------------------------------------------------- LiDAR and costmap
