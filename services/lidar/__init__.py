@@ -1,1 +1,1 @@
-"""LiDAR obstacles and rolling costmap (seed 004)."""
+"""LiDAR obstacles and rolling costmap (requirements LID-1 - LID-4)."""

@@ -1,4 +1,4 @@
-"""Rolling local costmap with Nav2 costmap_2d semantics (seed 004 §5), in ENU world metres.
+"""Rolling local costmap with Nav2 costmap_2d semantics (requirement LID-3), in ENU world metres.
 
 Layers: an obstacle layer (cells -1 unknown, 0 free, 100 lethal) kept between scans — marking
 from obstacle points within `obstacle_range_m` of the sensor once a cell holds `mark_threshold`

@@ -69,7 +69,7 @@ class PoseHistory:
 
 
 class LidarService(Service):
-    """LiDAR obstacle pipeline and rolling costmap (seed 004)."""
+    """LiDAR obstacle pipeline and rolling costmap (requirements LID-1 - LID-4)."""
 
     NAME = contract.NAME
     PARAMS = contract.PARAMS

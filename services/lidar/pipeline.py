@@ -1,15 +1,15 @@
-"""Seed 004 §4 obstacle pipeline as small pure functions over numpy arrays:
+"""The LiDAR obstacle pipeline (requirement LID-1) as small pure functions over numpy arrays:
 sanitize -> level -> voxel grid -> RANSAC ground plane -> height filter (-> optional clustering).
 
-Why numpy and not Open3D for each stage (ARCHITECTURE §7, `aero bench lidar` measures both):
+Why numpy and not Open3D for each stage (`aero bench lidar` measures both):
 Open3D's voxel_down_sample takes ~120 ms on 150k points single-threaded and its segment_plane
 ~30-44 ms; a sort-based numpy voxel grid and a batched RANSAC that scores 100 hypotheses in one
-matrix product do the same work in a fraction of that, so a scan fits the 50 ms budget on 2 cores.
+matrix product do the same work in a fraction of that, so a scan fits the 50 ms budget (LID-4) on 2 cores.
 
 Frames: the pipeline works in a *levelled* frame: axes parallel to the world's ENU (z up), origin
 at the sensor. Levelling uses the vehicle attitude (state/vehicle) or, without it, the IMU's
 gravity direction, so the ground normal is near +z and RANSAC only accepts planes within
-`ground_max_angle_deg` of it (seed 004 §4.2, the IMU seed).
+`ground_max_angle_deg` of it (LID-1: RANSAC seeded with the IMU's gravity direction).
 """
 from __future__ import annotations
 
@@ -21,7 +21,7 @@ import numpy as np
 
 @dataclass(frozen=True)
 class PipelineConfig:
-    """Seed 004 §3.1 parameters (names in the contract; units in metres / degrees)."""
+    """The pipeline's parameters (LID-1 defaults; names in the contract; units in metres / degrees)."""
 
     voxel_leaf_m: float = 0.05
     min_range_m: float = 0.5
@@ -257,7 +257,7 @@ def classify(points: np.ndarray, plane: GroundPlane, cfg: PipelineConfig,
 
     Ground: within ground_distance_threshold_m of the plane (or below it).
     Obstacle: at least min_obstacle_height_m above the ground, and not overhead: overhead means
-    higher than max_obstacle_height_m above the ground (seed 004's band for a ground robot) AND
+    higher than max_obstacle_height_m above the ground (LID-1's 0.1 - 2.0 m band, for a ground robot) AND
     more than overhead_clearance_m above the vehicle. So for a flying drone everything up to just
     above it is an obstacle — a canopy below its altitude is one, a canopy above it is not —
     and on a slope "above the vehicle" is measured along gravity, not from the tilted ground.
@@ -272,7 +272,7 @@ def classify(points: np.ndarray, plane: GroundPlane, cfg: PipelineConfig,
 
 def grid_clusters(points: np.ndarray, tolerance_m: float, min_size: int, max_size: int) -> list[np.ndarray]:
     """Euclidean-style clusters by connected components of a 2D occupancy grid with cell size
-    `tolerance_m` (8-connectivity): ~0.4 ms instead of DBSCAN's ~57 ms (ARCHITECTURE §7).
+    `tolerance_m` (8-connectivity): ~0.4 ms instead of DBSCAN's ~57 ms.
     Returns index arrays into `points`, sizes within [min_size, max_size]."""
     if len(points) == 0:
         return []
