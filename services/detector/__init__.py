@@ -1,1 +1,1 @@
-"""Object detector: any YOLOv8-format ONNX on the left camera -> perception/detections (seed 000 §4.2)."""
+"""Object detector: any YOLOv8-format ONNX on the left camera -> perception/detections (requirements DET-1 - DET-3)."""

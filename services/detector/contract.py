@@ -1,4 +1,4 @@
-"""Contract of the object detector (seed 000 §4.2): keys in/out and parameters.
+"""Contract of the object detector (requirements DET-1 - DET-3): keys in/out and parameters.
 
 Boxes are in the input image's pixels (continuous convention: the image spans [0, W] x [0, H]),
 the same form the simulator's sim/truth/boxes uses, so the two compare directly.

@@ -155,7 +155,7 @@ def detection_array(dets: Sequence[Detection], names: Sequence[str], header: Hea
 
 def detector_health(holder: ModelHolder, times: StageTimes, rate_hz: float,
                     image_age_s: float | None, image_timeout_s: float) -> Health:
-    """Seed 000 §4.2: ERROR no (usable) model, WARN inference slower than the rate (or no camera
+    """Requirement DET-2: ERROR no (usable) model, WARN inference slower than the rate (or no camera
     images), else OK. A refused hot swap does not change the level: its set was refused, so the
     model that runs is the one the parameter names (the reason stays in `model_refused`)."""
     m = holder.model

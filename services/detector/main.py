@@ -28,7 +28,7 @@ CHANNELS = {"rgb8": "rgb", "rgba8": "rgb", "bgr8": "bgr", "bgra8": "bgr", "mono8
 
 
 class DetectorService(Service):
-    """YOLOv8-format ONNX object detector (seed 000 §4.2)."""
+    """YOLOv8-format ONNX object detector (requirements DET-1 - DET-3)."""
 
     NAME = contract.NAME
     PARAMS = contract.PARAMS
