@@ -1,4 +1,4 @@
-"""vio: stereo-inertial visual odometry (seed 003 C1, seed 000 §4.1).
+"""vio: stereo-inertial visual odometry (requirements VIO-1 - VIO-8).
 
 A `VioStrategy` (selected by the `strategy` parameter at start) turns stereo frames and the IMU
 samples between them into a pose in the gravity-aligned `odom` frame (ENU-like: z up, origin and

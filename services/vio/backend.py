@@ -5,9 +5,9 @@ Factors: one CombinedImuFactor between consecutive frames (preintegrated by imu.
 walk included), one BetweenFactorPose3 per visual fix (keyframe -> frame, body frame, covariance
 from the front end), and priors at initialisation (gravity-aligned attitude, zero position, the
 still vehicle's velocity and gyro bias). Old states are marginalised, so cost per frame stays
-flat over a long flight (ARCHITECTURE §7: ISAM2 grows without bound, the fixed-lag smoother does
-not). ISAM2 runs with QR factorisation: Cholesky throws "indeterminate linear system" with
-realistic bias noise.
+flat over a long flight (a plain ISAM2 grows without bound, the fixed-lag smoother does not).
+ISAM2 runs with QR factorisation: Cholesky throws "indeterminate linear system" with realistic
+bias noise.
 """
 from __future__ import annotations
 

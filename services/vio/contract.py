@@ -1,4 +1,4 @@
-"""Contract of vio: keys in/out and parameters (stereo-inertial odometry, seed 003 / 000 §4.1)."""
+"""Contract of vio: keys in/out and parameters (stereo-inertial odometry, requirements VIO-1 - VIO-8)."""
 from aeroperception.schemas import CameraInfo, Image, Imu, Odometry, Reply, VioHealth, VioResetRequest
 from aeroperception.services.runtime import Param, Queries, Query, Topic, Topics
 from aeroperception.services.runtime.params import start_only_but

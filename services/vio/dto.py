@@ -1,5 +1,5 @@
-"""Seed 003's VIO data types (plain dataclasses: they never travel on Zenoh; the service maps
-them to Odometry / VioHealth) and its error types.
+"""The VIO data types of requirement VIO-7 (plain dataclasses: they never travel on Zenoh; the
+service maps them to Odometry / VioHealth) and its error types.
 
 Frames: `body` is the IMU frame (FLU on our vehicles; whatever the dataset's IMU is otherwise),
 `world` is VIO's gravity-aligned odom frame (z up, origin and yaw where VIO initialised).
@@ -49,7 +49,7 @@ class ImuSample:
 
 @dataclass
 class ImuWindow:
-    """The IMU samples between the previous frame and this one (seed 003: brackets the frame)."""
+    """The IMU samples between the previous frame and this one (VIO-7: they bracket the frame)."""
 
     start_t_ns: int
     end_t_ns: int
@@ -79,7 +79,7 @@ class ImuBias:
 
 @dataclass
 class WarmStartPose:
-    """Pose hint to restart from (seed 003 F8): body pose in world, world velocity, bias."""
+    """Pose hint to restart from (VIO-6): body pose in world, world velocity, bias."""
 
     world_T_body: np.ndarray
     velocity_world_mps: np.ndarray = field(default_factory=lambda: np.zeros(3))
@@ -97,8 +97,8 @@ class FeatureQuality:
 
 @dataclass
 class VioOutput:
-    """One frame's result. `relative_pose_T` is the body motion since the last keyframe (seed
-    003); `world_T_body` etc. are the smoother's current estimate, which state/visual_odometry
+    """One frame's result. `relative_pose_T` is the body motion since the last keyframe
+    (VIO-7); `world_T_body` etc. are the smoother's current estimate, which state/visual_odometry
     carries."""
 
     frame_id: int

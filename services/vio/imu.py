@@ -1,4 +1,4 @@
-"""The one IMU preintegration helper (seed 003 §6 ImuPreintegrator): GTSAM's
+"""The one IMU preintegration helper (requirement VIO-8): GTSAM's
 PreintegratedCombinedMeasurements configured from the IMU's noise densities, fed with samples
 clipped to a time window. The back end, `aero eval vio` and the tests all integrate through it.
 
@@ -20,7 +20,7 @@ GRAVITY_MPS2 = 9.80665
 
 @dataclass(frozen=True)
 class ImuNoise:
-    """Defaults: seed 000 §4.1 (what the simulator's IMU is configured with)."""
+    """Defaults: requirement VIO-2 (what the simulator's IMU is configured with)."""
 
     gyro_noise_density: float = 0.005
     accel_noise_density: float = 0.01

@@ -1,12 +1,12 @@
-"""The seed 003 strategy seam: `VioStrategy` (process_frame / reset_to_warm_start /
+"""The strategy seam (requirement VIO-5): `VioStrategy` (process_frame / reset_to_warm_start /
 health_snapshot), the registry the `strategy` parameter selects from at start, and the KLT
 strategies built on frontend.py + backend.py.
 
 `klt_stereo` (default): stereo PnP relative poses + IMU in the fixed-lag smoother; metric.
 `klt_mono`: the left camera only; the visual factor constrains rotation, scale comes from the IMU
 alone (drifts in position; a baseline and a fallback, not for GPS-denied flight).
-`okvis2` / `vins_mono` are named by seed 003 but not built here: asking for them raises
-StrategyNotAvailableError listing what exists.
+`okvis2` / `vins_mono` are named by the VIO specification but not built here: asking for them
+raises StrategyNotAvailableError listing what exists.
 """
 from __future__ import annotations
 
