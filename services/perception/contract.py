@@ -5,7 +5,7 @@ from aeroperception.services.runtime import Param, Topic, Topics
 NAME = "perception"
 INPUTS = Topics(
     Topic("state/vio_health", VioHealth, note="vio's tracking state"),
-    Topic("perception/detector_health", DiagnosticStatus, note="detector (seed 000 §4.2: OK / WARN / ERROR)"),
+    Topic("perception/detector_health", DiagnosticStatus, note="detector (DET-2: OK / WARN / ERROR)"),
     Topic("diagnostics/lidar", DiagnosticStatus, note="the LiDAR obstacle service's own health"),
 )
 OUTPUTS = Topics(

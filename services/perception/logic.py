@@ -1,6 +1,6 @@
 """The coordinator's verdict, free of Zenoh: statuses in (with the time they came), PerceptionHealth out.
 
-Mapping (seed 000 §4.1/§4.3, PerceptionHealth's enum): VIO INIT -> INITIALIZING, TRACKING -> HEALTHY,
+Mapping (requirement PERC-1, PerceptionHealth's enum): VIO INIT -> INITIALIZING, TRACKING -> HEALTHY,
 DEGRADED -> DEGRADED, LOST -> FAILED; a DiagnosticStatus OK -> HEALTHY, WARN -> DEGRADED,
 ERROR -> FAILED, STALE -> UNKNOWN; a source silent past its timeout (or never heard) is UNKNOWN; a
 source the stack does not run (not in `sources`: no camera, no LiDAR) is NOT_CONFIGURED, not broken.

@@ -14,7 +14,7 @@ LEVEL = {PerceptionHealth.HEALTHY: DiagnosticStatus.OK, PerceptionHealth.NOT_CON
 
 
 class PerceptionService(Service):
-    """Perception coordinator (seed 000 §4.3)."""
+    """Perception coordinator (requirement PERC-1)."""
 
     NAME = contract.NAME
     PARAMS = contract.PARAMS
