@@ -1,4 +1,4 @@
-"""recorder: MCAP recording of Zenoh keys (seed 000 §7.1's rosbag2 recorder, MCAP here).
+"""recorder: MCAP recording of Zenoh keys (requirement LOG-1; MCAP, where the source had rosbag2).
 
 One channel per key, our msgpack payloads byte for byte with the schema name/version and a JSON
 Schema in the schema record; presets, zstd chunks flushed at least every second (a kill -9 loses

@@ -10,7 +10,7 @@ NAME = "recorder"
 INPUTS = Topics()      # any key (Node.subscribe_raw): raw samples, recorded with their own encoding (see PRESETS)
 OUTPUTS = Topics()
 
-# Seed 000 §7.1's `essentials` list mapped to our keys (docs/ARCHITECTURE.md §4):
+# The `essentials` preset of requirement LOG-1, its ROS topic names mapped to our keys:
 #   /aeroperception/vehicle_state, /flight_mode -> state/vehicle (flight_mode is a field of it)
 #   /aeroperception/battery -> fmu/out/battery_status; /diagnostics_agg -> diagnostics/agg;
 #   the rest keep their names.
@@ -29,7 +29,7 @@ ESSENTIALS = (
     "fmu/out/vehicle_status",
     "diagnostics/agg",
 )
-# Raw images (~2 GB/min at full rate, seed 000 §7.1): only with record_images.
+# Raw images (~2 GB/min at full rate, LOG-1): only with record_images.
 IMAGE_KEYS = ("sensors/camera/*/image",)
 PRESETS = {"essentials": ESSENTIALS, "all": ("**",), "none": ()}
 
