@@ -1,5 +1,5 @@
 """rmw_zenoh's wire format, so ROS 2 nodes on rmw_zenoh see our data with no bridge process of
-theirs (docs/ARCHITECTURE.md §6).
+theirs.
 
 - data key     `<domain>/<topic without leading '/'>/<pkg>::msg::dds_::<Type>_/<RIHS01 hash>`
 - payload      CDR with its 4-byte encapsulation header (rosbags: Apache-2.0, pure Python)
