@@ -17,7 +17,7 @@ from aeroperception.schemas import SchemaError
 from .common import EXIT_BROKEN_PIPE, CliError, silence_stdout, stdout_closed
 
 COMMANDS = ["cmd_up", "cmd_router", "cmd_run", "cmd_topic", "cmd_schema", "cmd_param", "cmd_mission", "cmd_bench",
-            "cmd_eval", "cmd_snapshot", "cmd_docs", "cmd_chaos", "cmd_certs", "cmd_viz", "cmd_record"]
+            "cmd_eval", "cmd_snapshot", "cmd_docs", "cmd_chaos", "cmd_certs", "cmd_viz", "cmd_record", "cmd_fc"]
 
 
 def build_parser() -> argparse.ArgumentParser:

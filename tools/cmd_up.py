@@ -111,7 +111,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="px4 profile: PX4 instance N (ports 14540+N / 14580+N, /tmp/px4_lock-N; default 0)")
     p.add_argument("--gps-denied", action="store_true",
                    help="sim: the flight controller has no GPS-like position, only the VIO (fused with its "
-                        "IMU); the mission waits for and holds on perception health (VIO TRACKING)")
+                        "IMU); px4: PX4 boots for vision-only navigation (SIH GPS without satellites, EKF2 on "
+                        "the ODOMETRY fmu sends: `aero fc params show gps-denied-sih`); the mission waits for "
+                        "and holds on perception health (VIO TRACKING)")
     p.add_argument("--mission", default=None, metavar="FILE",
                    help="mission: load this mission file (JSON or YAML) at start-up (checked before anything starts)")
     p.add_argument("--arg", action="append", default=[], metavar="SERVICE:FLAG",
@@ -245,6 +247,14 @@ FCU_URL_RE = re.compile(r"^(?:(?:udp|udpin|udpout|udpbcast|tcp|tcpin):[A-Za-z0-9
                         r"|(?:/dev/\S+|COM\d+)(?:,\d+)?)$")
 
 
+def check_fcu_url(url: str) -> None:
+    """Refuse, in one line, a --fcu-url pymavlink could not open."""
+    m = FCU_URL_RE.match(url)
+    if not m or (m.group(1) and not 0 < int(m.group(1)) < 65536):
+        raise CliError(f"--fcu-url {url!r}: expected udpin:HOST:PORT, udpout:HOST:PORT, "
+                       "tcp:HOST:PORT or a serial device /dev/ttyACM0,921600")
+
+
 # `aero up --sensors`: what the simulator renders for each choice (the IMU always, but with none),
 # and the services that exist only to process one sensor: not started when it is not rendered (a
 # lidar service without scans would say WARN for ever); perception is told which sources run.
@@ -291,8 +301,10 @@ def validate_args(args, names: list[str]) -> None:
             load_scenario(args.scenario)
         except ScenarioError as e:
             raise CliError(f"--scenario: {e}{_did_you_mean(args.scenario, available_scenarios())}") from None
+    everything = load_profiles()[args.profile]["services"]
     if getattr(args, "gps_denied", False):
-        missing = [n for n in GPS_DENIED_NEEDS if n not in names]
+        # A profile without them (px4, vehicle) gets its vision from elsewhere (another host's VIO)
+        missing = [n for n in GPS_DENIED_NEEDS if n in everything and n not in names]
         if missing:
             raise CliError(f"--gps-denied needs {', '.join(missing)} (the vision position and its health): "
                            "do not leave them out with --only/--except")
@@ -308,14 +320,10 @@ def validate_args(args, names: list[str]) -> None:
         except SchemaError as e:
             raise CliError(f"--mission {args.mission}: {e}") from None
     if args.fcu_url is not None:
-        m = FCU_URL_RE.match(args.fcu_url)
-        if not m or (m.group(1) and not 0 < int(m.group(1)) < 65536):
-            raise CliError(f"--fcu-url {args.fcu_url!r}: expected udpin:HOST:PORT, udpout:HOST:PORT, "
-                           "tcp:HOST:PORT or a serial device /dev/ttyACM0,921600")
+        check_fcu_url(args.fcu_url)
     for ep in args.connect:
         if not ENDPOINT_RE.match(ep):
             raise CliError(f"--connect {ep!r}: expected a Zenoh endpoint like tcp/10.0.0.2:7447")
-    everything = load_profiles()[args.profile]["services"]
     for item in args.arg:
         svc, sep, flag = item.partition(":")
         if not sep or not flag:
@@ -331,11 +339,15 @@ class Px4Plan:
 
     build: Path
     instance: int
+    gps_denied: bool = False    # boot for vision-only navigation (fc_params' gps-denied-sih set)
+
+    def env(self) -> dict[str, str]:
+        return px4_sitl.boot_env(gps_denied=self.gps_denied)
 
     def child(self, log_dir: Path, priority: Priority) -> Child:
         workdir = px4_sitl.work_dir(log_dir)
         c = Child(px4_sitl.NAME, px4_sitl.argv(self.build, self.instance, workdir), log_dir / f"{px4_sitl.NAME}.log",
-                  priority=priority, extra_env=px4_sitl.boot_env(), stop_signal=signal.SIGINT,
+                  priority=priority, extra_env=self.env(), stop_signal=signal.SIGINT,
                   booted=px4_sitl.BOOTED)
         c.health = {"level": 0, "message": px4_sitl.describe(self.instance, workdir)}
         return c
@@ -353,7 +365,7 @@ def plan_px4(args, names: list[str]) -> Px4Plan | None:
     if args.fcu_url is not None:
         raise CliError(f"--fcu-url: fmu talks to the PX4 this profile starts ({px4_sitl.fcu_url(instance or 0)}); "
                        "drop --fcu-url, or use --profile vehicle for a flight controller of your own")
-    plan = Px4Plan(px4_sitl.build_dir(px4_dir), 0 if instance is None else instance)
+    plan = Px4Plan(px4_sitl.build_dir(px4_dir), 0 if instance is None else instance, getattr(args, "gps_denied", False))
     px4_sitl.check_instance(plan.instance)
     args.fcu_url = px4_sitl.fcu_url(plan.instance)
     return plan
@@ -369,7 +381,8 @@ def service_argv(name: str, args, endpoint: str, profile_args: list[str] = (), r
         argv += ["--param", "sources=" + ",".join(s for s in SOURCES if s in running)]
     # GPS-denied, the VIO's age is checked (fmu) against the sim's stamps: every service follows
     # sim/clock even at x1, where a sim that fell behind real time re-anchors and lags the wall clock.
-    if (args.speed is not None and args.speed != 1.0) or getattr(args, "gps_denied", False):
+    # Without the sim (px4, vehicle) there is no sim/clock: wall time.
+    if (args.speed is not None and args.speed != 1.0) or (getattr(args, "gps_denied", False) and "sim" in running):
         argv.append("--sim-time")
     if name == "sim":
         for flag, val in (("--scenario", args.scenario), ("--speed", args.speed), ("--seed", args.seed),
@@ -480,7 +493,7 @@ def run(args) -> int:
         joins = f", joining {', '.join(args.connect)}" if args.connect else ""
         emit(f"aero up: profile {args.profile}, router on {args.listen}{joins}; would start:")
         if px4:
-            env = " ".join(f"{k}={v}" for k, v in px4_sitl.boot_env().items())
+            env = " ".join(f"{k}={v}" for k, v in px4.env().items())
             emit(f"  {px4_sitl.NAME:<12} {env} " + " ".join(px4_sitl.argv(px4.build, px4.instance, "<log-dir>/px4-XXXX")))
         for n in services:
             emit(f"  {n:<12} " + " ".join(service_argv(n, args, endpoint, [str(a) for a in profile_args.get(n, [])],

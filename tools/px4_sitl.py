@@ -10,7 +10,8 @@ fmu fail after the start (a wrong directory, the instance already running, a por
 refused here, in one line, before anything starts.
 
 BOOT_PARAMS are what a companion-flown PX4 needs without RC and without a ground station; they
-are set at boot (PX4_PARAM_<NAME>=<value>, applied by PX4's rcS after the airframe's defaults).
+are set at boot (PX4_PARAM_<NAME>=<value>, applied by PX4's rcS after the airframe's defaults);
+`aero up --gps-denied` adds fc_params' GPS-denied set (SIH's GPS without satellites, EKF2 on vision).
 
 Never here: supervision policy (restart, stop) - that is aero up's, the same as for a service.
 """
@@ -25,6 +26,7 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
+from . import fc_params
 from .common import CliError
 
 NAME = "px4"                    # its name in profiles.yaml, pids.json, the status table and logs
@@ -163,14 +165,15 @@ def argv(build: Path, instance: int, workdir: Path | str) -> list[str]:
     return [setpriv, "--pdeathsig", "INT", "--", *cmd] if setpriv else cmd
 
 
-def boot_env(environ: dict[str, str] | None = None) -> dict[str, str]:
-    """The airframe and BOOT_PARAMS as environment; PX4_PARAM_* the user exported win (their values are
-    what PX4 gets, shown by --dry-run)."""
+def boot_env(environ: dict[str, str] | None = None, gps_denied: bool = False) -> dict[str, str]:
+    """The airframe and BOOT_PARAMS as environment, plus with `gps_denied` the vision-only navigation
+    set (fc_params.SETS["gps-denied-sih"]: GPS off in SIH, EKF2 on external vision); PX4_PARAM_* the
+    user exported win (their values are what PX4 gets, shown by --dry-run)."""
     environ = os.environ if environ is None else environ
-    env = dict(AIRFRAME_ENV)
-    for name, (value, _why) in BOOT_PARAMS.items():
-        env[f"PX4_PARAM_{name}"] = environ.get(f"PX4_PARAM_{name}", value)
-    return env
+    wanted = {f"PX4_PARAM_{name}": value for name, (value, _why) in BOOT_PARAMS.items()}
+    if gps_denied:
+        wanted |= fc_params.boot_env(fc_params.SETS["gps-denied-sih"])
+    return dict(AIRFRAME_ENV) | {k: environ.get(k, v) for k, v in wanted.items()}
 
 
 def describe(instance: int, workdir: Path | str) -> str:
