@@ -28,7 +28,8 @@ from pymavlink.dialects.v20 import common as M
 
 from aeroperception.services.mavlink import frames, px4
 
-from .missions import SPEED_DEFAULT, Home, change_speed_value
+from .home import Home
+from .mission_speed import SPEED_DEFAULT, change_speed_value
 
 Done = Callable[..., None]   # done(ok: bool, message: str, failed: bool = False)
 FORCE_MAGIC = 21196
@@ -170,7 +171,7 @@ class CommandHandler:
             yaw = float(frames.yaw_ned_to_enu(math.radians(p[3]))) if math.isfinite(p[3]) else None
             self._async(c, now_s, lambda d: self.ops.goto(target, yaw, d))
         elif cmd == M.MAV_CMD_DO_CHANGE_SPEED:
-            # The planner's live speed limit (PLN_MAX_VELOCITY); see missions.change_speed_value.
+            # The planner's live speed limit (PLN_MAX_VELOCITY); see mission_speed.change_speed_value.
             if math.isfinite(p[0]) and int(p[0]) in (2, 3) and int(p[0]) == p[0]:
                 self.ack(cmd, M.MAV_RESULT_UNSUPPORTED, c.peer)   # no separate climb/descent limit
                 return

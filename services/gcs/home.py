@@ -1,6 +1,6 @@
-"""The home gcs converts about (no Zenoh): the flight controller's, once fmu reports it on
-fmu/out/home_position, else the home_* parameters (seed 001 §15's default) with home at the local
-origin.
+"""Home (where the local ENU frame sits on the Earth) and the home gcs converts about, without
+Zenoh: the flight controller's, once fmu reports it on fmu/out/home_position, else the home_*
+parameters with home at the local origin.
 
 Every geodetic <-> local conversion of gcs (GLOBAL_POSITION_INT, GPS_RAW_INT, HOME_POSITION,
 mission items, DO_REPOSITION / NAV_TAKEOFF altitudes) uses `HomeTracker.home`. A new home that
@@ -11,11 +11,67 @@ about one home.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
+from functools import cached_property
 from typing import Callable
 
 from aeroperception.schemas import HomePosition
+from aeroperception.services.mavlink import frames
+from aeroperception.services.mavlink.geo import MapProjection
 
-from .missions import Home
+@dataclass(frozen=True)
+class Home:
+    """Where the local ENU frame sits on the Earth: home's geodetic position (`alt_m` AMSL) and
+    `local_m`, the same point in the local ENU frame (the flight controller's HOME_POSITION
+    x/y/z; (0, 0, 0) when home is the local origin, as with the gcs parameters).
+
+    Geodetic <-> local goes through the local origin, as PX4 does it (its MapProjection is about
+    the EKF origin, not home): `origin` is the point whose projection puts home at `local_m`.
+    Altitudes "relative" are above home (MAVLink relative_alt, global-relative mission frames):
+    local z = relative altitude + local_m z.
+    """
+
+    lat_deg: float
+    lon_deg: float
+    alt_m: float  # AMSL
+    local_m: tuple[float, float, float] = (0.0, 0.0, 0.0)   # home in the local ENU frame
+
+    @property
+    def projection(self) -> MapProjection:
+        """The projection about home itself."""
+        return MapProjection(self.lat_deg, self.lon_deg)
+
+    @cached_property
+    def origin(self) -> MapProjection:
+        """The projection about the local origin (home when local_m is zero)."""
+        east, north = float(self.local_m[0]), float(self.local_m[1])
+        if east == 0.0 and north == 0.0:
+            return self.projection
+        lat, lon = self.projection.reproject(-north, -east)   # first guess, then fixed-point refinement
+        for _ in range(8):
+            got_lat, got_lon = MapProjection(lat, lon).reproject(north, east)
+            d_lat, d_lon = self.lat_deg - got_lat, (self.lon_deg - got_lon + 180.0) % 360.0 - 180.0
+            lat, lon = lat + d_lat, lon + d_lon
+            if abs(d_lat) < 1e-12 and abs(d_lon) < 1e-12:
+                break
+        return MapProjection(lat, (lon + 180.0) % 360.0 - 180.0)
+
+    def local_z(self, alt_rel_m: float) -> float:
+        """Altitude above home -> local ENU z."""
+        return float(alt_rel_m) + float(self.local_m[2])
+
+    def to_enu(self, lat_deg: float, lon_deg: float, alt_rel_m: float) -> tuple[float, float, float]:
+        """Geodetic (altitude above home) -> local ENU metres."""
+        north, east = self.origin.project(lat_deg, lon_deg)
+        x, y, _ = frames.ned_to_enu([north, east, 0.0])
+        return float(x), float(y), self.local_z(alt_rel_m)
+
+    def to_geodetic(self, x: float, y: float, z: float) -> tuple[float, float, float]:
+        """Local ENU metres -> (lat_deg, lon_deg, altitude above home)."""
+        north, east, _ = frames.enu_to_ned([x, y, 0.0])
+        lat, lon = self.origin.reproject(float(north), float(east))
+        return lat, lon, float(z) - float(self.local_m[2])
+
 
 SOURCE_PARAM = "param"
 SOURCE_FC = "flight_controller"

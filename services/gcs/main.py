@@ -29,13 +29,13 @@ from aeroperception.services.runtime import CallError, Health, Service, run
 
 from . import contract
 from .commands import CommandHandler, mode_from_custom_mode
-from .home import SOURCE_PARAM, HomeTracker, home_from_msg, origin_shift_m
+from .home import SOURCE_PARAM, Home, HomeTracker, home_from_msg, origin_shift_m
 from .link import UdpLink, load_signing_key, parse_signing_key
 from .messages import statustext
-from .missions import (
-    SPEED_DEFAULT, Home, MissionConversionError, MissionProtocol, Progress, SpeedSchedule, convert_items,
-    mission_to_items, waypoint_speeds,
-)
+from .mission_items import MissionConversionError, convert_items, mission_to_items
+from .mission_progress import Progress
+from .mission_protocol import MissionProtocol
+from .mission_speed import SPEED_DEFAULT, SpeedSchedule, waypoint_speeds
 from .params import ParamTable, decode_param_id, decode_value
 from .presence import GroundStationFilter, LinkVerdict, ListeningClock
 from .objects_relay import ObjectsRelay, event_text
@@ -521,7 +521,7 @@ class GcsService(Service):
 
     def _fetch_mission(self) -> None:
         """The mission service has a mission we did not upload: fetch it (mission/srv/get) and
-        serve it as items (NAV_TAKEOFF + NAV_WAYPOINTs, see missions.mission_to_items). Not while
+        serve it as items (NAV_TAKEOFF + NAV_WAYPOINTs, see mission_items.mission_to_items). Not while
         a transfer is under way; a failed fetch is retried after 5 s."""
         busy = self.missions.loading or self.missions.transfer is not None
         if self.fetching or busy or time.monotonic() - self.fetch_failed_s < 5.0:
@@ -662,7 +662,7 @@ class GcsService(Service):
 
     def change_speed(self, speed_mps: float | None, done) -> None:
         """DO_CHANGE_SPEED (command): the planner's live speed limit; None = its declared default.
-        While our mission runs the change is mission-scoped (ends with it, missions.py)."""
+        While our mission runs the change is mission-scoped (ends with it, mission_speed.py)."""
         st = self.tel.mission
         if st is not None and st.mission_id == self.speeds.mission_id and st.state in SpeedSchedule.RUNNING:
             self.speeds.begin(self._planner_speed())

@@ -20,7 +20,8 @@ from aeroperception.schemas import (
 from aeroperception.services.mavlink import frames, px4
 
 from .messages import MissionCurrent
-from .missions import Home, Progress
+from .home import Home
+from .mission_progress import Progress
 
 # What we really support. Not SET_POSITION_TARGET_LOCAL_NED (issue 9 #5): offboard setpoints from a
 # ground station would bypass the mission manager and the planner; such messages are counted as
@@ -60,7 +61,7 @@ class TelemetryState:
     mission: MissionStatus | None = None
     mission_seq: int = 0            # MISSION_CURRENT.seq (item index)
     mission_total: int = 0
-    mission_id: int = 0             # MISSION_CURRENT.mission_id: the plan's id (missions.plan_id), 0 = none
+    mission_id: int = 0             # MISSION_CURRENT.mission_id: the plan's id (mission_items.plan_id), 0 = none
     progress: Progress | None = None  # the mission protocol's progress (current item, mission_state)
     safety: SafetyStatus | None = None
     safety_rx_s: float = 0.0        # monotonic time safety/status last arrived

@@ -14,7 +14,7 @@ from pymavlink.dialects.v20 import common as M
 
 from aeroperception.schemas import EstimatorStatus, GpsPosition
 from aeroperception.services.fmu.navigation import estimator_status_from_mavlink, gps_from_mavlink
-from aeroperception.services.gcs.missions import Home
+from aeroperception.services.gcs.home import Home
 from aeroperception.services.gcs.telemetry import DEFAULT_STREAM, FC_STATUS_STALE_S, ID, TelemetryState
 from aeroperception.services.sim.vehicle.mavlink_module import MavlinkModule
 from aeroperception.services.sim.vehicle.model import SimVehicle

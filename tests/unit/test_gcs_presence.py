@@ -1,4 +1,4 @@
-"""gcs ground-station presence (issue 8 #4): only ground stations count, no verdict before a full
+"""gcs ground-station presence: only ground stations count, no verdict before a full
 timeout after start, and a stall (SIGSTOP) is judged from packets actually received."""
 from __future__ import annotations
 
