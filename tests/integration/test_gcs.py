@@ -29,7 +29,7 @@ from aeroperception.services.gcs.contract import (  # noqa: E402
     DEFAULT_HOME_ALT_M, DEFAULT_HOME_LAT_DEG, DEFAULT_HOME_LON_DEG,
 )
 from aeroperception.services.gcs.messages import extension_fields  # noqa: E402
-from aeroperception.services.gcs.missions import Home  # noqa: E402
+from aeroperception.services.gcs.home import Home  # noqa: E402
 from aeroperception.services.sim.vehicle.params import make_params  # noqa: E402
 from aerotest import wait_for_message, wait_until  # noqa: E402
 
