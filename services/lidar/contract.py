@@ -1,4 +1,4 @@
-"""Contract of the lidar service (seed 004): keys in/out and parameters.
+"""Contract of the lidar service (requirements LID-1 - LID-4): keys in/out and parameters.
 
 Frames: scans arrive in the sensor frame (x forward, z up, mounted on the FLU body by the
 mount_* parameters); everything published is ENU world ("map"), placed with the vehicle pose
@@ -8,6 +8,7 @@ from aeroperception.schemas import Imu, OccupancyGrid, PointCloud, VehicleState
 from aeroperception.services.runtime import Param, Topic, Topics
 
 NAME = "lidar"
+CPU_BUDGET_PCT = 25.0   # % of one core for the whole pipeline at 10 scans/s
 INPUTS = Topics(
     Topic("sensors/lidar/points", PointCloud, note="sensor frame"),
     Topic("state/vehicle", VehicleState, note="pose at the scan stamp (levelling + costmap placement)"),
@@ -19,7 +20,7 @@ OUTPUTS = Topics(
     Topic("perception/costmap", OccupancyGrid, 10.0, note="rolling grid centred on the vehicle"),
 )
 PARAMS = [
-    # seed 004 §3.1 pcl_filter
+    # the filter pipeline (LID-1)
     Param("voxel_leaf_m", 0.05, "m", 0.01, 1.0, description="voxel grid leaf size"),
     Param("min_range_m", 0.5, "m", 0.0, 10.0, description="returns nearer than this are dropped (own airframe)"),
     Param("max_range_m", 50.0, "m", 1.0, 300.0, description="returns farther than this are dropped"),
@@ -44,7 +45,7 @@ PARAMS = [
     Param("mount_roll_deg", 0.0, "deg", -180.0, 180.0), Param("mount_pitch_deg", 0.0, "deg", -90.0, 90.0),
     Param("mount_yaw_deg", 0.0, "deg", -180.0, 180.0),
     Param("pose_max_age_s", 0.1, "s", 0.01, 1.0, description="no state/vehicle this near the scan stamp: no costmap"),
-    # seed 004 §5.1 costmap (Nav2 semantics)
+    # the costmap (LID-3: Nav2 semantics)
     Param("costmap_size_m", 20.0, "m", 5.0, 200.0, description="rolling window edge"),
     Param("costmap_resolution_m", 0.1, "m", 0.02, 1.0, description="cell size"),
     Param("obstacle_range_m", 10.0, "m", 0.5, 100.0, description="mark obstacles up to this range"),

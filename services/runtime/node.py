@@ -25,6 +25,7 @@ from aeroperception.schemas import (
 from aeroperception.schemas.system import ParamDescriptor
 
 from .clock import Clock
+from .cpu import CpuMeter
 from .log import Logger
 from .params import Param, ParamError, ParamSet
 from .rate import RateLoop
@@ -80,7 +81,8 @@ class Publisher:
 class Node:
     def __init__(self, name: str, *, params: list[Param] | None = None, vehicle: str = "",
                  zenoh_config: str | None = None, connect: str | None = None,
-                 log_level: str = "info", sim_time: bool = False, mode: str | None = None):
+                 log_level: str = "info", sim_time: bool = False, mode: str | None = None,
+                 cpu_budget_pct: float | None = None):
         self.name = name
         self.vehicle = vehicle
         self.log = Logger(name, log_level)
@@ -98,6 +100,7 @@ class Node:
         self._loops: list[RateLoop] = []
         self._pool = ThreadPoolExecutor(max_workers=4, thread_name_prefix=f"{name}-q")
         self._health_fn: Callable[[], Health] = lambda: Health()
+        self.cpu = CpuMeter(cpu_budget_pct)   # this process's CPU %, RSS and budget (cpu.py)
         self._diag_pub: Publisher | None = None
         self._closed = False
         self.instance: Instance | None = None   # set by an exclusive connect()
@@ -385,6 +388,8 @@ class Node:
             values[f"invalid_msgs[{k}]"] = str(n)
         values["callback_errors"] = str(sum(self.callback_errors.values()))
         values["params_rejected"] = str(self.params_rejected)
+        cpu = self.cpu.report()
+        values.update(cpu.values())
         for loop in self._loops:
             short = loop.name.removeprefix(self.name + "-")
             if short == "diagnostics":
@@ -394,6 +399,8 @@ class Node:
         level, message = health.level, health.message
         if level == DiagnosticStatus.OK and (self.bad_input or self.callback_errors):
             level, message = DiagnosticStatus.WARN, f"{message}; dropped invalid input"
+        if cpu.over_budget:
+            level, message = max(level, DiagnosticStatus.WARN), f"{message}; {cpu.problem()}"
         return DiagnosticStatus(header=self.header(), level=level, name=self.name, message=message,
                                 hardware_id=self.vehicle or "default", values=values)
 

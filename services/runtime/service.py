@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import faulthandler
+import importlib
 import os
 import signal
 import sys
@@ -33,6 +34,9 @@ class Service:
 
     NAME: ClassVar[str] = ""
     PARAMS: ClassVar[list[Param]] = []
+    # % of one core this service should stay within (cpu.py: WARN when the 10 s mean exceeds it);
+    # None: the CPU_BUDGET_PCT of the contract.py beside the service's module, if it declares one.
+    CPU_BUDGET_PCT: ClassVar[float | None] = None
 
     def __init__(self, node: Node, args: argparse.Namespace):
         self.node = node
@@ -53,6 +57,20 @@ class Service:
 
     def stop(self) -> None:
         """Release resources (files, sockets); called once, before the session closes."""
+
+
+def cpu_budget(service_cls: type[Service]) -> float | None:
+    """The service's CPU budget: its class's, else its package's contract.CPU_BUDGET_PCT."""
+    if service_cls.CPU_BUDGET_PCT is not None:
+        return service_cls.CPU_BUDGET_PCT
+    package = service_cls.__module__.rpartition(".")[0]
+    try:
+        contract = importlib.import_module(f"{package}.contract") if package else None
+    except ModuleNotFoundError as e:
+        if e.name != f"{package}.contract":
+            raise
+        return None
+    return getattr(contract, "CPU_BUDGET_PCT", None)
 
 
 def common_parser(prog: str, description: str = "") -> argparse.ArgumentParser:
@@ -87,7 +105,8 @@ def run(service_cls: type[Service], argv: Sequence[str] | None = None) -> int:
     try:
         node = Node(service_cls.NAME, params=service_cls.PARAMS, vehicle=args.vehicle,
                     zenoh_config=args.zenoh_config, connect=args.connect,
-                    log_level=args.log_level, sim_time=args.sim_time)
+                    log_level=args.log_level, sim_time=args.sim_time,
+                    cpu_budget_pct=cpu_budget(service_cls))
         if args.params:
             node.params.load_file(args.params, service_cls.NAME)
         node.params.update(parse_overrides(args.param))
