@@ -2,23 +2,23 @@
 from aeroperception.schemas import (
     MissionGoal, OccupancyGrid, TrajectorySetpoint, TrajectoryStatus, VehicleState, WaypointReached,
 )
-from aeroperception.services.runtime import Param
+from aeroperception.services.runtime import Param, Topic, Topics
 
 NAME = "planner"
-INPUTS = {
-    "state/vehicle": VehicleState,
+INPUTS = Topics(
+    Topic("state/vehicle", VehicleState),
     # The goal to fly to (with its own speed caps). header.frame_id == "hold" means: stop and hold where you are.
-    "mission/active_goal": MissionGoal,
+    Topic("mission/active_goal", MissionGoal),
     # The lidar service's rolling costmap: obstacle-aware velocity (planner/avoidance.py).
-    "perception/costmap": OccupancyGrid,
-}
-OUTPUTS = {
-    "fmu/in/trajectory_setpoint": TrajectorySetpoint,   # 50 Hz, always
-    "planner/status": TrajectoryStatus,                  # 10 Hz (STATUS_RATE_HZ): progress, times, setpoint, errors
-    "planner/waypoint_reached": WaypointReached,         # event; index = n-th goal received
-}
+    Topic("perception/costmap", OccupancyGrid),
+)
 HOLD_FRAME = "hold"
 STATUS_RATE_HZ = 10.0
+OUTPUTS = Topics(
+    Topic("fmu/in/trajectory_setpoint", TrajectorySetpoint, 50.0, note="always (rate_hz)"),
+    Topic("planner/status", TrajectoryStatus, STATUS_RATE_HZ, note="progress, times, setpoint, errors"),
+    Topic("planner/waypoint_reached", WaypointReached, note="event; index = n-th goal received"),
+)
 PARAMS = [
     Param("max_velocity_mps", 2.0, "m/s", 0.1, 15.0, description="speed cap of the velocity command"),
     Param("kp", 0.8, "1/s", 0.05, 5.0, description="proportional gain on position error"),
