@@ -1,38 +1,40 @@
 """Contract of fmu: keys in/out (ENU/FLU) and parameters."""
 from aeroperception.schemas import (
     ArmReply, ArmRequest, Attitude, BatteryState, EmergencyStopReply, EmergencyStopRequest, EstimatorStatus,
-    GpsPosition, HomePosition, Imu,
-    LocalPosition, Odometry, SetModeReply, SetModeRequest, TrajectorySetpoint, TrajectoryStatus, VehicleState, VehicleStatus,
+    GpsPosition, HomePosition, Image, Imu, LocalPosition, Odometry, SetModeReply, SetModeRequest, TrajectorySetpoint,
+    TrajectoryStatus, VehicleState, VehicleStatus,
 )
-from aeroperception.services.runtime import Param
+from aeroperception.services.runtime import Param, Queries, Query, Topic, Topics
 
 NAME = "fmu"
-INPUTS = {
-    "fmu/in/trajectory_setpoint": TrajectorySetpoint,   # from planner, ENU
-    "state/visual_odometry": Odometry,                  # from vio, injected as ODOMETRY (VISION)
-    "planner/status": TrajectoryStatus,                 # ERROR -> stop following the planner, hold
-    "aero/alive/<vehicle>/planner": None,               # liveliness: gone -> brake and hold at once
-}
-OUTPUTS = {
-    "fmu/out/vehicle_local_position": LocalPosition,    # 50 Hz
-    "fmu/out/vehicle_attitude": Attitude,               # 50 Hz
-    "fmu/out/vehicle_status": VehicleStatus,            # STATUS_RATE_HZ + at once on a heartbeat that changes it
-    "fmu/out/battery_status": BatteryState,             # 1 Hz
-    "fmu/out/home_position": HomePosition,              # FC's home (HOME_POSITION): on change + 1 Hz (latched)
-    "fmu/out/sensor_combined": Imu,                     # FC IMU (HIGHRES_IMU), FLU
-    "fmu/out/vehicle_gps_position": GpsPosition,        # 1 Hz: the FC's GPS receiver (GPS_RAW_INT), NO_GPS/NO_FIX too
-    "fmu/out/estimator_status": EstimatorStatus,        # 1 Hz: the FC's estimator flags (ESTIMATOR_STATUS)
-    "sensors/imu": Imu,                                 # only with publish_imu (real hardware)
-    "state/vehicle": VehicleState,                      # 50 Hz
-}
-SERVICES = {
-    "fmu/srv/arm": (ArmRequest, ArmReply),
-    "fmu/srv/set_mode": (SetModeRequest, SetModeReply),
-    "fmu/srv/emergency_stop": (EmergencyStopRequest, EmergencyStopReply),
-}
 # The FC's HEARTBEAT comes at 1 Hz; the status is republished from the latest telemetry at this
 # rate (while the link is fresh) so a landed-state change or a late subscriber waits <= 0.2 s.
 STATUS_RATE_HZ = 5.0
+INPUTS = Topics(
+    Topic("fmu/in/trajectory_setpoint", TrajectorySetpoint, note="from planner, ENU"),
+    Topic("state/visual_odometry", Odometry, note="from vio, injected as ODOMETRY (VISION)"),
+    Topic("planner/status", TrajectoryStatus, note="ERROR -> stop following the planner, hold"),
+    Topic("sensors/camera/left/image", Image, note="only with publish_imu: camera / IMU stamp alignment"),
+)
+LIVELINESS = ("planner",)   # gone -> brake and hold at once
+OUTPUTS = Topics(
+    Topic("fmu/out/vehicle_local_position", LocalPosition, 50.0),
+    Topic("fmu/out/vehicle_attitude", Attitude, 50.0),
+    Topic("fmu/out/vehicle_status", VehicleStatus, STATUS_RATE_HZ, note="and at once on a heartbeat that changes it"),
+    Topic("fmu/out/battery_status", BatteryState, 1.0),
+    Topic("fmu/out/home_position", HomePosition, 1.0, note="FC's home (HOME_POSITION), also at once on a change"),
+    Topic("fmu/out/sensor_combined", Imu, note="FC IMU (HIGHRES_IMU), FLU, at the FC's stream rate"),
+    Topic("fmu/out/vehicle_gps_position", GpsPosition, 1.0,
+          note="the FC's GPS receiver (GPS_RAW_INT), NO_GPS/NO_FIX too"),
+    Topic("fmu/out/estimator_status", EstimatorStatus, 1.0, note="the FC's estimator flags (ESTIMATOR_STATUS)"),
+    Topic("sensors/imu", Imu, note="only with publish_imu (real hardware): HIGHRES_IMU as received"),
+    Topic("state/vehicle", VehicleState, 50.0, note="pose (ENU), velocity, mode, armed, landed, battery, FC link"),
+)
+SERVICES = Queries(
+    Query("fmu/srv/arm", ArmRequest, ArmReply),
+    Query("fmu/srv/set_mode", SetModeRequest, SetModeReply),
+    Query("fmu/srv/emergency_stop", EmergencyStopRequest, EmergencyStopReply),
+)
 DEFAULT_FCU_URL = "udpin:127.0.0.1:14540"   # PX4 SITL / the built-in sim send here
 PARAMS = [
     Param("offboard_rate_hz", 50.0, "Hz", 20.0, 100.0, description="SET_POSITION_TARGET_LOCAL_NED stream rate"),
