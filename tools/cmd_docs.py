@@ -23,7 +23,8 @@ DEFAULT_DOC = Path(__file__).resolve().parents[1] / "docs" / "ARCHITECTURE.md"
 # Keys every service has through the runtime (services/runtime/node.py), not listed in contracts.
 RUNTIME_TOPICS = [
     ("diagnostics/<service>", "DiagnosticStatus", "1 Hz", "health: OK / WARN / ERROR + message + values"),
-    (f"{LIVELINESS_ROOT}/<vehicle>/<service>", "liveliness token", "", "present while the service runs"),
+    (f"{LIVELINESS_ROOT}/<vehicle>/<service>", "liveliness token", "",
+     "present while the service runs; consumers: watcher (watched services)"),
 ]
 RUNTIME_QUERYABLES = [
     ("config/<service>/@params", "-", "ParamList", "the declared parameters with value, unit, range"),
@@ -50,12 +51,17 @@ def _code(key: str) -> str:
     return f"`{key}`"
 
 
+def _watchers(cs: list[contracts.Contract]) -> list[str]:
+    """"fmu (planner)": each service that watches liveliness tokens, with whose."""
+    return [f"{c.service} ({', '.join(c.liveliness)})" for c in cs if c.liveliness]
+
+
 def key_table(cs: list[contracts.Contract] | None = None) -> str:
     """Markdown: topics (producer, consumers, schema, rate), queryables, actions."""
     cs = contracts.load_contracts() if cs is None else cs
     sources = ", ".join(f"`{c.source}`" for c in cs)
     out = [f"Generated from {sources}.", "",
-           "Topics (rate as written beside the key in the contract; liveliness inputs are tokens, not data):", "",
+           "Topics (rate: the producer's declared `rate_hz`; blank: event-driven, see the notes):", "",
            "| key | schema | rate | producer | consumers | notes |", "|---|---|---|---|---|---|"]
     runtime_keys = [k for k, *_ in RUNTIME_TOPICS]
     keys = sorted({k for c in cs for k in (*c.outputs, *c.inputs)})
@@ -67,18 +73,23 @@ def key_table(cs: list[contracts.Contract] | None = None) -> str:
         consumers = [c.service for c in cs if any(contracts.key_matches(p, key) for p in c.inputs)
                      and c not in producers]
         schema = next((c.outputs[key] for c in producers if c.outputs[key]), None) or \
-            next((c.inputs[key] for c in cs if c.inputs.get(key)), None) or "liveliness token"
+            next((c.inputs[key] for c in cs if c.inputs.get(key)), None) or "—"
         rate = next((c.rate(key) for c in producers if c.rate(key)), "")
-        noted = [c for c in producers if key in c.notes] or [c for c in cs if key in c.notes]
+        # The producer says what the key is; a consumer's note only where nothing in the stack publishes it.
+        noted = [c for c in (producers or cs) if key in c.notes]
         note = noted[0].notes[key] if len(noted) == 1 else "; ".join(f"{c.service}: {c.notes[key]}" for c in noted)
         out.append(f"| {_code(key)} | {schema} | {rate} | {_cell([c.service for c in producers])} | "
                    f"{_cell(consumers)} | {note.replace('|', '/')} |")
     for key, schema, rate, note in RUNTIME_TOPICS:
-        consumers = [c.service for c in cs if any(contracts.key_matches(p, key) for p in c.inputs)]
+        if key.startswith(LIVELINESS_ROOT):
+            consumers = _watchers(cs)   # by the watched service's name, not by key
+        else:
+            consumers = [c.service for c in cs if any(contracts.key_matches(p, key) for p in c.inputs)]
         out.append(f"| {_code(key)} | {schema} | {rate} | every service (runtime) | {_cell(consumers)} | {note} |")
     out += ["", "Queryables (request/response, `aero service call`):", "",
             "| key | request | reply | served by | called by |", "|---|---|---|---|---|"]
-    qkeys = sorted({k for c in cs for k in (*c.services, *c.calls)} - {k for k, *_ in RUNTIME_QUERYABLES})
+    runtime_queries = [k for k, *_ in RUNTIME_QUERYABLES]
+    qkeys = sorted({k for c in cs for k in (*c.services, *c.calls)} - set(runtime_queries))
     for key in qkeys:
         servers = [c.service for c in cs if key in c.services]
         callers = [c.service for c in cs if key in c.calls]

@@ -1,28 +1,25 @@
-"""The services' declared keys, read from their source: services/*/contract.py (a service without
-one, like sim today, declares them at the top of its main.py).
+"""The services' declared keys, read from their source: services/*/contract.py, written in the
+vocabulary of services/runtime/contract.py (Topics of Topic, Queries of Query, ACTIONS,
+ACTION_CALLS, LIVELINESS).
 
 One home for "who publishes what": `aero topic echo` suggests keys from it, `aero topic pub`
 checks a type against it, and `aero docs keys` generates docs/ARCHITECTURE.md's key table from
-it. The files are parsed (ast), never imported: importing sim's main would load Open3D, and a
-new service folder is picked up with no registration.
+it. The files are parsed (ast), never imported: importing a contract imports its package (vio's
+pulls in GTSAM, the detector's ONNX Runtime), and a new service folder is picked up with no
+registration.
 """
 from __future__ import annotations
 
 import ast
 import difflib
-import io
-import re
-import tokenize
 from dataclasses import dataclass, field
 from importlib import resources
-
-RATE_RE = re.compile(r"\b\d+(?:\.\d+)?(?:\s*-\s*\d+(?:\.\d+)?)?\s*Hz\b")
 
 
 @dataclass
 class Contract:
     """What one service declares; schema names are the class names used in the file
-    (None: no payload schema, e.g. a liveliness token)."""
+    (None: no payload schema)."""
 
     service: str
     source: str
@@ -30,70 +27,77 @@ class Contract:
     outputs: dict[str, str | None] = field(default_factory=dict)
     services: dict[str, tuple[str | None, str | None]] = field(default_factory=dict)
     calls: dict[str, tuple[str | None, str | None]] = field(default_factory=dict)
-    actions: list[str] = field(default_factory=list)        # served: <service>/action/<name>
-    action_calls: list[str] = field(default_factory=list)   # used: another service's actions
-    notes: dict[str, str] = field(default_factory=dict)   # key -> the comment beside it
+    actions: list[str] = field(default_factory=list)        # served action base keys
+    action_calls: list[str] = field(default_factory=list)   # another service's actions used
+    liveliness: list[str] = field(default_factory=list)     # services whose token is watched ("*": all)
+    rates_hz: dict[str, float] = field(default_factory=dict)   # key -> rate_hz (those that have one)
+    notes: dict[str, str] = field(default_factory=dict)        # key -> note
 
     def rate(self, key: str) -> str:
-        """The rate written beside the key ("50 Hz", "on change", "event"), else ""."""
-        note = self.notes.get(key, "")
-        m = RATE_RE.search(note)
-        if m:
-            return re.sub(r"\s+", " ", m.group(0))
-        for word in ("on change", "event"):
-            if word in note:
-                return word
-        return ""
+        """The declared rate of `key` ("50 Hz"), else ""."""
+        hz = self.rates_hz.get(key)
+        return f"{hz:g} Hz" if hz is not None else ""
 
 
-def _value(node: ast.AST):
+def _value(node: ast.AST, consts: dict[str, object]):
+    """A literal, a class name (as its name), or a module-level constant's value."""
     if isinstance(node, ast.Constant):
         return node.value
     if isinstance(node, ast.Name):
-        return node.id
+        return consts.get(node.id, node.id)
     if isinstance(node, ast.Attribute):
         return node.attr
     if isinstance(node, (ast.Tuple, ast.List)):
-        return tuple(_value(e) for e in node.elts)
+        return tuple(_value(e, consts) for e in node.elts)
     return None
 
 
-def _comments(text: str) -> dict[int, str]:
-    out: dict[int, str] = {}
-    try:
-        for tok in tokenize.generate_tokens(io.StringIO(text).readline):
-            if tok.type == tokenize.COMMENT:
-                out[tok.start[0]] = tok.string.lstrip("#").strip()
-    except (tokenize.TokenError, SyntaxError):
-        pass
+def _declarations(node: ast.AST, kind: str, fields: tuple[str, ...], consts: dict[str, object]) -> list[dict]:
+    """The `kind(...)` calls inside a Topics(...) / Queries(...) call, as {field: value}."""
+    if not (isinstance(node, ast.Call) and isinstance(node.func, ast.Name)):
+        return []
+    out = []
+    for arg in node.args:
+        if isinstance(arg, ast.Call) and isinstance(arg.func, ast.Name) and arg.func.id == kind:
+            d = dict(zip(fields, (_value(a, consts) for a in arg.args)))
+            d.update({kw.arg: _value(kw.value, consts) for kw in arg.keywords if kw.arg})
+            out.append(d)
     return out
 
 
+def _assignments(tree: ast.Module):
+    for stmt in tree.body:
+        if isinstance(stmt, ast.Assign) and len(stmt.targets) == 1 and isinstance(stmt.targets[0], ast.Name):
+            yield stmt.targets[0].id, stmt.value
+        elif isinstance(stmt, ast.AnnAssign) and isinstance(stmt.target, ast.Name) and stmt.value is not None:
+            yield stmt.target.id, stmt.value
+
+
 def parse_contract(text: str, service: str, source: str = "") -> Contract:
-    """Read NAME, INPUTS, OUTPUTS, SERVICES, CALLS and ACTIONS assigned at module level."""
+    """Read NAME, INPUTS, OUTPUTS, SERVICES, CALLS, ACTIONS, ACTION_CALLS and LIVELINESS."""
     c = Contract(service=service, source=source)
-    comments = _comments(text)
-    for stmt in ast.parse(text).body:
-        if not (isinstance(stmt, ast.Assign) and len(stmt.targets) == 1 and isinstance(stmt.targets[0], ast.Name)):
-            continue
-        name, node = stmt.targets[0].id, stmt.value
+    tree = ast.parse(text)
+    consts = {name: node.value for name, node in _assignments(tree)
+              if isinstance(node, ast.Constant) and isinstance(node.value, (int, float, str))}
+    for name, node in _assignments(tree):
         if name == "NAME" and isinstance(node, ast.Constant):
             c.service = str(node.value)
-        elif name in ("INPUTS", "OUTPUTS", "SERVICES", "CALLS") and isinstance(node, ast.Dict):
+        elif name in ("INPUTS", "OUTPUTS"):
             target = getattr(c, name.lower())
-            for k, v in zip(node.keys, node.values):
-                if not (isinstance(k, ast.Constant) and isinstance(k.value, str)):
-                    continue
-                target[k.value] = _value(v)
-                note = comments.get(v.end_lineno) or comments.get(k.lineno)
-                if note:
-                    c.notes.setdefault(k.value, note)
-        elif name == "ACTIONS" and isinstance(node, (ast.List, ast.Tuple)):
-            c.actions = [str(_value(e)) for e in node.elts]
-    # Short action names ("takeoff") are the service's own, served as <service>/action/<name>;
-    # full keys name another service's actions that this one uses.
-    c.actions, c.action_calls = ([f"{c.service}/action/{a}" for a in c.actions if "/" not in a],
-                                 [a for a in c.actions if "/" in a])
+            for d in _declarations(node, "Topic", ("key", "schema", "rate_hz", "note"), consts):
+                target[d["key"]] = d.get("schema")
+                if d.get("rate_hz") is not None:
+                    c.rates_hz[d["key"]] = float(d["rate_hz"])
+                if d.get("note"):
+                    c.notes.setdefault(d["key"], d["note"])
+        elif name in ("SERVICES", "CALLS"):
+            target = getattr(c, name.lower())
+            for d in _declarations(node, "Query", ("key", "request", "reply", "note"), consts):
+                target[d["key"]] = (d.get("request"), d.get("reply"))
+                if d.get("note"):
+                    c.notes.setdefault(d["key"], d["note"])
+        elif name in ("ACTIONS", "ACTION_CALLS", "LIVELINESS") and isinstance(node, (ast.List, ast.Tuple)):
+            setattr(c, name.lower(), [str(_value(e, consts)) for e in node.elts])
     return c
 
 
@@ -102,15 +106,9 @@ def load_contracts() -> list[Contract]:
     root = resources.files("aeroperception.services")
     out = []
     for folder in sorted(root.iterdir(), key=lambda p: p.name):
-        if not folder.is_dir() or folder.name.startswith(("_", ".")):
-            continue
-        for fname in ("contract.py", "main.py"):
-            f = folder.joinpath(fname)
-            if f.is_file():
-                c = parse_contract(f.read_text(), folder.name, f"services/{folder.name}/{fname}")
-                if c.inputs or c.outputs or c.services or fname == "contract.py":
-                    out.append(c)
-                    break
+        f = folder.joinpath("contract.py")
+        if folder.is_dir() and not folder.name.startswith(("_", ".")) and f.is_file():
+            out.append(parse_contract(f.read_text(), folder.name, f"services/{folder.name}/contract.py"))
     return out
 
 

@@ -28,27 +28,31 @@ def test_a_new_service_contract_is_picked_up(tmp_path):
     # A service that does not exist (yet): its keys appear with their producer and consumers.
     text = '''
 NAME = "radar"
-INPUTS = {"sensors/lidar/points": PointCloud}   # 10 Hz
-OUTPUTS = {
-    "perception/radar_tracks": PointCloud,       # 10 Hz, ENU
-    "perception/radar_map": OccupancyGrid,       # 10 Hz
-}
-SERVICES = {"radar/srv/reset": (Empty, Reply)}
-ACTIONS = ["scan"]
+MAP_RATE_HZ = 5.0
+INPUTS = Topics(Topic("sensors/lidar/points", PointCloud))
+OUTPUTS = Topics(
+    Topic("perception/radar_tracks", PointCloud, 10.0, note="ENU"),
+    Topic("perception/radar_map", OccupancyGrid, MAP_RATE_HZ),
+)
+SERVICES = Queries(Query("radar/srv/reset", Empty, Reply))
+ACTIONS = ("radar/action/scan",)
+LIVELINESS = ("lidar",)
 '''
     c = contracts.parse_contract(text, "radar", "services/radar/contract.py")
     table = cmd_docs.key_table([*contracts.load_contracts(), c])
-    assert "| `perception/radar_tracks` | PointCloud | 10 Hz | radar | — | 10 Hz, ENU |" in table
+    assert "| `perception/radar_tracks` | PointCloud | 10 Hz | radar | — | ENU |" in table
+    assert "| `perception/radar_map` | OccupancyGrid | 5 Hz | radar | — |  |" in table   # a named constant
     assert "radar" in next(line for line in table.splitlines() if line.startswith("| `sensors/lidar/points`"))
     assert "| `radar/srv/reset` | Empty | Reply | radar | — |" in table
     assert "| `radar/action/scan` | radar | — |" in table
+    assert "radar (lidar)" in next(line for line in table.splitlines() if line.startswith("| `aero/alive/"))
 
 
 def test_key_matching_and_suggestions():
     assert contracts.key_matches("diagnostics/*", "diagnostics/fmu")
     assert not contracts.key_matches("diagnostics/*", "diagnostics/a/b")
     assert contracts.key_matches("sim/truth/**", "sim/truth/state")
-    assert contracts.key_matches("aero/alive/<vehicle>/planner", "aero/alive/default/planner")
+    assert contracts.key_matches("config/<service>/@set", "config/fmu/@set")
     keys = contracts.declared_keys(contracts.load_contracts())
     assert contracts.close_keys("state/vehical", keys)[0] == "state/vehicle"
     assert ("MissionCommand", "mission", "reads") in contracts.declared_schemas("mission/command",
