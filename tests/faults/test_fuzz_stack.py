@@ -54,8 +54,6 @@ def input_keys(contracts) -> dict[str, tuple[type, list[str]]]:
     keys: dict[str, tuple[type, list[str]]] = {}
     for svc, c in contracts.items():
         for key, cls in getattr(c, "INPUTS", {}).items():
-            if cls is None or "<" in key:
-                continue  # liveliness, not data
             key = key.replace("*", "fuzz")
             keys.setdefault(key, (cls, []))[1].append(svc)
     return keys
@@ -70,10 +68,10 @@ def queryables(contracts) -> dict[str, type | None]:
         if svc == "mission":
             from aeroperception.schemas import ACTIONS, CancelRequest, ResultRequest
 
-            for name in getattr(c, "ACTIONS", []):
-                out[f"mission/action/{name}/goal"] = ACTIONS[name].goal
-                out[f"mission/action/{name}/cancel"] = CancelRequest
-                out[f"mission/action/{name}/result"] = ResultRequest
+            for base in getattr(c, "ACTIONS", ()):
+                out[f"{base}/goal"] = ACTIONS[base.rsplit("/", 1)[-1]].goal
+                out[f"{base}/cancel"] = CancelRequest
+                out[f"{base}/result"] = ResultRequest
         from aeroperception.schemas import ParamSet
 
         out[f"config/{svc}/@set"] = ParamSet
