@@ -28,7 +28,8 @@ from .core import Limits, State, wrap_pi
 ACC_PEAK = 1.875                  # max s'(u)
 JERK_PEAK = 10.0 / math.sqrt(3)   # max |s''(u)| = 5.774
 CUT_AT_MIDDLE = 0.078125          # S(1/2), S(u) = integral of s: a corner is cut by |dv| T S(1/2)
-CORNER_SHARE = 0.8                # a corner is cut by at most this share of the acceptance radius
+CORNER_SHARE = 0.5                # a corner is cut by at most this share of the acceptance radius (the rest is
+                                  # left for tracking error: the mission counts a waypoint by the vehicle's distance)
 MIN_SPEED_MPS = 0.05
 MAX_PASSES = 60
 

@@ -51,7 +51,10 @@ class Follower:
         self.t_s = 0.0                  # the reference's own time along the path
         self.last_s: float | None = None
 
-    def step(self, position_m: np.ndarray, now_s: float) -> FollowStep:
+    def step(self, position_m: np.ndarray, now_s: float, wait_at: tuple[float, np.ndarray] | None = None) -> FollowStep:
+        """The setpoint now. `wait_at` (time on the path, a point): the reference may not pass that
+        time; there it holds the point itself (zero velocity) until the caller lifts the wait —
+        the planner waits at a waypoint the mission has not yet counted as reached."""
         if self.last_s is not None and now_s > self.last_s:
             ref = self.path.sample(self.t_s)
             error = float(np.linalg.norm(ref.position_m - position_m))
@@ -59,7 +62,14 @@ class Follower:
             self.t_s = min(self.path.duration_s, self.t_s + rate * (now_s - self.last_s))
         if now_s >= self.started_s:     # a path given a later start waits at its beginning
             self.last_s = now_s
-        ref = self.path.sample(self.t_s)
+        if wait_at is not None and self.t_s >= wait_at[0]:
+            self.t_s = wait_at[0]
+            ref = self.path.sample(self.t_s)
+            ref.position_m = np.asarray(wait_at[1], float).copy()
+            ref.velocity_mps, ref.acceleration_mps2, ref.jerk_mps3 = np.zeros(3), np.zeros(3), np.zeros(3)
+            ref.yaw_rate_radps = 0.0
+        else:
+            ref = self.path.sample(self.t_s)
         error = float(np.linalg.norm(ref.position_m - position_m))
         finished = self.t_s >= self.path.duration_s and error < self.lag_m / 2
         return FollowStep(setpoint_of(ref, self.setpoint_type), ref, error, finished)

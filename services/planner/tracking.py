@@ -1,0 +1,144 @@
+"""The trajectory the mission hands the planner (mission/active_trajectory), flown while the
+mission's goal is on it; without one, or off it, the planner flies goal by goal as before.
+
+Rules, each for a reason:
+- The path is made when it is first flown, from where the vehicle is then (a smooth path starts
+  at rest at the vehicle; a typed one must start there), never from where it was when sent.
+- Only while the mission's current goal is one of the trajectory's waypoints (or, for a typed
+  trajectory, its end): a hold, a goto or a landing is not on it and takes over at once.
+- The reference waits at a waypoint the mission has not counted as reached yet (the mission
+  counts by the vehicle's distance), holding the waypoint itself, so the two never disagree
+  about where the vehicle is going.
+- Obstacles keep today's rules: when the costmap blocks the path ahead, the planner leaves the
+  path and flies to the current goal with obstacle avoidance; a smooth path is made anew from the
+  next goal on (from the vehicle, at rest on its way) — clearance is never traded for smoothness.
+  A typed trajectory is not re-planned: the planner holds and says it is blocked.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import msgspec
+import numpy as np
+
+from aeroperception.schemas import Trajectory
+
+from .trajectory.core import Limits
+from .trajectory.evaluate import TrajectoryRefused, evaluate
+from .trajectory.follow import FollowStep, Follower
+from .trajectory.generators import path_for
+
+ON_PATH_M = 0.01          # a goal this close to a trajectory waypoint is that waypoint
+AHEAD_S = 3.0             # the stretch of path checked against the costmap
+
+
+def is_clear(msg: Trajectory) -> bool:
+    """An empty trajectory message: the mission withdraws its trajectory."""
+    return not (msg.waypoints or msg.poly_coeffs_x or msg.poly_coeffs_y or msg.poly_coeffs_z)
+
+
+@dataclass
+class TrackerConfig:
+    limits: Limits
+    acceptance_radius_m: float
+    lag_m: float = 1.5
+
+
+class TrajectoryTracker:
+    def __init__(self, cfg: TrackerConfig):
+        self.cfg = cfg
+        self.msg: Trajectory | None = None
+        self.follower: Follower | None = None
+        self.first_index = 0            # the message's waypoint the follower's path begins with
+        self.refused = ""               # why the message (or its remaining part) cannot be flown
+        self.blocked = ""               # a typed trajectory blocked by an obstacle: holding, why
+        self.diverted_goal: np.ndarray | None = None   # avoiding obstacles towards this goal
+        self.built = 0
+        self.typed_end: np.ndarray | None = None    # where a typed trajectory ends (the mission's goal)
+
+    @property
+    def trajectory_id(self) -> str:
+        return self.msg.trajectory_id if self.msg is not None else ""
+
+    def offer(self, msg: Trajectory) -> None:
+        """A new message from the mission (the caller skips repeats of the same one)."""
+        self.follower, self.refused, self.blocked, self.diverted_goal = None, "", "", None
+        self.msg = None if is_clear(msg) else msg
+        self.typed_end = None
+        if self.msg is not None and not self._generated():
+            try:
+                path = evaluate(self.msg)
+                self.typed_end = path.sample(path.duration_s).position_m
+            except TrajectoryRefused as e:
+                self.refused = str(e)
+
+    def _generated(self) -> bool:
+        return (self.msg.trajectory_type == Trajectory.TRAJECTORY_WAYPOINT and not self.msg.waypoint_times_s)
+
+    def _index_of(self, goal_m: np.ndarray) -> int | None:
+        """Which waypoint of the message the goal is (a typed trajectory: only its end)."""
+        if self._generated():
+            for k, w in enumerate(self.msg.waypoints):
+                p = w.pose.position
+                if np.linalg.norm(goal_m - np.array([p.x, p.y, p.z])) < ON_PATH_M:
+                    return k
+            return None
+        return 0 if self.typed_end is not None and np.linalg.norm(goal_m - self.typed_end) < ON_PATH_M else None
+
+    def step(self, position_m: np.ndarray, yaw_rad: float, now_s: float, goal_m: np.ndarray | None,
+             path_blocked: Callable[[np.ndarray], bool] | None = None) -> FollowStep | None:
+        """The setpoint from the trajectory, or None: fly goal by goal (no trajectory, a hold, a
+        goal off the trajectory, refused, or avoiding an obstacle towards the current goal)."""
+        if self.msg is None or goal_m is None or self.refused or self.blocked:
+            return None
+        k = self._index_of(goal_m)
+        if k is None:
+            self.follower = None          # a hold, goto or landing took over
+            return None
+        if self.diverted_goal is not None:
+            if np.linalg.norm(self.diverted_goal - goal_m) < ON_PATH_M:
+                return None               # still avoiding towards this goal
+            self.diverted_goal = None     # the mission moved on: a new path from here
+        if self.follower is None or (self._generated() and k < self.first_index):
+            if not self._build(position_m, yaw_rad, now_s, k):
+                return None
+        wait = self._wait_at(k)
+        fs = self.follower.step(position_m, now_s, wait)
+        if path_blocked is not None and path_blocked(self.follower.ahead_xy(AHEAD_S)):
+            self.follower = None
+            if self._generated():
+                self.diverted_goal = np.asarray(goal_m, float).copy()
+            else:
+                self.blocked = "the trajectory ahead is blocked by an obstacle: holding (typed trajectories are not re-planned)"
+            return None
+        return fs
+
+    def _build(self, position_m: np.ndarray, yaw_rad: float, now_s: float, k: int) -> bool:
+        msg = self.msg
+        if self._generated():
+            msg = msgspec.structs.replace(self.msg, waypoints=list(self.msg.waypoints[k:]))
+        try:
+            path = path_for(msg, position_m, yaw_rad, self.cfg.limits, self.cfg.acceptance_radius_m)
+        except TrajectoryRefused as e:
+            self.refused = str(e)
+            return False
+        self.follower = Follower(path, now_s, self.msg.setpoint_type, self.cfg.lag_m)
+        self.first_index = k
+        self.built += 1
+        return True
+
+    def _wait_at(self, k: int) -> tuple[float, np.ndarray] | None:
+        """Hold at goal k's waypoint (on the follower's path: index k - first_index + 1, the
+        path starting at the vehicle) until the mission counts it reached."""
+        if not self._generated():
+            return None
+        j = k - self.first_index + 1
+        times = self.follower.path.waypoint_times_s
+        if not 0 < j < len(times):
+            return None
+        p = self.msg.waypoints[k].pose.position
+        return times[j], np.array([p.x, p.y, p.z])
+
+    def progress(self, now_s: float) -> tuple[float, float, float] | None:
+        return self.follower.progress(now_s) if self.follower is not None else None

@@ -1,0 +1,116 @@
+"""The planner's trajectory tracker against a mission that counts waypoints by distance."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from aeroperception.schemas import Header, Pose, PoseStamped, Quaternion, Trajectory, Vector3
+from aeroperception.services.planner.tracking import TrackerConfig, TrajectoryTracker
+from aeroperception.services.planner.trajectory import Limits
+
+SURVEY = [(10, 0, 5), (10, 10, 5), (0, 0, 5)]
+DT = 0.02
+
+
+def wp(x, y, z, yaw=0.0) -> PoseStamped:
+    return PoseStamped(header=Header(frame_id="map"),
+                       pose=Pose(position=Vector3(x=x, y=y, z=z), orientation=Quaternion.from_yaw(yaw)))
+
+
+def smooth_msg(points=SURVEY, tid="survey_01@0") -> Trajectory:
+    return Trajectory(trajectory_id=tid, generator_name="smooth", setpoint_type=Trajectory.SETPOINT_FULL_STATE,
+                      waypoints=[wp(*p) for p in points])
+
+
+def tracker(radius=0.5) -> TrajectoryTracker:
+    return TrajectoryTracker(TrackerConfig(Limits(xy_vel_max_mps=2.0), radius))
+
+
+def fly(tr: TrajectoryTracker, start, goals, radius=0.5, lag_s=0.0, max_s=120.0, blocked=None):
+    """A vehicle that is where the reference was `lag_s` ago, a mission that advances its goal
+    when the vehicle is within `radius`. Returns (time when the last goal was reached, reached times)."""
+    pos, k, t, reached, history = np.array(start, float), 0, 0.0, [], []
+    while t < max_s and k < len(goals):
+        goal = np.array(goals[k], float)
+        fs = tr.step(pos, 0.0, t, goal, blocked)
+        if fs is None:       # goal by goal: a straight move at 1 m/s (the P-controller's part)
+            d = goal - pos
+            n = float(np.linalg.norm(d))
+            target = pos + d / n * min(n, 1.0 * DT) if n > 1e-9 else pos
+        else:
+            target = fs.setpoint.position_m.to_array()
+        history.append(target)
+        lag = int(lag_s / DT)
+        pos = history[-1 - lag] if len(history) > lag else np.array(start, float)
+        if np.linalg.norm(pos - goal) < radius:
+            reached.append(t)
+            k += 1
+        t += DT
+    return t, reached
+
+
+def test_a_smooth_trajectory_flies_every_waypoint_in_about_its_own_time():
+    tr = tracker()
+    tr.offer(smooth_msg())
+    t, reached = fly(tr, (0, 0, 5), SURVEY)
+    assert len(reached) == 3 and tr.built == 1
+    assert t < tr.follower.path.duration_s + 0.5 < 24.0
+
+
+def test_a_lagging_vehicle_still_reaches_every_waypoint_the_reference_waits_for_the_mission():
+    tr = tracker()
+    tr.offer(smooth_msg())
+    _, reached = fly(tr, (0, 0, 5), SURVEY, radius=0.1, lag_s=0.6)     # a tight radius: corners are cut 0.25 m
+    assert len(reached) == 3 and tr.built == 1
+
+
+def test_a_goal_off_the_trajectory_takes_over_and_the_trajectory_resumes_from_the_vehicle():
+    tr = tracker()
+    tr.offer(smooth_msg())
+    pos = np.array([0.0, 0, 5])
+    assert tr.step(pos, 0.0, 0.0, np.array([10.0, 0, 5])) is not None
+    assert tr.step(pos, 0.0, 0.1, np.array([3.0, 3.0, 5])) is None and tr.follower is None   # a goto
+    fs = tr.step(np.array([3.0, 3.0, 5]), 0.0, 5.0, np.array([10.0, 10.0, 5]))   # back on: waypoint 1 on
+    assert fs is not None and tr.built == 2 and tr.first_index == 1
+    assert np.allclose(fs.reference.position_m, [3, 3, 5])                     # from where the vehicle is
+
+
+def test_blocked_ahead_diverts_to_the_goal_then_a_new_path_from_the_next_goal():
+    tr = tracker()
+    tr.offer(smooth_msg())
+    calls = {"n": 0}
+
+    def blocked_once(ahead_xy):
+        calls["n"] += 1
+        return calls["n"] == 10            # an obstacle seen on the tenth check
+
+    t, reached = fly(tr, (0, 0, 5), SURVEY, blocked=blocked_once)
+    assert len(reached) == 3 and tr.built == 2      # diverted to waypoint 0 goal by goal, then a new path
+
+
+def test_typed_trajectory_blocked_holds_saying_so_and_refusals_say_why():
+    tr = tracker()
+    typed = Trajectory(trajectory_type=Trajectory.TRAJECTORY_POLYNOMIAL, total_duration_s=10.0, poly_order=1,
+                       poly_coeffs_x=[0, 1.0], poly_coeffs_y=[0, 0], poly_coeffs_z=[5, 0],
+                       setpoint_type=Trajectory.SETPOINT_FULL_STATE)
+    tr.offer(typed)
+    end = np.array([10.0, 0, 5])
+    assert tr.step(np.array([0.0, 0, 5]), 0.0, 0.0, end, lambda xy: False) is not None
+    assert tr.step(np.array([0.0, 0, 5]), 0.0, 0.1, end, lambda xy: True) is None
+    assert "blocked" in tr.blocked
+    tr.offer(Trajectory(generator_name="min_snap", waypoints=[wp(5, 0, 5)]))
+    assert tr.step(np.array([0.0, 0, 5]), 0.0, 0.0, np.array([5.0, 0, 5])) is None
+    assert "generator_name" in tr.refused
+    tr.offer(Trajectory())                          # the mission withdraws its trajectory
+    assert tr.msg is None and tr.step(np.zeros(3), 0.0, 0.0, np.array([5.0, 0, 5])) is None
+
+
+def test_heading_starts_at_the_vehicles_and_ends_at_the_last_waypoints_yaw():
+    tr = tracker()
+    tr.offer(smooth_msg([(5, 0, 5), (5, 5, 5, math.pi / 2)]))
+    fs = tr.step(np.array([0.0, 0, 5]), 0.3, 0.0, np.array([5.0, 0, 5]))
+    assert fs.setpoint.yaw_valid and fs.setpoint.yaw_rad == pytest.approx(0.3)
+    path = tr.follower.path
+    assert path.sample(path.duration_s).yaw_rad == pytest.approx(math.pi / 2)
