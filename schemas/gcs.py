@@ -1,9 +1,9 @@
-"""Ground-station link messages, published by the gcs service (seed 001).
+"""Ground-station link messages, published by the gcs service (requirements GCS-1 - GCS-4).
 
-GcsLink replaces the seed's implicit "GCS alive" check (heartbeat handler, §10.1) with an explicit
+GcsLink replaces the source's implicit "GCS alive" check (its HEARTBEAT handler, GCS-3) with an explicit
 state: `connected` turns False when no ground-station HEARTBEAT arrived for the timeout
 (3.5 s by default); the mission manager may treat that as link loss.
-Joystick replaces the seed's /mav/joystick (geometry_msgs/TwistStamped carrying MANUAL_CONTROL):
+Joystick replaces the source's /mav/joystick (geometry_msgs/TwistStamped carrying MANUAL_CONTROL):
 the axes are MAVLink's, normalised to -1..1 (throttle 0..1), not physical velocities.
 """
 from __future__ import annotations

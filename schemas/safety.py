@@ -1,7 +1,7 @@
 """SafetyStatus: the safety service's one-line verdict on whether the vehicle may keep flying.
 
-Seed 002 SafetyStatus with every enum kept. Battery charge is a 0..1 fraction
-(`battery_remaining`) as everywhere else in the stack, not the seed's percent.
+Requirement IF-2's SafetyStatus with every enum kept. Battery charge is a 0..1 fraction
+(`battery_remaining`) as everywhere else in the stack, not the source's percent.
 """
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
-"""Request/reply pairs for Zenoh queryables (`<area>/srv/<name>`), the seeds' ROS services.
+"""Request/reply pairs for Zenoh queryables (`<area>/srv/<name>`), the ROS services of requirements FC-3 and IF-3.
 
 Every reply subclasses `Reply` (success + message), so a client can report any failure the same
-way without knowing the service. Seed types that meant the same thing are merged:
+way without knowing the service. Source types that meant the same thing are merged:
 ArmVehicle + Arm -> ArmRequest/ArmReply; SetFlightMode -> SetModeRequest/SetModeReply;
 SetController/SetEstimator/SetTrajectoryGenerator -> SelectPluginRequest/SelectPluginReply
 (a `role` field says which plugin slot).
@@ -49,7 +49,7 @@ class ArmRequest(Message, kw_only=True):
 
 @schema("ArmReply", 1)
 class ArmReply(Reply, kw_only=True):
-    """`armed` is the vehicle's arming state after the request (seed 002 Arm)."""
+    """`armed` is the vehicle's arming state after the request (IF-3's Arm)."""
 
     armed: bool = False
 
@@ -72,7 +72,7 @@ class SetModeReply(Reply, kw_only=True):
 
 @schema("LoadMissionRequest", 1)
 class LoadMissionRequest(Message, kw_only=True):
-    """Load a mission (mission/srv/load); seed 000 §5.1 JSON text, see planning.Mission."""
+    """Load a mission (mission/srv/load); requirement MIS-3's JSON text, see planning.Mission."""
 
     header: Header = msgspec.field(default_factory=Header)
     mission_json: str = ""
@@ -80,7 +80,7 @@ class LoadMissionRequest(Message, kw_only=True):
 
 @schema("LoadMissionReply", 1)
 class LoadMissionReply(Reply, kw_only=True):
-    """On failure `message` names the bad field (the seed's error_message)."""
+    """On failure `message` names the bad field (the source's error_message)."""
 
     num_waypoints: int = 0
     mission_id: str = ""
@@ -88,7 +88,7 @@ class LoadMissionReply(Reply, kw_only=True):
 
 @schema("GetMissionReply", 1)
 class GetMissionReply(Reply, kw_only=True):
-    """The loaded mission (mission/srv/get, request Empty): seed 000 §5.1 JSON text, as loaded.
+    """The loaded mission (mission/srv/get, request Empty): MIS-3's JSON text, as loaded.
     success False (and empty fields) when no mission is loaded."""
 
     mission_id: str = ""
@@ -107,7 +107,7 @@ class EmergencyStopRequest(Message, kw_only=True):
 
 @schema("EmergencyStopReply", 1)
 class EmergencyStopReply(Reply, kw_only=True):
-    """`success` is the seed's `executed`."""
+    """`success` is the source's `executed`."""
 
 
 PLUGIN_ROLES = ("controller", "estimator", "trajectory_generator")
@@ -115,7 +115,7 @@ PLUGIN_ROLES = ("controller", "estimator", "trajectory_generator")
 
 @schema("SelectPluginRequest", 1)
 class SelectPluginRequest(Message, kw_only=True):
-    """Activate plugin `name` in slot `role` (seed 002 SetController / SetEstimator /
+    """Activate plugin `name` in slot `role` (IF-3's SetController / SetEstimator /
     SetTrajectoryGenerator, which differ only in the slot)."""
 
     header: Header = msgspec.field(default_factory=Header)
@@ -134,7 +134,7 @@ class SelectPluginRequest(Message, kw_only=True):
 
 @schema("SelectPluginReply", 1)
 class SelectPluginReply(Reply, kw_only=True):
-    """`active` is the plugin active in the slot after the request (seed's active_controller /
+    """`active` is the plugin active in the slot after the request (the source's active_controller /
     active_estimator / active_generator)."""
 
     active: str = ""
@@ -142,8 +142,8 @@ class SelectPluginReply(Reply, kw_only=True):
 
 @schema("VioResetRequest", 1)
 class VioResetRequest(Message, kw_only=True):
-    """vio/srv/reset (reply: Reply): restart the visual odometry from a known pose (seed 003's
-    reset_to_warm_start, e.g. a surveyed position after a companion reboot). `pose` is base_link
+    """vio/srv/reset (reply: Reply): restart the visual odometry from a known pose (requirement
+    VIO-6's warm start, e.g. a surveyed position after a companion reboot). `pose` is base_link
     in odom (ENU, FLU body), `velocity_mps` in odom; the default identity pose is a fresh start at
     the origin. VIO is INIT until its next good stereo frame, then TRACKING from that pose."""
 

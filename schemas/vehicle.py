@@ -1,7 +1,7 @@
 """Vehicle state, flight-controller telemetry and setpoints.
 
-VehicleState is the one state message (state/vehicle): seed 000's VehicleStateENU and seed 002's
-State merged. The fmu/out/* types mirror the PX4 topics the seeds subscribe to, already converted
+VehicleState is the one state message (state/vehicle): the vehicle state of requirement FC-4 and
+IF-2's State merged. The fmu/out/* types mirror the PX4 topics FC-4 names, already converted
 to ENU/FLU by the fmu service: nothing in here is ever NED/FRD (only fmu and gcs see NED, through
 one conversion module).
 """
@@ -96,7 +96,7 @@ class VehicleState(Message, _LandedStateConstants, kw_only=True):
 class TrajectorySetpoint(Message, kw_only=True):
     """Reference for the flight controller (fmu/in/trajectory_setpoint, 50 Hz), ENU.
 
-    Seed 002 TrajectorySetpoint; replaces px4 TrajectorySetpoint (fmu converts to NED). Only the
+    IF-2's TrajectorySetpoint; replaces px4 TrajectorySetpoint (fmu converts to NED). Only the
     parts whose `*_valid` flag is set are used; unused values may be anything, NaN included.
     """
 
@@ -125,7 +125,7 @@ class TrajectorySetpoint(Message, kw_only=True):
 class ControlOutput(Message, kw_only=True):
     """A controller's command to the flight controller; `control_mode` says which fields apply.
 
-    Seed 002 ControlOutput (its two `thrust_normalized` lines are one field here). Position and
+    IF-2's ControlOutput (the source's two `thrust_normalized` lines are one field here). Position and
     velocity are ENU; orientation is ENU <- FLU; body rates are FLU.
     """
 
@@ -177,8 +177,8 @@ class UAVMode(Message, kw_only=True):
 
 @schema("UAVStatus", 1)
 class UAVStatus(Message, kw_only=True):
-    """Everything about one UAV for monitoring (a GCS dashboard). Seed 002 UAVStatus; battery is a
-    0..1 fraction and link latencies are seconds (SI), unlike the seed's percent and ms."""
+    """Everything about one UAV for monitoring (a GCS dashboard). IF-2's UAVStatus; battery is a
+    0..1 fraction and link latencies are seconds (SI), unlike the source's percent and ms."""
 
     header: Header = msgspec.field(default_factory=Header)
     uav_id: str = ""
