@@ -38,7 +38,7 @@ CALLS = Queries(
 )
 ACTION_CALLS = ("mission/action/takeoff", "mission/action/goto")   # goals only (landing: mission/srv/command)
 
-# Seed 001 §5.1 / §14: bind 14551, send to the ground station at 14550 until one talks; then to every
+# Requirement GCS-1: bind 14551, send to the ground station at 14550 until one talks; then to every
 # ground station heard (link.py).
 DEFAULT_LOCAL_PORT = 14551
 # Who gcs is on the ground-station link (issue 9 #6). In the sim profile the stack is the vehicle
@@ -50,7 +50,7 @@ IDENTITY_AUTOPILOT = "autopilot"
 IDENTITY_COMPANION = "companion"
 COMPANION_COMPONENT_ID = 191        # MAV_COMP_ID_ONBOARD_COMPUTER
 DEFAULT_REMOTE_PORT = 14550
-# Seed 001 §15: default home (Tanashi, Tokyo), altitude 10 m AMSL. Only a fallback: once fmu publishes
+# Requirement GCS-4: default home (Tanashi, Tokyo), altitude 10 m AMSL. Only a fallback: once fmu publishes
 # the flight controller's home (fmu/out/home_position), that is the home.
 DEFAULT_HOME_LAT_DEG = 35.736805
 DEFAULT_HOME_LON_DEG = 139.539676
@@ -66,7 +66,7 @@ _DECLARED = [
                       "controller's onboard computer, component 191 of its system (vehicle profile)"),
     Param("system_id", 1, "", 1, 255, description="our MAVLink system id (companion: until fmu reports the FC's)"),
     Param("component_id", 1, "", 1, 255, description="our MAVLink component id (1 = autopilot; companion: 191)"),
-    Param("telemetry_period_s", 0.9, "s", 0.05, 10.0, description="default period of the telemetry set (seed: 900 ms)"),
+    Param("telemetry_period_s", 0.9, "s", 0.05, 10.0, description="telemetry set period (GCS-2: 900 ms)"),
     Param("home_lat_deg", DEFAULT_HOME_LAT_DEG, "deg", -90.0, 90.0,
           description="home latitude (local ENU origin) until the flight controller's home is known"),
     Param("home_lon_deg", DEFAULT_HOME_LON_DEG, "deg", -180.0, 180.0, description="home longitude (fallback)"),

@@ -35,7 +35,7 @@ CALLS = Queries(
     Query("fmu/srv/set_mode", SetModeRequest, SetModeReply),
 )
 PARAMS = [
-    Param("takeoff_altitude_m", 3.0, "m", 0.5, 120.0, description="default takeoff altitude (seed: 3 m)"),
+    Param("takeoff_altitude_m", 3.0, "m", 0.5, 120.0, description="default takeoff altitude (MIS-1: 3 m)"),
     Param("altitude_tolerance_m", 0.3, "m", 0.05, 2.0, description="takeoff counts as done inside this"),
     Param("require_perception", False, description="gate EXECUTING on perception/health (missions may override)"),
     Param("perception_timeout_s", 3.0, "s", 0.5, 30.0, description="no perception/health this long = unhealthy"),
