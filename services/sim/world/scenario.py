@@ -310,7 +310,7 @@ class DownCameraConfig:
 
 @dataclass(frozen=True)
 class ImuConfig:
-    """Noise densities default to seed 000 §4.1 (the values VIO is configured with)."""
+    """Noise densities default to requirement VIO-2 (the values VIO is configured with)."""
     rate_hz: float = num(200.0, positive=True, hi=2000.0)
     gyro_noise_density: float = num(0.005, lo=0.0)      # rad/s/sqrt(Hz)
     accel_noise_density: float = num(0.01, lo=0.0)      # m/s^2/sqrt(Hz)
@@ -346,7 +346,7 @@ class LidarConfig:
         return []
 
     def dense_150k(self) -> "LidarConfig":
-        """The ~150k-point mode of seed 004 (128 beams x 1172 steps = 150,016 rays)."""
+        """The ~150k-point scan of requirement LID-1 (128 beams x 1172 steps = 150,016 rays)."""
         return replace(self, beams=128, azimuth_steps=1172)
 
 
