@@ -4,7 +4,7 @@ Frames come from the simulator's own camera renderer (a 640x480 stereo pair and 
 along an orbit in a scenario; rendering is not timed) or, with --euroc, from the real EuRoC start
 (752x480). Per frame it prints the front end, back end and total (median, p99), the sustained
 frame rate (frames / wall time of the whole run), and in the same run the bare OpenCV KLT front
-end (150 corners + pyramidal LK + essential-matrix RANSAC, ARCHITECTURE §7's ~12.5 ms) on the
+end (150 corners + pyramidal LK + essential-matrix RANSAC; ~12.5 ms when this bench was written) on the
 same left images as the baseline ratio.
 """
 from __future__ import annotations
@@ -60,7 +60,7 @@ def sim_sequence(n_frames: int = 100, scenario: str = "village", radius_m: float
                  period_s: float = 20.0, still_s: float = 0.5, noiseless: bool = False,
                  gyro_bias=(0.0, 0.0, 0.0), accel_bias=(0.0, 0.0, 0.0), seed: int = 0) -> SimSequence:
     """Hover still for `still_s` (VIO initialises from a still vehicle), then orbit. The IMU is
-    the sim's model (seed 000 noise; optional fixed initial biases)."""
+    the sim's model (VIO-2 noise; optional fixed initial biases)."""
     import dataclasses
 
     from aeroperception.services.sim.main import camera_info_msg
@@ -97,7 +97,7 @@ def sim_sequence(n_frames: int = 100, scenario: str = "village", radius_m: float
 
 
 def _baseline_klt(grays: list[np.ndarray], f: float, c: tuple[float, float]) -> np.ndarray:
-    """ARCHITECTURE §7's bare front end per frame: 150 Shi-Tomasi corners on the previous image,
+    """The bare front end per frame: 150 Shi-Tomasi corners on the previous image,
     pyramidal LK into this one, essential matrix by RANSAC. Wall ms per frame."""
     import cv2
 

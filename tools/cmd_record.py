@@ -16,7 +16,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("record", help="record keys to MCAP in the foreground (Ctrl-C closes the file)")
     add_session_arguments(p)
     p.add_argument("--preset", default="essentials", choices=["essentials", "all", "none"],
-                   help="key set (essentials: seed 000 §7.1's list; none: only the KEYEXPRs given)")
+                   help="key set (essentials: requirement LOG-1's list; none: only the KEYEXPRs given)")
     p.add_argument("--images", action="store_true", help="also record camera images")
     p.add_argument("-o", "--output-dir", default="", help="directory (default $AERO_RECORD_DIR or ~/.aero/recordings)")
     p.add_argument("--max-bag-size", type=int, default=None, help="bytes per file before a split (default 1 GiB)")

@@ -3,7 +3,7 @@
 Simulated scenarios: scans rendered offline by the simulator's own LiDAR model at poses flown
 over the scenario (the same code the running sim uses), labelled per point with the hit
 geometry (sim/truth/lidar_labels semantics: 0 ground, 1 obstacle, 2 overhead). Metrics per
-point within 0.5-10 m of the sensor (seed 004 §9's detection range):
+point within 0.5-10 m of the sensor (requirement LID-4's detection range):
   ground precision / recall / F1;
   obstacle false-positive rate = share of points marked obstacle that are not (non-obstacles marked);
   obstacle false-negative rate = share of true obstacle points not marked (obstacles missed),

@@ -1,4 +1,4 @@
-"""Rolling costmap (Nav2 costmap_2d semantics, seed 004 §5): marking, clearing, inflation, rolling;
+"""Rolling costmap (Nav2 costmap_2d semantics, requirement LID-3): marking, clearing, inflation, rolling;
 and the runtime's newest-wins worker the lidar service processes scans with."""
 import math
 import threading

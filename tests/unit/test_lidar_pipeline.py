@@ -1,5 +1,5 @@
-"""LiDAR obstacle pipeline (seed 004 §4) on synthetic clouds with known answers, on real KITTI
-scans, and against the simulator's truth labels (seed 004 §9 targets)."""
+"""LiDAR obstacle pipeline (requirement LID-1) on synthetic clouds with known answers, on real KITTI
+scans, and against the simulator's truth labels (LID-4 targets)."""
 import math
 
 import numpy as np

@@ -1,4 +1,4 @@
-"""Perception coordinator logic (services/perception/logic.py): seed 000's enum mapping, the
+"""Perception coordinator logic (services/perception/logic.py): requirement PERC-1's enum mapping, the
 VIO-only gate, timeouts and the on-change trigger."""
 import pytest
 
