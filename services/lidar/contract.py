@@ -8,6 +8,7 @@ from aeroperception.schemas import Imu, OccupancyGrid, PointCloud, VehicleState
 from aeroperception.services.runtime import Param, Topic, Topics
 
 NAME = "lidar"
+CPU_BUDGET_PCT = 25.0   # % of one core for the whole pipeline at 10 scans/s
 INPUTS = Topics(
     Topic("sensors/lidar/points", PointCloud, note="sensor frame"),
     Topic("state/vehicle", VehicleState, note="pose at the scan stamp (levelling + costmap placement)"),
