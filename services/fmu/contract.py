@@ -27,6 +27,8 @@ OUTPUTS = Topics(
     Topic("fmu/out/vehicle_gps_position", GpsPosition, 1.0,
           note="the FC's GPS receiver (GPS_RAW_INT), NO_GPS/NO_FIX too"),
     Topic("fmu/out/estimator_status", EstimatorStatus, 1.0, note="the FC's estimator flags (ESTIMATOR_STATUS)"),
+    Topic("fmu/out/vehicle_ground_truth", VehicleState, note="a simulated FC's ground truth (HIL_STATE_QUATERNION at "
+          "ground_truth_rate_hz) about its local origin, on sensors/imu's clock: the simulator's follow mode renders from it"),
     Topic("sensors/imu", Imu, note="only with publish_imu (real hardware): HIGHRES_IMU as received"),
     Topic("state/vehicle", VehicleState, 50.0, note="pose (ENU), velocity, mode, armed, landed, battery, FC link"),
 )
@@ -69,6 +71,9 @@ PARAMS = [
           description="an OFFBOARD request waits (within command_timeout_s) until fmu has streamed setpoints "
                       "this long, and is re-sent while the FC answers TEMPORARILY_REJECTED (PX4 needs a stream "
                       "before it accepts OFFBOARD)"),
+    Param("ground_truth_rate_hz", 100.0, "Hz", 0.0, 250.0, start_only=True,
+          description="ask a simulated FC for its ground truth (HIL_STATE_QUATERNION) at this rate "
+                      "(0: never; a real FC has none and sends nothing)"),
     Param("publish_imu", False, start_only=True,
           description="republish HIGHRES_IMU as sensors/imu (real hardware, no sim)"),
     Param("source_system", 1, "", 1, 255, start_only=True, description="our MAVLink system id"),

@@ -20,6 +20,7 @@ from .link import RebootWatch, open_fcu_link
 from .logic import CommandWaiter, Telemetry, ack_name, highres_imu_to_imu, odometry_fields, setpoint_target
 from .navigation import estimator_status_from_mavlink, gps_from_mavlink
 from .offboard import BRAKE, FOLLOW, Envelope, OffboardArbiter, StreamWarmth
+from .truth import FcClock, ground_truth_from_mavlink, origin_from_mavlink
 
 RETRY_S = 0.3       # re-send a TEMPORARILY_REJECTED OFFBOARD request after this
 FORCE_MAGIC = 21196  # COMPONENT_ARM_DISARM param2: force (PX4 and ArduPilot)
@@ -54,7 +55,7 @@ class FmuService(Service):
         self.send_lock = threading.Lock()
         self.counters = {"rx": 0, "bad_packets": 0, "setpoints_sent": 0, "holds_sent": 0, "brakes_sent": 0,
                          "vio_injected": 0, "vio_stale_dropped": 0, "reboots_detected": 0, "link_setups": 0,
-                         "commands_retried": 0}
+                         "commands_retried": 0, "ground_truth": 0, "ground_truth_no_origin": 0, "ground_truth_bad": 0}
         self.arbiter = OffboardArbiter(
             Envelope(p.max_velocity_mps, p.max_acceleration_mps2, p.max_distance_m, p.max_altitude_m,
                      p.min_altitude_m, p.max_yaw_rate_radps),
@@ -69,6 +70,9 @@ class FmuService(Service):
         self.streams_requested = False
         self.home_requested_s = -math.inf    # last MAV_CMD_REQUEST_MESSAGE(HOME_POSITION)
         self.statustexts: deque[tuple[float, int, str]] = deque(maxlen=16)  # (rx time, severity, text)
+        self.fc_clock = FcClock()            # HIGHRES_IMU and ground-truth stamps
+        self.origin: tuple[float, float, float] | None = None   # the FC's local origin (GPS_GLOBAL_ORIGIN)
+        self.origin_requested_s = -math.inf
         # udpin: bound exclusively and locked to the FC (a taken port fails start-up in one line)
         self.conn = open_fcu_link(self.args.fcu_url, p.source_system, p.source_component, p.fcu_peer, p.fcu_relock_s)
         node = self.node
@@ -170,11 +174,15 @@ class FmuService(Service):
         elif t == "BATTERY_STATUS":
             self.pubs["fmu/out/battery_status"].publish(self.tm.on_battery_status(m, stamp))
         elif t == "HIGHRES_IMU":
-            imu = highres_imu_to_imu(m, stamp)
+            imu = highres_imu_to_imu(m, self.fc_clock.stamp(m.time_usec, stamp))
             self.pubs["fmu/out/sensor_combined"].publish(imu)
             if "sensors/imu" in self.pubs:
                 self.pubs["sensors/imu"].publish(imu)
-                self.imu_stamps_ns.append(stamp)
+                self.imu_stamps_ns.append(imu.header.stamp_ns)
+        elif t == "HIL_STATE_QUATERNION":
+            self._on_ground_truth(m, stamp)
+        elif t == "GPS_GLOBAL_ORIGIN":
+            self._on_origin(m)
         elif t == "GPS_RAW_INT":
             self.pubs["fmu/out/vehicle_gps_position"].publish(gps_from_mavlink(m, stamp))
         elif t == "ESTIMATOR_STATUS":
@@ -188,6 +196,27 @@ class FmuService(Service):
             self.log.info("fc_statustext", severity=m.severity, text=str(m.text))
         elif t == "TIMESYNC" and m.tc1 == 0:  # PX4 asks the companion; answer so vision fusion works
             self._send(lambda mav: mav.timesync_send(time.time_ns(), m.ts1))
+
+    def _on_ground_truth(self, m, rx_ns: int) -> None:
+        """A simulated FC's ground truth -> fmu/out/vehicle_ground_truth (ENU about the FC's local
+        origin, asked for until the FC has one), stamped on the IMU's clock."""
+        truth = ground_truth_from_mavlink(m, self.origin, self.fc_clock.stamp_untimed(rx_ns), armed=self.tm.armed,
+                                          flight_mode=self.tm.flight_mode, landed_state=self.tm.landed_state)
+        if truth is None:
+            self.counters["ground_truth_no_origin" if self.origin is None else "ground_truth_bad"] += 1
+            if self.origin is None and time.monotonic() - self.origin_requested_s > 1.0:
+                self.origin_requested_s = time.monotonic()
+                self._command_nowait(mavlink.MAV_CMD_REQUEST_MESSAGE, mavlink.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN)
+            return
+        self.pubs["fmu/out/vehicle_ground_truth"].publish(truth)
+        self.counters["ground_truth"] += 1
+
+    def _on_origin(self, m) -> None:
+        origin = origin_from_mavlink(m)
+        if origin is not None and origin != self.origin:
+            self.log.info("fc_local_origin", latitude_deg=origin[0], longitude_deg=origin[1], altitude_amsl_m=origin[2],
+                          first=self.origin is None)
+            self.origin = origin
 
     def _check_boot_time(self, time_boot_ms: int) -> None:
         why = self.reboots.on_boot_time(time_boot_ms)
@@ -209,7 +238,10 @@ class FmuService(Service):
         self.streams_requested = True
         self.last_setup_s = time.monotonic()
         self.counters["link_setups"] += 1
-        for msg_id, hz in STREAMS_HZ.items():
+        streams = dict(STREAMS_HZ)
+        if self.params.ground_truth_rate_hz > 0:
+            streams[mavlink.MAVLINK_MSG_ID_HIL_STATE_QUATERNION] = self.params.ground_truth_rate_hz
+        for msg_id, hz in streams.items():
             self._command_nowait(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, msg_id, 1e6 / hz)
         if self.tm.home is None:
             self._request_home()
