@@ -12,7 +12,8 @@ Rules, each for a reason:
 - Obstacles keep today's rules: when the costmap blocks the path ahead, the planner leaves the
   path and flies to the current goal with obstacle avoidance; a smooth path is made anew from the
   next goal on (from the vehicle, at rest on its way) — clearance is never traded for smoothness.
-  A typed trajectory is not re-planned: the planner holds and says it is blocked.
+  A typed trajectory is not re-planned: the planner leaves it for good and flies to its end goal by
+  goal with obstacle avoidance, saying why.
 """
 from __future__ import annotations
 
@@ -55,6 +56,7 @@ class TrajectoryTracker:
         self.blocked = ""               # a typed trajectory blocked by an obstacle: holding, why
         self.diverted_goal: np.ndarray | None = None   # avoiding obstacles towards this goal
         self.built = 0
+        self.last_index = 0              # the message's waypoint the goal matched last
         self.typed_end: np.ndarray | None = None    # where a typed trajectory ends (the mission's goal)
 
     @property
@@ -65,7 +67,7 @@ class TrajectoryTracker:
         """A new message from the mission (the caller skips repeats of the same one)."""
         self.follower, self.refused, self.blocked, self.diverted_goal = None, "", "", None
         self.msg = None if is_clear(msg) else msg
-        self.typed_end = None
+        self.typed_end, self.last_index = None, 0
         if self.msg is not None and not self._generated():
             try:
                 path = evaluate(self.msg)
@@ -79,9 +81,13 @@ class TrajectoryTracker:
     def _index_of(self, goal_m: np.ndarray) -> int | None:
         """Which waypoint of the message the goal is (a typed trajectory: only its end)."""
         if self._generated():
-            for k, w in enumerate(self.msg.waypoints):
-                p = w.pose.position
+            # from the goal matched last on: a mission may pass the same point twice (survey_01
+            # ends where it began), and the later visit is the one ahead
+            n = len(self.msg.waypoints)
+            for k in [*range(self.last_index, n), *range(0, self.last_index)]:
+                p = self.msg.waypoints[k].pose.position
                 if np.linalg.norm(goal_m - np.array([p.x, p.y, p.z])) < ON_PATH_M:
+                    self.last_index = k
                     return k
             return None
         return 0 if self.typed_end is not None and np.linalg.norm(goal_m - self.typed_end) < ON_PATH_M else None
@@ -110,7 +116,8 @@ class TrajectoryTracker:
             if self._generated():
                 self.diverted_goal = np.asarray(goal_m, float).copy()
             else:
-                self.blocked = "the trajectory ahead is blocked by an obstacle: holding (typed trajectories are not re-planned)"
+                self.blocked = ("the trajectory ahead is blocked by an obstacle: flying to its end around it "
+                                "(a typed trajectory is not re-planned)")
             return None
         return fs
 

@@ -59,6 +59,14 @@ def test_a_smooth_trajectory_flies_every_waypoint_in_about_its_own_time():
     assert t < tr.follower.path.duration_s + 0.5 < 24.0
 
 
+def test_a_mission_that_ends_where_it_began_flies_its_last_leg():
+    tr = tracker()
+    loop = [(0, 0, 5), (10, 0, 5), (10, 10, 5), (0, 0, 5)]    # survey_01: waypoint 3 is waypoint 0
+    tr.offer(smooth_msg(loop))
+    t, reached = fly(tr, (0, 0.1, 5), loop)
+    assert len(reached) == 4 and tr.built == 1 and t < tr.follower.path.duration_s + 0.5
+
+
 def test_a_lagging_vehicle_still_reaches_every_waypoint_the_reference_waits_for_the_mission():
     tr = tracker()
     tr.offer(smooth_msg())
