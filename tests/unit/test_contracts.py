@@ -11,6 +11,7 @@ place with where its keys come from (a new one fails here until it is listed).
 from __future__ import annotations
 
 import ast
+import functools
 import importlib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -236,10 +237,15 @@ def check(c: contracts.Contract, walk: Walk) -> list[str]:
 CONTRACTS = {c.service: c for c in contracts.load_contracts()}
 
 
+@functools.cache
+def walk_of(service: str) -> Walk:
+    return ServiceWalker.of(service).walk()
+
+
 @pytest.mark.parametrize("service", sorted(CONTRACTS))
 def test_contract_declares_exactly_the_keys_the_code_uses(service):
     c = CONTRACTS[service]
-    findings = check(c, ServiceWalker.of(service).walk())
+    findings = check(c, walk_of(service))
     assert not findings, "\n".join(findings)
 
 
@@ -250,7 +256,7 @@ def test_every_service_folder_has_a_contract():
 
 def test_dynamic_keys_listed_still_exist():
     # A DYNAMIC entry whose code is gone would silently excuse a new one with the same text.
-    seen = {(s, u.key) for s in CONTRACTS for u in ServiceWalker.of(s).walk().unresolved}
+    seen = {(s, u.key) for s in CONTRACTS for u in walk_of(s).unresolved}
     assert set(DYNAMIC) <= seen
 
 
@@ -303,3 +309,12 @@ class S:
         ("services", "local/key"), ("calls", "fwd/srv/x"), ("action_calls", "m/action/go"),
         ("actions", "m/action/go"), ("liveliness", "fmu")}
     assert [(u.role, u.key) for u in walk.unresolved] == [("inputs", "thing.key")]
+
+
+def test_a_key_declared_twice_is_refused():
+    from aeroperception.services.runtime import Query, Topic
+
+    with pytest.raises(ValueError, match="declared twice"):
+        Topics(Topic("a/b", object), Topic("a/b", object, 1.0))
+    with pytest.raises(ValueError, match="declared twice"):
+        Queries(Query("a/srv/x", None, object), Query("a/srv/x", None, object))
