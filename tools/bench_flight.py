@@ -18,6 +18,7 @@ import sys
 import tempfile
 import threading
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -27,22 +28,9 @@ from aeroperception.services.runtime.service import SWITCH_INTERVAL_S
 from aeroperception.services.runtime.session import make_config, open_session
 
 from .bench_pubsub import measure
+from .harness import free_port, free_udp_port, msgid
 
 LOCAL_POSITION_NED, SET_POSITION_TARGET_LOCAL_NED = 32, 84
-
-
-def _free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def _msgid(pkt: bytes) -> int | None:
-    if len(pkt) >= 10 and pkt[0] == 0xFD:
-        return pkt[7] | pkt[8] << 8 | pkt[9] << 16
-    if len(pkt) >= 6 and pkt[0] == 0xFE:
-        return pkt[5]
-    return None
 
 
 class Tap:
@@ -71,13 +59,13 @@ class Tap:
                 now = time.perf_counter()
                 if s is self.a:
                     self.sim_addr = addr
-                    if _msgid(pkt) == LOCAL_POSITION_NED:
+                    if msgid(pkt) == LOCAL_POSITION_NED:
                         self.pending = now
                         if self.recording:
                             self.lpn_t.append(now)
                     self.b.sendto(pkt, self.fmu)
                 else:
-                    if _msgid(pkt) == SET_POSITION_TARGET_LOCAL_NED and self.recording:
+                    if msgid(pkt) == SET_POSITION_TARGET_LOCAL_NED and self.recording:
                         self.setpoint_t.append(now)
                         if self.pending is not None:
                             self.latency_ms.append((now - self.pending) * 1e3)
@@ -117,102 +105,163 @@ def breakdown(tap: Tap, seen: dict[str, list[float]]) -> dict[str, np.ndarray]:
             "setpoint seen -> SET_POSITION_TARGET sent": ms(c)}
 
 
-def run(duration_s: float = 20.0, sensors: str = "none", priorities: bool = True) -> int:
-    sys.setswitchinterval(SWITCH_INTERVAL_S)  # the tap must not wait for the GIL either
-    router_port, sim_tx, fmu_rx, sim_bind = _free_port(), _free_port(), _free_port(), _free_port()
-    tap = Tap(sim_tx, fmu_rx)
-    endpoint = f"tcp/127.0.0.1:{router_port}"
-    log_dir = tempfile.mkdtemp(prefix="aero-bench-flight-")
-    up_out = open(os.path.join(log_dir, "aero-up.out"), "wb")
-    up = subprocess.Popen([sys.executable, "-m", "aeroperception.tools.cli", "up", "--listen", endpoint,
-                           "--log-dir", log_dir, "--fcu-url", f"udpin:127.0.0.1:{fmu_rx}",
-                           "--arg", f"sim:--target=127.0.0.1:{sim_tx}", "--arg", f"sim:--bind=127.0.0.1:{sim_bind}",
-                           "--arg", f"sim:--sensors={sensors}"],
-                          stdout=up_out, stderr=subprocess.STDOUT,
-                          env=dict(os.environ, AERO_PRIORITIES="on" if priorities else "off"))
-    session = None
-    try:
-        session = open_session(make_config(connect=endpoint), max_wait_s=10)
-        last_diag: dict[str, DiagnosticStatus] = {}
+class HoverRun:
+    """The sim profile (`aero up` as a child, fmu's MAVLink through a Tap) with the vehicle taken
+    off and hovering: `begin()` .. `end()` is one measured window of the hot path.
+    `aero bench stack` measures its whole-stack figures in the same window."""
+
+    def __init__(self, sensors: str = "none", priorities: bool = True, up_args: tuple[str, ...] = ()):
+        router_port, (sim_tx, fmu_rx, sim_bind) = free_port(), (free_udp_port() for _ in range(3))
+        self.tap = Tap(sim_tx, fmu_rx)
+        self.endpoint = f"tcp/127.0.0.1:{router_port}"
+        self.log_dir = tempfile.mkdtemp(prefix="aero-bench-flight-")
+        self._up_out = open(os.path.join(self.log_dir, "aero-up.out"), "wb")
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "aeroperception.tools.cli", "up", "--listen", self.endpoint,
+             "--log-dir", self.log_dir, "--fcu-url", f"udpin:127.0.0.1:{fmu_rx}",
+             "--arg", f"sim:--target=127.0.0.1:{sim_tx}", "--arg", f"sim:--bind=127.0.0.1:{sim_bind}",
+             "--arg", f"sim:--sensors={sensors}", *up_args],
+            stdout=self._up_out, stderr=subprocess.STDOUT,
+            env=dict(os.environ, AERO_PRIORITIES="on" if priorities else "off"))
+        self.session = None
+        self.last_diag: dict[str, DiagnosticStatus] = {}
+        # Breakdown: when this process sees the state and the setpoint (same router, so each
+        # stamp is one Zenoh hop after the service published it).
+        self.seen: dict[str, list[float]] = {"state": [], "setpoint": []}
+
+    def pids(self) -> dict[str, int]:
+        """{service: pid} as `aero up` recorded them."""
+        try:
+            return json.loads(open(os.path.join(self.log_dir, "pids.json")).read())
+        except (OSError, ValueError):
+            return {}
+
+    def take_off(self, timeout_s: float = 30.0, settle_s: float = 8.0) -> None:
+        """Wait for the stack to have the vehicle, take off, settle into the OFFBOARD hover."""
+        deadline = time.monotonic() + timeout_s
+        self.session = open_session(make_config(connect=self.endpoint), max_wait_s=timeout_s)
+        if self.session is None:
+            raise RuntimeError(f"aero up's router did not answer within {timeout_s:.0f} s (logs: {self.log_dir})")
 
         def on_diag(s) -> None:
             try:
                 d = decode(s.payload.to_bytes(), DiagnosticStatus)
             except SchemaError:
                 return
-            last_diag[d.name] = d
+            self.last_diag[d.name] = d
 
-        session.declare_subscriber("diagnostics/planner", on_diag)
-        session.declare_subscriber("diagnostics/sim", on_diag)  # render rates: what priorities cost sensors
-        # Breakdown: when this process sees the state and the setpoint (same router, so each
-        # stamp is one Zenoh hop after the service published it).
-        seen: dict[str, list[float]] = {"state": [], "setpoint": []}
-        session.declare_subscriber("state/vehicle", lambda _s: tap.recording and seen["state"].append(time.perf_counter()))
-        session.declare_subscriber("fmu/in/trajectory_setpoint",
-                                   lambda _s: tap.recording and seen["setpoint"].append(time.perf_counter()))
-        deadline = time.monotonic() + 30
-        while True:  # wait for fmu to have the vehicle, then take off and hover
+        self.session.declare_subscriber("diagnostics/*", on_diag)
+        tap = self.tap
+        self.session.declare_subscriber("state/vehicle",
+                                        lambda _s: tap.recording and self.seen["state"].append(time.perf_counter()))
+        self.session.declare_subscriber("fmu/in/trajectory_setpoint",
+                                        lambda _s: tap.recording and self.seen["setpoint"].append(time.perf_counter()))
+        while True:
             try:
-                r = call(session, "mission/srv/command", MissionCommand(command="TAKEOFF"), Reply, 5.0)
+                r = call(self.session, "mission/srv/command", MissionCommand(command="TAKEOFF"), Reply, 5.0)
                 if r.success:
                     break
             except CallError:
                 pass
-            if time.monotonic() > deadline:
-                raise RuntimeError(f"stack did not come up (logs: {log_dir})")
+            if time.monotonic() > deadline or self.proc.poll() is not None:
+                raise RuntimeError(f"stack did not come up (logs: {self.log_dir})")
             time.sleep(1.0)
-        time.sleep(8.0)  # climb, settle into OFFBOARD hover
-        tap.latency_ms.clear()
-        tap.recording = True
-        time.sleep(duration_s)
-        tap.recording = False
-        lat = np.array(tap.latency_ms)
-        stages = breakdown(tap, seen)
-        gaps = np.diff(np.array(tap.setpoint_t)) * 1e3
-        diag = last_diag["planner"].values if "planner" in last_diag else {}
-        sim_diag = last_diag["sim"].values if "sim" in last_diag else {}
-        sched = scheduling_line(log_dir)
+        time.sleep(settle_s)  # climb, settle into OFFBOARD hover
+
+    def begin(self) -> None:
+        self.tap.latency_ms.clear()
+        self.tap.recording = True
+
+    def end(self) -> "HotPath":
+        self.tap.recording = False
+        diag = self.last_diag.get("planner", DiagnosticStatus()).values
+        return HotPath(lat=np.array(self.tap.latency_ms), stages=breakdown(self.tap, self.seen),
+                       gaps=np.diff(np.array(self.tap.setpoint_t)) * 1e3,
+                       period_error=(diag.get("loop[setpoint].ticks", "-"),
+                                     float(diag.get("loop[setpoint].period_error_p50_ms", "nan")),
+                                     float(diag.get("loop[setpoint].period_error_p99_ms", "nan"))),
+                       sched=scheduling_line(self.log_dir))
+
+    def close(self) -> None:
+        """Land (best effort) and stop the stack."""
         try:
-            call(session, "mission/srv/command", MissionCommand(command="LAND"), Reply, 5.0)
-        except CallError:
-            pass
-    finally:
-        if session is not None:
-            session.close()
-        up.terminate()
-        try:
-            up.wait(10)
-        except subprocess.TimeoutExpired:
-            up.kill()
-        up_out.close()
-        tap.stop.set()
-    router = make_config(mode="router", listen=[f"tcp/127.0.0.1:{_free_port()}"])
+            if self.session is not None:
+                try:
+                    call(self.session, "mission/srv/command", MissionCommand(command="LAND"), Reply, 5.0)
+                except CallError:
+                    pass
+                self.session.close()
+        finally:
+            self.proc.terminate()
+            try:
+                self.proc.wait(10)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+            self._up_out.close()
+            self.tap.stop.set()
+
+
+@dataclass
+class HotPath:
+    """One window's hot-path figures (ms)."""
+
+    lat: np.ndarray
+    stages: dict[str, np.ndarray]
+    gaps: np.ndarray
+    period_error: tuple[str, float, float]   # planner loop: ticks, p50, p99
+    sched: str
+
+    def rows(self) -> list[tuple[str, int | str, float, float]]:
+        """(metric, n, median_ms, p99_ms) for the latency, its stages, the gap and the loop error."""
+        out = [("hot path latency", len(self.lat), _q(self.lat, 50), _q(self.lat, 99))]
+        out += [("  " + name, len(a), _q(a, 50), _q(a, 99)) for name, a in self.stages.items() if len(a)]
+        out.append(("setpoint gap on the wire (50 Hz = 20 ms)", len(self.gaps), _q(self.gaps, 50), _q(self.gaps, 99)))
+        out.append(("planner deadline-loop period error", *self.period_error))
+        return out
+
+
+def _q(a: np.ndarray, pct: float) -> float:
+    return float(np.percentile(a, pct)) if len(a) else float("nan")
+
+
+def raw_hops_baseline(n: int = 500) -> np.ndarray:
+    """One-way raw Zenoh latencies (ms) through a router of their own, measured now."""
+    router = make_config(mode="router", listen=[f"tcp/127.0.0.1:{free_port()}"])
     router.insert_json5("scouting/delay", "0")
     router.insert_json5("connect/endpoints", "[]")
     import zenoh
 
     r = zenoh.open(router)
     try:
-        raw = measure(json.loads(router.get_json("listen/endpoints"))[0], "raw", "state", 500)
+        return measure(json.loads(router.get_json("listen/endpoints"))[0], "raw", "state", n)
     finally:
         r.close()
+
+
+def run(duration_s: float = 20.0, sensors: str = "none", priorities: bool = True) -> int:
+    sys.setswitchinterval(SWITCH_INTERVAL_S)  # the tap must not wait for the GIL either
+    hover = HoverRun(sensors, priorities)
+    try:
+        hover.take_off()
+        hover.begin()
+        time.sleep(duration_s)
+        hp = hover.end()
+        sim_diag = hover.last_diag.get("sim", DiagnosticStatus()).values
+    finally:
+        hover.close()
+    raw = raw_hops_baseline()
     base = 2 * float(np.median(raw))
     print(f"hot path LOCAL_POSITION_NED in -> SET_POSITION_TARGET_LOCAL_NED out, whole sim profile "
           f"(sensors={sensors}), {duration_s:.0f} s hover, {os.cpu_count()} cores")
-    print(f"scheduling: {sched}")
+    print(f"scheduling: {hp.sched}")
     print(f"{'metric':<44} {'n':>6} {'median_ms':>10} {'p99_ms':>8} {'x_base':>7}")
-    print(f"{'hot path latency':<44} {len(lat):>6} {np.median(lat):>10.3f} {np.percentile(lat, 99):>8.3f} "
-          f"{np.median(lat) / base:>7.2f}")
+    rows = hp.rows()
+    name, n, med, p99 = rows[0]
+    print(f"{name:<44} {n:>6} {med:>10.3f} {p99:>8.3f} {med / base:>7.2f}")
     print(f"{'baseline: 2 raw zenoh one-way hops':<44} {len(raw):>6} {base:>10.3f} {2 * np.percentile(raw, 99):>8.3f} "
           f"{1.0:>7.2f}")
-    for name, arr in stages.items():
-        if len(arr):
-            print(f"{'  ' + name:<44} {len(arr):>6} {np.median(arr):>10.3f} {np.percentile(arr, 99):>8.3f} {'':>7}")
-    print(f"{'setpoint gap on the wire (50 Hz = 20 ms)':<44} {len(gaps):>6} {np.median(gaps):>10.3f} "
-          f"{np.percentile(gaps, 99):>8.3f} {'':>7}")
-    print(f"{'planner deadline-loop period error':<44} {diag.get('loop[setpoint].ticks', '-'):>6} "
-          f"{float(diag.get('loop[setpoint].period_error_p50_ms', 'nan')):>10.3f} "
-          f"{float(diag.get('loop[setpoint].period_error_p99_ms', 'nan')):>8.3f} {'':>7}")
+    for name, n, med, p99 in rows[1:]:
+        print(f"{name:<44} {n:>6} {med:>10.3f} {p99:>8.3f} {'':>7}")
     rendered = [f"{k.removesuffix('_rate_hz')} {v} Hz" for k, v in sim_diag.items() if k.endswith("_rate_hz")]
     if rendered:
         print(f"sensors rendered meanwhile (sim diagnostics): {', '.join(rendered)}")

@@ -1,4 +1,4 @@
-"""`aero bench pubsub|sim|flight|lidar|vio|detector|record|soak`: benchmarks that print median / p99 and the ratio to the raw
+"""`aero bench pubsub|sim|flight|stack|lidar|vio|detector|record|soak`: benchmarks that print median / p99 and the ratio to the raw
 baseline measured in the same run. Tests check correctness; these report speed."""
 from __future__ import annotations
 
@@ -24,6 +24,15 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="aero up's scheduling priorities (tools/profiles.yaml); off: all at the default")
     p.set_defaults(func=lambda a: importlib.import_module("aeroperception.tools.bench_flight").run(
         a.duration, a.sensors, a.priorities == "on"))
+    p = bsub.add_parser("stack", help="is this machine big enough: the whole stack hovering in the village; per "
+                                      "process CPU %% and RSS, achieved vs rated rates, the hot path, idle %%, a verdict")
+    p.add_argument("--profile", default="sim", help="aero up profile (sim, viz, ...)")
+    p.add_argument("--sensors", default="all", choices=["all", "lidar", "camera", "imu", "none"],
+                   help="what the sim renders (as aero up --sensors)")
+    p.add_argument("--duration", type=float, default=30.0, help="seconds measured (after take-off and settling)")
+    p.add_argument("--scenario", default="village")
+    p.set_defaults(func=lambda a: importlib.import_module("aeroperception.tools.bench_stack").run(
+        a.profile, a.sensors, a.duration, a.scenario))
     p = bsub.add_parser("lidar", help="150k-point scan -> obstacles -> costmap per stage vs the Open3D pipeline")
     p.add_argument("-n", type=int, default=20, help="scans per pipeline")
     p.add_argument("--scenario", default="village")
