@@ -7,8 +7,8 @@ point within 0.5-10 m of the sensor (requirement LID-4's detection range):
   ground precision / recall / F1;
   obstacle false-positive rate = share of points marked obstacle that are not (non-obstacles marked);
   obstacle false-negative rate = share of true obstacle points not marked (obstacles missed),
-  counting obstacle points in the seed's band only: at least min_obstacle_height_m above the
-  true terrain (the bottom 10 cm of every object is "ground debris" by the seed's definition).
+  counting obstacle points in LID-1's height band only: at least min_obstacle_height_m above the
+  true terrain (the bottom 10 cm of every object is "ground debris" by LID-1's definition).
 Real scans: SemanticKITTI .bin files (float32 x, y, z, intensity), with Patchwork++ (PyPI
 `pypatchworkpp`, when installed) run on the same scans as a public reference: agreement of the
 ground masks and both speeds side by side.
