@@ -14,9 +14,9 @@ executed again and not answered: the final ACK answers the retries too, because 
 an ACK by command id. The stack answers within ~1 s in practice; after `timeout_s` (tick) the
 command is answered FAILED.
 
-The stack is reached through `ops` (see Ops): arm, set_mode, mission_command, takeoff, goto,
-mission_start, change_speed; each takes a done(ok, message[, failed]) callback that may run
-later (`failed`: the call itself failed, not a refusal).
+The stack is reached through `ops` (see Ops, ops.StackOps): arm, set_mode, mission_command,
+takeoff, goto, mission_start, change_speed; each answers done(Outcome) once, maybe later
+(Outcome.failed: the call itself failed, not a refusal).
 """
 from __future__ import annotations
 
@@ -30,8 +30,8 @@ from aeroperception.services.mavlink import frames, px4
 
 from .home import Home
 from .mission_speed import SPEED_DEFAULT, change_speed_value
+from .ops import Done, Outcome
 
-Done = Callable[..., None]   # done(ok: bool, message: str, failed: bool = False)
 FORCE_MAGIC = 21196
 
 
@@ -120,14 +120,15 @@ class CommandHandler:
         key = (c.command, c.peer)
         self.pending[key] = Pending(c.command, c.peer, now_s)
 
-        def done(ok: bool, message: str = "", failed: bool = False) -> None:
+        def done(outcome: Outcome) -> None:
             if self.pending.pop(key, None) is None:
                 return   # already answered FAILED by tick()
-            if ok:
+            if outcome.ok:
                 self.ack(c.command, M.MAV_RESULT_ACCEPTED, c.peer)
                 return
-            self.notify(f"{command_name(c.command)} {'failed' if failed else 'denied'}: {message}", c.peer)
-            self.ack(c.command, M.MAV_RESULT_FAILED if failed else M.MAV_RESULT_DENIED, c.peer)
+            self.notify(f"{command_name(c.command)} {'failed' if outcome.failed else 'denied'}: {outcome.message}",
+                        c.peer)
+            self.ack(c.command, M.MAV_RESULT_FAILED if outcome.failed else M.MAV_RESULT_DENIED, c.peer)
 
         start(done)
 

@@ -1,5 +1,9 @@
 """Process shell: the UDP MAVLink link on one side, the stack (Zenoh) on the other.
 
+A received MAVLink message goes through one table, `handlers`: {message type: handler(msg,
+now_s)}; adding a message is one entry and its handler. What a handler asks of the stack goes
+through the operations object (ops.StackOps), each call answering one Outcome.
+
 Threads: the UDP receive thread hands every parsed message to `_on_mav` under node.lock; a 20 Hz
 timer sends due telemetry and drives the mission/command timers; calls into the stack are
 asynchronous (node.call_async), their replies come back under node.lock. So the logic objects
@@ -12,41 +16,39 @@ hears the FC's own link sees one vehicle.
 """
 from __future__ import annotations
 
-import math
 import os
 import time
+from typing import Callable
 
 from pymavlink.dialects.v20 import common as M
 
 from aeroperception.schemas import (
-    ArmReply, ArmRequest, BatteryState, DiagnosticStatus, Empty, EstimatorStatus, GcsLink, GetMissionReply, GoalReply,
-    GoToPositionGoal, GpsPosition, HomePosition, Joystick, LoadMissionReply, LoadMissionRequest, MissionCommand, MissionStatus,
-    ObjectEvent, ParamList, ParamSet, ParamSetReply, Reply, SafetyStatus, SchemaError, SetModeReply, SetModeRequest, TakeoffGoal,
-    TrackedObjectArray, Vector3, VehicleState, VehicleStatus, WaypointReached, parse_mission,
+    BatteryState, DiagnosticStatus, EstimatorStatus, GcsLink, GpsPosition, HomePosition, Joystick, MissionStatus,
+    ObjectEvent, SafetyStatus, TrackedObjectArray, VehicleState, VehicleStatus, WaypointReached,
 )
 from aeroperception.services.mavlink import ftp
-from aeroperception.services.runtime import CallError, Health, Service, run
+from aeroperception.services.runtime import Health, Service, run
 
 from . import contract
 from .commands import CommandHandler, mode_from_custom_mode
 from .home import SOURCE_PARAM, Home, HomeTracker, home_from_msg, origin_shift_m
 from .link import UdpLink, load_signing_key, parse_signing_key
 from .messages import statustext
-from .mission_items import MissionConversionError, convert_items, mission_to_items
 from .mission_progress import Progress
-from .mission_protocol import MissionProtocol
-from .mission_speed import SPEED_DEFAULT, SpeedSchedule, waypoint_speeds
-from .params import ParamTable, decode_param_id, decode_value
-from .presence import GroundStationFilter, LinkVerdict, ListeningClock
+from .mission_sync import MissionSync
 from .objects_relay import ObjectsRelay, event_text
+from .ops import Outcome, StackOps
+from .param_protocol import ParamProtocol
+from .params import ParamTable
+from .presence import GroundStationFilter, LinkVerdict, ListeningClock
 from .safety_relay import SafetyRelay
 from .telemetry import Scheduler, TelemetryState
 
-SPEED_SERVICE, SPEED_PARAM = "planner", "max_velocity_mps"   # DO_CHANGE_SPEED sets this
+Handler = Callable[..., None]   # handler(msg, now_s)
 
 
 class GcsService(Service):
-    """MAVLink endpoint for ground stations: presents the stack as one PX4 autopilot (seed 001)."""
+    """MAVLink endpoint for ground stations: presents the stack as one PX4 autopilot."""
 
     NAME = contract.NAME
     PARAMS = contract.PARAMS
@@ -82,10 +84,8 @@ class GcsService(Service):
 
     def start(self) -> None:
         p = self.params
-        for flag, name in (("local_port", "local_port"), ("remote_port", "remote_port"),
-                           ("gcs_ip", "gcs_ip"), ("bind_ip", "bind_ip"), ("signing_key_file", "signing_key_file"),
-                           ("signing_link_id", "signing_link_id")):
-            v = getattr(self.args, flag, None)
+        for name in ("local_port", "remote_port", "gcs_ip", "bind_ip", "signing_key_file", "signing_link_id"):
+            v = getattr(self.args, name, None)
             if v is not None:
                 p.set(name, v)
         node = self.node
@@ -110,25 +110,32 @@ class GcsService(Service):
         self.safety = SafetyRelay()
         self.objects = ObjectsRelay()
         self.table = ParamTable(p.param_services.split(","))
-        self.missions = MissionProtocol(self.link.send, self._load, p.mission_item_timeout_s,
-                                        p.mission_retries, p.max_mission_items, log=self.log.warn,
-                                        notify=self._notify)
-        self.cmds = CommandHandler(self.link.send, self, self.home, position_enu=self._position,
+        progress = self.tel.progress = Progress()   # MISSION_ITEM_REACHED / MISSION_CURRENT for our mission
+        self.ops = StackOps(node.call_async, p.call_timeout_s, self.table, self.tel, progress, self.log)
+        self.mission = MissionSync(self.ops, progress, self.tel, self.table, lambda: self.home, self.link.send,
+                                   self._notify, self.log, item_timeout_s=p.mission_item_timeout_s,
+                                   retries=p.mission_retries, max_items=p.max_mission_items)
+        self.cmds = CommandHandler(self.link.send, self.ops, self.home, position_enu=self._position,
                                    request_message=self._request_message,
-                                   set_interval=self.sched.set_interval, set_current=self._set_current,
+                                   set_interval=self.sched.set_interval, set_current=self.mission.set_current,
                                    notify=self._notify)
-        self.homes = HomeTracker(self.home, busy=self._upload_under_way, apply=self._apply_home)
-        self.progress = Progress()       # MISSION_ITEM_REACHED / MISSION_CURRENT for our mission
-        self._last_progress: tuple[int, int] = (0, 0)
-        self._held_reason: str | None = None  # the mission's last HOLDING reason told to ground stations
-        self.tel.progress = self.progress
-        self.speeds = SpeedSchedule()    # the loaded mission's DO_CHANGE_SPEED items, per waypoint
-        # (mission_id, waypoints) of the mission our items describe; one loaded some other way
-        # (aero mission load/fly) is fetched from mission/srv/get so a download shows it.
-        self.synced: tuple[str, int] | None = None
-        self.fetching = False
-        self.fetch_failed_s = -math.inf
-        self.loads = 0
+        self.param_proto = ParamProtocol(self.table, self.ops, self.NAME, node.param_list, node.set_param,
+                                         self.link.send, self._notify, self._ignore, self.log)
+        self.homes = HomeTracker(self.home, busy=lambda: self.mission.upload_under_way, apply=self._apply_home)
+        self.handlers: dict[str, Handler] = {
+            "HEARTBEAT": self._on_heartbeat,
+            **self.mission.protocol.handlers(),           # MISSION_COUNT, MISSION_ITEM_INT, ... (mission_protocol.py)
+            "MISSION_SET_CURRENT": self._on_mission_set_current,
+            "COMMAND_LONG": self.cmds.handle,
+            "COMMAND_INT": self.cmds.handle,
+            "PARAM_REQUEST_LIST": self.param_proto.on_request_list,
+            "PARAM_REQUEST_READ": self.param_proto.on_request_read,
+            "PARAM_SET": self.param_proto.on_set,
+            "SET_MODE": self._on_set_mode,
+            "MANUAL_CONTROL": self._on_manual_control,
+            "FILE_TRANSFER_PROTOCOL": self._on_ftp,
+            "TIMESYNC": self._on_timesync,
+        }
         self.notices = 0                      # STATUSTEXTs sent (chunk ids)
         self.gcs_last_hb: float | None = None     # ListeningClock time of the last ground station heartbeat
         self.gcs_sysid = 0
@@ -136,21 +143,21 @@ class GcsService(Service):
         self.ignored: dict[str, int] = {}
         self.pub_link = node.publisher("gcs/link", GcsLink)
         self.pub_joy = node.publisher("gcs/joystick", Joystick)
-        node.subscribe("state/vehicle", VehicleState, self._on_vehicle)
+        node.subscribe("state/vehicle", VehicleState, lambda m: setattr(self.tel, "vehicle", m))
         node.subscribe("fmu/out/battery_status", BatteryState, lambda m: setattr(self.tel, "battery", m))
         node.subscribe("fmu/out/home_position", HomePosition, self._on_home_position)
         node.subscribe("fmu/out/vehicle_gps_position", GpsPosition, self._on_gps)
         node.subscribe("fmu/out/estimator_status", EstimatorStatus, self._on_estimator_status)
-        node.subscribe("mission/status", MissionStatus, self._on_mission_status)
-        node.subscribe("mission/waypoint_reached", WaypointReached, self._on_reached)
+        node.subscribe("mission/status", MissionStatus, self.mission.on_status)
+        node.subscribe("mission/waypoint_reached", WaypointReached, self.mission.on_reached)
         node.subscribe("safety/status", SafetyStatus, self._on_safety)
         node.subscribe("perception/objects/events", ObjectEvent, self._on_object_event)
         node.subscribe("perception/objects", TrackedObjectArray, self._on_objects)
         if self.companion:
             node.subscribe("fmu/out/vehicle_status", VehicleStatus, self._on_vehicle_status)
-        self._refresh_params()
+        self.param_proto.refresh()
         node.every(0.05, self._tick, name="link")
-        node.every(p.param_refresh_s, self._refresh_params, name="params")
+        node.every(p.param_refresh_s, self.param_proto.refresh, name="params")
         node.every(1.0, self._publish_link, name="gcs_link")
         self.link.start(self._on_mav_locked)
         self.log.info("gcs_link", bind=f"{self.link.local_address[0]}:{self.link.local_address[1]}",
@@ -162,10 +169,89 @@ class GcsService(Service):
         if link is not None:
             link.close()
 
-    # ------------------------------------------------------------ stack inputs
+    # ------------------------------------------------------------ MAVLink in
 
-    def _on_vehicle(self, msg: VehicleState) -> None:
-        self.tel.vehicle = msg
+    def _on_mav_locked(self, msg) -> None:
+        self.node.run_callback(f"mavlink:{msg.get_type()}", self._on_mav, msg)
+
+    def _on_mav(self, msg) -> None:
+        t = msg.get_type()
+        target_sys = getattr(msg, "target_system", None)
+        if target_sys not in (None, 0, self.link.system_id) and t != "FILE_TRANSFER_PROTOCOL":
+            self._ignore("other_target")
+            return
+        if self.companion and t != "HEARTBEAT":
+            # Only what is addressed to our component; the flight controller answers the rest
+            # (parameters asked of every component are ours to answer too).
+            comp = getattr(msg, "target_component", None)
+            if comp is not None and comp != self.link.component_id and not (
+                    comp == 0 and t in ("PARAM_REQUEST_LIST", "PARAM_REQUEST_READ")):
+                self._ignore("other_component")
+                return
+        handler = self.handlers.get(t)
+        if handler is None:
+            self._ignore(t)
+        else:
+            handler(msg, time.monotonic())
+
+    def _ignore(self, kind: str) -> None:
+        self.ignored[kind] = self.ignored.get(kind, 0) + 1
+
+    def _on_heartbeat(self, msg, now_s: float) -> None:
+        if msg.get_srcSystem() == self.link.system_id:
+            return
+        if self.link.is_ground_station(msg):
+            self.gcs_last_hb = self.clock()
+            self.gcs_sysid = msg.get_srcSystem()
+            self._check_peers(self.gcs_last_hb)
+        else:
+            self._ignore("heartbeat_not_gcs")
+
+    def _on_mission_set_current(self, msg, now_s: float) -> None:
+        if self.mission.set_current(msg.seq):
+            self.link.send(self.tel.mission_current())
+
+    def _on_set_mode(self, msg, now_s: float) -> None:
+        peer = (msg.get_srcSystem(), msg.get_srcComponent())
+        mode = mode_from_custom_mode(msg.base_mode, msg.custom_mode)
+        if mode is None:
+            self.cmds.ack(M.MAVLINK_MSG_ID_SET_MODE, M.MAV_RESULT_DENIED, peer)
+            return
+
+        def done(outcome: Outcome) -> None:
+            self.cmds.ack(M.MAVLINK_MSG_ID_SET_MODE, M.MAV_RESULT_ACCEPTED if outcome.ok else M.MAV_RESULT_DENIED, peer)
+        self.ops.set_mode(mode, done)
+
+    def _on_manual_control(self, msg, now_s: float) -> None:
+        self.pub_joy.publish(Joystick(header=self.node.header(), x=msg.x / 1000.0, y=msg.y / 1000.0,
+                                      z=msg.z / 1000.0, r=msg.r / 1000.0, buttons=msg.buttons,
+                                      source_system=msg.get_srcSystem()))
+
+    def _on_ftp(self, msg, now_s: float) -> None:
+        self.link.send(ftp.nak(msg, ftp.ERR_FILE_NOT_FOUND))   # ground stations fall back at once
+
+    def _on_timesync(self, msg, now_s: float) -> None:
+        if msg.tc1 == 0:
+            self.link.send(M.MAVLink_timesync_message(time.monotonic_ns(), msg.ts1))
+
+    def _request_message(self, msg_id: int, param2: float) -> int:
+        msg = self.tel.build(msg_id)
+        if msg is None:
+            return M.MAV_RESULT_UNSUPPORTED
+        self.link.send(msg)
+        return M.MAV_RESULT_ACCEPTED
+
+    def _notify(self, text: str, peer: tuple[int, int] | None, severity: int = M.MAV_SEVERITY_CRITICAL) -> None:
+        """A STATUSTEXT (critical, as PX4 reports a refused mission or mode change) to the ground
+        station `peer` (None: to every ground station)."""
+        self.notices += 1
+        for m in statustext(severity, text, self.notices):
+            if peer is None:
+                self.link.send(m, broadcast=True)
+            else:
+                self.link.send(m, peer=peer)
+
+    # ------------------------------------------------------------ stack inputs
 
     def _on_gps(self, msg: GpsPosition) -> None:
         self.tel.gps, self.tel.gps_rx_s = msg, time.monotonic()
@@ -206,10 +292,6 @@ class GcsService(Service):
             self.log.info("home_change_deferred", reason="mission upload under way",
                           latitude_deg=home.lat_deg, longitude_deg=home.lon_deg, altitude_amsl_m=home.alt_m)
 
-    def _upload_under_way(self) -> bool:
-        t = self.missions.transfer
-        return self.missions.loading or (t is not None and t.direction == "upload")
-
     def _apply_home(self, new: Home, old: Home, source: str) -> None:
         """The home in force changed: every conversion uses it from now on; ground stations are told
         (HOME_POSITION at once, as PX4 sends it on change)."""
@@ -218,60 +300,18 @@ class GcsService(Service):
         self.log.info("home_changed", source=source, latitude_deg=new.lat_deg, longitude_deg=new.lon_deg,
                       altitude_amsl_m=new.alt_m, local_m=[round(v, 3) for v in new.local_m],
                       previous=[old.lat_deg, old.lon_deg, old.alt_m], shift_m=round(shift, 3))
-        if self.missions.items and (shift > 0.5 or abs(new.alt_m - new.local_m[2] - old.alt_m + old.local_m[2]) > 0.5):
+        if self.mission.protocol.items and (
+                shift > 0.5 or abs(new.alt_m - new.local_m[2] - old.alt_m + old.local_m[2]) > 0.5):
             self.log.warn("mission_converted_about_previous_home", shift_m=round(shift, 3),
                           hint="the loaded mission's local positions were converted about the previous home; "
                                "upload it again")
         self.link.send(self.tel.home_position(), broadcast=True)
 
-    def _on_mission_status(self, msg: MissionStatus) -> None:
-        held = msg.message if msg.state == MissionStatus.STATE_HOLDING else None
-        if held and held != self._held_reason:
-            # why the mission holds (an unreachable waypoint, a failsafe, ...), once per reason
-            self._notify(f"Mission HOLDING: {held}", None, M.MAV_SEVERITY_WARNING)
-        self._held_reason = held
-        self.tel.mission = msg
-        if msg.mission_id and (msg.mission_id, msg.total_waypoints) != self.synced:
-            self._fetch_mission()
-        self._progress(self.progress.on_status(msg.mission_id, msg.state, msg.active_waypoint, msg.total_waypoints))
-        self._sync_plan()
-        if msg.state == MissionStatus.STATE_EXECUTING and msg.mission_id == self.speeds.mission_id:
-            self._apply_mission_speed(msg.active_waypoint)   # however the mission was started
-        restore = self.speeds.observe(msg.mission_id, msg.state, msg.active_waypoint, msg.total_waypoints)
-        if restore is not None:
-            self._restore_speed(restore, f"mission {self.speeds.mission_id or '-'} over ({msg.state})")
-
-    @property
-    def wp_seqs(self) -> list[int]:
-        return self.progress.wp_seqs
-
-    def _sync_plan(self) -> None:
-        self.tel.mission_total = len(self.missions.items)
-        self.tel.mission_id = self.missions.plan_id
-
-    def _progress(self, reached: list[int]) -> None:
-        """MISSION_ITEM_REACHED for each seq, to every ground station; MISSION_CURRENT at once when
-        the current item or the mission state changed (as PX4 sends it on change)."""
-        for seq in reached:
-            self.link.send(M.MAVLink_mission_item_reached_message(seq), broadcast=True)
-        if 0 <= self.progress.current < len(self.missions.items):
-            self.missions.current = self.progress.current
-        now = (self.progress.current, self.progress.state)
-        if reached or now != self._last_progress:
-            self._last_progress = now
-            self._sync_plan()
-            self.link.send(self.tel.mission_current(), broadcast=True)
-
-    def _on_reached(self, msg: WaypointReached) -> None:
-        self._progress(self.progress.on_reached(msg.mission_id, msg.index))
-        if msg.mission_id == self.speeds.mission_id:
-            self._apply_mission_speed(msg.index + 1)         # the speed for the next leg, at once
-
     def _position(self) -> tuple[float, float, float]:
         v = self.tel.vehicle
         return (v.position_m.x, v.position_m.y, v.position_m.z) if v else (0.0, 0.0, 0.0)
 
-    # ------------------------------------------------------------ timers
+    # ------------------------------------------------------------ timers, presence
 
     @property
     def gcs_connected(self) -> bool:
@@ -285,10 +325,10 @@ class GcsService(Service):
         now = time.monotonic()
         for msg in self.sched.due(now):
             self.link.send(msg)
-        self.missions.tick(now)
+        self.mission.protocol.tick(now)
         self.homes.poll()                # a home held back during an upload, once it is over
         self.cmds.tick(now, timeout_s=self.params.call_timeout_s + 2.0)
-        self._sync_plan()
+        self.mission.sync_plan()
         self._check_peers(self.clock())
 
     def _check_peers(self, now: float) -> None:
@@ -314,9 +354,6 @@ class GcsService(Service):
             self.log.info("gcs_link_none", listened_s=self.params.gcs_timeout_s)
         self._publish_link()
 
-    def _addresses(self) -> str:
-        return ",".join(f"{a[0]}:{a[1]}" for a in sorted(self.gcs_alive))
-
     def _publish_link(self) -> None:
         if self.verdict.connected is None:
             return   # no verdict yet (presence.py)
@@ -327,415 +364,29 @@ class GcsService(Service):
                                       packets_received=self.link.parser.received,
                                       packets_invalid=self.link.parser.invalid_total))
 
-    # ------------------------------------------------------------ MAVLink in
-
-    def _on_mav_locked(self, msg) -> None:
-        self.node.run_callback(f"mavlink:{msg.get_type()}", self._on_mav, msg)
-
-    def _on_mav(self, msg) -> None:
-        t = msg.get_type()
-        now = time.monotonic()
-        target_sys = getattr(msg, "target_system", None)
-        if target_sys not in (None, 0, self.link.system_id) and t != "FILE_TRANSFER_PROTOCOL":
-            self.ignored["other_target"] = self.ignored.get("other_target", 0) + 1
-            return
-        if self.companion and t != "HEARTBEAT":
-            # Only what is addressed to our component; the flight controller answers the rest
-            # (parameters asked of every component are ours to answer too).
-            comp = getattr(msg, "target_component", None)
-            if comp is not None and comp != self.link.component_id and not (
-                    comp == 0 and t in ("PARAM_REQUEST_LIST", "PARAM_REQUEST_READ")):
-                self.ignored["other_component"] = self.ignored.get("other_component", 0) + 1
-                return
-        if t == "HEARTBEAT":
-            if msg.get_srcSystem() != self.link.system_id and self.link.is_ground_station(msg):
-                self.gcs_last_hb = self.clock()
-                self.gcs_sysid = msg.get_srcSystem()
-                self._check_peers(self.gcs_last_hb)
-            elif msg.get_srcSystem() != self.link.system_id:
-                self.ignored["heartbeat_not_gcs"] = self.ignored.get("heartbeat_not_gcs", 0) + 1
-        elif self.missions.handle(msg, now):
-            pass
-        elif t in ("COMMAND_LONG", "COMMAND_INT"):
-            self.cmds.handle(msg, now)
-        elif t == "PARAM_REQUEST_LIST":
-            for i, e in enumerate(self.table.entries):
-                self.link.send(self.table.value_msg(i, e))
-        elif t == "PARAM_REQUEST_READ":
-            self._param_read(msg)
-        elif t == "PARAM_SET":
-            self._param_set(msg)
-        elif t == "MISSION_SET_CURRENT":
-            if self._set_current(msg.seq):
-                self.link.send(self.tel.mission_current())
-        elif t == "SET_MODE":
-            mode = mode_from_custom_mode(msg.base_mode, msg.custom_mode)
-            if mode is None:
-                self.cmds.ack(M.MAVLINK_MSG_ID_SET_MODE, M.MAV_RESULT_DENIED, (msg.get_srcSystem(), msg.get_srcComponent()))
-            else:
-                peer = (msg.get_srcSystem(), msg.get_srcComponent())
-                self.set_mode(mode, lambda ok, _m, *_: self.cmds.ack(
-                    M.MAVLINK_MSG_ID_SET_MODE, M.MAV_RESULT_ACCEPTED if ok else M.MAV_RESULT_DENIED, peer))
-        elif t == "MANUAL_CONTROL":
-            self.pub_joy.publish(Joystick(header=self.node.header(), x=msg.x / 1000.0, y=msg.y / 1000.0,
-                                          z=msg.z / 1000.0, r=msg.r / 1000.0, buttons=msg.buttons,
-                                          source_system=msg.get_srcSystem()))
-        elif t == "FILE_TRANSFER_PROTOCOL":
-            self.link.send(ftp.nak(msg, ftp.ERR_FILE_NOT_FOUND))   # ground stations fall back at once
-        elif t == "TIMESYNC":
-            if msg.tc1 == 0:
-                self.link.send(M.MAVLink_timesync_message(time.monotonic_ns(), msg.ts1))
-        else:
-            self.ignored[t] = self.ignored.get(t, 0) + 1
-
-    # ------------------------------------------------------------ parameters
-
-    def _refresh_params(self) -> None:
-        for svc in self.table.sources:
-            if svc == self.NAME:
-                self.table.update_service(svc, self.node.param_list().params)
-                continue
-
-            def done(res, svc=svc) -> None:
-                if isinstance(res, CallError):
-                    return  # service not running: keep what we had
-                self.table.update_service(svc, res.params)
-
-            self.node.call_async(f"config/{svc}/@params", None, ParamList, done, timeout_s=2.0)
-
-    def _param_read(self, msg) -> None:
-        """PARAM_REQUEST_READ; an unknown name gets no PARAM_VALUE (PX4), only PARAM_ERROR."""
-        name = decode_param_id(msg.param_id)
-        found = self.table.lookup(name, msg.param_index)
-        if found is not None:
-            self.link.send(self.table.value_msg(*found))
-            return
-        self.ignored["unknown_param"] = self.ignored.get("unknown_param", 0) + 1
-        if msg.param_index >= 0:
-            self._notify(f"[pm] unknown param ID: {msg.param_index}", self._peer(msg), M.MAV_SEVERITY_INFO)
-        self._param_error(msg, name, M.MAV_PARAM_ERROR_DOES_NOT_EXIST)
-
-    def _peer(self, msg) -> tuple[int, int]:
-        return msg.get_srcSystem(), msg.get_srcComponent()
-
-    def _param_error(self, msg, name: str, error: int) -> None:
-        self.link.send(M.MAVLink_param_error_message(msg.get_srcSystem(), msg.get_srcComponent(),
-                                                     name.encode()[:16], getattr(msg, "param_index", -1), error))
-
-    def _param_set(self, msg) -> None:
-        """PARAM_SET: to the owning service(s) (an alias: every owner present), then the value in
-        force to every ground station (as PX4 does); refusals explained in a STATUSTEXT."""
-        name = decode_param_id(msg.param_id)
-        peer = self._peer(msg)
-        found = self.table.lookup(name)
-        if found is None:
-            self.ignored["unknown_param"] = self.ignored.get("unknown_param", 0) + 1
-            self._notify(f"[pm] unknown param: {name}", peer, M.MAV_SEVERITY_INFO)
-            self._param_error(msg, name, M.MAV_PARAM_ERROR_DOES_NOT_EXIST)
-            return
-        index, entry = found
-        if entry.readonly:
-            self._notify(f"{name} is read-only: {entry.readonly}", peer, M.MAV_SEVERITY_WARNING)
-            self._param_error(msg, name, M.MAV_PARAM_ERROR_READ_ONLY)
-            self.link.send(self.table.value_msg(index, entry))
-            return
-        try:
-            value = decode_value(msg.param_value, msg.param_type, entry.ptype)
-        except Exception:  # noqa: BLE001 - an undecodable value: echo the current one
-            self.link.send(self.table.value_msg(index, entry))
-            return
-        targets = entry.targets or ((entry.service, entry.name),)
-        replies: dict[tuple[str, str], ParamSetReply] = {}
-
-        def record(target: tuple[str, str], reply: ParamSetReply) -> None:
-            replies[target] = reply
-            if len(replies) < len(targets):
-                return
-            for (svc, pname), rep in replies.items():
-                if rep.success and rep.value is not None:
-                    self.table.set_value(svc, pname, rep.value)
-                elif not rep.success:
-                    self.log.warn("param_set_rejected", param=name, service=svc, name=pname, value=value,
-                                  error=rep.message)
-                    if entry.targets:
-                        self._notify(f"{name}: {svc} refused {value}: {rep.message}", peer, M.MAV_SEVERITY_WARNING)
-            now = self.table.lookup(name)
-            if now is not None:   # always echoed, to every ground station (as PX4 does): the value in force
-                self.link.send(self.table.value_msg(*now), broadcast=True)
-
-        for svc, pname in targets:
-            if svc == self.NAME:
-                record((svc, pname), self.node.set_param(pname, value))
-                continue
-
-            def done(res, target=(svc, pname)) -> None:
-                if isinstance(res, CallError):
-                    res = ParamSetReply(success=False, message=str(res))
-                record(target, res)
-
-            self.node.call_async(f"config/{svc}/@set", ParamSet(name=pname, value=value), ParamSetReply, done,
-                                 timeout_s=self.params.call_timeout_s)
-
-    # ------------------------------------------------------------ missions
-
-    def _load(self, items, done) -> None:
-        default_alt = self.table.find("mission", "takeoff_altitude_m")
-        # PX4: an item without an acceptance radius (param2 0) uses NAV_ACC_RAD (the planner's)
-        radius = self.table.find("planner", "acceptance_radius_m")
-        self.loads += 1
-        try:
-            mission, seqs = convert_items(items, self.home, mission_id=f"gcs-{self.loads}",
-                                          default_takeoff_m=float(default_alt[1].value) if default_alt else 3.0,
-                                          acceptance_radius_m=float(radius[1].value) if radius else 0.5)
-        except MissionConversionError as e:
-            done(False, str(e), e.result)
-            return
-        speeds = waypoint_speeds(items, seqs)
-        found = self.table.find(SPEED_SERVICE, SPEED_PARAM)
-        if found is not None:
-            lo, hi = found[1].min, found[1].max
-            for v in speeds:
-                if v is not None and v != SPEED_DEFAULT and ((lo is not None and v < lo) or (hi is not None and v > hi)):
-                    done(False, f"DO_CHANGE_SPEED {v} m/s outside {found[1].mav_name} [{lo}, {hi}]",
-                         M.MAV_MISSION_INVALID_PARAM2)
-                    return
-
-        def loaded(res) -> None:
-            if isinstance(res, CallError):
-                done(False, str(res), M.MAV_MISSION_ERROR)
-                return
-            if res.success:
-                self.progress.load(mission.mission_id, items, seqs)
-                self._end_speed_scope("mission replaced")
-                self.speeds = SpeedSchedule(speeds, mission.mission_id)
-                self.synced = (mission.mission_id, len(mission.waypoints))
-            done(res.success, res.message, M.MAV_MISSION_DENIED)   # accepts the items: the new plan id
-            if res.success:
-                # total and plan id together, once the items are in: MISSION_CURRENT streamed in
-                # between carried the new total with the old plan id (0 after a first upload)
-                self._sync_plan()
-                self.tel.mission_seq = 0
-
-        self.node.call_async("mission/srv/load", LoadMissionRequest(mission_json=mission.to_json()),
-                             LoadMissionReply, loaded, timeout_s=self.params.call_timeout_s)
-
-    def _fetch_mission(self) -> None:
-        """The mission service has a mission we did not upload: fetch it (mission/srv/get) and
-        serve it as items (NAV_TAKEOFF + NAV_WAYPOINTs, see mission_items.mission_to_items). Not while
-        a transfer is under way; a failed fetch is retried after 5 s."""
-        busy = self.missions.loading or self.missions.transfer is not None
-        if self.fetching or busy or time.monotonic() - self.fetch_failed_s < 5.0:
-            return
-        self.fetching = True
-
-        def done(res) -> None:
-            self.fetching = False
-            if isinstance(res, CallError) or not res.success:
-                self.fetch_failed_s = time.monotonic()
-                return
-            key = (res.mission_id, res.num_waypoints)
-            if key == self.synced or self.missions.loading or self.missions.transfer is not None:
-                return   # ours (an upload overtook the status), or busy: the next status retries
-            try:
-                mission = parse_mission(res.mission_json)
-            except SchemaError as e:
-                self.fetch_failed_s = time.monotonic()
-                self.log.warn("mission_fetch_invalid", error=str(e))
-                return
-            self.missions.items = mission_to_items(mission, self.home)
-            self.missions.current = 0
-            self.progress.load(mission.mission_id, self.missions.items,
-                               list(range(1, len(mission.waypoints) + 1)))   # item 0 is the takeoff
-            self._sync_plan()
-            self._end_speed_scope("mission replaced")
-            self.speeds = SpeedSchedule([], mission.mission_id)
-            self.tel.mission_seq = 0
-            self.synced = key
-            self.log.info("mission_synced", mission_id=mission.mission_id, items=len(self.missions.items))
-
-        self.node.call_async("mission/srv/get", Empty(), GetMissionReply, done, timeout_s=self.params.call_timeout_s)
-
-    def _set_current(self, seq: int) -> bool:
-        """MISSION_SET_CURRENT / DO_SET_MISSION_CURRENT: the mission jumps (flies to that item
-        next, as PX4 does), not only MISSION_CURRENT; a refusal by the mission is a STATUSTEXT."""
-        k = self.progress.waypoint_for(seq)
-        ok = k is not None and self.missions.set_current(seq)
-        if ok:
-            def done(jumped: bool, message: str, failed: bool = False) -> None:
-                if not jumped:
-                    self._notify(f"Mission jump to item {seq} refused: {message}", None)
-            self.node.call_async("mission/srv/command", MissionCommand(command="SET_CURRENT", waypoint_index=k),
-                                 Reply, self._reply_cb(done), timeout_s=self.params.call_timeout_s)
-            self.progress.set_current(seq)
-            self.tel.mission_seq = seq
-        return ok
-
-    def _notify(self, text: str, peer: tuple[int, int] | None, severity: int = M.MAV_SEVERITY_CRITICAL) -> None:
-        """A STATUSTEXT (critical, as PX4 reports a refused mission or mode change) to the ground
-        station `peer` (None: to every ground station)."""
-        self.notices += 1
-        for m in statustext(severity, text, self.notices):
-            if peer is None:
-                self.link.send(m, broadcast=True)
-            else:
-                self.link.send(m, peer=peer)
-
-    def _request_message(self, msg_id: int, param2: float) -> int:
-        msg = self.tel.build(msg_id)
-        if msg is None:
-            return M.MAV_RESULT_UNSUPPORTED
-        self.link.send(msg)
-        return M.MAV_RESULT_ACCEPTED
-
-    # ------------------------------------------------------------ ops (commands -> stack)
-
-    def _reply_cb(self, done):
-        def cb(res) -> None:
-            if isinstance(res, CallError):
-                done(False, str(res), True)      # the call failed (FAILED), not a refusal (DENIED)
-            else:
-                done(res.success, res.message)
-        return cb
-
-    def arm(self, arm: bool, force: bool, done) -> None:
-        self.node.call_async("fmu/srv/arm", ArmRequest(arm=arm, force=force), ArmReply,
-                             self._reply_cb(done), timeout_s=self.params.call_timeout_s)
-
-    def mission_command(self, command: str, done) -> None:
-        self.node.call_async("mission/srv/command", MissionCommand(command=command), Reply,
-                             self._reply_cb(done), timeout_s=self.params.call_timeout_s)
-
-    def set_mode(self, mode: str, done) -> None:
-        if mode == "MISSION":
-            self.mission_start(done)
-        elif mode == "TAKEOFF":
-            self.takeoff(None, done)
-        elif mode in ("HOLD", "LAND", "RTL"):
-            # Through the mission manager (so it stops pushing goals); on the ground it refuses,
-            # then the flight controller decides.
-            def after(ok: bool, message: str, failed: bool = False) -> None:
-                if ok:
-                    done(True, message)
-                else:
-                    self._fmu_set_mode(mode, done)
-            self.mission_command(mode, after)
-        else:
-            self._fmu_set_mode(mode, done)
-
-    def _fmu_set_mode(self, mode: str, done) -> None:
-        self.node.call_async("fmu/srv/set_mode", SetModeRequest(mode=mode), SetModeReply,
-                             self._reply_cb(done), timeout_s=self.params.call_timeout_s)
-
-    def mission_start(self, done) -> None:
-        st = self.tel.mission
-        # The mission manager (re)starts at its active waypoint, or at 0 when not started/complete.
-        self.speeds.reset()
-        k = st.active_waypoint if st is not None and 0 <= st.active_waypoint < len(self.wp_seqs) else 0
-        self._apply_mission_speed(k)
-
-        def started(ok: bool, message: str, failed: bool = False) -> None:
-            if not ok:
-                self._end_speed_scope("mission start failed")
-            done(ok, message, failed)
-
-        if st is not None and st.state == MissionStatus.STATE_IDLE:
-            # On the ground: take off first; the mission manager starts the mission once up.
-            def after_takeoff(ok: bool, message: str, failed: bool = False) -> None:
-                if not ok:
-                    started(False, message, failed)
-                else:
-                    self.mission_command("START", started)
-            self.mission_command("TAKEOFF", after_takeoff)
-        else:
-            self.mission_command("START", started)
-
-    def takeoff(self, altitude_m: float | None, done) -> None:
-        if altitude_m is None:
-            self.mission_command("TAKEOFF", done)
-            return
-        self.node.call_async("mission/action/takeoff/goal", TakeoffGoal(target_altitude_m=altitude_m), GoalReply,
-                             self._reply_cb(done), timeout_s=self.params.call_timeout_s)
-
-    def _planner_speed(self) -> float | None:
-        found = self.table.find(SPEED_SERVICE, SPEED_PARAM)
-        return float(found[1].value) if found is not None else None
-
-    def change_speed(self, speed_mps: float | None, done) -> None:
-        """DO_CHANGE_SPEED (command): the planner's live speed limit; None = its declared default.
-        While our mission runs the change is mission-scoped (ends with it, mission_speed.py)."""
-        st = self.tel.mission
-        if st is not None and st.mission_id == self.speeds.mission_id and st.state in SpeedSchedule.RUNNING:
-            self.speeds.begin(self._planner_speed())
-        self._set_planner_speed(speed_mps, done)
-
-    def _set_planner_speed(self, speed_mps: float | None, done) -> None:
-        found = self.table.find(SPEED_SERVICE, SPEED_PARAM)
-        if speed_mps is None:
-            if found is None or found[1].default is None:
-                done(False, f"{SPEED_SERVICE}.{SPEED_PARAM} default unknown (is the planner running?)")
-                return
-            speed_mps = float(found[1].default)
-
-        def reply(res) -> None:
-            if isinstance(res, CallError):
-                done(False, str(res), True)
-                return
-            if res.success and res.value is not None:
-                self.table.set_value(SPEED_SERVICE, SPEED_PARAM, res.value)
-            if not res.success:
-                self.log.warn("change_speed_rejected", speed_mps=speed_mps, error=res.message)
-            done(res.success, res.message)
-
-        self.node.call_async(f"config/{SPEED_SERVICE}/@set", ParamSet(name=SPEED_PARAM, value=float(speed_mps)),
-                             ParamSetReply, reply, timeout_s=self.params.call_timeout_s)
-
-    def _apply_mission_speed(self, k: int) -> None:
-        speed = self.speeds.due(k)
-        if speed is None:
-            return
-        self.speeds.begin(self._planner_speed())
-        self.log.info("mission_speed", waypoint=k, speed_mps=speed if speed != SPEED_DEFAULT else "default")
-        self._set_planner_speed(None if speed == SPEED_DEFAULT else speed,
-                                lambda ok, message, *_: None if ok else self.log.warn("mission_speed_failed",
-                                                                                      error=message))
-
-    def _end_speed_scope(self, why: str) -> None:
-        restore = self.speeds.end()
-        if restore is not None:
-            self._restore_speed(restore, why)
-
-    def _restore_speed(self, speed_mps: float, why: str) -> None:
-        """The mission that changed the planner's speed is over: the speed from before it."""
-        self.log.info("mission_speed_restored", speed_mps=speed_mps, reason=why)
-        self._set_planner_speed(speed_mps, lambda ok, message, *_: None if ok else self.log.warn(
-            "mission_speed_restore_failed", speed_mps=speed_mps, error=message))
-
-    def goto(self, enu, yaw_rad, done) -> None:
-        goal = GoToPositionGoal(position_m=Vector3(x=enu[0], y=enu[1], z=enu[2]), yaw_rad=yaw_rad)
-        self.node.call_async("mission/action/goto/goal", goal, GoalReply, self._reply_cb(done),
-                             timeout_s=self.params.call_timeout_s)
-
     # ------------------------------------------------------------ diagnostics
 
     def health(self) -> Health:
         inv = self.link.parser.invalid_total
+        missions = self.mission.protocol
         values = {
             "gcs_connected": self.gcs_connected, "gcs_address": f"{self.link.remote[0]}:{self.link.remote[1]}",
-            "ground_stations": len(self.gcs_alive), "ground_station_addresses": self._addresses(),
+            "ground_stations": len(self.gcs_alive),
+            "ground_station_addresses": ",".join(f"{a[0]}:{a[1]}" for a in sorted(self.gcs_alive)),
             "signing": self.link.signing, "signing_rejected": self.link.parser.signing_rejected,
             "identity": f"{self.params.identity} {self.link.system_id}:{self.link.component_id}",
             "geofence_reported": bool(self.tel.fence_bits()[0]),
             "bind": f"{self.link.local_address[0]}:{self.link.local_address[1]}",
             "mavlink_rx": self.link.parser.received, "mavlink_tx": self.link.sent,
-            "mavlink_invalid": inv, "params_exposed": len(self.table), "mission_items": len(self.missions.items),
-            "uploads_accepted": self.missions.uploads_accepted, "uploads_rejected": self.missions.uploads_rejected,
+            "mavlink_invalid": inv, "params_exposed": len(self.table), "mission_items": len(missions.items),
+            "uploads_accepted": missions.uploads_accepted, "uploads_rejected": missions.uploads_rejected,
             "home_source": self.homes.source,
             "home": f"{self.home.lat_deg:.7f},{self.home.lon_deg:.7f},{self.home.alt_m:.2f}",
             "home_pending": self.homes.pending is not None,
         }
         for k, n in self.link.parser.invalid.items():
             values[f"mavlink_invalid[{k}]"] = n
-        for k, n in self.missions.errors.items():
+        for k, n in missions.errors.items():
             values[f"mission_protocol[{k}]"] = n
         for k, n in self.cmds.results.items():
             values[f"command_ack[{k}]"] = n
@@ -749,9 +400,9 @@ class GcsService(Service):
             level, message = DiagnosticStatus.WARN, f"{message}; no state/vehicle"
         elif self.homes.source == SOURCE_PARAM:
             message += "; home from parameters (no fmu/out/home_position yet)"
-        if inv or self.missions.errors:
+        if inv or missions.errors:
             level = max(level, DiagnosticStatus.WARN)
-            message += f"; {inv + sum(self.missions.errors.values())} invalid MAVLink inputs dropped"
+            message += f"; {inv + sum(missions.errors.values())} invalid MAVLink inputs dropped"
         return Health(level, message, values)
 
 

@@ -146,7 +146,7 @@ class MissionProtocol:
         self.loading = True
         peer, mtype = t.peer, t.mission_type
 
-        def done(ok: bool, message: str, result: int = M.MAV_MISSION_ERROR) -> None:
+        def done(ok: bool, message: str, result: int) -> None:
             self.loading = False
             if ok:
                 self.items = items
@@ -247,14 +247,18 @@ class MissionProtocol:
         elif now_s - t.last_send_s > max(5.0, self.item_timeout_s * self.retries * 4):
             self.transfer = None  # the ground station stopped asking; forget the download
 
-    def handle(self, msg, now_s: float) -> bool:
-        """Dispatch one mission-protocol message; False if it is not one."""
-        fn = {
+    def handlers(self) -> dict[str, Callable]:
+        """{MAVLink message type: handler(msg, now_s)} for every mission-protocol message."""
+        return {
             "MISSION_COUNT": self.on_count, "MISSION_ITEM_INT": self.on_item, "MISSION_ITEM": self.on_item,
             "MISSION_REQUEST_LIST": self.on_request_list, "MISSION_REQUEST_INT": self.on_request,
             "MISSION_REQUEST": self.on_request, "MISSION_ACK": self.on_ack,
             "MISSION_CLEAR_ALL": self.on_clear_all,
-        }.get(msg.get_type())
+        }
+
+    def handle(self, msg, now_s: float) -> bool:
+        """Dispatch one mission-protocol message; False if it is not one."""
+        fn = self.handlers().get(msg.get_type())
         if fn is None:
             return False
         fn(msg, now_s)

@@ -9,6 +9,7 @@ from gcs_support import HOME, FakeOps, cmd_long, from_gcs
 from pymavlink.dialects.v20 import common as M
 
 from aeroperception.services.gcs.commands import CommandHandler, mode_from_set_mode
+from aeroperception.services.gcs.ops import Outcome
 
 
 def handler():
@@ -31,15 +32,15 @@ def test_arm_acks_real_outcome_once_and_no_double_execution():
     assert sent == []                                                  # no IN_PROGRESS
     h.handle(cmd_long(M.MAV_CMD_COMPONENT_ARM_DISARM, 1.0), 0.5)      # MAVSDK's retransmission
     assert len(ops.calls) == 1 and sent == [] and h.retransmissions == 1
-    ops.dones[0](False, "pre-arm check failed")
+    ops.dones[0](Outcome(False, "pre-arm check failed"))
     assert [m.result for m in sent] == [M.MAV_RESULT_DENIED] and sent[-1].target_system == 255
     assert notes == [("COMPONENT_ARM_DISARM denied: pre-arm check failed", (255, 190))]
     h.handle(cmd_long(M.MAV_CMD_COMPONENT_ARM_DISARM, 1.0, math.nan), 0.9)      # MAVSDK leaves param2 NaN
     assert ops.calls[-1] == ("arm", True, False)
-    ops.dones[-1](True, "ok")
+    ops.dones[-1](Outcome(True, "ok"))
     h.handle(cmd_long(M.MAV_CMD_COMPONENT_ARM_DISARM, 0.0, 21196.0), 1.0)
     assert ops.calls[-1] == ("arm", False, True)
-    ops.dones[-1](True, "ok")
+    ops.dones[-1](Outcome(True, "ok"))
     assert sent[-1].result == M.MAV_RESULT_ACCEPTED
     assert M.MAV_RESULT_IN_PROGRESS not in [m.result for m in sent]
 
@@ -50,12 +51,12 @@ def test_mode_change_final_ack_failed_when_the_stack_does_not_answer():
     h.notify = lambda text, peer: notes.append(text)
     h.handle(cmd_long(M.MAV_CMD_DO_SET_MODE, M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 3), 0.0)   # POSCTL
     assert ops.calls == [("set_mode", "POSCTL")]
-    ops.dones[0](False, "timeout calling fmu/srv/set_mode", True)        # the call failed: FAILED
+    ops.dones[0](Outcome(False, "timeout calling fmu/srv/set_mode", failed=True))   # the call failed: FAILED
     assert sent[-1].result == M.MAV_RESULT_FAILED and notes[-1].startswith("DO_SET_MODE failed: timeout")
     h.handle(cmd_long(M.MAV_CMD_DO_SET_MODE, M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 3), 1.0)
     h.tick(7.0, timeout_s=5.0)                                            # nothing ever came back
     assert sent[-1].result == M.MAV_RESULT_FAILED and len(sent) == 2
-    ops.dones[1](True, "late")                                            # too late: not answered twice
+    ops.dones[1](Outcome(True, "late"))                                   # too late: not answered twice
     assert len(sent) == 2
 
 
@@ -63,15 +64,15 @@ def test_do_change_speed_command():
     h, sent, ops = handler()
     h.handle(cmd_long(M.MAV_CMD_DO_CHANGE_SPEED, 1.0, 3.5, -1.0), 0.0)      # ground speed 3.5 m/s
     assert ops.calls[-1] == ("speed", 3.5) and sent == []
-    ops.dones[-1](True, "ok")
+    ops.dones[-1](Outcome(True, "ok"))
     assert sent[-1].command == M.MAV_CMD_DO_CHANGE_SPEED and sent[-1].result == M.MAV_RESULT_ACCEPTED
     h.handle(cmd_long(M.MAV_CMD_DO_CHANGE_SPEED, 0.0, 20.0), 0.0)           # the planner refuses it
     assert ops.calls[-1] == ("speed", 20.0)
-    ops.dones[-1](False, "above max")
+    ops.dones[-1](Outcome(False, "above max"))
     assert sent[-1].result == M.MAV_RESULT_DENIED
     h.handle(cmd_long(M.MAV_CMD_DO_CHANGE_SPEED, 1.0, -2.0), 0.0)           # back to the default
     assert ops.calls[-1] == ("speed", None)
-    ops.dones[-1](True, "ok")
+    ops.dones[-1](Outcome(True, "ok"))
     n = len(ops.calls)
     for p1, p2, result in ((1.0, -1.0, M.MAV_RESULT_ACCEPTED),             # no change
                            (1.0, math.nan, M.MAV_RESULT_ACCEPTED),
@@ -111,7 +112,7 @@ def test_command_table():
     h.handle(cmd_long(M.MAV_CMD_REQUEST_MESSAGE, 9999), 0.0)
     assert sent[-1].result == M.MAV_RESULT_UNSUPPORTED
     for done in ops.dones:
-        done(True, "ok")
+        done(Outcome(True, "ok"))
     h.handle(cmd_long(M.MAV_CMD_DO_SET_MODE, base, 99, 0), 0.0)
     assert sent[-1].result == M.MAV_RESULT_DENIED
     h.handle(cmd_long(M.MAV_CMD_DO_FLIGHTTERMINATION, 1), 0.0)
