@@ -294,6 +294,11 @@ def validate_args(args, names: list[str]) -> None:
     """Refuse, before anything starts, what would only make a child crash-loop."""
     if args.speed is not None and not (math.isfinite(args.speed) and args.speed > 0):
         raise CliError(f"--speed {args.speed:g}: must be a number > 0 (1 = real time, 4 = four times faster)")
+    if px4_sitl.NAME in names and "sim" in names:   # the simulator follows PX4's physics (sim --follow)
+        for flag, value in (("--speed", args.speed), ("--seed", args.seed)):
+            if value is not None:
+                raise CliError(f"{flag}: PX4 SITL flies the vehicle in real time with its own wind and sensor noise; "
+                               f"drop {flag} (it applies to the built-in simulator, --profile sim)")
     if args.scenario is not None and "sim" in names:
         from aeroperception.services.sim.world.scenario import ScenarioError, available_scenarios, load_scenario
 

@@ -10,6 +10,11 @@ from aeroperception.services.runtime import Param, Queries, Query, Topic, Topics
 from .vehicle import PARAMS as VEHICLE_PARAMS
 
 NAME = "sim"
+# --follow only: an external FC's ground truth to render from, and its IMU to measure the stamps against
+INPUTS = Topics(
+    Topic("fmu/out/vehicle_ground_truth", VehicleState, note="--follow: the FC's ground truth (fmu)"),
+    Topic("fmu/out/sensor_combined", Imu, note="--follow: the FC's IMU (fmu; also its sensors/imu), for truth_imu_lag_ms"),
+)
 OUTPUTS = Topics(
     Topic("sim/clock", Clock, 100.0, note="sim time (truth_rate_hz)"),
     Topic("sim/truth/state", VehicleState, 100.0, note="pose, velocity, acceleration (ENU; truth_rate_hz)"),
@@ -22,6 +27,8 @@ OUTPUTS = Topics(
     Topic("sensors/camera/right/info", CameraInfo, 1.0),
     Topic("sensors/lidar/points", PointCloud, 10.0, note="sensor frame"),
 )
+# --follow: no sim/clock (the FC's clock is real time) and no IMU of its own (the FC's is sensors/imu)
+FOLLOW_OUTPUTS = Topics(*(t for k, t in OUTPUTS.declared.items() if k not in ("sim/clock", "sensors/imu")))
 SERVICES = Queries(
     Query("sensors/camera/left/info", None, CameraInfo, note="the camera model, for a late subscriber"),
     Query("sensors/camera/right/info", None, CameraInfo),

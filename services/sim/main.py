@@ -1,5 +1,6 @@
 """Process shell of the simulator: the PX4-like vehicle on MAVLink, the scenario's sensors on
-sensors/**, ground truth on sim/truth/** and the clock on sim/clock.
+sensors/**, ground truth on sim/truth/** and the clock on sim/clock. With --follow, no vehicle of
+its own: the sensors and sim/truth/** follow an external FC's ground truth (follow.py).
 
 Timing: the vehicle runner owns sim time. Each physics step reports its truth here; the IMU is
 sampled at its rate in that callback, and camera / LiDAR frames are *requested* there with the
@@ -17,14 +18,16 @@ import numpy as np
 from aeroperception.schemas import (
     CameraInfo, Clock, DiagnosticStatus, Header, Imu, NDArray, Pose, Quaternion, Vector3, VehicleState,
 )
-from aeroperception.services.runtime import Health, Service, run
+from aeroperception.services.runtime import Health, ParamError, Service, run
 from aeroperception.services.runtime.rotations import quat_from_rotmat
 
-from .contract import NAME, OUTPUTS, PARAMS
+from .contract import FOLLOW_OUTPUTS, NAME, OUTPUTS, PARAMS
+from .follow import Follower, ImuLag
 from .qos import qos_for
 from .render import RenderProcess
 from .sensors.rig import build_sensors
 from .truth import VehicleTruth
+from .vehicle import PARAMS as VEHICLE_PARAMS
 from .vehicle import PX4_SITL_BIND, PX4_SITL_TARGET, MavlinkEndpoint, SimVehicle, SimVehicleRunner, parse_address
 from .world.scenario import ScenarioError, load_scenario
 
@@ -56,6 +59,9 @@ class SimService(Service):
                                  "none: vehicle and truth only)")
         parser.add_argument("--target", default="%s:%d" % PX4_SITL_TARGET, help="MAVLink goes to HOST:PORT (fmu)")
         parser.add_argument("--bind", default="%s:%d" % PX4_SITL_BIND, help="MAVLink sent from HOST:PORT")
+        parser.add_argument("--follow", action="store_true",
+                            help="no vehicle of its own: render the sensors from an external FC's ground truth "
+                                 "(fmu/out/vehicle_ground_truth; PX4 SITL), the IMU being the FC's")
 
     def start(self) -> None:
         a = self.args
@@ -65,32 +71,46 @@ class SimService(Service):
             raise RuntimeError(str(e)) from None
         seed = a.seed if a.seed is not None else self.scenario.seed
         self.speed = a.speed if a.speed > 0 else 1.0
-        # The physics ground is the scenario's (slope_forest's 10 deg slope too), so landing,
-        # take-off and the rendered sensors agree on where the ground is.
-        self.vehicle = SimVehicle(self.node.params, seed=seed, terrain=self.scenario.ground_height_m)
+        self.follower = None
+        if a.follow:
+            self._check_follow_args()
+            self.follower, self.imu_lag = Follower(self.scenario.ground_height_m), ImuLag()
+            self.truth_stamp_ns = 0
+        else:
+            # The physics ground is the scenario's (slope_forest's 10 deg slope too), so landing,
+            # take-off and the rendered sensors agree on where the ground is.
+            self.vehicle = SimVehicle(self.node.params, seed=seed, terrain=self.scenario.ground_height_m)
+            self.endpoint = MavlinkEndpoint(target=parse_address(a.target), bind=parse_address(a.bind))
         self.blackout_until_ns = 0
         self.node.params.on_change(self._on_param)
-        self.endpoint = MavlinkEndpoint(target=parse_address(a.target), bind=parse_address(a.bind))
         pub = self.node.publisher
-        self.pubs = {k: pub(k, cls, **qos_for(k)) for k, cls in OUTPUTS.items()}
+        self.pubs = {k: pub(k, cls, **qos_for(k)) for k, cls in (FOLLOW_OUTPUTS if a.follow else OUTPUTS).items()}
         self.sensors = build_sensors(self.scenario) if a.sensors != "none" else None
         self.workers: list[RenderProcess] = []
         node_kwargs = dict(vehicle=a.vehicle, zenoh_config=a.zenoh_config, connect=a.connect, log_level=a.log_level)
         self.next_ns: dict[str, int] = {}
         self.periods_ns: dict[str, int] = {"truth": int(1e9 / self.params.truth_rate_hz)}
-        if self.sensors is not None:
+        if self.sensors is not None and not a.follow:     # following: the IMU is the FC's (fmu)
             self.periods_ns["imu"] = int(1e9 / self.scenario.sensors.imu.rate_hz)
+        if self.sensors is not None:
             if a.sensors in ("all", "camera") and self.sensors.stereo is not None:
                 self.periods_ns["camera"] = int(1e9 / self.sensors.stereo.infos()[0].rate_hz)
                 self.workers.append(RenderProcess("camera", a.scenario, node_kwargs))
                 for info in self.sensors.stereo.infos():
                     side = "left" if "left" in info.frame_id else "right"
                     key = f"sensors/camera/{side}/info"
-                    self.node.serve(key, None, CameraInfo, lambda _r, i=info: camera_info_msg(i, self.stamp(self.runner.now_ns())))
+                    self.node.serve(key, None, CameraInfo, lambda _r, i=info: camera_info_msg(i, self.now_stamp()))
                 self.node.every(1.0, self._publish_infos, name="camera_info")
             if a.sensors in ("all", "lidar") and self.sensors.lidar is not None:
                 self.periods_ns["lidar"] = int(1e9 / self.sensors.lidar.info().rate_hz)
                 self.workers.append(RenderProcess("lidar", a.scenario, node_kwargs))
+        if a.follow:
+            self.node.subscribe("fmu/out/vehicle_ground_truth", VehicleState, self._on_ground_truth)
+            self.node.subscribe("fmu/out/sensor_combined", Imu, lambda m: self.imu_lag.add_imu(
+                m.header.stamp_ns, m.angular_velocity_radps.to_array()))
+            self.log.info("sim_following", scenario=self.scenario.name, sensors=a.sensors,
+                          truth="fmu/out/vehicle_ground_truth")
+            return
         # Physics steps at a multiple of the IMU rate (>= 250 Hz) so IMU samples are evenly spaced
         # (200 Hz from 250 Hz physics would alternate 4 / 8 ms gaps).
         imu_hz = self.scenario.sensors.imu.rate_hz
@@ -103,10 +123,27 @@ class SimService(Service):
         self.log.info("sim_started", scenario=self.scenario.name, seed=seed, speed=self.speed,
                       mavlink_target=a.target, sensors=a.sensors)
 
+    def _check_follow_args(self) -> None:
+        """Following, the vehicle, its clock and its MAVLink are the FC's: refuse what would be ignored."""
+        a = self.args
+        if a.speed != 1.0:
+            raise RuntimeError(f"--follow: --speed {a.speed:g} cannot apply (the FC's clock is real time)")
+        if a.seed is not None:
+            raise RuntimeError(f"--follow: --seed {a.seed} cannot apply (wind and sensor noise are the FC's)")
+        changed = [p.name for p in VEHICLE_PARAMS if p.name != "SIM_CAM_BLACKOUT"
+                   and getattr(self.params, p.name) != p.default]
+        if changed:
+            raise RuntimeError(f"--follow: {', '.join(changed)} set, but the vehicle is the FC's (no SIM_* but "
+                               "SIM_CAM_BLACKOUT applies)")
+
     def stamp(self, sim_ns: int) -> int:
         """Stamps on Zenoh: sim time anchored at the wall clock by the runner (at 1x they agree
         with services on wall time; at other speeds services follow sim/clock)."""
         return self.runner.epoch_ns + sim_ns
+
+    def now_stamp(self) -> int:
+        """The newest stamp: of the simulation, or following, of the FC's ground truth."""
+        return self.truth_stamp_ns if self.follower else self.stamp(self.runner.now_ns())
 
     def stop(self) -> None:
         if hasattr(self, "runner"):   # start() may have failed (bad --scenario) before it existed
@@ -143,10 +180,38 @@ class SimService(Service):
             if self._due(w.name, now):
                 w.request(t, stamp, blackout=w.name == "camera" and now < self.blackout_until_ns)
 
+    # ------------------------------------------------------------ follow mode (Zenoh callback)
+
+    def _on_ground_truth(self, m: VehicleState) -> None:
+        """Each FC ground-truth sample: sim/truth/state at truth_rate_hz and the frames due, all
+        with the sample's stamp (sensors/imu's clock); no sim/clock (the FC's clock is real time)."""
+        rejected = self.follower.rejected
+        t = self.follower.truth(m)
+        if t is None:
+            if self.follower.rejected != rejected:
+                self.node.report_bad_input("fmu/out/vehicle_ground_truth", "non-finite ground truth")
+            return
+        now = self.truth_stamp_ns = t.stamp_ns
+        self.imu_lag.add_truth(now, t.angular_velocity_flu_radps)
+        if self._due("truth", now):
+            self.pubs["sim/truth/state"].publish(VehicleState(
+                header=Header(stamp_ns=now, frame_id="map"), position_m=Vector3.from_array(t.position_enu_m),
+                velocity_mps=Vector3.from_array(t.velocity_enu_mps), acceleration_mps2=Vector3.from_array(t.accel_enu_mps2),
+                orientation=Quaternion.from_array(t.q_enu_flu), angular_velocity_radps=Vector3.from_array(t.angular_velocity_flu_radps),
+                estimator_name="truth", confidence=1.0, armed=m.armed, flight_mode=m.flight_mode,
+                landed_state=m.landed_state, connected=True))
+        for w in self.workers:
+            if self._due(w.name, now):
+                w.request(t, now, blackout=w.name == "camera" and now < self.blackout_until_ns)
+
     def _on_param(self, name: str, value) -> None:
-        """SIM_CAM_BLACKOUT = N: the cameras see black for N s of sim time from now (a fault)."""
-        if name == "SIM_CAM_BLACKOUT" and hasattr(self, "runner"):
-            self.blackout_until_ns = self.runner.now_ns() + int(float(value) * 1e9)
+        """SIM_CAM_BLACKOUT = N: the cameras see black for N s of sim time from now (a fault).
+        Following, the other SIM_* (the built-in vehicle's) are refused: the vehicle is the FC's."""
+        if self.follower is not None and name != "SIM_CAM_BLACKOUT" and name.startswith("SIM_"):
+            raise ParamError(f"{name}: the simulator follows an external FC (--follow); its vehicle parameters do not apply")
+        if name == "SIM_CAM_BLACKOUT" and (hasattr(self, "runner") or self.follower is not None):
+            start = self.truth_stamp_ns if self.follower is not None else self.runner.now_ns()
+            self.blackout_until_ns = start + int(float(value) * 1e9)
             self.log.info("camera_blackout", seconds=value)
 
     # ------------------------------------------------------------ renderers (own threads)
@@ -154,11 +219,13 @@ class SimService(Service):
     def _publish_infos(self) -> None:
         for info in self.sensors.stereo.infos():
             side = "left" if "left" in info.frame_id else "right"
-            self.pubs[f"sensors/camera/{side}/info"].publish(camera_info_msg(info, self.stamp(self.runner.now_ns())))
+            self.pubs[f"sensors/camera/{side}/info"].publish(camera_info_msg(info, self.now_stamp()))
 
     # ------------------------------------------------------------ health
 
     def health(self) -> Health:
+        if self.follower is not None:
+            return self._follow_health()
         d = self.runner.diagnostics()
         values = {k: d[k] for k in ("sim_time_s", "realtime_factor", "mode", "armed", "landed_state", "failsafe",
                                     "battery_remaining", "overruns", "reboots", "rebooting", "time_boot_ms") if k in d}
@@ -166,6 +233,35 @@ class SimService(Service):
                        if k.startswith(("rx", "tx", "vision", "setpoint", "bad", "commander_", "gps_denied",
                                                         "position_valid", "estimate_", "ev_"))})
         values["camera_blackout"] = self.runner.now_ns() < self.blackout_until_ns
+        level, msgs = self._worker_health(values)
+        if self.runner.overruns:
+            msgs.append(f"physics behind real time ({self.runner.overruns} re-anchors)")
+        return Health(level, f"{self.scenario.name} x{self.speed:g} {d['mode']}" + (f"; {', '.join(msgs)}" if msgs else ""),
+                      values)
+
+    def _follow_health(self) -> Health:
+        f = self.follower
+        age_s = (self.node.now_ns() - self.truth_stamp_ns) / 1e9 if self.truth_stamp_ns else None
+        lag = self.imu_lag.lag_ms()
+        values = {"following": "fmu/out/vehicle_ground_truth", "truth_samples": f.samples, "truth_rejected": f.rejected,
+                  "truth_out_of_order": f.out_of_order,
+                  "truth_age_ms": round(age_s * 1e3, 1) if age_s is not None else None,
+                  "ground_shift_m": round(f.z_shift_m, 3) if f.z_shift_m is not None else None,
+                  "camera_blackout": self.truth_stamp_ns < self.blackout_until_ns}
+        if lag is not None:
+            self.last_lag_ms = values["truth_imu_lag_ms"] = round(lag, 2)
+        elif getattr(self, "last_lag_ms", None) is not None:
+            values["truth_imu_lag_ms"] = self.last_lag_ms      # the last measured (needs rotation to see)
+        level, msgs = self._worker_health(values)
+        if age_s is None or age_s > 1.0:
+            level = DiagnosticStatus.WARN
+            msgs.insert(0, "no ground truth from the FC" if age_s is None else f"ground truth {age_s:.1f} s old")
+        elif f.z_shift_m is None:
+            msgs.append("ground not seen yet (the FC never reported landed and disarmed): unshifted")
+        return Health(level, f"{self.scenario.name} following the FC" + (f"; {', '.join(msgs)}" if msgs else ""), values)
+
+    def _worker_health(self, values: dict) -> tuple[int, list[str]]:
+        """The renderers' rates, skips and errors into `values`; (level, complaints)."""
         level, msgs = DiagnosticStatus.OK, []
         for w in self.workers:
             rated = 1e9 / self.periods_ns[w.name]
@@ -182,10 +278,7 @@ class SimService(Service):
             if w.errors and time.monotonic() - w.error_wall < 5.0:
                 level = DiagnosticStatus.WARN
                 msgs.append(f"{w.name} render failed x{w.errors} ({w.error[:80]})")
-        if self.runner.overruns:
-            msgs.append(f"physics behind real time ({self.runner.overruns} re-anchors)")
-        return Health(level, f"{self.scenario.name} x{self.speed:g} {d['mode']}" + (f"; {', '.join(msgs)}" if msgs else ""),
-                      values)
+        return level, msgs
 
 
 def main(argv=None) -> int:

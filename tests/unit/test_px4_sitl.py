@@ -88,13 +88,18 @@ def test_px4_profile_points_fmu_at_its_instance_and_refuses_what_it_would_ignore
     build = fake_build(tmp_path)
     args = up_args(profile="px4", px4=build, px4_instance=4)
     names = cmd_up.select_services(args)
-    assert names[-1] == "px4" and {"fmu", "planner", "mission"} <= set(names)
+    assert {"px4", "fmu", "planner", "mission", "sim", "vio", "lidar", "detector"} <= set(names)
     plan = cmd_up.plan_px4(args, names)
     assert (plan.build, plan.instance) == (build.resolve(), 4)
     assert cmd_up.service_argv("fmu", args, "tcp/127.0.0.1:7447")[-2:] == ["--fcu-url", "udpin:127.0.0.1:14544"]
 
     with pytest.raises(CliError, match=r"--fcu-url: fmu talks to the PX4 this profile starts"):
         cmd_up.plan_px4(up_args(profile="px4", px4=build, fcu_url="udpin:127.0.0.1:14540"), names)
+    # the simulator renders the sensors following PX4's physics: its own clock and noise do not apply
+    assert "--follow" in cmd_up.service_argv("sim", args, "tcp/127.0.0.1:7447", cmd_up.load_profiles()["px4"]["args"]["sim"])
+    for flag, value in (("speed", 2.0), ("seed", 7)):
+        with pytest.raises(CliError, match=rf"--{flag}: PX4 SITL flies the vehicle in real time"):
+            cmd_up.validate_args(up_args(profile="px4", px4=build, **{flag: value}), names)
     for flag, value in (("px4", build), ("px4_instance", 1)):
         args = up_args(profile="vehicle", **{flag: value})
         with pytest.raises(CliError, match=r"profile vehicle starts no PX4 \(use --profile px4\)"):
