@@ -3,6 +3,7 @@
 # at import time (apt, when root or with sudo), then the package itself in editable mode.
 #   deploy/install.sh              -> extras sim,tools   (what `aero up` needs)
 #   deploy/install.sh sim,perception,tools,test          (what .ci/run uses)
+#   deploy/install.sh sim,tools,bench                    (+ dora-rs and Cyclone DDS for `aero bench pubsub --peers`)
 #   deploy/install.sh --apt-only                         (system libraries only: deploy/Dockerfile's first layer)
 # APT_PACKAGES below is the one list of system libraries, for machines and the image alike.
 set -euo pipefail
@@ -46,5 +47,6 @@ stamp "pip install -e .[$EXTRAS]"
 CHECK="import aeroperception.tools.cli, zenoh, msgspec, pymavlink"
 case ",$EXTRAS," in *,sim,*) CHECK="$CHECK, open3d, cv2" ;; esac
 case ",$EXTRAS," in *,perception,*) CHECK="$CHECK, onnxruntime, gtsam" ;; esac
+case ",$EXTRAS," in *,bench,*) CHECK="$CHECK, dora, cyclonedds" ;; esac
 "$PY" -c "$CHECK; print('install: imports ok')"
 

@@ -9,10 +9,15 @@ import importlib
 def register(sub: argparse._SubParsersAction) -> None:
     bench = sub.add_parser("bench", help="benchmarks (tables of median, p99, ratio to baseline)")
     bsub = bench.add_subparsers(dest="bench_cmd", required=True)
-    p = bsub.add_parser("pubsub", help="raw zenoh vs typed runtime pub/sub latency (state, image)")
+    p = bsub.add_parser("pubsub", help="raw zenoh vs typed runtime pub/sub latency (state, image); --peers: "
+                                       "also peer-to-peer, dora-rs and Cyclone DDS")
     p.add_argument("-n", type=int, default=1000, help="round trips for the small message")
     p.add_argument("--port", type=int, default=17480, help="loopback port of the benchmark router")
-    p.set_defaults(func=lambda a: importlib.import_module("aeroperception.tools.bench_pubsub").run(a.n, a.port))
+    p.add_argument("--peers", action="store_true",
+                   help="also zenoh peer-to-peer (raw and typed), dora-rs and Cyclone DDS (those installed: "
+                        "pip install 'aeroperception[bench]')")
+    p.set_defaults(func=lambda a: importlib.import_module("aeroperception.tools.bench_pubsub").run(
+        a.n, a.port, a.peers))
     p = bsub.add_parser("sim", help="sensor render times and achieved rates")
     p.add_argument("-n", type=int, default=50, help="frames per sensor")
     p.add_argument("--scenario", default="village")

@@ -82,14 +82,16 @@ class Node:
     def __init__(self, name: str, *, params: list[Param] | None = None, vehicle: str = "",
                  zenoh_config: str | None = None, connect: str | None = None,
                  log_level: str = "info", sim_time: bool = False, mode: str | None = None,
-                 cpu_budget_pct: float | None = None):
+                 cpu_budget_pct: float | None = None, config: zenoh.Config | None = None):
+        """`config`: a ready Zenoh config instead of zenoh_config/connect/mode (a benchmark's
+        peer-to-peer link)."""
         self.name = name
         self.vehicle = vehicle
         self.log = Logger(name, log_level)
         self.params = ParamSet.from_declarations(params or [])
         self.lock = threading.RLock()
         self.stop_event = threading.Event()
-        self._conf = make_config(zenoh_config, connect, mode=mode)
+        self._conf = config if config is not None else make_config(zenoh_config, connect, mode=mode)
         self._sim_time = sim_time
         self.session: zenoh.Session | None = None
         self.clock: Clock | None = None
