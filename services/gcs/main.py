@@ -40,7 +40,7 @@ from .objects_relay import ObjectsRelay, event_text
 from .ops import Outcome, StackOps
 from .param_protocol import ParamProtocol
 from .params import ParamTable
-from .presence import GroundStationFilter, LinkVerdict, ListeningClock
+from .presence import GroundStationFilter, ListeningClock, Presence
 from .safety_relay import SafetyRelay
 from .telemetry import Scheduler, TelemetryState
 
@@ -102,7 +102,7 @@ class GcsService(Service):
                             timeout_s=p.gcs_timeout_s, signing_key=key, signing_link_id=p.signing_link_id,
                             clock=self.clock, is_ground_station=GroundStationFilter.from_param(p.gcs_system_ids))
         del key
-        self.verdict = LinkVerdict(p.gcs_timeout_s, self.clock())
+        self.presence = Presence(self.link, p.gcs_timeout_s, self.clock(), self.log)
         self.tel = TelemetryState(self.home, companion=self.companion)
         self.sched = Scheduler(p.telemetry_period_s, self.tel.build)
         if self.companion:   # the flight controller sends the vehicle's telemetry itself
@@ -137,9 +137,6 @@ class GcsService(Service):
             "TIMESYNC": self._on_timesync,
         }
         self.notices = 0                      # STATUSTEXTs sent (chunk ids)
-        self.gcs_last_hb: float | None = None     # ListeningClock time of the last ground station heartbeat
-        self.gcs_sysid = 0
-        self.gcs_alive: set[tuple[str, int]] = set()
         self.ignored: dict[str, int] = {}
         self.pub_link = node.publisher("gcs/link", GcsLink)
         self.pub_joy = node.publisher("gcs/joystick", Joystick)
@@ -201,9 +198,8 @@ class GcsService(Service):
         if msg.get_srcSystem() == self.link.system_id:
             return
         if self.link.is_ground_station(msg):
-            self.gcs_last_hb = self.clock()
-            self.gcs_sysid = msg.get_srcSystem()
-            self._check_peers(self.gcs_last_hb)
+            if self.presence.heard(msg.get_srcSystem(), self.clock()):
+                self._publish_link()
         else:
             self._ignore("heartbeat_not_gcs")
 
@@ -311,11 +307,7 @@ class GcsService(Service):
         v = self.tel.vehicle
         return (v.position_m.x, v.position_m.y, v.position_m.z) if v else (0.0, 0.0, 0.0)
 
-    # ------------------------------------------------------------ timers, presence
-
-    @property
-    def gcs_connected(self) -> bool:
-        return bool(self.verdict.connected)
+    # ------------------------------------------------------------ timers, gcs/link
 
     def _tick(self) -> None:
         stall = self.clock.tick()
@@ -329,38 +321,17 @@ class GcsService(Service):
         self.homes.poll()                # a home held back during an upload, once it is over
         self.cmds.tick(now, timeout_s=self.params.call_timeout_s + 2.0)
         self.mission.sync_plan()
-        self._check_peers(self.clock())
-
-    def _check_peers(self, now: float) -> None:
-        """gcs/link is up while any ground station is alive (heartbeat within gcs_timeout_s of
-        listening time); no verdict before a full timeout after start (presence.py)."""
-        alive = {p.address for p in self.link.ground_stations(now)}
-        for addr in sorted(self.gcs_alive - alive):
-            self.log.warn("gcs_lost", address=f"{addr[0]}:{addr[1]}", timeout_s=self.params.gcs_timeout_s)
-        for addr in sorted(alive - self.gcs_alive):
-            peer = self.link.peers.get(addr)
-            self.log.info("gcs_heard", address=f"{addr[0]}:{addr[1]}", system_id=peer.system_id if peer else None)
-        self.gcs_alive = alive
-        before = self.verdict.connected
-        now_connected = self.verdict.update(now, bool(alive))
-        if now_connected == before:
-            return
-        if now_connected:
-            self.log.info("gcs_link_up", system_id=self.gcs_sysid,
-                          address=f"{self.link.remote[0]}:{self.link.remote[1]}")
-        elif before:
-            self.log.warn("gcs_link_lost", timeout_s=self.params.gcs_timeout_s)
-        else:
-            self.log.info("gcs_link_none", listened_s=self.params.gcs_timeout_s)
-        self._publish_link()
+        if self.presence.update(self.clock()):   # gcs/link at once on a change (presence.py)
+            self._publish_link()
 
     def _publish_link(self) -> None:
-        if self.verdict.connected is None:
+        pr = self.presence
+        if pr.verdict.connected is None:
             return   # no verdict yet (presence.py)
-        age = self.clock() - self.gcs_last_hb if self.gcs_last_hb is not None else None
+        age = self.clock() - pr.last_heartbeat_s if pr.last_heartbeat_s is not None else None
         addr = f"{self.link.remote[0]}:{self.link.remote[1]}" if self.link.learnt else ""
-        self.pub_link.publish(GcsLink(header=self.node.header(), connected=self.gcs_connected, address=addr,
-                                      system_id=self.gcs_sysid, last_heartbeat_age_s=age,
+        self.pub_link.publish(GcsLink(header=self.node.header(), connected=pr.connected, address=addr,
+                                      system_id=pr.system_id, last_heartbeat_age_s=age,
                                       packets_received=self.link.parser.received,
                                       packets_invalid=self.link.parser.invalid_total))
 
@@ -370,9 +341,9 @@ class GcsService(Service):
         inv = self.link.parser.invalid_total
         missions = self.mission.protocol
         values = {
-            "gcs_connected": self.gcs_connected, "gcs_address": f"{self.link.remote[0]}:{self.link.remote[1]}",
-            "ground_stations": len(self.gcs_alive),
-            "ground_station_addresses": ",".join(f"{a[0]}:{a[1]}" for a in sorted(self.gcs_alive)),
+            "gcs_connected": self.presence.connected,
+            "gcs_address": f"{self.link.remote[0]}:{self.link.remote[1]}",
+            "ground_stations": len(self.presence.alive), "ground_station_addresses": self.presence.addresses(),
             "signing": self.link.signing, "signing_rejected": self.link.parser.signing_rejected,
             "identity": f"{self.params.identity} {self.link.system_id}:{self.link.component_id}",
             "geofence_reported": bool(self.tel.fence_bits()[0]),
@@ -395,7 +366,7 @@ class GcsService(Service):
         for k, n in self.ignored.items():
             values[f"ignored[{k}]"] = n
         values["stalls"] = self.clock.stalls
-        level, message = DiagnosticStatus.OK, "ground station connected" if self.gcs_connected else "no ground station"
+        level, message = DiagnosticStatus.OK, "ground station connected" if self.presence.connected else "no ground station"
         if self.tel.vehicle is None:
             level, message = DiagnosticStatus.WARN, f"{message}; no state/vehicle"
         elif self.homes.source == SOURCE_PARAM:

@@ -1,7 +1,7 @@
 """Whether a ground station is there (gcs/link), judged so that a false "lost" cannot pause a
 mission (no Zenoh).
 
-Three rules (issue 8 #4):
+Three rules:
 - Only ground stations count: a HEARTBEAT with MAV_TYPE_GCS, or from a system id listed in the
   `gcs_system_ids` parameter (`GroundStationFilter`). A stray heartbeat of another type never
   makes the link "up", so its silence never makes it "lost".
@@ -100,3 +100,55 @@ class LinkVerdict:
         elif self.connected or now_s - self.start_s >= self.timeout_s:
             self.connected = False
         return self.connected
+
+
+class Presence:
+    """Which ground stations are alive and the verdict gcs/link publishes, with a log line for
+    every station heard or lost and every change of the verdict.
+
+    link: the UdpLink (its ground stations by heartbeat age, in ListeningClock time)."""
+
+    def __init__(self, link, timeout_s: float, start_s: float, log):
+        self.link = link
+        self.timeout_s = timeout_s
+        self.log = log
+        self.verdict = LinkVerdict(timeout_s, start_s)
+        self.alive: set[tuple[str, int]] = set()   # addresses of the ground stations alive
+        self.last_heartbeat_s: float | None = None  # ListeningClock time of the last ground station heartbeat
+        self.system_id = 0                          # the last ground station heard
+
+    @property
+    def connected(self) -> bool:
+        return bool(self.verdict.connected)
+
+    def heard(self, system_id: int, now_s: float) -> bool:
+        """A ground station's heartbeat; True if the verdict changed (see update)."""
+        self.last_heartbeat_s, self.system_id = now_s, system_id
+        return self.update(now_s)
+
+    def update(self, now_s: float) -> bool:
+        """gcs/link is up while any ground station is alive (heartbeat within timeout_s of
+        listening time); no verdict before a full timeout after start. True if the verdict
+        changed (publish it at once)."""
+        alive = {p.address for p in self.link.ground_stations(now_s)}
+        for addr in sorted(self.alive - alive):
+            self.log.warn("gcs_lost", address=f"{addr[0]}:{addr[1]}", timeout_s=self.timeout_s)
+        for addr in sorted(alive - self.alive):
+            peer = self.link.peers.get(addr)
+            self.log.info("gcs_heard", address=f"{addr[0]}:{addr[1]}", system_id=peer.system_id if peer else None)
+        self.alive = alive
+        before = self.verdict.connected
+        now_connected = self.verdict.update(now_s, bool(alive))
+        if now_connected == before:
+            return False
+        if now_connected:
+            self.log.info("gcs_link_up", system_id=self.system_id,
+                          address=f"{self.link.remote[0]}:{self.link.remote[1]}")
+        elif before:
+            self.log.warn("gcs_link_lost", timeout_s=self.timeout_s)
+        else:
+            self.log.info("gcs_link_none", listened_s=self.timeout_s)
+        return True
+
+    def addresses(self) -> str:
+        return ",".join(f"{a[0]}:{a[1]}" for a in sorted(self.alive))

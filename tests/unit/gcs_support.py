@@ -141,3 +141,35 @@ def poll(pred, timeout_s: float = 2.0) -> None:
     while not pred():
         assert time.monotonic() < deadline, "condition not met in time"
         time.sleep(0.005)
+
+
+class FakeStack:
+    """node.call_async: records each call (key, request) and keeps its reply callback, for the
+    test to answer in order."""
+
+    def __init__(self):
+        self.calls, self.replies = [], []
+
+    def __call__(self, key, request, reply_type, on_reply, timeout_s):
+        self.calls.append((key, request))
+        self.replies.append(on_reply)
+
+    def answer(self, reply) -> None:
+        self.replies.pop(0)(reply)
+
+    def asked(self) -> list[tuple[str, object]]:
+        """(key, the request's command, mode or parameter name) of every call."""
+        return [(k, getattr(r, "command", None) or getattr(r, "mode", None) or getattr(r, "name", None))
+                for k, r in self.calls]
+
+
+class Log:
+    """The service log: every event name, in order."""
+
+    def __init__(self):
+        self.events = []
+
+    def info(self, event, **kw):
+        self.events.append(event)
+
+    warn = info

@@ -10,32 +10,7 @@ from aeroperception.services.gcs.ops import Outcome, StackOps, first_of, in_orde
 from aeroperception.services.gcs.params import ParamTable
 from aeroperception.services.gcs.telemetry import TelemetryState
 from aeroperception.services.runtime import CallError
-from gcs_support import HOME
-
-
-class FakeStack:
-    """node.call_async: records (key, request) and keeps each reply callback for the test to answer."""
-
-    def __init__(self):
-        self.calls, self.replies = [], []
-
-    def __call__(self, key, request, reply_type, on_reply, timeout_s):
-        self.calls.append((key, getattr(request, "command", None) or getattr(request, "mode", None)))
-        self.replies.append(on_reply)
-
-    def answer(self, reply) -> None:
-        self.replies.pop(0)(reply)
-
-
-class Log:
-    def __init__(self):
-        self.lines = []
-
-    def info(self, event, **kw):
-        self.lines.append(("info", event))
-
-    def warn(self, event, **kw):
-        self.lines.append(("warn", event))
+from gcs_support import HOME, FakeStack, Log
 
 
 def stack_ops(mission: MissionStatus | None = None):
@@ -72,31 +47,31 @@ def test_in_order_stops_at_the_first_refusal_first_of_at_the_first_success():
 def test_hold_goes_through_the_mission_manager_else_the_flight_controller():
     ops, stack, outcomes = stack_ops()
     ops.set_mode("HOLD", outcomes.append)
-    assert stack.calls == [("mission/srv/command", "HOLD")]
+    assert stack.asked() == [("mission/srv/command", "HOLD")]
     stack.answer(Reply(success=True, message="holding"))
     assert outcomes == [Outcome(True, "holding")] and len(stack.calls) == 1
     ops.set_mode("LAND", outcomes.append)
     stack.answer(Reply(success=False, message="not flying a mission"))      # on the ground: the FC decides
-    assert stack.calls[-1] == ("fmu/srv/set_mode", "LAND")
+    assert stack.asked()[-1] == ("fmu/srv/set_mode", "LAND")
     stack.answer(CallError("timeout calling fmu/srv/set_mode"))
     assert outcomes[-1] == Outcome(False, "timeout calling fmu/srv/set_mode", failed=True)
     ops.set_mode("POSCTL", outcomes.append)
-    assert stack.calls[-1] == ("fmu/srv/set_mode", "POSCTL")
+    assert stack.asked()[-1] == ("fmu/srv/set_mode", "POSCTL")
 
 
 def test_mission_start_on_the_ground_takes_off_first_and_stops_at_a_refusal():
     ops, stack, outcomes = stack_ops(MissionStatus(state=MissionStatus.STATE_IDLE))
     ops.mission_start(outcomes.append)
-    assert stack.calls == [("mission/srv/command", "TAKEOFF")]
+    assert stack.asked() == [("mission/srv/command", "TAKEOFF")]
     stack.answer(Reply(success=True, message="taking off"))
-    assert stack.calls[-1] == ("mission/srv/command", "START") and outcomes == []
+    assert stack.asked()[-1] == ("mission/srv/command", "START") and outcomes == []
     stack.answer(Reply(success=True, message="started"))
     assert outcomes == [Outcome(True, "started")]
 
     ops.mission_start(outcomes.append)
     stack.answer(Reply(success=False, message="not armable"))
-    assert outcomes[-1] == Outcome(False, "not armable") and stack.calls[-1] == ("mission/srv/command", "TAKEOFF")
+    assert outcomes[-1] == Outcome(False, "not armable") and stack.asked()[-1] == ("mission/srv/command", "TAKEOFF")
 
     flying, _, _ = stack_ops(MissionStatus(state=MissionStatus.STATE_HOLDING))
     flying.mission_start(outcomes.append)
-    assert flying.call.calls == [("mission/srv/command", "START")]
+    assert flying.call.asked() == [("mission/srv/command", "START")]

@@ -8,9 +8,12 @@ os.environ.setdefault("MAVLINK20", "1")
 from pymavlink.dialects.v20 import common as M  # noqa: E402
 
 import pytest  # noqa: E402
+from gcs_support import Log  # noqa: E402
 
 from aeroperception.services.gcs.link import Parser, UdpLink, make_mav  # noqa: E402
-from aeroperception.services.gcs.presence import GroundStationFilter, LinkVerdict, ListeningClock  # noqa: E402
+from aeroperception.services.gcs.presence import (  # noqa: E402
+    GroundStationFilter, LinkVerdict, ListeningClock, Presence,
+)
 
 
 class Raw:
@@ -98,3 +101,32 @@ def test_a_ground_station_gone_during_a_stall_is_lost_a_full_timeout_after_the_r
         clock.tick()
         ages.append(raw.t)
     assert 15.0 + 2.4 < ages[-1] < 15.0 + 2.6      # 1 s of the stall + 2.5 s of listening after it
+
+
+def test_presence_says_each_change_of_the_verdict_once_and_logs_every_station():
+    raw = Raw(0.0)
+    clock = ListeningClock(source=raw)
+    clock.tick()
+    link = UdpLink("127.0.0.1", 0, "127.0.0.1", 9, 1, 1, timeout_s=2.0, clock=clock,
+                   is_ground_station=GroundStationFilter())
+    log = Log()
+    presence = Presence(link, 2.0, clock(), log)
+    gcs = M.MAVLink_heartbeat_message(M.MAV_TYPE_GCS, M.MAV_AUTOPILOT_INVALID, 0, 0, 0, 3).pack(make_mav(255, 190))
+
+    def listen_until(t: float) -> None:          # the 20 Hz timer runs: listening time passes
+        while raw.t < t - 1e-9:
+            raw.t += 0.05
+            clock.tick()
+    try:
+        assert presence.update(clock()) is False and presence.verdict.connected is None   # still listening
+        listen_until(2.0)
+        assert presence.update(clock()) is True and log.events == ["gcs_link_none"]      # nobody: said once
+        assert presence.update(clock()) is False
+        link.handle_datagram(gcs, ("127.0.0.1", 5001))
+        assert presence.heard(255, clock()) is True and presence.connected and presence.system_id == 255
+        assert log.events[1:] == ["gcs_heard", "gcs_link_up"] and presence.addresses() == "127.0.0.1:5001"
+        listen_until(4.5)                                                                 # silent for 2.5 s
+        assert presence.update(clock()) is True and not presence.connected
+        assert log.events[3:] == ["gcs_lost", "gcs_link_lost"] and presence.alive == set()
+    finally:
+        link.close()
