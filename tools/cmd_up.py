@@ -373,6 +373,8 @@ def plan_px4(args, names: list[str]) -> Px4Plan | None:
     plan = Px4Plan(px4_sitl.build_dir(px4_dir), 0 if instance is None else instance, getattr(args, "gps_denied", False))
     px4_sitl.check_instance(plan.instance)
     args.fcu_url = px4_sitl.fcu_url(plan.instance)
+    if plan.gps_denied:   # first, so the user's own --arg fmu:--param=global_origin=... wins
+        args.arg.insert(0, f"fmu:--param=global_origin={px4_sitl.SIH_ORIGIN}")
     return plan
 
 
@@ -386,8 +388,9 @@ def service_argv(name: str, args, endpoint: str, profile_args: list[str] = (), r
         argv += ["--param", "sources=" + ",".join(s for s in SOURCES if s in running)]
     # GPS-denied, the VIO's age is checked (fmu) against the sim's stamps: every service follows
     # sim/clock even at x1, where a sim that fell behind real time re-anchors and lags the wall clock.
-    # Without the sim (px4, vehicle) there is no sim/clock: wall time.
-    if (args.speed is not None and args.speed != 1.0) or (getattr(args, "gps_denied", False) and "sim" in running):
+    # Without the sim (vehicle), or with PX4's (the sim follows it: no sim/clock), wall time.
+    sim_clock = "sim" in running and px4_sitl.NAME not in load_profiles()[args.profile]["services"]
+    if (args.speed is not None and args.speed != 1.0) or (getattr(args, "gps_denied", False) and sim_clock):
         argv.append("--sim-time")
     if name == "sim":
         for flag, val in (("--scenario", args.scenario), ("--speed", args.speed), ("--seed", args.seed),

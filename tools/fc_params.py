@@ -74,8 +74,14 @@ GPS_DENIED: list[FcParam] = [
 ]
 
 # PX4 SITL's SIH quadrotor only: its simulated receiver sees no satellites, like a GPS under a roof
-# or jammed (the receiver is there, with no fix; SENS_EN_GPSSIM 0 would remove it).
-SIH_GPS_OFF = [FcParam("SIM_GPS_USED", 0, "SIH: the simulated GPS receiver sees 0 satellites (no fix)")]
+# or jammed (the receiver is there, with no fix; SENS_EN_GPSSIM 0 would remove it); its world at 0 m.
+SIH_GPS_OFF = [
+    FcParam("SIM_GPS_USED", 0, "SIH: the simulated GPS receiver sees 0 satellites (no fix)"),
+    FcParam("SIH_LOC_H0", 0.0, "m AMSL; SIH's world at sea level, so the local origin fmu gives PX4 (global_origin, "
+                               "altitude 0) is SIH's own: this EKF2 moves its local height by the origin's altitude "
+                               "when one is set, which with vision as the height reference would put the vehicle "
+                               "hundreds of metres underground"),
+]
 
 SETS: dict[str, list[FcParam]] = {"gps-denied": GPS_DENIED, "gps-denied-sih": GPS_DENIED + SIH_GPS_OFF}
 

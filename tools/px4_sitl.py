@@ -46,6 +46,11 @@ BOOT_PARAMS: dict[str, tuple[str, str]] = {
                          "mission's ground-link policy decides (gcs/link)"),
 }
 
+# Where SIH's world is (SIH_LOC_LAT0 / SIH_LOC_LON0 defaults; SIH_LOC_H0 0 in fc_params' SIH set):
+# GPS-denied, fmu gives PX4 this as its local origin (fmu global_origin), so PX4's global position is
+# SIH's own.
+SIH_ORIGIN = "47.397742,8.545594,0"
+
 
 @dataclass(frozen=True)
 class Ports:

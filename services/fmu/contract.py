@@ -74,6 +74,12 @@ PARAMS = [
     Param("ground_truth_rate_hz", 100.0, "Hz", 0.0, 250.0, start_only=True,
           description="ask a simulated FC for its ground truth (HIL_STATE_QUATERNION) at this rate "
                       "(0: never; a real FC has none and sends nothing)"),
+    Param("global_origin", "", start_only=True,
+          description="'LAT,LON,ALT_M' (WGS-84 deg, m): sent to the FC as its local origin (SET_GPS_GLOBAL_ORIGIN) "
+                      "once it has a local position, until it reports a home; GPS-denied, PX4 has no global "
+                      "position without it (Hold, Return, arming in Hold and the geofence need one). PX4's EKF2 "
+                      "moves its local height by a change of the origin's altitude: give the altitude it already "
+                      "takes as its origin's (0 on a fresh boot). '' = never"),
     Param("publish_imu", False, start_only=True,
           description="republish HIGHRES_IMU as sensors/imu (real hardware, no sim)"),
     Param("source_system", 1, "", 1, 255, start_only=True, description="our MAVLink system id"),

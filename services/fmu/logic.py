@@ -217,7 +217,17 @@ def hold_target(position_enu_m: np.ndarray, yaw_enu_rad: float) -> dict:
 
 
 def odometry_fields(odom: Odometry, time_usec: int) -> dict:
-    """Odometry (ENU pose, FLU twist) -> MAVLink ODOMETRY (NED / FRD), estimator VISION."""
+    """Odometry (ENU pose, FLU twist) -> MAVLink ODOMETRY as PX4's EKF2 fuses it (EKF2_EV_CTRL):
+    - frame_id LOCAL_FRD: the VIO's odom frame has its origin and yaw where the VIO initialised, not
+      North; PX4 takes LOCAL_NED as North-aligned and fuses it as such, but rotates a LOCAL_FRD pose
+      onto its own heading (the filtered attitude difference). The pose is the odom frame with its
+      axes swapped as for NED (a z-down frame of arbitrary heading) and q rotates body FRD into it.
+    - child_frame_id BODY_FRD: velocity in the body frame (EKF2 rotates it with its own attitude).
+    - time_usec: the pose's exposure stamp in the clock fmu answers PX4's TIMESYNC in (the node's),
+      so PX4 converts it into its own once its time sync has converged.
+    - covariances: upper-right triangles (EKF2 reads the diagonals, used with EKF2_EV_NOISE_MD 0);
+      NaN first element when the estimator gave none. reset_counter 0: the VIO keeps one odom frame
+      (a re-initialisation warm-starts from its last pose); quality 100 (EKF2_EV_QMIN 0 takes any)."""
     p = frames.enu_to_ned(odom.pose.position.to_array())
     o = odom.pose.orientation
     q = frames.q_enu_flu_to_ned_frd(np.array([o.w, o.x, o.y, o.z]))
@@ -231,12 +241,26 @@ def odometry_fields(odom: Odometry, time_usec: int) -> dict:
             return [float("nan")] + [0.0] * 20
         return [float(c[i, j]) for i in range(6) for j in range(i, 6)]
 
-    return dict(time_usec=time_usec, frame_id=mavlink.MAV_FRAME_LOCAL_NED, child_frame_id=mavlink.MAV_FRAME_BODY_FRD,
+    return dict(time_usec=time_usec, frame_id=mavlink.MAV_FRAME_LOCAL_FRD, child_frame_id=mavlink.MAV_FRAME_BODY_FRD,
                 x=float(p[0]), y=float(p[1]), z=float(p[2]), q=[float(x) for x in q],
                 vx=float(v_body[0]), vy=float(v_body[1]), vz=float(v_body[2]),
                 rollspeed=float(w_body[0]), pitchspeed=float(w_body[1]), yawspeed=float(w_body[2]),
                 pose_covariance=urt(pose_cov), velocity_covariance=urt(twist_cov), reset_counter=0,
                 estimator_type=mavlink.MAV_ESTIMATOR_TYPE_VISION, quality=100)
+
+
+def parse_global_origin(text: str) -> tuple[float, float, float] | None:
+    """global_origin 'LAT,LON,ALT_M' -> (lat_deg, lon_deg, alt_amsl_m); '' -> None; anything else
+    refused naming the parameter."""
+    if not text.strip():
+        return None
+    try:
+        lat, lon, alt = (float(v) for v in text.split(","))
+    except ValueError:
+        raise ValueError(f"global_origin {text!r}: expected 'LAT,LON,ALT_M', e.g. '47.397742,8.545594,489.4'") from None
+    if not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0 and math.isfinite(alt)):
+        raise ValueError(f"global_origin {text!r}: latitude within +-90, longitude within +-180, a finite altitude")
+    return lat, lon, alt
 
 
 class CommandWaiter:

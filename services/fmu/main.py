@@ -17,7 +17,9 @@ from aeroperception.services.runtime import Health, Service, run
 
 from . import contract
 from .link import RebootWatch, open_fcu_link
-from .logic import CommandWaiter, Telemetry, ack_name, highres_imu_to_imu, odometry_fields, setpoint_target
+from .logic import (
+    CommandWaiter, Telemetry, ack_name, highres_imu_to_imu, odometry_fields, parse_global_origin, setpoint_target,
+)
 from .navigation import estimator_status_from_mavlink, gps_from_mavlink
 from .offboard import BRAKE, FOLLOW, Envelope, OffboardArbiter, StreamWarmth
 from .truth import FcClock, ground_truth_from_mavlink, origin_from_mavlink
@@ -55,7 +57,7 @@ class FmuService(Service):
         self.send_lock = threading.Lock()
         self.counters = {"rx": 0, "bad_packets": 0, "setpoints_sent": 0, "holds_sent": 0, "brakes_sent": 0,
                          "vio_injected": 0, "vio_stale_dropped": 0, "reboots_detected": 0, "link_setups": 0,
-                         "commands_retried": 0, "ground_truth": 0, "ground_truth_no_origin": 0, "ground_truth_bad": 0}
+                         "commands_retried": 0, "global_origin_sent": 0, "ground_truth": 0, "ground_truth_no_origin": 0, "ground_truth_bad": 0}
         self.arbiter = OffboardArbiter(
             Envelope(p.max_velocity_mps, p.max_acceleration_mps2, p.max_distance_m, p.max_altitude_m,
                      p.min_altitude_m, p.max_yaw_rate_radps),
@@ -73,6 +75,7 @@ class FmuService(Service):
         self.fc_clock = FcClock()            # HIGHRES_IMU and ground-truth stamps
         self.origin: tuple[float, float, float] | None = None   # the FC's local origin (GPS_GLOBAL_ORIGIN)
         self.origin_requested_s = -math.inf
+        self.global_origin = parse_global_origin(p.global_origin)   # a bad value fails start naming it
         # udpin: bound exclusively and locked to the FC (a taken port fails start-up in one line)
         self.conn = open_fcu_link(self.args.fcu_url, p.source_system, p.source_component, p.fcu_peer, p.fcu_relock_s)
         node = self.node
@@ -194,8 +197,9 @@ class FmuService(Service):
         elif t == "STATUSTEXT":  # the FC says why it refused a command (PX4: "Arming denied: ...")
             self.statustexts.append((time.monotonic(), m.severity, str(m.text)))
             self.log.info("fc_statustext", severity=m.severity, text=str(m.text))
-        elif t == "TIMESYNC" and m.tc1 == 0:  # PX4 asks the companion; answer so vision fusion works
-            self._send(lambda mav: mav.timesync_send(time.time_ns(), m.ts1))
+        elif t == "TIMESYNC" and m.tc1 == 0:  # PX4 asks the companion: answered in the clock ODOMETRY is
+            # stamped in (the node's), so PX4 maps each vision pose's stamp into its own time
+            self._send(lambda mav: mav.timesync_send(self.node.now_ns(), m.ts1))
 
     def _on_ground_truth(self, m, rx_ns: int) -> None:
         """A simulated FC's ground truth -> fmu/out/vehicle_ground_truth (ENU about the FC's local
@@ -268,9 +272,21 @@ class FmuService(Service):
         """Latched home: republish at 1 Hz; until the FC sent one, ask again every home_request_period_s."""
         if self.tm.home is not None:
             self.pubs["fmu/out/home_position"].publish(self.tm.home)
-        elif self.streams_requested and self.link_fresh() and \
-                time.monotonic() - self.home_requested_s >= self.params.home_request_period_s:
-            self._request_home()
+        elif self.streams_requested and self.link_fresh():
+            if self.state_published_s > 0:     # PX4 sends LOCAL_POSITION_NED once it has a local position
+                self._send_global_origin()
+            if time.monotonic() - self.home_requested_s >= self.params.home_request_period_s:
+                self._request_home()
+
+    def _send_global_origin(self) -> None:
+        """GPS-denied: the FC's local origin as a global position, once the FC has a local position
+        (its EKF2 resets position when it takes one) and until it reports a home (it then has a
+        global position)."""
+        if self.global_origin is not None:
+            lat, lon, alt = self.global_origin
+            self._send(lambda mav: mav.set_gps_global_origin_send(self.tm.system_id, round(lat * 1e7), round(lon * 1e7),
+                                                                  round(alt * 1e3), self.node.now_ns() // 1000))
+            self.counters["global_origin_sent"] += 1
 
     # ------------------------------------------------------------ MAVLink out
 

@@ -52,7 +52,9 @@ def test_gps_denied_px4_boots_with_the_sih_set_and_a_users_own_value_wins(tmp_pa
     assert env["PX4_PARAM_SIM_GPS_USED"] == "0" and env["PX4_PARAM_EKF2_GPS_CTRL"] == "0"
     assert env["PX4_PARAM_EKF2_EV_CTRL"] == "7" and env["PX4_PARAM_EKF2_HGT_REF"] == "3"
     assert env["PX4_PARAM_EKF2_EVP_NOISE"] == "0.3"
-    assert "--sim-time" not in cmd_up.service_argv("fmu", args, "tcp/127.0.0.1:7447", [], names)  # no sim/clock
+    fmu = cmd_up.service_argv("fmu", args, "tcp/127.0.0.1:7447", [], names)
+    assert "--sim-time" not in fmu                          # the sim follows PX4: no sim/clock, wall time
+    assert f"--param=global_origin={px4_sitl.SIH_ORIGIN}" in fmu         # PX4 gets a global position
     assert "PX4_PARAM_EKF2_EV_CTRL" not in cmd_up.Px4Plan(plan.build, 4).env()
 
 

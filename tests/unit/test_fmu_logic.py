@@ -18,7 +18,8 @@ from aeroperception.schemas import (
 )
 from aeroperception.services.fmu.logic import (
     IGNORE_ACC, IGNORE_POS, IGNORE_VEL, IGNORE_YAW, IGNORE_YAW_RATE, CommandWaiter, Telemetry,
-    ack_name, highres_imu_to_imu, hold_target, home_position_from_mavlink, odometry_fields, setpoint_target,
+    ack_name, highres_imu_to_imu, hold_target, home_position_from_mavlink, odometry_fields, parse_global_origin,
+    setpoint_target,
 )
 
 MAV = mavlink.MAVLink(None, srcSystem=255, srcComponent=190)
@@ -381,7 +382,9 @@ def vio_odometry(pose_cov=None, twist_cov=None) -> Odometry:
         twist_covariance=None if twist_cov is None else NDArray.from_numpy(twist_cov))
 
 
-def test_odometry_fields_are_ned_frd_with_vision_estimator():
+def test_odometry_fields_are_a_local_frd_pose_and_body_frd_velocity_with_vision_estimator():
+    """LOCAL_FRD, not LOCAL_NED: the VIO's odom frame starts at its own heading; PX4 fuses a LOCAL_NED
+    pose as North-aligned but rotates a LOCAL_FRD one onto its heading (mavlink_receiver -> EKF2)."""
     f = odometry_fields(vio_odometry(), time_usec=1_000_000)
     assert (f["x"], f["y"], f["z"]) == (2.0, 1.0, -3.0)
     # FLU forward/left/up body velocity -> FRD forward/right/down
@@ -390,9 +393,18 @@ def test_odometry_fields_are_ned_frd_with_vision_estimator():
     w, x, y, z = f["q"]                                # facing East = NED heading +90 deg
     assert 2 * math.atan2(z, w) == pytest.approx(math.pi / 2) and abs(x) < 1e-12 and abs(y) < 1e-12
     assert f["estimator_type"] == mavlink.MAV_ESTIMATOR_TYPE_VISION
-    assert f["frame_id"] == mavlink.MAV_FRAME_LOCAL_NED
+    assert f["frame_id"] == mavlink.MAV_FRAME_LOCAL_FRD
     assert f["child_frame_id"] == mavlink.MAV_FRAME_BODY_FRD
+    assert f["time_usec"] == 1_000_000 and f["reset_counter"] == 0 and f["quality"] == 100
     packs(mavlink.MAVLink_odometry_message(**f))
+
+
+def test_global_origin_is_lat_lon_alt_or_nothing_and_refused_naming_the_parameter():
+    assert parse_global_origin("") is None
+    assert parse_global_origin("47.397742, 8.545594,489.4") == (47.397742, 8.545594, 489.4)
+    for bad in ("47.3,8.5", "north,8.5,400", "91,8.5,400", "47,8.5,nan"):
+        with pytest.raises(ValueError, match="global_origin"):
+            parse_global_origin(bad)
 
 
 def test_odometry_without_covariance_says_unknown_with_a_leading_nan():

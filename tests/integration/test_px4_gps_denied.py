@@ -1,0 +1,229 @@
+"""GPS-denied on PX4's own EKF2: `aero up --profile px4 --gps-denied` boots PX4 SITL (SIH) with
+tools/fc_params.py's set (SIH's GPS without satellites, EKF2_GPS_CTRL 0, EKF2 on external vision),
+and fmu's ODOMETRY is what EKF2 fuses. Judged by PX4's own state (`px4-listener
+estimator_status_flags`: vision position, velocity and height fused, no GNSS) and SIH's ground truth.
+
+The vision here is a conformance source, not our VIO: the test publishes state/visual_odometry from
+SIH's ground truth exactly as the VIO would (ENU pose in an odom frame whose origin and yaw are where
+it started, FLU body velocity, 6x6 covariances, stamped at the sample), so what is proved is the
+encoding fmu sends and PX4's acceptance of it; no perception service runs (the mission's perception
+gate is off). The same parameters are read back from PX4 with `aero fc params apply`.
+
+- a hop: take off to 3 m, 3 m east, land, on vision alone; EKF2 fuses vision (position, velocity,
+  height) and no GNSS throughout the flight; waypoint and landing judged by SIH truth.
+"""
+from __future__ import annotations
+
+import json
+import math
+import re
+import socket
+import subprocess
+import threading
+import time
+
+import numpy as np
+import pytest
+from pymavlink.dialects.v20 import common as mavlink
+
+from aerotest import aero_argv, clean_env, wait_until
+from aeroperception.schemas import Header, NDArray, Odometry, Pose, Quaternion, Twist, Vector3, encode
+from aeroperception.services.mavlink import frames
+from aeroperception.services.mavlink.geo import MapProjection
+from aeroperception.services.runtime.node import encoding_for
+from aeroperception.tools import fc_params, px4_sitl
+from test_px4 import mission_status, on_ground_disarmed, px4_shell, state
+
+pytestmark = [pytest.mark.px4, pytest.mark.slow]
+
+# vio and perception are the px4 profile's and --gps-denied refuses leaving them out; without the
+# simulator they get no images here and stay idle (the vision below stands in for the VIO)
+SERVICES = ["px4", "fmu", "planner", "mission", "diagnostics", "vio", "perception"]
+VISION_HZ = 30.0
+HOP = {"mission_id": "hop", "takeoff_altitude_m": 3.0, "waypoint_acceptance_radius_m": 0.5,
+       "waypoints": [{"x": 0.0, "y": 0.0, "z": 3.0, "yaw_deg": 90.0}, {"x": 3.0, "y": 0.0, "z": 3.0, "yaw_deg": 90.0}]}
+SIH_DISPLAY_PORT = 19410      # + instance: where PX4's SIH display link sends HIL_STATE_QUATERNION
+EV_FLAGS = ("cs_ev_pos", "cs_ev_vel", "cs_ev_hgt")
+GNSS_FLAGS = ("cs_gnss_pos", "cs_gnss_vel", "cs_gps_hgt")
+
+
+class SihState:
+    """SIH's ground truth (HIL_STATE_QUATERNION, 25 Hz, on its display link): `latest()` -> (ENU
+    position about the first sample, the vehicle on its pad; quaternion ENU <- FLU; ENU velocity)."""
+
+    def __init__(self, port: int):
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", port))
+        self.sock.settimeout(0.2)
+        self.mav = mavlink.MAVLink(None)
+        self.origin: tuple[MapProjection, float] | None = None
+        self.sample: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
+        while not self.stop.is_set():
+            try:
+                msgs = self.mav.parse_buffer(self.sock.recv(65535)) or []
+            except (OSError, mavlink.MAVError):
+                continue
+            for m in msgs:
+                if m.get_type() != "HIL_STATE_QUATERNION":
+                    continue
+                lat, lon, alt = m.lat * 1e-7, m.lon * 1e-7, m.alt * 1e-3
+                if self.origin is None:
+                    self.origin = (MapProjection(lat, lon), alt)
+                north, east = self.origin[0].project(lat, lon)
+                self.sample = (np.array([east, north, alt - self.origin[1]]),
+                               frames.q_ned_frd_to_enu_flu(np.array(m.attitude_quaternion, float)),
+                               frames.ned_to_enu(np.array([m.vx, m.vy, m.vz], float) / 100.0))
+
+    def latest(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        return wait_until(lambda: self.sample, 5, "SIH ground truth (HIL_STATE_QUATERNION)")
+
+    def now(self) -> np.ndarray:
+        return self.latest()[0]
+
+    def close(self) -> None:
+        self.stop.set()
+        self.thread.join(2)
+        self.sock.close()
+
+
+class VisionFromTruth:
+    """Publishes state/visual_odometry as the VIO would, from SIH truth: the odom frame's origin and
+    yaw are the vehicle's when the first sample came (not North), the pose stamped as it is taken.
+    `paused` stops it (a camera blackout)."""
+
+    def __init__(self, session, truth: SihState):
+        self.truth = truth
+        self.pub = session.declare_publisher("state/visual_odometry", encoding=encoding_for(Odometry))
+        self.paused = threading.Event()
+        self.stop = threading.Event()
+        self.sent = 0
+        self.origin: tuple[np.ndarray, np.ndarray] | None = None
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
+        while not self.stop.wait(1.0 / VISION_HZ):
+            if self.paused.is_set() or self.truth.sample is None:
+                continue
+            p, q, v = self.truth.latest()
+            if self.origin is None:
+                yaw0 = frames.yaw_from_q(q)
+                self.origin = (p.copy(), np.array([math.cos(yaw0 / 2), 0.0, 0.0, -math.sin(yaw0 / 2)]))
+            p0, q_odom_enu = self.origin
+            pos = frames.quat_rotate(q_odom_enu, p - p0)
+            q_odom = frames.quat_multiply(q_odom_enu, q)
+            v_body = frames.quat_rotate(frames.quat_conjugate(q), v)
+            odom = Odometry(header=Header(stamp_ns=time.time_ns(), frame_id="odom"),
+                            pose=Pose(position=Vector3.from_array(pos), orientation=Quaternion.from_array(q_odom)),
+                            twist=Twist(linear=Vector3.from_array(v_body)),
+                            pose_covariance=NDArray.from_numpy(np.diag([0.01, 0.01, 0.01, 1e-4, 1e-4, 1e-3])),
+                            twist_covariance=NDArray.from_numpy(np.diag([0.01, 0.01, 0.01, 1e-4, 1e-4, 1e-4])))
+            self.pub.put(encode(odom))
+            self.sent += 1
+
+    def close(self) -> None:
+        self.stop.set()
+        self.thread.join(2)
+        self.pub.undeclare()
+
+
+def ekf_flags(st) -> dict[str, bool]:
+    """PX4's estimator_status_flags (uORB) as {name: bool}."""
+    out = px4_shell(st, "listener", "estimator_status_flags")
+    return {k: v == "True" for k, v in re.findall(r"^\s*(cs_\w+|fs_\w+): (True|False)", out, re.M)}
+
+
+@pytest.fixture(scope="module")
+def px4_gd(stack_module, px4_build, tmp_path_factory):
+    instance = px4_sitl.free_instance(1)
+    assert instance is not None, "no free PX4 instance in 1..9"
+    truth = SihState(SIH_DISPLAY_PORT + instance)
+    vision = None
+    try:
+        st = stack_module(SERVICES, profile="px4", timeout_s=60, extra_args=[
+            "--px4", str(px4_build), "--px4-instance", str(instance), "--gps-denied",
+            "--arg", "mission:--param=require_perception=false"])
+        st.px4_instance, st.px4_bin, st.truth = instance, px4_build / "bin", truth
+        vision = VisionFromTruth(st.session, truth)
+        st.vision = vision
+        try:
+            wait_until(lambda: "Ready for takeoff" in st.service_log("px4"), 60, "PX4: Ready for takeoff")
+            wait_until(lambda: state(st, lambda m: m.connected), 20, "state/vehicle connected (fmu <-> PX4)")
+            wait_until(lambda: mission_status(st), 15, "mission/status")
+        except BaseException:
+            print(st.describe())
+            raise
+        yield st
+    finally:
+        if vision is not None:
+            vision.close()
+        truth.close()
+
+
+def test_px4_gps_denied_parameters_are_what_px4_holds(px4_gd):
+    """`aero fc params apply` against PX4 itself (its GCS link): every value read back as wanted."""
+    st = px4_gd
+    r = subprocess.run(aero_argv() + ["fc", "params", "apply", "gps-denied-sih", "--fcu-url",
+                                      f"udpout:127.0.0.1:{18570 + st.px4_instance}"],
+                       env=clean_env(), capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL)
+    print(r.stdout)
+    n = len(fc_params.SETS["gps-denied-sih"])
+    assert r.returncode == 0 and r.stdout.splitlines()[-1] == f"{n}/{n} set", r.stdout + r.stderr
+
+
+def test_px4_gps_denied_hop_flies_on_vision_alone_fused_by_ekf2(px4_gd, tmp_path):
+    st = px4_gd
+    flags = wait_until(lambda: (f := ekf_flags(st)) and all(f.get(k) for k in EV_FLAGS) and f, 20,
+                       "EKF2 fusing vision position, velocity and height")
+    assert not any(flags.get(k) for k in GNSS_FLAGS), flags
+    mission = tmp_path / "hop.json"
+    mission.write_text(json.dumps(HOP))
+    pad = st.truth.now()
+    samples: list[tuple[float, dict[str, bool]]] = []
+    track: list[tuple[np.ndarray, np.ndarray]] = []      # (PX4's estimate, SIH truth), ENU
+    done = threading.Event()
+
+    def watch():
+        while not done.wait(0.5):
+            s = state(st)
+            if s is not None and not s.landed:
+                track.append((s.position_m.to_array(), st.truth.now() - pad))
+                samples.append((time.monotonic(), ekf_flags(st)))
+
+    watcher = threading.Thread(target=watch, daemon=True)
+    watcher.start()
+    t0 = time.monotonic()
+    try:
+        r = subprocess.run(aero_argv() + ["mission", "fly", str(mission), "--quiet", "--timeout", "60"],
+                           env=clean_env(st.endpoint), capture_output=True, text=True, timeout=80,
+                           stdin=subprocess.DEVNULL)
+        wait_until(lambda: on_ground_disarmed(st), 15, "on the ground, disarmed (PX4)")
+    finally:
+        done.set()
+        watcher.join(3)
+    flight_s = time.monotonic() - t0
+    assert r.returncode == 0, r.stdout + r.stderr
+    end = st.truth.now() - pad
+    est = np.array([e for e, _ in track])
+    tru = np.array([t for _, t in track])
+    err = np.linalg.norm((est - est[0]) - (tru - tru[0]), axis=1)   # both about where the flight began
+    farthest = tru[np.argmax(tru[:, 0])]
+    latency = px4_shell(st, "listener", "vehicle_visual_odometry")
+    lag = re.search(r"timestamp_sample: \d+ \((\d+) us before timestamp\)", latency)
+    print(f"PX4 GPS-denied hop: {flight_s:.1f} s, {len(samples)} flag samples in the air, vision sent "
+          f"{st.vision.sent}; truth reached x={farthest[0]:.2f} y={farthest[1]:.2f} z={farthest[2]:.2f} m; "
+          f"landing {np.linalg.norm(end[:2] - [3.0, 0.0]):.2f} m from the waypoint; PX4 estimate vs truth "
+          f"median {np.median(err):.3f} m, max {err.max():.3f} m; PX4 stamp lag "
+          f"{lag.group(1) if lag else '?'} us")
+    assert len(samples) >= 5, samples
+    for t, f in samples:
+        assert all(f.get(k) for k in EV_FLAGS) and not any(f.get(k) for k in GNSS_FLAGS), f
+    # the waypoint 3 m east (truth), then landed there: LAND begins inside the 0.5 m acceptance radius
+    assert abs(farthest[0] - 3.0) < 0.8 and abs(farthest[1]) < 0.8, farthest
+    assert np.linalg.norm(end[:2] - [3.0, 0.0]) < 1.5, end
+    assert err.max() < 0.5, err.max()
