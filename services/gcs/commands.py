@@ -1,5 +1,5 @@
 """COMMAND_LONG / COMMAND_INT handling (no Zenoh): every command gets exactly one COMMAND_ACK, the
-final one, with the real outcome, as PX4 answers (issue 9 #1):
+final one, with the real outcome, as PX4 answers:
 
 - ACCEPTED once the stack has done it (a mode change: once the flight controller reports the
   new mode, which fmu/srv/set_mode waits for);

@@ -1,4 +1,4 @@
-"""UDP MAVLink 2 link to the ground stations (seed 001 §5.1), no Zenoh.
+"""UDP MAVLink 2 link to the ground stations, no Zenoh.
 
 Binds `local_port`. Several ground stations may be connected at once; each is known by the UDP
 address it sends from (address learning: a ground station may start the conversation from

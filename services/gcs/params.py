@@ -8,7 +8,7 @@ unique (a clash gets a numeric suffix). Floats are REAL32; ints and bools are IN
 byte-wise (PARAM_ENCODE_BYTEWISE, as PX4 does); string parameters have no MAVLink form and are
 not exposed.
 
-PX4 names (issue 9 #3). Ground stations and scripts use PX4's well-known names, so where the
+PX4 names. Ground stations and scripts use PX4's well-known names, so where the
 stack has the setting it is also served under PX4's name (`ALIASES`), mapped to the owning
 services' live parameters: a read shows the service's value, a PARAM_SET goes to every owning
 service's config/<svc>/@set (GF_MAX_HOR_DIST / GF_MAX_VER_DIST to both mission and safety, which

@@ -1,4 +1,4 @@
-"""safety/status -> STATUSTEXT for ground stations (no Zenoh, issue 9 #8).
+"""safety/status -> STATUSTEXT for ground stations (no Zenoh).
 
 The safety service lists what is wrong (SafetyStatus.active_warnings / active_errors) at 1 Hz and
 on change; a ground station should see each item once, when it appears, with a severity it

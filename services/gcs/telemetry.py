@@ -23,7 +23,7 @@ from .messages import MissionCurrent
 from .home import Home
 from .mission_progress import Progress
 
-# What we really support. Not SET_POSITION_TARGET_LOCAL_NED (issue 9 #5): offboard setpoints from a
+# What we really support. Not SET_POSITION_TARGET_LOCAL_NED: offboard setpoints from a
 # ground station would bypass the mission manager and the planner; such messages are counted as
 # ignored (diagnostics `ignored[SET_POSITION_TARGET_LOCAL_NED]`).
 CAPABILITIES = (M.MAV_PROTOCOL_CAPABILITY_MISSION_INT | M.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
@@ -45,7 +45,7 @@ ID = {name: getattr(M, f"MAVLINK_MSG_ID_{name}") for name in (
     "HOME_POSITION", "EXTENDED_SYS_STATE", "MISSION_CURRENT", "BATTERY_STATUS", "AUTOPILOT_VERSION",
     "ATTITUDE_QUATERNION", "ESTIMATOR_STATUS",
 )}
-# The default set, sent every telemetry period (seed 001 §9: 900 ms).
+# The default set, sent every telemetry period (telemetry_period_s, 900 ms by default).
 DEFAULT_STREAM = ["HEARTBEAT", "SYS_STATUS", "LOCAL_POSITION_NED", "ATTITUDE", "GLOBAL_POSITION_INT",
                   "GPS_RAW_INT", "HOME_POSITION", "EXTENDED_SYS_STATE", "MISSION_CURRENT", "BATTERY_STATUS",
                   "ESTIMATOR_STATUS"]
@@ -109,7 +109,7 @@ class TelemetryState:
         return volt, cur, rem
 
     def fence_bits(self, now_s: float | None = None) -> tuple[int, int, int]:
-        """SYS_STATUS geofence (present, enabled, healthy) from safety/status (issue 9 #8): not
+        """SYS_STATUS geofence (present, enabled, healthy) from safety/status: not
         present without a fresh safety/status; enabled when safety has a geofence (a distance to
         it); healthy unless safety reports a violation."""
         now = time.monotonic() if now_s is None else now_s
