@@ -389,7 +389,8 @@ def service_argv(name: str, args, endpoint: str, profile_args: list[str] = (), r
     # GPS-denied, the VIO's age is checked (fmu) against the sim's stamps: every service follows
     # sim/clock even at x1, where a sim that fell behind real time re-anchors and lags the wall clock.
     # Without the sim (vehicle), or with PX4's (the sim follows it: no sim/clock), wall time.
-    sim_clock = "sim" in running and px4_sitl.NAME not in load_profiles()[args.profile]["services"]
+    follows_px4 = px4_sitl.NAME in load_profiles()[args.profile]["services"]
+    sim_clock = "sim" in running and not follows_px4
     if (args.speed is not None and args.speed != 1.0) or (getattr(args, "gps_denied", False) and sim_clock):
         argv.append("--sim-time")
     if name == "sim":
@@ -403,7 +404,7 @@ def service_argv(name: str, args, endpoint: str, profile_args: list[str] = (), r
         argv += ["--fcu-url", args.fcu_url]
     if name == "mission" and getattr(args, "mission", None):
         argv.append(f"--param=mission_file={Path(args.mission).resolve()}")
-    if getattr(args, "gps_denied", False):
+    if getattr(args, "gps_denied", False) and not (name == "sim" and follows_px4):   # PX4's EKF2 estimates
         argv += GPS_DENIED_ARGS.get(name, [])
     for item in args.arg:
         svc, sep, flag = item.partition(":")

@@ -53,9 +53,9 @@ GPS_DENIED: list[FcParam] = [
                                "LOCAL_FRD) onto its own"),
     FcParam("EKF2_HGT_REF", 3, "vision is the height reference (0 baro, 1 GNSS, 2 range, 3 vision): the baro "
                                "drifts with weather and prop wash; it stays fused with its offset estimated"),
-    FcParam("EKF2_EV_DELAY", EV_DELAY_MS, "ms; each pose arrives stamped at its exposure in PX4's clock "
-                                          "(TIMESYNC answered in the images' clock): the latency is in the stamp "
-                                          "and must not be counted twice"),
+    FcParam("EKF2_EV_DELAY", EV_DELAY_MS, "ms; each pose is stamped at its exposure and, once PX4's time sync "
+                                          "has converged, arrives in PX4's clock (TIMESYNC answered in the images' "
+                                          "clock): the latency is in the stamp and must not be counted twice"),
     FcParam("EKF2_EV_NOISE_MD", 1, "vision noise from EKF2_EVP_NOISE / EKF2_EVV_NOISE, not the message: our "
                                    "VIO's covariance includes the drift accumulated since it started (a slowly "
                                    "varying offset, not noise per sample), which would make EKF2 trust vision "
@@ -65,8 +65,8 @@ GPS_DENIED: list[FcParam] = [
     FcParam("EKF2_EVV_NOISE", 0.1, "m/s; 1-sigma vision velocity noise per sample (PX4's default)"),
     FcParam("COM_RCL_EXCEPT", 4, "OFFBOARD is exempt from the RC-loss failsafe: the companion keeps flying "
                                  "(its own policy holds or lands) when a pilot's radio drops out"),
-    FcParam("NAV_RCL_ACT", 3, "RC loss outside OFFBOARD: Land (1 Hold, 2 Return, 3 Land); Return needs a "
-                              "global position, which a vehicle without GNSS does not have"),
+    FcParam("NAV_RCL_ACT", 3, "RC loss outside OFFBOARD: Land (1 Hold, 2 Return, 3 Land); Return would fly to "
+                              "home on the vision estimate, which has drifted by then and stops with the cameras"),
     FcParam("GF_ACTION", 1, "geofence breach: warn only (0 none, 1 warning, 2 hold, 3 return, 4 terminate, "
                             "5 land); without GNSS the fence's position is the vision estimate's, which drifts"),
     FcParam("MC_YAWRATE_MAX", 60.0, "deg/s; slow turns keep the VIO's features in both cameras and unblurred "

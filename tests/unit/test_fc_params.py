@@ -54,6 +54,8 @@ def test_gps_denied_px4_boots_with_the_sih_set_and_a_users_own_value_wins(tmp_pa
     assert env["PX4_PARAM_EKF2_EVP_NOISE"] == "0.3"
     fmu = cmd_up.service_argv("fmu", args, "tcp/127.0.0.1:7447", [], names)
     assert "--sim-time" not in fmu                          # the sim follows PX4: no sim/clock, wall time
+    if "sim" in names:                                      # PX4's EKF2 estimates, not the sim's imitation
+        assert "SIM_GPS_DENIED=true" not in cmd_up.service_argv("sim", args, "tcp/127.0.0.1:7447", [], names)
     assert f"--param=global_origin={px4_sitl.SIH_ORIGIN}" in fmu         # PX4 gets a global position
     assert "PX4_PARAM_EKF2_EV_CTRL" not in cmd_up.Px4Plan(plan.build, 4).env()
 
