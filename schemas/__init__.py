@@ -11,20 +11,19 @@ from ._base import (
 from .geometry import Pose, PoseStamped, Quaternion, Twist, Vector3
 from .sensors import (
     BatteryState, CameraInfo, Detection2D, Detection2DArray, DiagnosticArray, DiagnosticStatus,
-    Image, Imu, OccupancyGrid, Odometry, PointCloud, VioHealth,
+    Image, Imu, OccupancyGrid, Odometry, PerceptionHealth, PointCloud, VioHealth,
 )
 from .safety import SafetyStatus
 from .vehicle import (
     Attitude, ControlOutput, EstimatorStatus, GpsPosition, HomePosition, LandedState, LocalPosition, TrajectorySetpoint, UAVMode,
     UAVStatus, VehicleState, VehicleStatus,
 )
-from .planning import (
-    CollisionConstraint, Mission, Trajectory, TrajectoryStatus, Waypoint, load_mission_file,
-    parse_mission,
-)
+from .planning import CollisionConstraint, Trajectory, TrajectoryStatus
 from .gcs import GcsLink, Joystick
 from .objects import ObjectEvent, TrackedObject, TrackedObjectArray
-from .mission import MissionCommand, MissionGoal, MissionStatus, PerceptionHealth, WaypointReached
+from .mission import (
+    Mission, MissionCommand, MissionGoal, MissionStatus, Waypoint, WaypointReached, load_mission_file, parse_mission,
+)
 from .services import (
     ArmReply, ArmRequest, EmergencyStopReply, EmergencyStopRequest, Empty, GetMissionReply, LoadMissionReply,
     LoadMissionRequest, Reply, SelectPluginReply, SelectPluginRequest, SetModeReply, SetModeRequest,
@@ -45,13 +44,13 @@ __all__ = [
     "Vector3", "Quaternion", "Pose", "Twist", "PoseStamped",
     # sensors, perception, health
     "Imu", "Image", "CameraInfo", "PointCloud", "OccupancyGrid", "Detection2D", "Detection2DArray",
-    "BatteryState", "DiagnosticStatus", "DiagnosticArray", "Odometry", "VioHealth",
+    "BatteryState", "DiagnosticStatus", "DiagnosticArray", "Odometry", "VioHealth", "PerceptionHealth",
     # vehicle
     "LandedState", "VehicleState", "TrajectorySetpoint", "ControlOutput", "UAVMode", "UAVStatus",
     "VehicleStatus", "LocalPosition", "Attitude", "HomePosition", "GpsPosition", "EstimatorStatus",
     # planning and mission
     "Trajectory", "TrajectoryStatus", "CollisionConstraint", "Waypoint", "Mission", "parse_mission",
-    "load_mission_file", "MissionStatus", "MissionCommand", "MissionGoal", "PerceptionHealth", "WaypointReached",
+    "load_mission_file", "MissionStatus", "MissionCommand", "MissionGoal", "WaypointReached",
     # ground station link
     "GcsLink", "Joystick",
     # tracked objects

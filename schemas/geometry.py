@@ -37,6 +37,15 @@ class Vector3(msgspec.Struct, kw_only=True):
         return np.array([self.x, self.y, self.z], dtype=float)
 
 
+def euler_from_wxyz(w, x, y, z):
+    """(roll, pitch, yaw) radians, intrinsic Z-Y-X, of unit quaternion components: floats or
+    arrays alike. The one place this formula lives: Quaternion.to_euler/to_yaw (messages) and
+    services/runtime/rotations.quat_to_euler (numpy stacks) both call it."""
+    return (np.arctan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y)),
+            np.arcsin(np.minimum(np.maximum(2 * (w * y - z * x), -1.0), 1.0)),
+            np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z)))
+
+
 class Quaternion(msgspec.Struct, kw_only=True):
     """Unit quaternion (w, x, y, z), Hamilton convention; default identity.
 
@@ -78,11 +87,12 @@ class Quaternion(msgspec.Struct, kw_only=True):
 
     def to_euler(self) -> tuple[float, float, float]:
         """(roll_rad, pitch_rad, yaw_rad), intrinsic Z-Y-X, the inverse of from_euler."""
-        w, x, y, z = self.w, self.x, self.y, self.z
-        roll = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
-        pitch = math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x))))
-        yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
-        return roll, pitch, yaw
+        roll, pitch, yaw = euler_from_wxyz(self.w, self.x, self.y, self.z)
+        return float(roll), float(pitch), float(yaw)
+
+    def to_yaw(self) -> float:
+        """Heading (ENU: 0 = facing East, counter-clockwise positive), the inverse of from_yaw."""
+        return self.to_euler()[2]
 
 
 class Pose(msgspec.Struct, kw_only=True):

@@ -1,18 +1,28 @@
-"""Mission manager messages: its status, the operator's commands, the perception gate it
-listens to, and the waypoint-reached event.
+"""Mission manager messages: the mission file format (Mission, Waypoint), its status, the
+operator's commands, the goal it hands the planner and the waypoint-reached event.
+
+Mission/Waypoint are exactly seed 000 §5.1's JSON (x/y/z in metres ENU, yaw_deg in degrees — the
+only non-SI field names in the project, kept so existing mission files load unchanged).
+`parse_mission` is the one place mission text (JSON or YAML) is validated; it never returns a
+mission the vehicle cannot fly (no waypoints, non-finite numbers, non-positive radius or altitude).
 
 State and command names are the seed 000 strings (readable in logs and any language); the set of
 commands is closed, so a typo is rejected at decode instead of being silently ignored by the FSM.
 """
 from __future__ import annotations
 
+from pathlib import Path
+
 import msgspec
 
-from ._base import Header, Message, schema
-from ._checks import check_choice, check_finite, enum_names
+from ._base import Header, Message, SchemaError, check_known_fields, from_builtins, schema
+from ._checks import check_choice, check_finite, check_positive
 from .geometry import Pose, Vector3
 
-__all__ = ["MissionStatus", "MissionCommand", "MissionGoal", "PerceptionHealth", "WaypointReached"]
+__all__ = [
+    "Waypoint", "Mission", "parse_mission", "load_mission_file", "MissionStatus", "MissionCommand", "MissionGoal",
+    "WaypointReached",
+]
 
 
 @schema("MissionStatus", 1)
@@ -80,32 +90,6 @@ class MissionCommand(Message, kw_only=True):
             raise ValueError(f"field `waypoint_index` is only for SET_CURRENT, not {self.command}")
 
 
-@schema("PerceptionHealth", 1)
-class PerceptionHealth(Message, kw_only=True):
-    """The perception coordinator's verdict (perception/health, 1 Hz + on change): the single
-    input the mission manager gates EXECUTING on. `overall_healthy` is vio_status == HEALTHY (true
-    in a stack without VIO: nothing gates on it there).
-    `lidar_status` (same enum; the LiDAR obstacle service's diagnostics) is reported, not gated on."""
-
-    header: Header = msgspec.field(default_factory=Header)
-    vio_status: int = 0
-    detector_status: int = 0
-    lidar_status: int = 0
-    overall_healthy: bool = False
-    message: str = ""
-
-    UNKNOWN = 0
-    INITIALIZING = 1
-    HEALTHY = 2
-    DEGRADED = 3
-    FAILED = 4
-    NOT_CONFIGURED = 5   # the stack runs no such source (e.g. `aero up --sensors camera`: no LiDAR)
-
-    @classmethod
-    def status_name(cls, value: int) -> str:
-        return enum_names(cls).get(value, str(value))
-
-
 @schema("WaypointReached", 1)
 class WaypointReached(Message, kw_only=True):
     """Event: the vehicle came within the acceptance radius of waypoint `index` (0-based) of
@@ -120,7 +104,7 @@ class WaypointReached(Message, kw_only=True):
 @schema("MissionGoal", 1)
 class MissionGoal(Message, kw_only=True):
     """The goal the mission hands the planner (mission/active_goal, on change + 2 Hz): fly to
-    `pose` (ENU, `header.frame_id` "map"); frame_id "hold" = stop and hold where you are.
+    `pose` (ENU, `header.frame_id` "map"); frame_id HOLD_FRAME ("hold") = stop and hold where you are.
     `max_speed_mps` caps the commanded speed for this goal (a goto's velocity_mps) and
     `max_vertical_speed_mps` its vertical part (a takeoff's climb or a landing's descent rate);
     0 = the planner's own limit."""
@@ -130,6 +114,8 @@ class MissionGoal(Message, kw_only=True):
     max_speed_mps: float = 0.0
     max_vertical_speed_mps: float = 0.0
 
+    HOLD_FRAME = "hold"   # header.frame_id of a goal that means "stop and hold where you are"
+
     def __post_init__(self) -> None:
         super().__post_init__()
         for name in ("max_speed_mps", "max_vertical_speed_mps"):
@@ -137,3 +123,88 @@ class MissionGoal(Message, kw_only=True):
             check_finite(name, value)
             if value < 0:
                 raise ValueError(f"field `{name}` must be >= 0 (0 = the planner's own limit), got {value!r}")
+
+
+class Waypoint(msgspec.Struct, kw_only=True):
+    """One mission waypoint: x/y/z metres ENU (z up, above the take-off point), yaw in degrees
+    (ENU: 0 = East, counter-clockwise positive)."""
+
+    x: float
+    y: float
+    z: float
+    yaw_deg: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name in ("x", "y", "z", "yaw_deg"):
+            check_finite(name, getattr(self, name))
+
+
+@schema("Mission", 1)
+class Mission(Message, kw_only=True):
+    """A mission: take off, fly the waypoints in order. Seed 000 §5.1's JSON, unchanged:
+
+    {"mission_id": "survey_01", "takeoff_altitude_m": 5.0,
+     "waypoints": [{"x": 0.0, "y": 0.0, "z": 5.0, "yaw_deg": 0.0}, ...],
+     "waypoint_acceptance_radius_m": 0.5}
+
+    `require_vio` overrides the mission service's default VIO gate for this mission when set.
+    """
+
+    header: Header = msgspec.field(default_factory=Header)
+    mission_id: str = ""
+    takeoff_altitude_m: float = 3.0
+    waypoints: list[Waypoint]
+    waypoint_acceptance_radius_m: float = 0.5
+    require_vio: bool | None = None
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if not self.waypoints:
+            raise ValueError("field `waypoints` must contain at least one waypoint")
+        check_positive("takeoff_altitude_m", self.takeoff_altitude_m)
+        check_positive("waypoint_acceptance_radius_m", self.waypoint_acceptance_radius_m)
+
+    def to_json(self) -> str:
+        return msgspec.json.encode(self).decode()
+
+
+_mission_json = msgspec.json.Decoder(Mission)
+
+
+def parse_mission(text: str | bytes) -> Mission:
+    """Parse and validate a mission, JSON or YAML (the same structure), strictly: a misspelt
+    field such as `takeoff_altitude` is refused, not silently replaced by the default, and a
+    missing one is named. The one place mission text is read (files, mission/srv/load, the
+    mission service's start-up file, the persisted mission). JSON text (starting with `{`) goes
+    through the JSON decoder, anything else through YAML (PyYAML reads `1e3` as a string, so
+    JSON is never handed to it). SchemaError names the offending field (e.g. "Mission: Expected
+    `float`, got `str` - at `$.waypoints[1].x`")."""
+    if isinstance(text, (bytes, bytearray, memoryview)):
+        text = bytes(text).decode("utf-8", errors="replace")
+    if text.lstrip().startswith("{"):
+        try:
+            mission = _mission_json.decode(text)
+        except (msgspec.DecodeError, msgspec.ValidationError) as e:
+            raise SchemaError(f"Mission: {e}") from None
+        check_known_fields(msgspec.json.decode(text), Mission)
+        return mission
+    import yaml
+
+    try:
+        obj = yaml.safe_load(text)
+    except yaml.YAMLError as e:
+        raise SchemaError(f"Mission: neither JSON nor valid YAML: {' '.join(str(e).split())}") from None
+    if not isinstance(obj, dict):
+        raise SchemaError("Mission: expected a JSON object or a YAML mapping with `waypoints`, "
+                          f"got {type(obj).__name__}")
+    return from_builtins(obj, Mission, strict=True)
+
+
+def load_mission_file(path: str | Path) -> Mission:
+    """Load a mission from a .json, .yaml or .yml file (parse_mission reads either format)."""
+    p = Path(path)
+    try:
+        text = p.read_text()
+    except OSError as e:
+        raise SchemaError(f"Mission: cannot read {p}: {e.strerror or e}") from None
+    return parse_mission(text)

@@ -1,5 +1,5 @@
 """Sensor, perception and health messages: the ROS sensor_msgs / nav_msgs / vision_msgs /
-diagnostic_msgs equivalents the stack needs, plus VIO health.
+diagnostic_msgs equivalents the stack needs, plus VIO health and the perception verdict built on it.
 
 Arrays (pixels, points, covariances) are NDArray so any msgpack reader gets {dtype, shape,
 data}; shapes and dtypes are checked on decode so a consumer never indexes a malformed buffer.
@@ -18,7 +18,7 @@ from .geometry import Pose, Quaternion, Twist, Vector3
 
 __all__ = [
     "Imu", "Image", "CameraInfo", "PointCloud", "OccupancyGrid", "Detection2D", "Detection2DArray",
-    "BatteryState", "DiagnosticStatus", "DiagnosticArray", "Odometry", "VioHealth",
+    "BatteryState", "DiagnosticStatus", "DiagnosticArray", "Odometry", "VioHealth", "PerceptionHealth",
 ]
 
 
@@ -357,3 +357,29 @@ class VioHealth(Message, kw_only=True):
     @property
     def state_name(self) -> str:
         return enum_names(type(self)).get(self.state, str(self.state))
+
+
+@schema("PerceptionHealth", 1)
+class PerceptionHealth(Message, kw_only=True):
+    """The perception coordinator's verdict (perception/health, 1 Hz + on change): the single
+    input the mission manager gates EXECUTING on. `overall_healthy` is vio_status == HEALTHY (true
+    in a stack without VIO: nothing gates on it there).
+    `lidar_status` (same enum; the LiDAR obstacle service's diagnostics) is reported, not gated on."""
+
+    header: Header = msgspec.field(default_factory=Header)
+    vio_status: int = 0
+    detector_status: int = 0
+    lidar_status: int = 0
+    overall_healthy: bool = False
+    message: str = ""
+
+    UNKNOWN = 0
+    INITIALIZING = 1
+    HEALTHY = 2
+    DEGRADED = 3
+    FAILED = 4
+    NOT_CONFIGURED = 5   # the stack runs no such source (e.g. `aero up --sensors camera`: no LiDAR)
+
+    @classmethod
+    def status_name(cls, value: int) -> str:
+        return enum_names(cls).get(value, str(value))

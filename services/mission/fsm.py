@@ -21,18 +21,32 @@ Fault policy (ARCHITECTURE §8), every automatic transition reported in `message
   interrupted mission still loaded.
 - safety/status: a rising recommended_action HOLD / RTH / LAND acts once (SAFETY_REACTIONS);
   the operator may command afterwards. EMERGENCY_STOP is the safety service's own job.
+- VIO lost: the perception service (services/perception/logic.py) turns VIO health into
+  perception/health's `overall_healthy` (true iff VIO TRACKING); here (`tick`), when perception
+  is required (the mission's `require_vio`, else `require_perception`), unhealthy or silent for
+  `perception_timeout_s` while EXECUTING -> HOLDING (PERCEPTION_LOST); healthy again ->
+  EXECUTING at the same waypoint (PERCEPTION_RECOVERED); not back within
+  `perception_recovery_s` -> RTL (PERCEPTION_TIMEOUT). A takeoff waits in HOLDING the same way
+  before starting the mission. Parameters, units and defaults: contract.py.
+
+Operator requests answer through an Outcome (settled at once, or when the flight controller
+has answered); what a running takeoff/land/goto action reports is actions.py's.
 """
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+import threading
+from dataclasses import dataclass, fields
 from enum import Enum
-from typing import Callable, Protocol
+from typing import Any, Callable, Mapping, Protocol
 
 import numpy as np
 
 from aeroperception.schemas import LandedState, Mission, MissionStatus, SafetyStatus, VehicleState, parse_mission
 
+from aeroperception.services.safety.rules import ACTION_NAMES
+
+from . import contract
 from .limits import Limits
 
 
@@ -132,39 +146,79 @@ SAFETY_REACTIONS: dict[int, Event] = {
     SafetyStatus.ACTION_RTH: E.SAFETY_RTH,
     SafetyStatus.ACTION_LAND: E.SAFETY_LAND,
 }
-SAFETY_ACTION_NAMES = {SafetyStatus.ACTION_NONE: "NONE", SafetyStatus.ACTION_WARN: "WARN",
-                       SafetyStatus.ACTION_HOLD: "HOLD", SafetyStatus.ACTION_RTH: "RTH",
-                       SafetyStatus.ACTION_LAND: "LAND", SafetyStatus.ACTION_EMERGENCY_STOP: "EMERGENCY_STOP"}
 RTL_EVENTS = (E.RTL_CMD, E.PERCEPTION_TIMEOUT, E.SAFETY_RTH, E.GOAL_BLOCKED_RTL)
 BLOCKED_STATES = ("blocked", "unreachable")   # planner/status obstacle_state: no way to the goal
 BLOCKED_ACTIONS = ("hold", "skip", "rtl")
-AIRBORNE = (S.TAKEOFF, S.EXECUTING, S.HOLDING, S.LAND)
 
 
 class Bridge(Protocol):
     """The flight-controller calls the mission needs (fmu/srv/* in the running stack).
-    `done(success, message)` is called exactly once, later or immediately."""
+    `answer(success, message)` is called exactly once, later or immediately."""
 
-    def arm(self, arm: bool, done: Callable[[bool, str], None]) -> None: ...
+    def arm(self, arm: bool, answer: Callable[[bool, str], None]) -> None: ...
 
-    def set_mode(self, mode: str, done: Callable[[bool, str], None]) -> None: ...
+    def set_mode(self, mode: str, answer: Callable[[bool, str], None]) -> None: ...
+
+
+class Outcome:
+    """What became of one operator request, one value the requester keeps instead of a callback:
+    `result` is (ok, message) once settled, None while the flight controller has not answered
+    yet (ARM, DISARM, TAKEOFF's arming, START's OFFBOARD); every other request settles at once.
+    A queryable waits on it (`wait`), an action checks it on its tick. Settled once."""
+
+    def __init__(self) -> None:
+        self.result: tuple[bool, str] | None = None
+        self._settled = threading.Event()
+
+    def settle(self, ok: bool, message: str) -> None:
+        if self.result is None:
+            self.result = (ok, message)
+            self._settled.set()
+
+    @property
+    def failed(self) -> bool:
+        return self.result is not None and not self.result[0]
+
+    def wait(self, timeout_s: float) -> bool:
+        return self._settled.wait(timeout_s)
+
+
+@dataclass
+class FcRequest:
+    """One call to the flight controller whose answer the FSM still expects: what was asked, the
+    operator request it answers (if any) and what a success leads to ("takeoff": the arming
+    before TAKEOFF; "mode": a mode we asked for, whose refusal is the ERROR path)."""
+
+    call: str                          # "arm", "disarm" or the mode name
+    outcome: Outcome | None = None
+    then: str = ""                     # "" | "takeoff" | "mode"
+
+
+_DEFAULT = {p.name: p.default for p in contract.PARAMS}
 
 
 @dataclass
 class Config:
-    takeoff_altitude_m: float = 3.0
-    altitude_tolerance_m: float = 0.3
-    require_perception: bool = False
-    perception_timeout_s: float = 3.0       # no perception/health for this long = unhealthy
-    perception_recovery_s: float = 10.0     # seed 000 §4.1: recover within 10 s or RTL
-    land_on_complete: bool = True
-    disarm_after_landing_s: float = 5.0     # if the FC has not auto-disarmed by then, disarm
-    vehicle_timeout_s: float = 0.5          # state/vehicle older than this = fmu outage
-    resume_after_outage: bool = False       # after an fmu outage: resume EXECUTING by itself?
-    restore_timeout_s: float = 5.0          # after a restart, wait this long for vehicle state
-    blocked_timeout_s: float = 5.0          # planner says blocked/unreachable this long -> blocked_action
-    blocked_action: str = "hold"            # hold (wait for the operator) | skip (next waypoint) | rtl
-    land_handoff_altitude_m: float = 1.0    # a landing flown by the planner hands over to the FC here
+    """The FSM's settings: each is the mission parameter of the same name (its default, unit and
+    range are declared once, in contract.PARAMS)."""
+
+    takeoff_altitude_m: float = _DEFAULT["takeoff_altitude_m"]
+    altitude_tolerance_m: float = _DEFAULT["altitude_tolerance_m"]
+    require_perception: bool = _DEFAULT["require_perception"]
+    perception_timeout_s: float = _DEFAULT["perception_timeout_s"]     # no perception/health this long = unhealthy
+    perception_recovery_s: float = _DEFAULT["perception_recovery_s"]   # recover within this or RTL
+    land_on_complete: bool = _DEFAULT["land_on_complete"]
+    disarm_after_landing_s: float = _DEFAULT["disarm_after_landing_s"]
+    vehicle_timeout_s: float = _DEFAULT["vehicle_timeout_s"]           # state/vehicle older than this = fmu outage
+    resume_after_outage: bool = _DEFAULT["resume_after_outage"]
+    restore_timeout_s: float = _DEFAULT["restore_timeout_s"]
+    blocked_timeout_s: float = _DEFAULT["blocked_timeout_s"]
+    blocked_action: str = _DEFAULT["blocked_action"]                   # hold | skip | rtl
+    land_handoff_altitude_m: float = _DEFAULT["land_handoff_altitude_m"]
+
+    @classmethod
+    def from_params(cls, params: Mapping[str, Any]) -> "Config":
+        return cls(**{f.name: params[f.name] for f in fields(cls)})
 
 
 @dataclass
@@ -229,7 +283,7 @@ class MissionManager:
         self.safety_action = SafetyStatus.ACTION_NONE
         self.rebuild_pending = False            # restored: the first vehicle state rebuilds us
         self.restored_state = "IDLE"            # the state the previous run persisted
-        self.resume_done: Callable[[bool, str], None] | None = None  # START's outcome (OFFBOARD answer)
+        self.resume_outcome: Outcome | None = None  # START's, settled by the OFFBOARD answer
         self.restore_deadline_s: float | None = None
         self.restored_note = ""                 # what restore() dropped (a completed mission)
         self.blocked_since_s: float | None = None   # planner/status blocked/unreachable since (this goal)
@@ -255,10 +309,45 @@ class MissionManager:
         self._persist()
         return True
 
-    def _request_mode(self, mode: str, then: Callable[[bool, str], None] | None = None) -> None:
-        """Ask the FC for `mode`; `then(ok, message)` (if given) learns the FC's answer."""
+    def _request_mode(self, mode: str, outcome: Outcome | None = None) -> None:
+        """Ask the FC for `mode`; `outcome` (if given) is settled by the FC's answer."""
         self.expected_mode, self.mode_confirmed = mode, False
-        self.bridge.set_mode(mode, self._bridge_done(mode, then))
+        self._ask_fc(FcRequest(mode, outcome, "mode"))
+
+    def _ask_fc(self, req: FcRequest) -> None:
+        """Send `req` over the bridge; its answer comes back to _on_fc_answer."""
+        def answer(ok: bool, message: str) -> None:
+            self._on_fc_answer(req, ok, message)
+        if req.call in ("arm", "disarm"):
+            self.bridge.arm(req.call == "arm", answer)
+        else:
+            self.bridge.set_mode(req.call, answer)
+
+    def _on_fc_answer(self, req: FcRequest, ok: bool, message: str) -> None:
+        """The flight controller answered `req`: settle its outcome; a refused mode is the ERROR
+        path (in the air: hold; on the ground: IDLE); a granted arming for TAKEOFF takes off."""
+        outcome = req.outcome or Outcome()
+        if req.then == "takeoff":
+            self.takeoff_pending = False
+            if not ok:
+                self.start_requested = False
+                outcome.settle(False, f"arming failed: {message}")
+                self.message = f"arming failed: {message}"
+            elif self.fire(E.TAKEOFF_CMD, "taking off"):
+                outcome.settle(True, "taking off")
+            else:
+                outcome.settle(False, f"takeoff not possible in {self.state.value}")
+        elif req.then != "mode":
+            outcome.settle(ok, message)
+        elif ok:
+            outcome.settle(True, self.message)
+        else:
+            what = req.call
+            self.log("bridge_failed", call=what, message=message)
+            event = E.BRIDGE_FAILED_AIR if self.in_air() else E.BRIDGE_FAILED_GROUND
+            if not self.fire(event, f"{what} failed: {message}"):
+                self.message = f"{what} failed: {message}"
+            outcome.settle(False, f"{what} failed: {message}")
 
     def _enter_idle(self, prev: State, event: Event) -> None:
         self.start_requested = False
@@ -310,14 +399,14 @@ class MissionManager:
         self.hold_reason = ""
         self.blocked_since_s = None
         mode = self.vehicle.flight_mode if self.vehicle else ""
-        then, self.resume_done = self.resume_done, None
+        outcome, self.resume_outcome = self.resume_outcome, None
         if mode and mode != "OFFBOARD":
             # the FC was taken over (or failed over) while we held: resuming asks for OFFBOARD again
-            self._request_mode("OFFBOARD", then)
+            self._request_mode("OFFBOARD", outcome)
             if self.state != State.EXECUTING:  # the request failed at once
                 return
-        elif then:
-            then(True, self.message)
+        elif outcome:
+            outcome.settle(True, self.message)
         if self.goto_target is not None:
             self.publish_goal(self.goto_target)
             return
@@ -359,20 +448,6 @@ class MissionManager:
             return
         self.log("land_phase", phase=plan.phase, position=[round(float(v), 2) for v in pos])
         self._land_goal()
-
-    def _bridge_done(self, what: str, then: Callable[[bool, str], None] | None = None) -> Callable[[bool, str], None]:
-        def done(ok: bool, message: str) -> None:
-            if ok:
-                if then:
-                    then(True, self.message)
-                return
-            self.log("bridge_failed", call=what, message=message)
-            event = E.BRIDGE_FAILED_AIR if self.in_air() else E.BRIDGE_FAILED_GROUND
-            if not self.fire(event, f"{what} failed: {message}"):
-                self.message = f"{what} failed: {message}"
-            if then:
-                then(False, f"{what} failed: {message}")
-        return done
 
     # ------------------------------------------------------------ persistence and restart
 
@@ -449,69 +524,69 @@ class MissionManager:
         self._persist()
         return True, self.message
 
-    def command(self, cmd: str, on_result: Callable[[bool, str], None] | None = None,
-                waypoint_index: int = -1) -> tuple[bool, str]:
-        """Operator command (mission/command). Returns (accepted, message) at once; commands that
-        need the flight controller report their outcome through `on_result` as well."""
-        done = on_result or (lambda ok, msg: None)
+    def command(self, cmd: str, outcome: Outcome | None = None, waypoint_index: int = -1) -> tuple[bool, str]:
+        """Operator command (mission/command). Returns (accepted, message) at once; `outcome` (if
+        given) is settled with the final answer: at once, or when the flight controller has
+        answered a command that needs it."""
+        outcome = outcome or Outcome()
         cmd = cmd.upper()
         if self.restoring():
-            return self._refuse(done, "restarting: waiting for vehicle state to rebuild the mission state; retry")
+            return self._refuse(outcome, "restarting: waiting for vehicle state to rebuild the mission state; retry")
         if cmd == "SET_CURRENT":
-            return self.set_current(waypoint_index, done)
+            return self.set_current(waypoint_index, outcome)
         if cmd == "ARM":
             if self.state != State.IDLE:
-                return self._refuse(done, f"ARM only in IDLE (now {self.state.value})")
-            self.bridge.arm(True, done)
+                return self._refuse(outcome, f"ARM only in IDLE (now {self.state.value})")
+            self._ask_fc(FcRequest("arm", outcome))
             return True, "arming"
         if cmd == "DISARM":
             if self.in_air():
-                return self._refuse(done, "refusing to disarm in the air; LAND first")
-            self.bridge.arm(False, done)
+                return self._refuse(outcome, "refusing to disarm in the air; LAND first")
+            self._ask_fc(FcRequest("disarm", outcome))
             return True, "disarming"
         if cmd == "TAKEOFF":
-            return self.takeoff(None, done)
+            return self.takeoff(None, outcome)
         if cmd == "START":
-            if self.mission is None:
-                return self._refuse(done, "no mission loaded; LOAD one first")
-            if self.state == State.TAKEOFF or self.takeoff_pending:
-                self.start_requested = True
-                done(True, "mission starts when takeoff completes")
-                return True, "mission starts when takeoff completes"
-            if self.outage and self.state == State.HOLDING:
-                return self._refuse(done, f"{self.outage}: holding until fresh vehicle state is back")
-            self.goto_target = None
-            answered: list[tuple[bool, str]] = []
-
-            def outcome(ok: bool, message: str) -> None:  # when the FC has answered (OFFBOARD)
-                answered.append((ok, message))
-                done(ok, message)
-
-            self.resume_done = outcome
-            fired = self.fire(E.START_CMD, "mission started" if self.wp_index <= 0 else
-                              f"mission resumed at waypoint {self.wp_index + 1}/{len(self.mission.waypoints)}")
-            self.resume_done = None
-            if not fired:
-                return self._refuse(done, f"START not possible in {self.state.value}; TAKEOFF first")
-            return answered[0] if answered else (True, self.message)
+            return self._start(outcome)
         simple = {"HOLD": E.HOLD_CMD, "LAND": E.LAND_CMD, "RTL": E.RTL_CMD}
         if cmd in simple:
             if not self.fire(simple[cmd], f"operator {cmd}"):
-                return self._refuse(done, f"{cmd} not possible in {self.state.value}")
-            done(True, cmd.lower())
+                return self._refuse(outcome, f"{cmd} not possible in {self.state.value}")
+            outcome.settle(True, cmd.lower())
             return True, cmd.lower()
-        return self._refuse(done, f"unknown command {cmd!r}")
+        return self._refuse(outcome, f"unknown command {cmd!r}")
 
-    def set_current(self, index: int, done: Callable[[bool, str], None]) -> tuple[bool, str]:
+    def _start(self, outcome: Outcome) -> tuple[bool, str]:
+        """START: fly (or resume) the mission; the outcome is the FC's OFFBOARD answer when the
+        resume asks for it, else settled at once."""
+        if self.mission is None:
+            return self._refuse(outcome, "no mission loaded; LOAD one first")
+        if self.state == State.TAKEOFF or self.takeoff_pending:
+            self.start_requested = True
+            outcome.settle(True, "mission starts when takeoff completes")
+            return True, "mission starts when takeoff completes"
+        if self.outage and self.state == State.HOLDING:
+            return self._refuse(outcome, f"{self.outage}: holding until fresh vehicle state is back")
+        self.goto_target = None
+        self.resume_outcome = outcome
+        fired = self.fire(E.START_CMD, "mission started" if self.wp_index <= 0 else
+                          f"mission resumed at waypoint {self.wp_index + 1}/{len(self.mission.waypoints)}")
+        self.resume_outcome = None
+        if not fired:
+            return self._refuse(outcome, f"START not possible in {self.state.value}; TAKEOFF first")
+        return outcome.result or (True, self.message)
+
+    def set_current(self, index: int, outcome: Outcome | None = None) -> tuple[bool, str]:
         """Waypoint `index` is the one flown to next (a ground station's MISSION_SET_CURRENT, as
         PX4 jumps): at once while EXECUTING the mission, else where START (or a goto's end) goes on."""
+        outcome = outcome or Outcome()
         if self.mission is None:
-            return self._refuse(done, "no mission loaded; LOAD one first")
+            return self._refuse(outcome, "no mission loaded; LOAD one first")
         n = len(self.mission.waypoints)
         if not 0 <= index < n:
-            return self._refuse(done, f"waypoint index {index} out of range: the mission has {n} (0..{n - 1})")
+            return self._refuse(outcome, f"waypoint index {index} out of range: the mission has {n} (0..{n - 1})")
         if self.state == State.LAND:
-            return self._refuse(done, "not while landing; HOLD first")
+            return self._refuse(outcome, "not while landing; HOLD first")
         self.wp_index = index
         if self.state == State.EXECUTING and self.goto_target is None:
             self.message = f"jumped to waypoint {index + 1}/{n}"
@@ -520,50 +595,40 @@ class MissionManager:
             self.message = f"waypoint {index + 1}/{n} is next (START flies there)"
         self.log("set_current", index=index, state=self.state.value)
         self._persist()
-        done(True, self.message)
+        outcome.settle(True, self.message)
         return True, self.message
 
-    def _refuse(self, done, message: str) -> tuple[bool, str]:
-        done(False, message)
+    @staticmethod
+    def _refuse(outcome: Outcome, message: str) -> tuple[bool, str]:
+        outcome.settle(False, message)
         return False, message
 
-    def takeoff(self, altitude_m: float | None, done: Callable[[bool, str], None],
+    def takeoff(self, altitude_m: float | None, outcome: Outcome | None = None,
                 climb_rate_mps: float = 0.0) -> tuple[bool, str]:
         """Arm if needed, then TAKEOFF (climbing at most at `climb_rate_mps`, 0: the planner's
-        speed). `done` reports the arm/offboard outcome."""
+        speed). `outcome` is settled by the arming's answer."""
+        outcome = outcome or Outcome()
         if self.restoring():
-            return self._refuse(done, "restarting: waiting for vehicle state; retry")
+            return self._refuse(outcome, "restarting: waiting for vehicle state; retry")
         if not (math.isfinite(climb_rate_mps) and climb_rate_mps >= 0):
-            return self._refuse(done, f"field `climb_rate_mps` must be >= 0 (0 = default), got {climb_rate_mps!r}")
+            return self._refuse(outcome, f"field `climb_rate_mps` must be >= 0 (0 = default), got {climb_rate_mps!r}")
         if self.state != State.IDLE:
-            return self._refuse(done, f"TAKEOFF only from IDLE (now {self.state.value})")
+            return self._refuse(outcome, f"TAKEOFF only from IDLE (now {self.state.value})")
         if self.vehicle is None or not self.vehicle.connected:
-            return self._refuse(done, "no vehicle state (is fmu connected to the flight controller?)")
+            return self._refuse(outcome, "no vehicle state (is fmu connected to the flight controller?)")
         if altitude_m is not None:
             pos = self._position()
             why = self.limits.check_takeoff(altitude_m, pos[0], pos[1])
             if why:
-                return self._refuse(done, f"takeoff refused: {why}")
+                return self._refuse(outcome, f"takeoff refused: {why}")
         self.takeoff_altitude_m = altitude_m
         self.climb_rate_mps = climb_rate_mps
         self.takeoff_pending = True
-
-        def armed(ok: bool, message: str) -> None:
-            self.takeoff_pending = False
-            if not ok:
-                self.start_requested = False
-                done(False, f"arming failed: {message}")
-                self.message = f"arming failed: {message}"
-                return
-            if self.fire(E.TAKEOFF_CMD, "taking off"):
-                done(True, "taking off")
-            else:
-                done(False, f"takeoff not possible in {self.state.value}")
-
+        req = FcRequest("arm", outcome, "takeoff")
         if self.vehicle.armed:
-            armed(True, "already armed")
+            self._on_fc_answer(req, True, "already armed")
         else:
-            self.bridge.arm(True, armed)
+            self._ask_fc(req)
         return True, "taking off"
 
     def goto(self, position_m: np.ndarray, yaw_rad: float | None,
@@ -649,7 +714,7 @@ class MissionManager:
             elif (on_ground and not self.disarm_sent
                   and now_s - self.on_ground_since_s > self.cfg.disarm_after_landing_s):
                 self.disarm_sent = True
-                self.bridge.arm(False, lambda ok, m: None)
+                self._ask_fc(FcRequest("disarm"))
 
     def _watch_fc_mode(self, st: VehicleState) -> None:
         """The FC left the mode we asked for without being asked: never fight it."""
@@ -724,7 +789,7 @@ class MissionManager:
         prev, self.safety_action = self.safety_action, action
         if action <= prev:
             return
-        name = SAFETY_ACTION_NAMES.get(action, str(action))
+        name = ACTION_NAMES.get(action, str(action))
         text = f"safety: {name}" + (f" ({reason})" if reason else "")
         self.log("safety_recommendation", action=name, reason=reason, state=self.state.value)
         if action == SafetyStatus.ACTION_EMERGENCY_STOP:

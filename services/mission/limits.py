@@ -16,13 +16,19 @@ from aeroperception.schemas import Mission, OccupancyGrid
 from aeroperception.services.planner.avoidance import BLOCKED
 from aeroperception.services.safety.geofence import Geofence
 
+from . import contract
+
+_DEFAULT = {p.name: p.default for p in contract.PARAMS}
+
 
 @dataclass(frozen=True)
 class Limits:
+    """The mission parameters of the same names (defaults declared once, in contract.PARAMS)."""
+
     geofence: Geofence = field(default_factory=Geofence)
-    max_takeoff_altitude_m: float = 120.0
-    min_acceptance_radius_m: float = 0.1
-    max_acceptance_radius_m: float = 10.0
+    max_takeoff_altitude_m: float = _DEFAULT["max_takeoff_altitude_m"]
+    min_acceptance_radius_m: float = _DEFAULT["min_acceptance_radius_m"]
+    max_acceptance_radius_m: float = _DEFAULT["max_acceptance_radius_m"]
 
     @classmethod
     def from_params(cls, params: Mapping[str, Any]) -> "Limits":

@@ -2,30 +2,25 @@
 from __future__ import annotations
 
 import math
-import threading
 import time
-from dataclasses import fields
 
 import numpy as np
 
 from aeroperception.schemas import (
-    ArmReply, ArmRequest, DiagnosticStatus, GcsLink, Empty, GetMissionReply, GoToPositionFeedback,
-    GoToPositionGoal, GoToPositionResult, LandFeedback, LandGoal, LandResult, LoadMissionReply,
-    LoadMissionRequest, MissionCommand, MissionGoal, OccupancyGrid, PerceptionHealth, Pose, Quaternion, Reply,
-    SafetyStatus, SchemaError, SetModeReply, SetModeRequest, TakeoffFeedback, TakeoffGoal, TakeoffResult,
-    TrajectoryStatus,
-    VehicleState, Vector3, WaypointReached, load_mission_file, parse_mission,
+    ArmReply, ArmRequest, DiagnosticStatus, Empty, GcsLink, GetMissionReply, GoToPositionGoal, GoToPositionResult,
+    LandGoal, LandResult, LoadMissionReply, LoadMissionRequest, MissionCommand, MissionGoal, OccupancyGrid,
+    PerceptionHealth, Pose, Quaternion, Reply, SafetyStatus, SchemaError, SetModeReply, SetModeRequest, TakeoffGoal,
+    TakeoffResult, TrajectoryStatus, VehicleState, Vector3, WaypointReached, load_mission_file, parse_mission,
 )
 from aeroperception.services.runtime import ActionServer, CallError, GoalHandle, Health, ParamError, Service, run
 
 from aeroperception.services.safety.geofence import GeofenceError
 
 from . import contract
-from .fsm import Config, GoalOut, MissionManager, State
+from .actions import MOVING, ActionRun
+from .fsm import Config, GoalOut, MissionManager, Outcome
 from .limits import Limits, waypoints_in_obstacles
 from .store import MissionStore, default_state_dir
-
-HOLD_FRAME = "hold"
 
 
 class ZenohBridge:
@@ -34,19 +29,19 @@ class ZenohBridge:
     def __init__(self, svc: "MissionService"):
         self.svc = svc
 
-    def _call(self, key, req, reply_cls, done) -> None:
+    def _call(self, key, req, reply_cls, answer) -> None:
         def cb(res) -> None:
             if isinstance(res, CallError):
-                done(False, str(res))
+                answer(False, str(res))
             else:
-                done(res.success, res.message)
+                answer(res.success, res.message)
         self.svc.node.call_async(key, req, reply_cls, cb, timeout_s=self.svc.params.bridge_timeout_s)
 
-    def arm(self, arm, done) -> None:
-        self._call("fmu/srv/arm", ArmRequest(arm=arm), ArmReply, done)
+    def arm(self, arm, answer) -> None:
+        self._call("fmu/srv/arm", ArmRequest(arm=arm), ArmReply, answer)
 
-    def set_mode(self, mode, done) -> None:
-        self._call("fmu/srv/set_mode", SetModeRequest(mode=mode), SetModeReply, done)
+    def set_mode(self, mode, answer) -> None:
+        self._call("fmu/srv/set_mode", SetModeRequest(mode=mode), SetModeReply, answer)
 
 
 class MissionService(Service):
@@ -57,7 +52,7 @@ class MissionService(Service):
 
     def start(self) -> None:
         p = self.params
-        cfg = Config(**{f.name: p[f.name] for f in fields(Config)})  # every FSM setting is a parameter
+        cfg = Config.from_params(p)
         self.mgr = MissionManager(ZenohBridge(self), self._publish_goal, cfg, log=self.log.info,
                                   limits=Limits.from_params(p))
         self.params.on_change(self._on_param)
@@ -109,7 +104,7 @@ class MissionService(Service):
         node.serve("mission/srv/command", MissionCommand, Reply, self._srv_command, locked=False)
         node.serve("mission/srv/load", LoadMissionRequest, LoadMissionReply, self._on_load)
         node.serve("mission/srv/get", Empty, GetMissionReply, self._on_get)
-        self.actions: list[tuple[str, GoalHandle]] = []
+        self.actions: list[tuple[ActionRun, GoalHandle]] = []
         self.servers = {
             "takeoff": ActionServer(node, "mission/action/takeoff", TakeoffGoal, TakeoffResult,
                                     self._takeoff_goal, self._cancel_to_hold),
@@ -181,18 +176,12 @@ class MissionService(Service):
         if msg.command == MissionCommand.LOAD:
             with self.node.lock:
                 return self._on_command(msg)
-        outcome: list[tuple[bool, str]] = []
-        answered = threading.Event()
-
-        def on_result(ok: bool, message: str) -> None:
-            outcome.append((ok, message))
-            answered.set()
-
+        outcome = Outcome()
         with self.node.lock:
-            ok, message = self.mgr.command(msg.command, on_result, msg.waypoint_index)
+            ok, message = self.mgr.command(msg.command, outcome, msg.waypoint_index)
             self.log.info("command", command=msg.command, accepted=ok, message=message)
-        if ok and answered.wait(self.params.bridge_timeout_s + 1.0):
-            ok, message = outcome[0]
+        if ok and outcome.wait(self.params.bridge_timeout_s + 1.0):
+            ok, message = outcome.result
         return Reply(success=ok, message=message)
 
     def _on_load(self, req: LoadMissionRequest) -> LoadMissionReply:
@@ -221,7 +210,7 @@ class MissionService(Service):
 
     def _publish_goal(self, goal: GoalOut) -> None:
         if goal.position_m is None:
-            msg = MissionGoal(header=self.node.header(HOLD_FRAME))
+            msg = MissionGoal(header=self.node.header(MissionGoal.HOLD_FRAME))
         else:
             yaw = goal.yaw_rad if goal.yaw_rad is not None else (self.mgr.vehicle.yaw_rad if self.mgr.vehicle else 0.0)
             msg = MissionGoal(header=self.node.header("map"),
@@ -248,79 +237,48 @@ class MissionService(Service):
 
     # ------------------------------------------------------------ actions
 
-    def _altitude(self) -> float:
-        return self.mgr.vehicle.position_m.z if self.mgr.vehicle else 0.0
-
     def _takeoff_goal(self, h: GoalHandle) -> str | None:
-        def done(ok: bool, message: str) -> None:
-            if not ok and h.active:
-                h.abort(TakeoffResult(success=False, message=message, final_altitude_m=self._altitude()))
-        ok, message = self.mgr.takeoff(h.goal.target_altitude_m, done, h.goal.climb_rate_mps)
-        if not ok:
-            return message
-        self.actions.append(("takeoff", h))
-        return None
+        outcome = Outcome()
+        ok, message = self.mgr.takeoff(h.goal.target_altitude_m, outcome, h.goal.climb_rate_mps)
+        return self._accepted(h, ActionRun("takeoff", h.goal, outcome), ok, message)
 
     def _land_goal(self, h: GoalHandle) -> str | None:
         g: LandGoal = h.goal
         target = None if g.land_at_current_position else g.target_position_m.to_array()
         ok, message = self.mgr.land(target, g.descent_rate_mps)
-        if not ok:
-            return message
-        self.actions.append(("land", h))
-        return None
+        return self._accepted(h, ActionRun("land", g), ok, message)
 
     def _goto_goal(self, h: GoalHandle) -> str | None:
         g: GoToPositionGoal = h.goal
         yaw = g.yaw_rad if g.yaw_rad is not None and math.isfinite(g.yaw_rad) else None
         ok, message = self.mgr.goto(g.position_m.to_array(), yaw, g.acceptance_radius_m, g.velocity_mps)
+        return self._accepted(h, ActionRun("goto", g), ok, message)
+
+    def _accepted(self, h: GoalHandle, run: ActionRun, ok: bool, message: str) -> str | None:
+        """None (accepted: `run` is stepped from now on) or why the goal is refused."""
         if not ok:
             return message
-        self.actions.append(("goto", h))
+        self.actions.append((run, h))
         return None
 
     def _cancel_to_hold(self, h: GoalHandle) -> bool:
-        return self.mgr.state in (State.TAKEOFF, State.EXECUTING, State.LAND)
+        return self.mgr.state in MOVING
 
     def _update_actions(self) -> None:
-        s = self.mgr.state
-        pos = self.mgr.vehicle.position_m if self.mgr.vehicle else Vector3()
-        for kind, h in list(self.actions):
-            if not h.active:
-                self.actions.remove((kind, h))
-                continue
-            if h.cancel_requested:
-                if s in (State.TAKEOFF, State.EXECUTING, State.LAND):
-                    self.mgr.command("HOLD")
-                cls = {"takeoff": TakeoffResult, "land": LandResult, "goto": GoToPositionResult}[kind]
-                h.canceled(cls(success=False, message=f"cancelled; now {self.mgr.state.value}"))
-                continue
-            if kind == "takeoff":
-                target = h.goal.target_altitude_m
-                if s == State.TAKEOFF:
-                    h.feedback(TakeoffFeedback(current_altitude_m=pos.z,
-                                               progress_percent=max(0.0, min(100.0, 100 * pos.z / target))))
-                elif s in (State.HOLDING, State.EXECUTING) and abs(pos.z - target) < 1.0:
-                    h.succeed(TakeoffResult(success=True, message="altitude reached", final_altitude_m=pos.z))
-                elif s in (State.IDLE, State.LAND) and not self.mgr.takeoff_pending:  # not while arming
-                    h.abort(TakeoffResult(success=False, message=self.mgr.message, final_altitude_m=pos.z))
-            elif kind == "land":
-                if s == State.LAND:
-                    h.feedback(LandFeedback(altitude_agl_m=pos.z))
-                elif s == State.IDLE:
-                    h.succeed(LandResult(success=True, message="landed", final_position_m=pos))
-                else:
-                    h.abort(LandResult(success=False, message=self.mgr.message, final_position_m=pos))
-            elif kind == "goto":
-                if s == State.EXECUTING and self.mgr.goto_target is not None:
-                    d = self.mgr.distance_to_goal_m() or 0.0
-                    h.feedback(GoToPositionFeedback(distance_remaining_m=d,
-                                                    eta_s=d / max(0.1, float(np.linalg.norm(
-                                                        self.mgr.vehicle.velocity_mps.to_array())))))
-                elif s == State.HOLDING and self.mgr.goto_target is None:
-                    h.succeed(GoToPositionResult(success=True, message="reached", final_position_m=pos))
-                else:
-                    h.abort(GoToPositionResult(success=False, message=self.mgr.message, final_position_m=pos))
+        """Forward each running action's step (actions.py decides) to its goal handle."""
+        for run, h in list(self.actions):
+            step = None if not h.active else run.cancel(self.mgr) if h.cancel_requested else run.step(self.mgr)
+            if step is None:
+                if not h.active:
+                    self.actions.remove((run, h))
+            elif step.result is None:
+                h.feedback(step.feedback)
+            elif h.cancel_requested:
+                h.canceled(step.result)
+            elif step.succeeded:
+                h.succeed(step.result)
+            else:
+                h.abort(step.result)
 
     def health(self) -> Health:
         v = self.mgr.vehicle

@@ -1,7 +1,6 @@
 """Process shell: state + goal from Zenoh, 50 Hz setpoints out."""
 from __future__ import annotations
 
-import math
 import time
 
 from aeroperception.schemas import (
@@ -13,13 +12,6 @@ from aeroperception.services.runtime import Health, LatestWorker, Service, run
 from . import contract
 from .avoidance import AvoidanceConfig, LocalPlanner
 from .logic import Goal, GoalWatchdog, WaypointPlanner, tracking_errors
-
-
-def avoidance_config(p) -> AvoidanceConfig:
-    return AvoidanceConfig(clearance_m=p.avoid_clearance_m, goal_clearance_m=p.avoid_goal_clearance_m,
-                           lookahead_m=p.avoid_lookahead_m,
-                           slow_distance_m=p.avoid_slow_distance_m,
-                           stop_distance_m=p.avoid_stop_distance_m, costmap_timeout_s=p.costmap_timeout_s)
 
 
 class PlannerService(Service):
@@ -48,7 +40,7 @@ class PlannerService(Service):
         self.node.subscribe("state/vehicle", VehicleState, self._on_state)
         self.node.subscribe("mission/active_goal", MissionGoal, self._on_goal, strict=True)
         # Obstacles: plans run on their own thread (10-30 ms), the setpoint path only steers.
-        self.avoid = LocalPlanner(avoidance_config(p))
+        self.avoid = LocalPlanner(AvoidanceConfig.from_params(p))
         self.obstacle_state, self.obstacle_reason = ("off", "") if not p.obstacle_avoidance else ("no_costmap", "")
         self.replanner = LatestWorker(lambda pg: self.avoid.replan(*pg), "planner-replan",
                                       on_error=lambda e: self.log.throttled("error", "replan", "replan_failed",
@@ -76,7 +68,7 @@ class PlannerService(Service):
 
     def _on_param(self, name, value) -> None:
         if name.startswith("avoid_") or name == "costmap_timeout_s":
-            self.avoid.cfg = avoidance_config(self.params)
+            self.avoid.cfg = AvoidanceConfig.from_params(self.params)
         elif name == "obstacle_avoidance":
             self.obstacle_state, self.obstacle_reason = ("no_costmap", "") if value else ("off", "")
         if name == "goal_timeout_s":
@@ -110,11 +102,10 @@ class PlannerService(Service):
         if msg == self.goal_msg:
             return  # mission re-publishes its latest goal at 2 Hz for late joiners: already applied
         self.goal_msg = msg
-        if msg.header.frame_id == contract.HOLD_FRAME:
+        if msg.header.frame_id == MissionGoal.HOLD_FRAME:
             self.planner.set_goal(None)
             return
-        q = msg.pose.orientation
-        yaw = math.atan2(2 * (q.w * q.z + q.x * q.y), 1 - 2 * (q.y * q.y + q.z * q.z))
+        yaw = msg.pose.orientation.to_yaw()
         self.goals_received += 1
         self.planner.set_goal(Goal(msg.pose.position.to_array(), yaw, self.goals_received,
                                    msg.max_speed_mps, msg.max_vertical_speed_mps))

@@ -12,6 +12,8 @@ import math
 
 import numpy as np
 
+from aeroperception.schemas.geometry import euler_from_wxyz
+
 __all__ = [
     "quat_multiply", "quat_conjugate", "quat_normalize", "quat_rotate", "quat_to_rotmat",
     "quat_from_rotmat", "quat_from_euler", "quat_to_euler", "quat_from_axis_angle", "quat_to_rotvec",
@@ -148,16 +150,8 @@ def quat_to_euler(q) -> np.ndarray:
     """[..., 3] (roll, pitch, yaw) radians, intrinsic Z-Y-X; inverse of quat_from_euler."""
     a = quat_normalize(q)
     if a.ndim == 1:
-        w, x, y, z = a.tolist()
-        return np.array((math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y)),
-                         math.asin(min(max(2 * (w * y - z * x), -1.0), 1.0)),
-                         math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))))
-    w, x, y, z = _components(a)
-    return _assemble((
-        np.arctan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y)),
-        np.arcsin(np.clip(2 * (w * y - z * x), -1.0, 1.0)),
-        np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z)),
-    ), a.shape[:-1])
+        return np.array(euler_from_wxyz(*a.tolist()))
+    return _assemble(euler_from_wxyz(*_components(a)), a.shape[:-1])
 
 
 def quat_from_axis_angle(rotvec) -> np.ndarray:

@@ -30,11 +30,16 @@ class GeofenceError(ValueError):
     """A geofence setting that does not parse (e.g. a polygon with fewer than 3 vertices)."""
 
 
+_DEFAULT = {p.name: p.default for p in GEOFENCE_PARAMS}
+
+
 @dataclass(frozen=True)
 class Geofence:
-    radius_m: float = 500.0
-    max_altitude_m: float = 120.0
-    min_altitude_m: float = 0.5
+    """The GEOFENCE_PARAMS of the same names (defaults declared once, above)."""
+
+    radius_m: float = _DEFAULT["geofence_radius_m"]
+    max_altitude_m: float = _DEFAULT["geofence_max_altitude_m"]
+    min_altitude_m: float = _DEFAULT["geofence_min_altitude_m"]
     polygon: tuple[tuple[float, float], ...] = ()
 
     @classmethod

@@ -17,7 +17,7 @@ from aeroperception.schemas import (
     REGISTRY, ArmRequest, CancelRequest, GoToPositionGoal, Message, MissionCommand, ResultRequest,
     SetTrajectoryGoal, TakeoffGoal, Trajectory, Vector3, encode,
 )
-from aeroperception.schemas.planning import Mission, Waypoint
+from aeroperception.schemas.mission import Mission, Waypoint
 
 scalars = st.one_of(
     st.none(), st.booleans(),

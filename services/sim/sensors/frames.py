@@ -40,11 +40,6 @@ def rpy_to_rot(roll_rad: float, pitch_rad: float, yaw_rad: float) -> np.ndarray:
     return rot_z(yaw_rad) @ rot_y(pitch_rad) @ rot_x(roll_rad)
 
 
-def yaw_quat(yaw_rad: float) -> np.ndarray:
-    """(w, x, y, z) for a pure ENU yaw (0 = facing East, counter-clockwise positive)."""
-    return np.array([np.cos(yaw_rad / 2), 0.0, 0.0, np.sin(yaw_rad / 2)])
-
-
 def pose_of(truth_or_pose) -> tuple[np.ndarray, np.ndarray]:
     """(position_enu_m, R_enu_flu) from a VehicleTruth or a (position, q_wxyz) pair, so the
     renderers accept either without depending on the dynamics code."""
