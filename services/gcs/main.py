@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import os
 import time
-from typing import Callable
+from typing import Any, Callable
 
 from pymavlink.dialects.v20 import common as M
 
@@ -44,7 +44,7 @@ from .presence import GroundStationFilter, ListeningClock, Presence
 from .safety_relay import SafetyRelay
 from .telemetry import Scheduler, TelemetryState
 
-Handler = Callable[..., None]   # handler(msg, now_s)
+Handler = Callable[[Any, float], None]   # handler(msg, now_s)
 
 
 class GcsService(Service):
@@ -89,6 +89,8 @@ class GcsService(Service):
             if v is not None:
                 p.set(name, v)
         node = self.node
+        self.notices = 0                      # STATUSTEXTs sent (chunk ids)
+        self.ignored: dict[str, int] = {}     # MAVLink inputs dropped, by kind (diagnostics)
         # Until fmu reports the flight controller's home, the parameters' (home = local origin).
         self.home = Home(p.home_lat_deg, p.home_lon_deg, p.home_alt_m)
         key, key_source = self._signing_key()
@@ -136,8 +138,6 @@ class GcsService(Service):
             "FILE_TRANSFER_PROTOCOL": self._on_ftp,
             "TIMESYNC": self._on_timesync,
         }
-        self.notices = 0                      # STATUSTEXTs sent (chunk ids)
-        self.ignored: dict[str, int] = {}
         self.pub_link = node.publisher("gcs/link", GcsLink)
         self.pub_joy = node.publisher("gcs/joystick", Joystick)
         node.subscribe("state/vehicle", VehicleState, lambda m: setattr(self.tel, "vehicle", m))
