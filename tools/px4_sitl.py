@@ -67,6 +67,10 @@ class Ports:
         return 14580 + self.instance
 
     @property
+    def sih_display(self) -> int:   # SIH's display link sends its ground truth here (a test may listen)
+        return 19410 + self.instance
+
+    @property
     def bound_by_px4(self) -> tuple[int, ...]:
         """GCS link 18570+N, onboard 14580+N, payload 14280+N, gimbal 13030+N, SIH display 19450+N."""
         n = self.instance
@@ -137,8 +141,10 @@ def instance_free(instance: int) -> bool:
 
 
 def free_instance(start: int = 0) -> int | None:
-    """The first instance from `start` whose lock and ports are free (None: all of 0..9 taken)."""
-    return next((n for n in range(start, MAX_INSTANCE + 1) if instance_free(n)), None)
+    """The first instance from `start` whose lock and ports are free, nobody listening to its SIH
+    display link either (a test about to start it: None when all of 0..9 are taken)."""
+    return next((n for n in range(start, MAX_INSTANCE + 1)
+                 if instance_free(n) and _udp_free("127.0.0.1", Ports(n).sih_display)), None)
 
 
 def check_instance(instance: int) -> None:
