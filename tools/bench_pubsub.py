@@ -2,7 +2,8 @@
 with `--peers`, against zenoh peer-to-peer, dora-rs and Cyclone DDS, in one run on one machine.
 
 Ping (this process, or dora's ping node) stamps and sends, pong (a child process) echoes, one-way
-= RTT / 2; 20 warm-up round trips are not counted. Same two payloads everywhere: a VehicleState
+= RTT / 2; 20 warm-up round trips are not counted. The paths run in `repeats` interleaved rounds
+(each a fresh pong), so a machine whose load changes (a shared one) skews no path alone. Same two payloads everywhere: a VehicleState
 (~500 B msgpack) and a 640x480 rgb8 Image (~921 KB), as the same encoded bytes on every transport.
 
 - zenoh via router: client -> router -> client, the deployed topology (the router in this process).
@@ -268,7 +269,7 @@ def peers_available() -> dict[str, str]:
     return {"dora-rs": dora, "Cyclone DDS": dds}
 
 
-def run(n: int = 1000, port: int = 17480, peers: bool = False) -> int:
+def run(n: int = 1000, port: int = 17480, peers: bool = False, repeats: int = 3) -> int:
     from .harness import free_port
 
     endpoint = f"tcp/127.0.0.1:{port}"
@@ -280,7 +281,7 @@ def run(n: int = 1000, port: int = 17480, peers: bool = False) -> int:
     rows = []
     router = zenoh.open(conf)
     try:
-        for kind, count in (("state", n), ("image", max(100, n // 5))):
+        for kind, count in (("state", max(1, n // repeats)), ("image", max(30, n // 5 // repeats))):
             peer_ep = lambda: f"tcp/127.0.0.1:{free_port()}"  # noqa: E731
             paths: list[tuple[str, Callable[[], np.ndarray]]] = [
                 ("zenoh via router", lambda: measure(endpoint, "raw", kind, count)),
@@ -294,17 +295,27 @@ def run(n: int = 1000, port: int = 17480, peers: bool = False) -> int:
                 if not missing["Cyclone DDS"]:
                     paths.append(("Cyclone DDS", lambda: measure_dds(kind, count)))
             size = len(encode(make_payload(kind)))
+            # Rounds interleave the paths, so a change of the machine's load hits them all alike.
+            got: dict[str, list[np.ndarray]] = {label: [] for label, _ in paths}
+            errors: dict[str, str] = {}
+            for _ in range(repeats):
+                for label, fn in paths:
+                    if label in errors:
+                        continue
+                    try:
+                        got[label].append(fn())
+                    except (RuntimeError, subprocess.TimeoutExpired) as e:
+                        errors[label] = str(e)[:60]
             base = None
-            for label, fn in paths:
-                try:
-                    arr = fn()
-                except (RuntimeError, subprocess.TimeoutExpired) as e:
-                    rows.append((kind, size, label, 0, float("nan"), float("nan"), float("nan"), str(e)[:60]))
+            for label, _ in paths:
+                arr = np.concatenate(got[label]) if got[label] else np.array([])
+                if not len(arr):
+                    rows.append((kind, size, label, 0, float("nan"), float("nan"), float("nan"),
+                                 errors.get(label, "no round trip came back")))
                     continue
-                if base is None:
-                    base = np.median(arr)
+                base = base if base is not None else np.median(arr)
                 rows.append((kind, size, label, len(arr), np.median(arr), np.percentile(arr, 99),
-                             np.median(arr) / base, ""))
+                             np.median(arr) / base, errors.get(label, "")))
     finally:
         router.close()
     load1 = os.getloadavg()

@@ -16,8 +16,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--peers", action="store_true",
                    help="also zenoh peer-to-peer (raw and typed), dora-rs and Cyclone DDS (those installed: "
                         "pip install 'aeroperception[bench]')")
+    p.add_argument("--repeat", type=int, default=3, help="interleaved rounds of every path (n split among them)")
     p.set_defaults(func=lambda a: importlib.import_module("aeroperception.tools.bench_pubsub").run(
-        a.n, a.port, a.peers))
+        a.n, a.port, a.peers, max(1, a.repeat)))
     p = bsub.add_parser("sim", help="sensor render times and achieved rates")
     p.add_argument("-n", type=int, default=50, help="frames per sensor")
     p.add_argument("--scenario", default="village")
