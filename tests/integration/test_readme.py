@@ -62,6 +62,10 @@ HOW: dict[str, tuple] = {
         SKIP, ["aero", "up", "--help"], "test_px4 runs PX4 as a free instance >= 1; test_px4_sitl the checks"),
     "aero up --profile px4 --px4 DIR --dry-run": (
         SKIP, ["aero", "up", "--help"], "test_px4_sitl checks PX4's environment and command line"),
+    "aero up --profile px4 --px4 DIR --scenario village": (
+        SKIP, ["aero", "up", "--help"], "needs a PX4 build: test_px4_sensors runs this profile on the bundle, village"),
+    "aero up --profile px4 --px4 DIR --scenario village --sensors lidar": (
+        SKIP, ["aero", "up", "--help"], "test_px4_sitl: --sensors narrows the px4 profile as the sim profile"),
     "DIR/bin/px4-commander --instance 0 mode auto:loiter": (
         SKIP, None, "test_px4 switches its PX4 to HOLD this way mid-mission"),
     "aero up --profile vehicle": (DRY, None, "--param publish_imu=true"),

@@ -97,6 +97,10 @@ def test_px4_profile_points_fmu_at_its_instance_and_refuses_what_it_would_ignore
         cmd_up.plan_px4(up_args(profile="px4", px4=build, fcu_url="udpin:127.0.0.1:14540"), names)
     # the simulator renders the sensors following PX4's physics: its own clock and noise do not apply
     assert "--follow" in cmd_up.service_argv("sim", args, "tcp/127.0.0.1:7447", cmd_up.load_profiles()["px4"]["args"]["sim"])
+    kept, left_out = cmd_up.fed_services(names, "lidar")       # --sensors narrows it as the sim profile
+    assert {"sim", "lidar", "px4"} <= set(kept) and {"vio", "detector", "objects"} <= set(left_out)
+    assert cmd_up.service_argv("sim", up_args(profile="px4", px4=build, sensors="lidar"), "tcp/127.0.0.1:7447")[-2:] == \
+        ["--sensors", "lidar"]
     for flag, value in (("speed", 2.0), ("seed", 7)):
         with pytest.raises(CliError, match=rf"--{flag}: PX4 SITL flies the vehicle in real time"):
             cmd_up.validate_args(up_args(profile="px4", px4=build, **{flag: value}), names)
