@@ -1,8 +1,8 @@
 """Contract of the mission service: keys in/out and parameters."""
 from aeroperception.schemas import (
-    ArmReply, ArmRequest, Empty, GcsLink, GetMissionReply, LoadMissionReply, LoadMissionRequest, MissionCommand,
-    MissionGoal, MissionStatus, OccupancyGrid, PerceptionHealth, Reply, SafetyStatus, SetModeReply, SetModeRequest,
-    TrajectoryStatus, VehicleState, WaypointReached,
+    ArmReply, ArmRequest, Empty, GcsLink, GetMissionReply, LoadMissionReply, LoadMissionRequest,
+    MissionCommand, MissionGoal, MissionStatus, OccupancyGrid, PerceptionHealth, Reply, SafetyStatus,
+    SetModeReply, SetModeRequest, Trajectory, TrajectoryStatus, VehicleState, WaypointReached,
 )
 from aeroperception.services.runtime import Param, Queries, Query, Topic, Topics
 from aeroperception.services.safety.geofence import GEOFENCE_PARAMS
@@ -22,6 +22,8 @@ LIVELINESS = ("fmu", "planner")
 OUTPUTS = Topics(
     Topic("mission/status", MissionStatus, 2.0, note="FSM state, current waypoint, distance to goal (status_rate_hz)"),
     Topic("mission/active_goal", MissionGoal, 2.0, note='also at once on a change; frame_id "hold" = hold position'),
+    Topic("mission/active_trajectory", Trajectory, 2.0,
+          note="also at once with each goal: the waypoints ahead for the planner's generator; empty = none"),
     Topic("mission/waypoint_reached", WaypointReached, note="event: a mission waypoint reached"),
 )
 SERVICES = Queries(
@@ -54,6 +56,10 @@ PARAMS = [
                       "in flight) and when set live; '' = none (aero up --mission FILE sets it)"),
     Param("blocked_timeout_s", 5.0, "s", 0.5, 600.0,
           description="planner/status says the goal is blocked/unreachable this long -> blocked_action"),
+    Param("trajectory_generator", "waypoint", choices=("waypoint", "smooth"),
+          description="how the waypoints are flown: waypoint = goal by goal, stopping at each (the planner's "
+                      "P-controller); smooth = one jerk-limited trajectory through them (a mission file's "
+                      "trajectory section wins; applies from the next start)"),
     Param("blocked_action", "hold", choices=("hold", "skip", "rtl"),
           description="an unreachable goal: hold (HOLDING with the reason, wait for the operator), "
                       "skip (fly on to the next waypoint; a goto holds) or rtl"),

@@ -10,7 +10,7 @@ from aeroperception.schemas import (
     ArmReply, ArmRequest, DiagnosticStatus, Empty, GcsLink, GetMissionReply, GoToPositionGoal, GoToPositionResult,
     LandGoal, LandResult, LoadMissionReply, LoadMissionRequest, MissionCommand, MissionGoal, OccupancyGrid,
     PerceptionHealth, Pose, Quaternion, Reply, SafetyStatus, SchemaError, SetModeReply, SetModeRequest, TakeoffGoal,
-    TakeoffResult, TrajectoryStatus, VehicleState, Vector3, WaypointReached, load_mission_file, parse_mission,
+    TakeoffResult, Trajectory, TrajectoryStatus, VehicleState, Vector3, WaypointReached, load_mission_file, parse_mission,
 )
 from aeroperception.services.runtime import ActionServer, CallError, GoalHandle, Health, ParamError, Service, run
 
@@ -18,9 +18,10 @@ from aeroperception.services.safety.geofence import GeofenceError
 
 from . import contract
 from .actions import MOVING, ActionRun
-from .fsm import Config, GoalOut, MissionManager, Outcome
+from .fsm import Config, GoalOut, MissionManager, Outcome, State
 from .limits import Limits, waypoints_in_obstacles
 from .store import MissionStore, default_state_dir
+from .trajectory import TrajectoryHandover
 
 
 class ZenohBridge:
@@ -80,6 +81,8 @@ class MissionService(Service):
         self.pub_status = node.publisher("mission/status", contract.OUTPUTS["mission/status"])
         self.pub_goal = node.publisher("mission/active_goal", MissionGoal)
         self.pub_reached = node.publisher("mission/waypoint_reached", WaypointReached)
+        self.handover = TrajectoryHandover(p.trajectory_generator)
+        self.pub_trajectory = node.publisher("mission/active_trajectory", Trajectory)
         node.subscribe("state/vehicle", VehicleState, lambda m: self.mgr.on_vehicle(m, time.monotonic()))
         node.subscribe("perception/health", PerceptionHealth,
                        lambda m: self.mgr.on_perception(m.overall_healthy, time.monotonic()))
@@ -145,6 +148,8 @@ class MissionService(Service):
             self.file_error = ""
         if name == "status_rate_hz":
             self.status_loop.set_rate(value)
+        if name == "trajectory_generator":
+            self.handover.generator = value      # the next stretch of flying uses it
         if hasattr(self.mgr.cfg, name):
             setattr(self.mgr.cfg, name, value)
         self.mgr.limits = limits
@@ -219,6 +224,14 @@ class MissionService(Service):
                               max_speed_mps=goal.max_speed_mps, max_vertical_speed_mps=goal.max_vertical_speed_mps)
         self.last_goal = msg
         self.pub_goal.publish(msg)
+        self._publish_trajectory()
+
+    def _publish_trajectory(self) -> None:
+        """The waypoints ahead for the planner's generator (none while not flying them): with
+        each goal, and re-sent with the status for late joiners (the planner skips repeats)."""
+        mgr = self.mgr
+        flying = mgr.state == State.EXECUTING and mgr.goto_target is None
+        self.pub_trajectory.publish(self.handover.message(flying, mgr.mission, mgr.wp_index))
 
     def _on_reached(self, index: int, pos: np.ndarray) -> None:
         self.pub_reached.publish(WaypointReached(header=self.node.header("map"), index=index,
@@ -233,6 +246,7 @@ class MissionService(Service):
         self.pub_status.publish(st)
         if self.last_goal is not None:  # latch for late joiners (planner restart)
             self.pub_goal.publish(self.last_goal)
+            self._publish_trajectory()
         self._update_actions()
 
     # ------------------------------------------------------------ actions

@@ -234,6 +234,21 @@ class LocalPlanner:
         self._path, self._state = self._plan(p, g)
         self._path_goal = g
 
+    def path_blocked(self, points_xy: np.ndarray, now_s: float) -> bool:
+        """Whether a stretch of trajectory comes nearer an obstacle than the clearance (a cell of
+        slack, as for straight lines), or the costmap is stale (flying on would be flying blind).
+        No costmap ever: not blocked (a stack without LiDAR flies its trajectory)."""
+        view = self.view
+        if view is None or not len(points_xy):
+            return False
+        if now_s - view.stamp_s > self.cfg.costmap_timeout_s:
+            return True
+        pts = np.asarray(points_xy, float)
+        if view.blocked_at(pts[0], 1):         # inside a margin already: only going deeper counts
+            d = view.distance_along(pts)
+            return bool(np.any(d[1:] < d[0] - 1e-6))
+        return bool(view.blocked_along(pts, 1).any())
+
     # ------------------------------------------------------------ per setpoint (cheap)
 
     def adjust(self, position_m: np.ndarray, goal_m: np.ndarray, velocity_mps: np.ndarray,

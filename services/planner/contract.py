@@ -1,18 +1,19 @@
 """Contract of the planner: keys in/out (ENU) and parameters."""
 from aeroperception.schemas import (
-    MissionGoal, OccupancyGrid, TrajectorySetpoint, TrajectoryStatus, VehicleState, WaypointReached,
+    MissionGoal, OccupancyGrid, Trajectory, TrajectorySetpoint, TrajectoryStatus, VehicleState, WaypointReached,
 )
 from aeroperception.services.runtime import Param, Topic, Topics
 
 NAME = "planner"
 INPUTS = Topics(
     Topic("state/vehicle", VehicleState),
-    # The goal to fly to (with its own speed caps). header.frame_id == "hold" means: stop and hold where you are.
+    # The goal to fly to (with its own speed caps). header.frame_id MissionGoal.HOLD_FRAME: stop and hold where you are.
     Topic("mission/active_goal", MissionGoal),
     # The lidar service's rolling costmap: obstacle-aware velocity (planner/avoidance.py).
     Topic("perception/costmap", OccupancyGrid),
+    # The whole way to fly (smooth waypoints or a typed trajectory), flown while the goal is on it (planner/tracking.py).
+    Topic("mission/active_trajectory", Trajectory, note="on change + 2 Hz; empty = none"),
 )
-HOLD_FRAME = "hold"
 STATUS_RATE_HZ = 10.0
 OUTPUTS = Topics(
     Topic("fmu/in/trajectory_setpoint", TrajectorySetpoint, 50.0, note="always (rate_hz)"),
@@ -35,5 +36,16 @@ PARAMS = [
     Param("avoid_lookahead_m", 1.0, "m", 0.3, 10.0, description="farthest visible point along the planned way"),
     Param("avoid_slow_distance_m", 3.0, "m", 0.5, 20.0, description="slow down when the clearance zone ahead is nearer"),
     Param("avoid_stop_distance_m", 0.2, "m", 0.0, 5.0, description="zero speed this close to the clearance zone ahead"),
+    # trajectories (mission/active_trajectory): limits with PX4's names; max_velocity_mps is MPC_XY_VEL_MAX's part.
+    # A change applies to the next trajectory made (the one being flown keeps its timing).
+    Param("acc_hor_mps2", 3.0, "m/s^2", 0.2, 20.0, description="MPC_ACC_HOR: horizontal acceleration limit"),
+    Param("acc_up_mps2", 4.0, "m/s^2", 0.2, 20.0, description="MPC_ACC_UP_MAX: upward acceleration limit"),
+    Param("acc_down_mps2", 3.0, "m/s^2", 0.2, 20.0, description="MPC_ACC_DOWN_MAX: downward acceleration limit"),
+    Param("jerk_mps3", 4.0, "m/s^3", 0.2, 100.0, description="MPC_JERK_AUTO: jerk limit"),
+    Param("z_vel_max_up_mps", 3.0, "m/s", 0.1, 15.0, description="MPC_Z_VEL_MAX_UP: climb rate limit"),
+    Param("z_vel_max_dn_mps", 1.5, "m/s", 0.1, 15.0, description="MPC_Z_VEL_MAX_DN: descent rate limit"),
+    Param("yaw_rate_max_dps", 45.0, "deg/s", 1.0, 360.0, description="MPC_YAWRAUTO_MAX: heading rate limit"),
+    Param("trajectory_lag_m", 1.5, "m", 0.2, 20.0,
+          description="the reference slows while the vehicle is more than half this behind it, stops at this"),
     Param("costmap_timeout_s", 0.5, "s", 0.1, 5.0, description="an older costmap -> hold until fresh (stale_costmap); none ever -> straight lines"),
 ]

@@ -4,14 +4,16 @@ from __future__ import annotations
 import time
 
 from aeroperception.schemas import (
-    DiagnosticStatus, Header, MissionGoal, OccupancyGrid, TrajectorySetpoint, TrajectoryStatus, Vector3, VehicleState,
-    WaypointReached,
+    DiagnosticStatus, Header, MissionGoal, OccupancyGrid, Trajectory, TrajectorySetpoint, TrajectoryStatus, Vector3,
+    VehicleState, WaypointReached,
 )
 from aeroperception.services.runtime import Health, LatestWorker, Service, run
 
 from . import contract
 from .avoidance import AvoidanceConfig, LocalPlanner
 from .logic import Goal, GoalWatchdog, WaypointPlanner, tracking_errors
+from .tracking import TrackerConfig, TrajectoryTracker
+from .trajectory.generators import limits_from
 
 
 class PlannerService(Service):
@@ -46,6 +48,11 @@ class PlannerService(Service):
                                       on_error=lambda e: self.log.throttled("error", "replan", "replan_failed",
                                                                             error=f"{type(e).__name__}: {e}"))
         self.node.subscribe("perception/costmap", OccupancyGrid, self._on_costmap)
+        # Trajectories: the mission's whole way, flown while its goal is on it (tracking.py).
+        self.tracker = TrajectoryTracker(self._tracker_config())
+        self.trajectory_msg: Trajectory | None = None
+        self.tracking_error_m: float | None = None     # vehicle to the trajectory's reference, while flying one
+        self.node.subscribe("mission/active_trajectory", Trajectory, self._on_trajectory, strict=True)
         self.last_pub_s = 0.0
         self.loop = self.node.every(1.0 / p.rate_hz, self._tick, name="setpoint")
         self.node.every(1.0 / contract.STATUS_RATE_HZ, self._publish_status, name="status")
@@ -66,7 +73,24 @@ class PlannerService(Service):
         if self.avoid.needs_plan(pos, g.position_m):
             self.replanner.offer((pos, g.position_m.copy()))
 
+    def _tracker_config(self) -> TrackerConfig:
+        p = self.params
+        return TrackerConfig(limits_from(p), p.acceptance_radius_m, p.trajectory_lag_m)
+
+    def _on_trajectory(self, msg: Trajectory) -> None:
+        if msg == self.trajectory_msg:
+            return  # re-sent at 2 Hz for late joiners: already taken
+        self.trajectory_msg = msg
+        self.tracker.offer(msg)
+        self.log.info("trajectory", trajectory_id=msg.trajectory_id, generator=msg.generator_name,
+                      type=msg.trajectory_type, waypoints=len(msg.waypoints))
+
+    def _path_blocked(self, points_xy) -> bool:
+        return self.avoid.path_blocked(points_xy, time.monotonic())
+
     def _on_param(self, name, value) -> None:
+        if name in ("max_velocity_mps", "acceptance_radius_m", "trajectory_lag_m") or name.startswith(("acc_", "jerk_", "z_vel_", "yaw_rate_")):
+            self.tracker.cfg = self._tracker_config()   # the next trajectory made uses it
         if name.startswith("avoid_") or name == "costmap_timeout_s":
             self.avoid.cfg = AvoidanceConfig.from_params(self.params)
         elif name == "obstacle_avoidance":
@@ -118,7 +142,16 @@ class PlannerService(Service):
             return  # no state: send nothing; fmu holds on its own after 100 ms of silence
         st = self.state
         res = self.planner.step(st.position_m.to_array(), st.yaw_rad, time.monotonic())
-        if self.params.obstacle_avoidance and self.planner.goal is not None:
+        follow = None
+        if self.planner.goal is not None:
+            follow = self.tracker.step(st.position_m.to_array(), st.yaw_rad, time.monotonic(), self.planner.goal.position_m,
+                                       self._path_blocked if self.params.obstacle_avoidance else None)
+        self.tracking_error_m = follow.tracking_error_m if follow is not None else None
+        if follow is not None:
+            res.setpoint = follow.setpoint       # the trajectory is clear of obstacles ahead (checked in step)
+            if self.params.obstacle_avoidance:
+                self.obstacle_state, self.obstacle_reason = "clear", ""
+        elif self.params.obstacle_avoidance and self.planner.goal is not None:
             out = self.avoid.adjust(st.position_m.to_array(), self.planner.goal.position_m,
                                     res.setpoint.velocity_mps.to_array(), time.monotonic())
             res.setpoint.velocity_mps = Vector3.from_array(out.velocity_mps)
@@ -150,6 +183,9 @@ class PlannerService(Service):
         status = self.planner.status if fresh else TrajectoryStatus.STATUS_ERROR
         msg = TrajectoryStatus(header=self.node.header("map"), status=status, trajectory_id=f"goal-{self.goals_received}",
                                obstacle_state=self.obstacle_state, message=self.obstacle_reason)
+        why = self.tracker.refused or self.tracker.blocked
+        if why and not msg.message:
+            msg.message = why
         if fresh and self.last_setpoint is not None:
             position = self.state.position_m.to_array()
             p = self.planner.progress(position, time.monotonic())
@@ -157,6 +193,11 @@ class PlannerService(Service):
             msg.current_setpoint = self.last_setpoint
             msg.position_error_m, msg.velocity_error_mps = tracking_errors(self.last_setpoint, self.planner, position,
                                                                            self.state.velocity_mps.to_array())
+            along = self.tracker.progress(time.monotonic()) if self.tracking_error_m is not None else None
+            if along is not None:    # flying the trajectory: progress along it, error against its reference
+                msg.trajectory_id = self.tracker.trajectory_id
+                msg.progress_percent, msg.elapsed_time_s, msg.remaining_time_s = along
+                msg.position_error_m = self.tracking_error_m
         self.pub_status.publish(msg)
         self._maybe_replan()   # 10 Hz: the vehicle moved on since the last costmap
 
@@ -164,10 +205,14 @@ class PlannerService(Service):
         if not self.state_fresh():
             return Health(DiagnosticStatus.ERROR, "no fresh state/vehicle: not publishing setpoints")
         values = {"distance_m": self.last_distance if self.last_distance is not None else "n/a",
+                  "trajectory": self.tracker.trajectory_id if self.tracking_error_m is not None else "-",
+                  "trajectories_made": self.tracker.built,
                   "obstacles": self.obstacle_state, "replans": self.replanner.processed,
                   "stale_states_dropped": self.stale_states}
         if self.obstacle_state in ("blocked", "unreachable", "stale_costmap"):
             return Health(DiagnosticStatus.WARN, f"holding: {self.obstacle_reason}", values)
+        if self.tracker.refused:
+            return Health(DiagnosticStatus.WARN, f"trajectory refused, flying goal by goal: {self.tracker.refused}", values)
         if self.goal_watch.silent:
             return Health(DiagnosticStatus.WARN, "holding: no goal from the mission for "
                           f"{self.params.goal_timeout_s:g} s (mission or ground link down)", values)
