@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import os
 import re
+import socket
 import threading
 import time
 from collections import defaultdict
@@ -25,7 +26,7 @@ import numpy as np
 import pytest
 import zenoh
 
-from aerotest import free_udp_port, wait_for_message
+from aerotest import wait_for_message
 
 from aeroperception.schemas import (
     CameraInfo, Clock, DiagnosticStatus, Detection2DArray, Image, Imu, PointCloud, SchemaError, VehicleState, decode,
@@ -52,6 +53,12 @@ KEYS = {
     "diagnostics/sim": DiagnosticStatus,
 }
 BIG = {"sensors/camera/left/image", "sensors/camera/right/image", "sensors/lidar/points", "sim/truth/lidar_labels"}
+
+
+def free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
 
 
 @dataclass

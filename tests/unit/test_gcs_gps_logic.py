@@ -44,7 +44,7 @@ def gcs_with(gps: GpsPosition | None = None, est: EstimatorStatus | None = None,
 
 def test_with_gps_the_ground_station_sees_the_fcs_3d_fix():
     fc = sim()
-    sent = on_the_wire(fc.gps_raw_int())
+    sent = on_the_wire(fc.streams.gps_raw_int())
     gps = gps_from_mavlink(sent, 1)
     assert gps.fix_type == GpsPosition.FIX_3D and gps.satellites_visible == 12
     home = fc.vehicle.params
@@ -58,7 +58,7 @@ def test_with_gps_the_ground_station_sees_the_fcs_3d_fix():
 
 def test_gps_denied_the_ground_station_sees_no_fix_and_no_satellites():
     fc = sim(SIM_GPS_DENIED=True)
-    gps = gps_from_mavlink(on_the_wire(fc.gps_raw_int()), 1)
+    gps = gps_from_mavlink(on_the_wire(fc.streams.gps_raw_int()), 1)
     assert gps.fix_type == GpsPosition.FIX_NO_FIX and gps.satellites_visible == 0
     assert gps.latitude_deg is None and gps.hdop is None and gps.ground_speed_mps is None
     raw = on_the_wire(gcs_with(gps).gps_raw_int())
@@ -93,7 +93,7 @@ def test_estimator_status_says_where_the_position_comes_from(params, vision, abs
     fc = sim(**params)
     if vision:
         fused_vision(fc)
-    sent = on_the_wire(fc.estimator_status())
+    sent = on_the_wire(fc.streams.estimator_status())
     est = estimator_status_from_mavlink(sent, 1)
     assert bool(est.flags & EstimatorStatus.POS_HORIZ_ABS) is abs_pos
     assert bool(est.flags & EstimatorStatus.POS_HORIZ_REL) is rel_pos
@@ -106,7 +106,7 @@ def test_estimator_status_says_where_the_position_comes_from(params, vision, abs
 
 def test_gps_and_estimator_status_are_in_the_fcs_and_gcss_default_streams():
     fc = sim()
-    rates = fc.stream_rates_hz()
+    rates = fc.streams.stream_rates_hz()
     assert rates["GPS_RAW_INT"] > 0 and rates["ESTIMATOR_STATUS"] > 0
     assert "GPS_RAW_INT" in DEFAULT_STREAM and "ESTIMATOR_STATUS" in DEFAULT_STREAM
     assert ID["ESTIMATOR_STATUS"] == M.MAVLINK_MSG_ID_ESTIMATOR_STATUS

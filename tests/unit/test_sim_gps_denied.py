@@ -77,7 +77,7 @@ def test_without_vision_arming_and_offboard_are_refused_with_px4s_reason():
     assert ack.result == TEMPORARILY_REJECTED and FS_NO_POSITION in ack.reason
     # the same through MAVLink: SYS_STATUS reports no GPS and no xy position control
     mod = MavlinkModule(v)
-    health = mod.sys_status().onboard_control_sensors_health
+    health = mod.streams.sys_status().onboard_control_sensors_health
     assert not health & M.MAV_SYS_STATUS_SENSOR_GPS and not health & M.MAV_SYS_STATUS_SENSOR_XY_POSITION_CONTROL
 
 
@@ -97,7 +97,7 @@ def test_flies_on_vision_aligned_from_a_rotated_odom_frame():
     assert np.linalg.norm(truth - target) < 0.3, truth
     assert np.linalg.norm(v.estimate.position_enu_m - truth) < 0.15
     # LOCAL_POSITION_NED is the estimate
-    lp = MavlinkModule(v).local_position_ned()
+    lp = MavlinkModule(v).streams.local_position_ned()
     assert np.linalg.norm(frames.ned_to_enu([lp.x, lp.y, lp.z]) - v.estimate.position_enu_m) < 0.1
 
 

@@ -505,7 +505,7 @@ def test_do_set_mode_uses_px4_main_and_sub(mod):
     main, sub = px4.PX4_MODES["LAND"]
     assert acks(mod.handle(cmd(M.MAV_CMD_DO_SET_MODE, 1, main, sub)))[0][1] == ACCEPTED
     assert mod.commander.mode == "LAND"
-    hb = mod.heartbeat()
+    hb = mod.streams.heartbeat()
     assert px4.decode(hb.custom_mode) == "LAND" and hb.custom_mode == 0x06040000
     assert hb.autopilot == M.MAV_AUTOPILOT_PX4 and hb.type == M.MAV_TYPE_QUADROTOR
     assert acks(mod.handle(cmd(M.MAV_CMD_DO_SET_MODE, 1, 42, 0)))[0][1] == DENIED
@@ -515,9 +515,9 @@ def test_do_set_mode_uses_px4_main_and_sub(mod):
 
 
 def test_heartbeat_armed_flag(mod):
-    assert not mod.heartbeat().base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED
+    assert not mod.streams.heartbeat().base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED
     mod.handle(cmd(M.MAV_CMD_COMPONENT_ARM_DISARM, 1))
-    hb = mod.heartbeat()
+    hb = mod.streams.heartbeat()
     assert hb.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED and hb.base_mode & M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
     assert hb.system_status == M.MAV_STATE_ACTIVE
 
@@ -692,21 +692,21 @@ def test_setpoint_truth_counts_non_finite_used_fields_and_the_fastest_velocity(m
 def test_telemetry_is_ned(mod):
     v = mod.vehicle
     take_off(v, 4.0)
-    lp = mod.local_position_ned()
+    lp = mod.streams.local_position_ned()
     assert lp.z == pytest.approx(-4.0, abs=0.2)
-    att = mod.attitude()
+    att = mod.streams.attitude()
     assert att.yaw == pytest.approx(math.pi / 2, abs=0.05)  # ENU yaw 0 = facing East = heading 90 deg
-    aq = mod.attitude_quaternion()
+    aq = mod.streams.attitude_quaternion()
     q_enu = frames.q_ned_frd_to_enu_flu([aq.q1, aq.q2, aq.q3, aq.q4])
     np.testing.assert_allclose(q_enu, frames.quat_normalize(v.state.q_enu_flu), atol=1e-6)
-    imu = mod.highres_imu()
+    imu = mod.streams.highres_imu()
     assert imu.zacc == pytest.approx(-9.81, abs=0.3)  # FRD: specific force points up = -z
-    gp = mod.global_position_int()
+    gp = mod.streams.global_position_int()
     assert gp.relative_alt == pytest.approx(4000, abs=200)
     assert gp.alt == pytest.approx(v.params.SIM_HOME_ALT * 1000 + 4000, abs=200)
     assert gp.hdg == pytest.approx(9000, abs=300)
-    assert mod.extended_sys_state().landed_state == M.MAV_LANDED_STATE_IN_AIR
-    bs = mod.battery_status()
+    assert mod.streams.extended_sys_state().landed_state == M.MAV_LANDED_STATE_IN_AIR
+    bs = mod.streams.battery_status()
     assert 0 < bs.battery_remaining <= 100 and bs.voltages[0] > 12000 and bs.current_battery > 0
 
 
