@@ -22,10 +22,10 @@ Fault policy (ARCHITECTURE §8), every automatic transition reported in `message
 - safety/status: a rising recommended_action HOLD / RTH / LAND acts once (SAFETY_REACTIONS);
   the operator may command afterwards. EMERGENCY_STOP is the safety service's own job.
 - VIO lost: the perception service (services/perception/logic.py) turns VIO health into
-  perception/health's `overall_healthy` (true iff VIO TRACKING); here (`tick`), when perception
-  is required (the mission's `require_vio`, else `require_perception`), unhealthy or silent for
-  `perception_timeout_s` while EXECUTING -> HOLDING (PERCEPTION_LOST); healthy again ->
-  EXECUTING at the same waypoint (PERCEPTION_RECOVERED); not back within
+  perception/health's `overall_healthy` (true iff VIO TRACKING). Here (`tick`), when perception
+  is required (the mission's `require_vio`, else `require_perception`): unhealthy, or no
+  perception/health for `perception_timeout_s`, while EXECUTING -> HOLDING (PERCEPTION_LOST);
+  healthy again -> EXECUTING at the same waypoint (PERCEPTION_RECOVERED); not back within
   `perception_recovery_s` -> RTL (PERCEPTION_TIMEOUT). A takeoff waits in HOLDING the same way
   before starting the mission. Parameters, units and defaults: contract.py.
 
