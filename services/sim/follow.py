@@ -68,15 +68,18 @@ class ImuLag:
     """How far the truth's stamps (the images' stamps) are from the FC IMU's clock, measured: the
     lag that best lines up the truth's body rates with the IMU's gyro (both FLU). Needs rotation
     to see (`min_rate_radps` RMS over the window), otherwise None; a positive lag means the
-    truth is stamped late against the IMU. Resolution ~1 ms (linear interpolation of 100 Hz rates)."""
+    truth is stamped late against the IMU. Resolution ~1 ms (linear interpolation of 100 Hz rates).
+    The median of the last `keep` measurements is reported: a window of little rotation has a flat
+    optimum (PX4 SIH hovering: -4 ms in 12 of 14 windows of 4 s, -15 ms in the two calmest)."""
 
     def __init__(self, window_s: float = 4.0, max_lag_s: float = 0.04, step_s: float = 0.001,
-                 min_rate_radps: float = 0.05):
+                 min_rate_radps: float = 0.05, keep: int = 15):
         self.window_ns = int(window_s * 1e9)
         self.lags_ns = np.arange(-max_lag_s, max_lag_s + step_s / 2, step_s) * 1e9
         self.min_rate = min_rate_radps
         self.imu: deque[tuple[int, np.ndarray]] = deque()
         self.truth: deque[tuple[int, np.ndarray]] = deque()
+        self.measured: deque[float] = deque(maxlen=keep)
 
     def add_imu(self, stamp_ns: int, gyro_flu_radps: np.ndarray) -> None:
         self._add(self.imu, stamp_ns, gyro_flu_radps)
@@ -92,6 +95,13 @@ class ImuLag:
             buf.popleft()
 
     def lag_ms(self) -> float | None:
+        """Measure over the current window; the median of the recent measurements (None: none yet)."""
+        lag = self._measure()
+        if lag is not None:
+            self.measured.append(lag)
+        return float(np.median(self.measured)) if self.measured else None
+
+    def _measure(self) -> float | None:
         if len(self.imu) < 20 or len(self.truth) < 20:
             return None
         ti = np.array([t for t, _ in self.imu], float)

@@ -248,10 +248,8 @@ class SimService(Service):
                   "truth_age_ms": round(age_s * 1e3, 1) if age_s is not None else None,
                   "ground_shift_m": round(f.z_shift_m, 3) if f.z_shift_m is not None else None,
                   "camera_blackout": self.truth_stamp_ns < self.blackout_until_ns}
-        if lag is not None:
-            self.last_lag_ms = values["truth_imu_lag_ms"] = round(lag, 2)
-        elif getattr(self, "last_lag_ms", None) is not None:
-            values["truth_imu_lag_ms"] = self.last_lag_ms      # the last measured (needs rotation to see)
+        if lag is not None:                 # the median of the recent measurements (needs rotation to see)
+            values["truth_imu_lag_ms"] = round(lag, 2)
         level, msgs = self._worker_health(values)
         if age_s is None or age_s > 1.0:
             level = DiagnosticStatus.WARN

@@ -94,6 +94,12 @@ def test_lag_of_the_truth_stamps_against_the_fc_imu_is_measured(lag_ms):
     assert lag.lag_ms() == pytest.approx(lag_ms, abs=1.0)   # linear interpolation of 100 Hz rates: ~0.6 ms bias
 
 
+def test_lag_reported_is_the_median_of_recent_measurements():
+    lag = ImuLag(keep=3)
+    lag._measure = iter([-4.0, -15.0, -4.0, None, -3.0]).__next__     # a calm window's outlier, then none
+    assert [lag.lag_ms() for _ in range(5)] == [-4.0, -9.5, -4.0, -4.0, -4.0]
+
+
 def test_lag_needs_rotation_to_see():
     lag = ImuLag()
     for k in range(400):
