@@ -20,7 +20,7 @@ from aeroperception.services.recorder.files import info
 from aeroperception.services.runtime.node import encoding_for
 from aeroperception.services.runtime.session import make_config, open_session
 
-from .cmd_chaos import free_port, proc_stats
+from .harness import free_port, proc_stats
 from .cmd_router import open_router
 
 STREAMS = (("sensors/camera/left/image", 20.0), ("sensors/camera/right/image", 20.0),

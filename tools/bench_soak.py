@@ -16,7 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .cmd_chaos import DEFAULT_MISSION, SimStack, StackError, proc_stats, wait_until
+from .cmd_chaos import DEFAULT_MISSION
+from .harness import SimStack, StackStartError, poll_until, proc_stats
 from .common import CliError
 
 WARMUP_S = 60.0
@@ -109,7 +110,7 @@ def fly_once(st: SimStack, mission_json: str, timeout_s: float = 180.0) -> str |
     why = st.start_mission(mission_json)
     if why:
         return why
-    if not wait_until(lambda: st.mission_state() == "IDLE" and st.on_ground(), timeout_s, 1.0):
+    if not poll_until(lambda: st.mission_state() == "IDLE" and st.landed(), timeout_s, 1.0):
         return f"mission not finished within {timeout_s:.0f} s (state {st.mission_state()})"
     return None
 
@@ -122,7 +123,7 @@ def run(minutes: float, sensors: str = "all", period_s: float = 5.0, json_path: 
         raise CliError(f"cannot read mission {mission}: {e.strerror}") from None
     try:
         st = SimStack(log_dir, sensors=sensors, startup_timeout_s=90.0)
-    except StackError as e:
+    except StackStartError as e:
         raise CliError(f"the sim stack did not come up: {str(e).splitlines()[0]}") from None
     print(f"aero bench soak: {minutes:g} min, sensors={sensors}, sampling every {period_s:g} s, "
           f"logs {st.log_dir}", flush=True)

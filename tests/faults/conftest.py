@@ -1,10 +1,11 @@
-"""Fault-suite fixtures: one `aero chaos` SimStack per test module (sim profile, free ports, the
-MAVLink tap between sim and fmu), stopped by pid at teardown."""
+"""Fault-suite fixtures: one harness SimStack per test module (sim profile, free ports, the
+MAVLink tap between sim and fmu), as `aero chaos` flies it; stopped by pid at teardown."""
 from __future__ import annotations
 
 import pytest
 
-from aeroperception.tools.cmd_chaos import DEFAULT_MISSION, SimStack
+from aeroperception.tools.cmd_chaos import DEFAULT_MISSION
+from aeroperception.tools.harness import SimStack
 
 
 @pytest.fixture(scope="module")

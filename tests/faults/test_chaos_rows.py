@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import pytest
 
-from aeroperception.tools.cmd_chaos import EXPECTED_FIXED_BY, build_rows, profile_services, run_row
+from aerotest import assert_chaos_row, chaos_row_param
+from aeroperception.tools.cmd_chaos import build_rows
+from aeroperception.tools.harness import profile_services
 
 ROWS = build_rows(profile_services("sim"))
 # The rows the default run (and CI) flies: a hang and a reboot. The kills are chaos_full because the
@@ -20,21 +22,8 @@ ROWS = build_rows(profile_services("sim"))
 CI_ROWS = ("hang_fmu", "fc_reboot")
 
 
-def _param(name: str):
-    marks = [pytest.mark.xfail(reason=f"needs {EXPECTED_FIXED_BY[name]} fix", strict=False)] \
-        if name in EXPECTED_FIXED_BY else []
-    if name not in CI_ROWS:
-        marks.append(pytest.mark.chaos_full)
-    return pytest.param(name, marks=marks, id=name)
-
-
 @pytest.mark.slow
 @pytest.mark.timeout(150)
-@pytest.mark.parametrize("name", [_param(n) for n in ROWS])
+@pytest.mark.parametrize("name", [chaos_row_param(n, CI_ROWS, pytest.mark.chaos_full) for n in ROWS])
 def test_fault_row_meets_its_expected_outcome_and_vehicle_stays_safe(chaos_stack, mission_json, name):
-    row = ROWS[name]
-    res = run_row(chaos_stack, row, mission_json)
-    print(f"{name}: {res.verdict} in {res.duration_s:.0f} s; observed: {res.observed}; safe: {res.safe_why}; "
-          f"detect/react {res.detect_s}")
-    assert res.safe, f"{name}: vehicle not safe by the truth: {res.safe_why} (observed: {res.observed})"
-    assert res.passed, f"{name}: expected {row.expected!r}; observed {res.observed!r}"
+    assert_chaos_row(chaos_stack, ROWS[name], mission_json)

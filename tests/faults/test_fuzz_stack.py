@@ -26,7 +26,8 @@ from aeroperception.schemas import (
     REGISTRY, GcsLink, MissionStatus, SchemaError, TrajectorySetpoint, Vector3, VehicleState, decode, encode,
 )
 from aeroperception.services.runtime.node import encoding_for
-from aeroperception.tools.cmd_chaos import AT_REST_MPS, profile_services, speed_of, wait_until
+from aeroperception.tools.cmd_chaos import AT_REST_MPS
+from aeroperception.tools.harness import poll_until, profile_services, speed
 from faults.payloads import collect, garbage, mutated, schema_maps
 
 # extended: 100 s; the schema fuzzers (unit) and every service's garbage tests stay in the default run.
@@ -109,8 +110,8 @@ def hover(stack) -> VehicleState:
         stack.restart()
     r = stack.command("TAKEOFF")
     assert r.success, f"TAKEOFF refused: {r.message}"
-    assert wait_until(lambda: stack.mission_state() == "HOLDING", 40, 0.3), f"not HOLDING: {stack.mission_state()}"
-    rest = wait_until(lambda: (t := stack.truth()) is not None and speed_of(t) < 0.1 and t.position_m.z > 1.0 and t, 20, 0.3)
+    assert poll_until(lambda: stack.mission_state() == "HOLDING", 40, 0.3), f"not HOLDING: {stack.mission_state()}"
+    rest = poll_until(lambda: (t := stack.truth()) is not None and speed(t) < 0.1 and t.position_m.z > 1.0 and t, 20, 0.3)
     assert rest, "vehicle did not settle into a hover"
     return rest
 
@@ -132,7 +133,7 @@ def test_garbage_on_every_input_key_queryable_and_mavlink_port_is_counted_and_dr
     t0 = time.monotonic()
     start = st.truth()
     link0 = st.latest("gcs/link", GcsLink, 3.0)
-    rec = st.recorder(truth=("sim/truth/state", VehicleState), status=("mission/status", MissionStatus))
+    rec = st.capture(truth=("sim/truth/state", VehicleState), status=("mission/status", MissionStatus))
     sent_per_service = {s: 0 for s in services}
     sent_keys = {}
     try:
@@ -220,9 +221,9 @@ def test_garbage_on_every_input_key_queryable_and_mavlink_port_is_counted_and_dr
     # The FC saw nothing unsafe, and the vehicle still holds where it was.
     assert not st.tap.unsafe_since(t0), st.tap.unsafe_since(t0)[:5]
     drift = max(float(np.linalg.norm(m.position_m.to_array() - start.position_m.to_array())) for _, m in track)
-    print(f"fuzz: hover drift {drift:.2f} m, end speed {speed_of(end):.2f} m/s, mission {status.state}")
+    print(f"fuzz: hover drift {drift:.2f} m, end speed {speed(end):.2f} m/s, mission {status.state}")
     assert drift < 0.5, f"vehicle drifted {drift:.2f} m during the fuzzing"
-    assert speed_of(end) < AT_REST_MPS and end.armed and end.position_m.z > 1.0
+    assert speed(end) < AT_REST_MPS and end.armed and end.position_m.z > 1.0
     assert status.state == "HOLDING", status.state
 
 
@@ -265,7 +266,7 @@ def test_hostile_setpoints_never_reach_the_fc(hovering):
     ]
     t0 = time.monotonic()
     start = st.truth()
-    rec = st.recorder(truth=("sim/truth/state", VehicleState))
+    rec = st.capture(truth=("sim/truth/state", VehicleState))
     pub = st.session.declare_publisher("fmu/in/trajectory_setpoint", encoding=encoding_for(TrajectorySetpoint))
     try:
         for _ in range(10):   # 0.2 s of each at 50 Hz, interleaved with the planner's stream

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import json
 import os
-import socket
 import subprocess
 import sys
 import time
@@ -16,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from aerotest import wait_for_message
+from aerotest import free_udp_port, wait_for_message
 
 from aeroperception.schemas import Detection2DArray, PerceptionHealth
 from aeroperception.services.detector import contract
@@ -65,12 +64,6 @@ ONBOARD = ["sim", "fmu", "planner", "mission", "diagnostics", "safety", "lidar",
 SPEED = 0.5
 
 
-def _free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def _popen(stack, *argv: str) -> subprocess.Popen:
     return subprocess.Popen([sys.executable, "-m", "aeroperception.tools.cli", *argv, "--connect", stack.endpoint],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, stdin=subprocess.DEVNULL,
@@ -91,7 +84,7 @@ def test_live_eval_over_a_village_flight_matches_the_held_out_renders(stack, tmp
     """`aero up --scenario village` (whole onboard stack), `aero mission fly village_tour.json`, and
     `aero eval detector --live --until-landed` in both modes over that flight: the camera stream
     through the bundled model scores within 0.1 mAP of the held-out village renders measured here."""
-    fcu, sim_bind = _free_udp_port(), _free_udp_port()
+    fcu, sim_bind = free_udp_port(), free_udp_port()
     st = stack(ONBOARD, extra_args=[
         "--scenario", "village", "--speed", str(SPEED), "--fcu-url", f"udpin:127.0.0.1:{fcu}",
         "--arg", f"sim:--target=127.0.0.1:{fcu}", "--arg", f"sim:--bind=127.0.0.1:{sim_bind}"], timeout_s=60)

@@ -6,13 +6,12 @@ like it. The bundled model runs when it is in the package; until then a hand-bui
 """
 from __future__ import annotations
 
-import socket
 import threading
 import time
 
 import pytest
 
-from aerotest import wait_for_message
+from aerotest import free_udp_port, wait_for_message
 from detector_graphs import box_finder_model
 
 from aeroperception.schemas import DiagnosticStatus, Detection2DArray, Image, SchemaError, decode
@@ -24,12 +23,6 @@ pytestmark = pytest.mark.timeout(240)
 RATE_HZ = 10.0
 WINDOW_S = 8.0
 ONBOARD = ["sim", "fmu", "planner", "mission", "diagnostics", "safety", "lidar", "vio", "detector"]
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @pytest.fixture(scope="module")

@@ -22,7 +22,6 @@ from __future__ import annotations
 import math
 import os
 import signal
-import socket
 import subprocess
 import threading
 import time
@@ -33,16 +32,17 @@ import numpy as np
 import pytest
 import zenoh
 
-from aerotest import aero, aero_argv, clean_env, is_service_process, wait_for_message, wait_until
+from aerotest import (
+    Capture, aero, aero_argv, clean_env, free_udp_port, is_service_process, pos, wait_until,
+)
 from aeroperception.schemas import (
     ArmReply, ArmRequest, Clock, DiagnosticStatus, GoalStatus, GoToPositionGoal, Header,
-    LandGoal, LoadMissionReply, LoadMissionRequest, MissionCommand, MissionStatus, Odometry, Pose,
-    Reply, SchemaError, SetModeReply, SetModeRequest, TakeoffGoal, TakeoffResult, Vector3,
+    LandGoal, LoadMissionReply, LoadMissionRequest, MissionStatus, Odometry, Pose,
+    SchemaError, SetModeReply, SetModeRequest, TakeoffGoal, TakeoffResult, Vector3,
     VehicleState, VehicleStatus, WaypointReached, decode, encode, load_mission_file,
 )
 from aeroperception.services.runtime import ActionClient
 from aeroperception.services.runtime.node import CallError, call, encoding_for
-from aeroperception.tools.cmd_chaos import Recorder
 
 REPO = Path(__file__).resolve().parents[2]
 SURVEY = REPO / "examples" / "missions" / "survey_01.json"
@@ -55,12 +55,6 @@ HOVER_ALT_M = 3.0
 # ---------------------------------------------------------------- helpers
 
 
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def flight_stack(factory, speed: float = SPEED):
     """sim + fmu + planner + mission + diagnostics, MAVLink on two free UDP ports, no sensors."""
     fcu, sim_bind = free_udp_port(), free_udp_port()
@@ -68,26 +62,9 @@ def flight_stack(factory, speed: float = SPEED):
         "--speed", str(speed), "--fcu-url", f"udpin:127.0.0.1:{fcu}",
         "--arg", f"sim:--target=127.0.0.1:{fcu}", "--arg", f"sim:--bind=127.0.0.1:{sim_bind}",
         "--arg", "sim:--sensors=none"], timeout_s=30)
-    try:
-        # Ready = fmu hears the vehicle and has streamed setpoints long enough for OFFBOARD.
-        wait_until(lambda: latest(st, "state/vehicle", VehicleState, 1.0, lambda m: m.connected),
-                   15, "state/vehicle connected (fmu <-> sim MAVLink)")
-        wait_until(lambda: int(diag(st, "fmu").values.get("setpoints_sent", 0)) > 100, 15,
-                   "planner setpoints streaming through fmu")
-        wait_until(lambda: latest(st, "mission/status", MissionStatus, 1.5), 10, "mission/status")
-    except BaseException:
-        print(st.describe())
-        raise
+    # Ready = fmu hears the vehicle and has streamed setpoints long enough for OFFBOARD.
+    st.wait_flight_ready(40)
     return st
-
-
-@contextmanager
-def recording(st, **keys: tuple[str, type]):
-    rec = Recorder(st.session, keys)
-    try:
-        yield rec
-    finally:
-        rec.close()
 
 
 @contextmanager
@@ -108,49 +85,15 @@ def fly_in_background(st, path, *args: str):
         reader.join(5)
 
 
-def latest(st, key: str, cls: type, timeout_s: float = 3.0, pred=None):
-    """The next message on `key` (matching pred), or None after timeout_s."""
-    try:
-        return wait_for_message(st.session, key, cls, pred, timeout_s)
-    except AssertionError:
-        return None
-
-
-def diag(st, name: str) -> DiagnosticStatus:
-    d = latest(st, f"diagnostics/{name}", DiagnosticStatus, 3.0)
-    assert d is not None, f"no diagnostics/{name} within 3 s"
-    return d
-
-
-def mission_state(st) -> str:
-    s = latest(st, "mission/status", MissionStatus, 3.0)
-    assert s is not None, "no mission/status within 3 s"
-    return s.state
-
-
-def truth(st) -> VehicleState:
-    t = latest(st, "sim/truth/state", VehicleState, 3.0)
-    assert t is not None, "no sim/truth/state within 3 s"
-    return t
-
-
-def command(st, cmd: str, timeout_s: float = 15.0) -> Reply:
-    return call(st.session, "mission/srv/command", MissionCommand(command=cmd), Reply, timeout_s)
-
-
-def pos(msg: VehicleState) -> np.ndarray:
-    return msg.position_m.to_array()
-
-
 def wait_state(st, state: str, timeout_s: float) -> None:
-    wait_until(lambda: latest(st, "mission/status", MissionStatus, 1.0, lambda m: m.state == state),
+    wait_until(lambda: st.latest("mission/status", MissionStatus, 1.0, lambda m: m.state == state),
                timeout_s, f"mission state {state}")
 
 
 def wait_at_rest(st, timeout_s: float = 20.0, speed_mps: float = 0.15, for_s: float = 1.0) -> VehicleState:
     """The true state once the true speed has stayed below speed_mps for `for_s` (wall) seconds
     (a braking vehicle is briefly at rest at the far end of its overshoot: that does not count)."""
-    with recording(st, truth=("sim/truth/state", VehicleState)) as rec:
+    with st.capture(truth=("sim/truth/state", VehicleState)) as rec:
         def settled():
             now = time.monotonic()
             with rec.lock:
@@ -164,21 +107,10 @@ def wait_at_rest(st, timeout_s: float = 20.0, speed_mps: float = 0.15, for_s: fl
         return wait_until(settled, timeout_s, f"true speed < {speed_mps} m/s for {for_s} s", interval_s=0.1)
 
 
-def ensure_landed(st) -> None:
-    """Back to IDLE on the ground, disarmed (LAND if needed)."""
-    if mission_state(st) != "IDLE":
-        if mission_state(st) != "LAND":
-            r = command(st, "LAND")
-            assert r.success, f"LAND refused: {r.message}"
-        wait_state(st, "IDLE", 40)
-    wait_until(lambda: latest(st, "fmu/out/vehicle_status", VehicleStatus, 1.0, lambda m: not m.armed),
-               10, "disarmed")
-
-
 def ensure_hovering(st, altitude_m: float = HOVER_ALT_M) -> None:
     """In the air, mission HOLDING, vehicle in OFFBOARD following the planner (take off if needed)."""
-    if mission_state(st) != "HOLDING":
-        ensure_landed(st)
+    if st.mission_state() != "HOLDING":
+        st.ensure_landed()
         client = ActionClient(st.session, "mission/action/takeoff")
         try:
             g = client.send_goal(TakeoffGoal(target_altitude_m=altitude_m))
@@ -189,7 +121,7 @@ def ensure_hovering(st, altitude_m: float = HOVER_ALT_M) -> None:
             client.close()
     wait_state(st, "HOLDING", 5)
     wait_at_rest(st)
-    t = truth(st)
+    t = st.truth()
     assert t.flight_mode == "OFFBOARD", f"vehicle in {t.flight_mode}, expected OFFBOARD"
     assert t.position_m.z > 1.0, f"not in the air: truth z {t.position_m.z:.2f} m"
 
@@ -253,7 +185,7 @@ def test_survey_01_end_to_end(stack):
     mission = load_mission_file(SURVEY)
     radius = mission.waypoint_acceptance_radius_m
     st = flight_stack(stack)
-    with recording(st, truth=("sim/truth/state", VehicleState), status=("mission/status", MissionStatus),
+    with st.capture(truth=("sim/truth/state", VehicleState), status=("mission/status", MissionStatus),
                    reached=("mission/waypoint_reached", WaypointReached),
                    vstatus=("fmu/out/vehicle_status", VehicleStatus)) as rec:
         wait_until(lambda: rec.last("status"), 5, "mission/status recorded")
@@ -305,7 +237,7 @@ def fstack(stack_module):
 
 def test_invalid_mission_rejected_vehicle_stays_idle(fstack, tmp_path):
     st = fstack
-    ensure_landed(st)
+    st.ensure_landed()
     bad = tmp_path / "bad.json"
     bad.write_text('{"mission_id": "bad", "waypoints": [{"x": 0, "y": 0, "z": 5}, {"x": 1, "y": "north", "z": 5}]}')
     r = st.aero("mission", "load", str(bad), timeout_s=20)
@@ -317,14 +249,14 @@ def test_invalid_mission_rejected_vehicle_stays_idle(fstack, tmp_path):
                  LoadMissionReply, 5.0)
     assert not reply.success and "waypoints[1].y" in reply.message, reply.message
     time.sleep(1.0)
-    assert mission_state(st) == "IDLE"
-    t = truth(st)
+    assert st.mission_state() == "IDLE"
+    t = st.truth()
     assert abs(t.position_m.z) < 0.1 and not t.armed
 
 
 def test_arming_refused_without_position(fstack):
     st = fstack
-    ensure_landed(st)
+    st.ensure_landed()
     r = st.aero("param", "set", "sim", "SIM_POS_VALID", "false")
     assert r.returncode == 0, r.stderr
     try:
@@ -342,8 +274,8 @@ def test_arming_refused_without_position(fstack):
         lines = r.stderr.strip().splitlines()
         assert len(lines) == 1 and "arming failed" in lines[0] and "position" in lines[0], r.stderr
         assert took < 12.0
-        assert mission_state(st) == "IDLE"
-        t = truth(st)
+        assert st.mission_state() == "IDLE"
+        t = st.truth()
         assert not t.armed and abs(t.position_m.z) < 0.1
     finally:
         r = st.aero("param", "set", "sim", "SIM_POS_VALID", "true")
@@ -352,7 +284,7 @@ def test_arming_refused_without_position(fstack):
 
 def test_actions_takeoff_goto_cancel_goto_land(fstack):
     st = fstack
-    ensure_landed(st)
+    st.ensure_landed()
     takeoff = ActionClient(st.session, "mission/action/takeoff")
     goto = ActionClient(st.session, "mission/action/goto")
     land = ActionClient(st.session, "mission/action/land")
@@ -367,7 +299,7 @@ def test_actions_takeoff_goto_cancel_goto_land(fstack):
         assert out.success and abs(out.final_altitude_m - 3.0) < 0.5, out
         assert feedback, "no takeoff feedback"
         assert wait_at_rest(st).position_m.z == pytest.approx(3.0, abs=0.35)
-        assert mission_state(st) == "HOLDING"
+        assert st.mission_state() == "HOLDING"
 
         # Goto (20, 0, 3), cancelled after 1 s: CANCELED, the mission holds, the vehicle stops.
         g = goto.send_goal(GoToPositionGoal(position_m=Vector3(x=20.0, y=0.0, z=3.0)))
@@ -381,11 +313,11 @@ def test_actions_takeoff_goto_cancel_goto_land(fstack):
         stopped = wait_at_rest(st)
         assert 0.2 < stopped.position_m.x < 10.0, f"stopped at x={stopped.position_m.x:.2f}"
         time.sleep(1.0)
-        assert np.linalg.norm(pos(truth(st)) - pos(stopped)) < 0.3, "vehicle did not hold after cancel"
+        assert np.linalg.norm(pos(st.truth()) - pos(stopped)) < 0.3, "vehicle did not hold after cancel"
 
         # Goto (3, 0, 3) to completion: SUCCEEDED, the true position within the acceptance radius.
         target = np.array([3.0, 0.0, 3.0])
-        with recording(st, truth=("sim/truth/state", VehicleState)) as rec:
+        with st.capture(truth=("sim/truth/state", VehicleState)) as rec:
             g = goto.send_goal(GoToPositionGoal(position_m=Vector3.from_array(target)))
             assert g.success, g.message
             res = goto.result(g.goal_id, 30)
@@ -399,16 +331,16 @@ def test_actions_takeoff_goto_cancel_goto_land(fstack):
         # vehicle holds at the edge of it.
         assert np.linalg.norm(track - target, axis=1).min() < 0.5
         assert np.linalg.norm(pos(rest) - target) < 0.3, f"holding at {pos(rest).round(2)}, goal {target}"
-        assert mission_state(st) == "HOLDING"
+        assert st.mission_state() == "HOLDING"
 
         # Land: SUCCEEDED once on the ground and disarmed.
         g = land.send_goal(LandGoal())
         assert g.success, g.message
         res = land.result(g.goal_id, 40)
         assert res.status == GoalStatus.SUCCEEDED, f"{GoalStatus.name(res.status)}: {res.message}"
-        t = truth(st)
+        t = st.truth()
         assert t.position_m.z < 0.2 and not t.armed
-        assert mission_state(st) == "IDLE"
+        assert st.mission_state() == "IDLE"
     finally:
         for c in (takeoff, goto, land):
             c.close()
@@ -417,12 +349,12 @@ def test_actions_takeoff_goto_cancel_goto_land(fstack):
 def test_planner_silent_fmu_holds(fstack):
     st = fstack
     ensure_hovering(st)
-    holds0 = int(diag(st, "fmu").values["holds_sent"])
-    with recording(st, truth=("sim/truth/state", VehicleState)) as rec:
+    holds0 = int(st.diag("fmu").values["holds_sent"])
+    with st.capture(truth=("sim/truth/state", VehicleState)) as rec:
         with paused(st, "planner"):
             t_stop = time.monotonic()
             time.sleep(3.0)
-            d = diag(st, "fmu")
+            d = st.diag("fmu")
             track = np.array([pos(m) for m in rec.get("truth", since=t_stop)])
     holds1 = int(d.values["holds_sent"])
     print(f"planner silent 3 s: drift {np.linalg.norm(track - track[0], axis=1).max():.3f} m, "
@@ -432,9 +364,9 @@ def test_planner_silent_fmu_holds(fstack):
     assert drift < 0.5, f"drifted {drift:.2f} m while the planner was silent"
     assert holds1 - holds0 >= 50, f"holds_sent {holds0} -> {holds1}"
     assert d.values["planner"] == "holding"
-    assert truth(st).flight_mode == "OFFBOARD"
+    assert st.truth().flight_mode == "OFFBOARD"
     # The planner is back: fmu forwards its setpoints again.
-    wait_until(lambda: diag(st, "fmu").values["planner"] == "streaming", 5, "fmu streaming planner setpoints")
+    wait_until(lambda: st.diag("fmu").values["planner"] == "streaming", 5, "fmu streaming planner setpoints")
 
 
 def test_planner_gone_fmu_holds_at_once_and_follows_it_again_after_restart(fstack):
@@ -443,18 +375,18 @@ def test_planner_gone_fmu_holds_at_once_and_follows_it_again_after_restart(fstac
     st = fstack
     ensure_hovering(st)
     old_pid = service_pid(st, "planner")
-    with recording(st, truth=("sim/truth/state", VehicleState)) as rec:
+    with st.capture(truth=("sim/truth/state", VehicleState)) as rec:
         os.kill(old_pid, signal.SIGTERM)
         t_kill = time.monotonic()
-        wait_until(lambda: diag(st, "fmu").values["planner"] == "holding (planner not alive)", 5,
+        wait_until(lambda: st.diag("fmu").values["planner"] == "holding (planner not alive)", 5,
                    "fmu holding because the planner is gone")
         print(f"fmu dropped the planner {time.monotonic() - t_kill:.2f} s after SIGTERM")
         wait_until(lambda: st.pids().get("planner") not in (None, old_pid), 20, "aero up restarted the planner")
-        wait_until(lambda: diag(st, "fmu").values["planner"] == "streaming", 20, "fmu following the new planner")
+        wait_until(lambda: st.diag("fmu").values["planner"] == "streaming", 20, "fmu following the new planner")
         track = np.array([pos(m) for m in rec.get("truth", since=t_kill)])
     drift = np.linalg.norm(track - track[0], axis=1).max()
     assert drift < 0.5, f"drifted {drift:.2f} m while the planner was away"
-    assert truth(st).flight_mode == "OFFBOARD"
+    assert st.truth().flight_mode == "OFFBOARD"
 
 
 def test_setpoints_stop_sim_fails_over_to_rtl_and_back_to_offboard(fstack):
@@ -464,7 +396,7 @@ def test_setpoints_stop_sim_fails_over_to_rtl_and_back_to_offboard(fstack):
     st = fstack
     ensure_hovering(st)
     try:
-        with recording(st, truth=("sim/truth/state", VehicleState),
+        with st.capture(truth=("sim/truth/state", VehicleState),
                        sim_diag=("diagnostics/sim", DiagnosticStatus)) as rec:
             wait_until(lambda: rec.last("truth"), 2, "truth")
             with paused(st, "fmu"):
@@ -492,10 +424,10 @@ def test_setpoints_stop_sim_fails_over_to_rtl_and_back_to_offboard(fstack):
             except CallError:
                 return False
         wait_until(offboard, 10, "OFFBOARD accepted again after fmu resumed", interval_s=0.3)
-        assert truth(st).flight_mode == "OFFBOARD"
+        assert st.truth().flight_mode == "OFFBOARD"
     finally:
-        ensure_landed(st)
-    t = truth(st)
+        st.ensure_landed()
+    t = st.truth()
     assert t.position_m.z < 0.2 and not t.armed
 
 
@@ -510,19 +442,19 @@ def fmu_clock(st):
     env = Path(f"/proc/{pid}/environ").read_bytes().split(b"\0")
     if b"--sim-time" not in argv and b"AERO_SIM_TIME=1" not in env:
         return time.time_ns
-    tick = latest(st, "sim/clock", Clock, 3.0)
+    tick = st.latest("sim/clock", Clock, 3.0)
     assert tick is not None, "fmu runs on sim time but there is no sim/clock"
     t0 = time.monotonic()
     return lambda: tick.header.stamp_ns + int((time.monotonic() - t0) * (tick.speed_factor or 1.0) * 1e9)
 
 
 def vio_counters(st) -> dict[str, int]:
-    f, s = diag(st, "fmu").values, diag(st, "sim").values
+    f, s = st.diag("fmu").values, st.diag("sim").values
     return {"injected": int(f["vio_injected"]), "stale": int(f["vio_stale_dropped"]),
             "sim_odometry": int(s["vision_odometry"])}
 
 
-def publish_vio(st, rec: Recorder, clock, n: int, age_s: float = 0.0, rate_hz: float = 30.0) -> None:
+def publish_vio(st, rec: Capture, clock, n: int, age_s: float = 0.0, rate_hz: float = 30.0) -> None:
     """n Odometry messages at rate_hz on state/visual_odometry, at the true pose (ENU), stamped
     `age_s` before now on fmu's clock."""
     pub = st.session.declare_publisher("state/visual_odometry", encoding=encoding_for(Odometry))
@@ -542,7 +474,7 @@ def test_vio_fresh_injected_stale_dropped(fstack):
     st = fstack
     clock = fmu_clock(st)
     n = 60  # 2 s at 30 Hz
-    with recording(st, truth=("sim/truth/state", VehicleState)) as rec:
+    with st.capture(truth=("sim/truth/state", VehicleState)) as rec:
         wait_until(lambda: rec.last("truth"), 3, "sim/truth/state")
         c0 = vio_counters(st)
 
@@ -551,7 +483,7 @@ def test_vio_fresh_injected_stale_dropped(fstack):
         c1 = wait_until(lambda: (c := vio_counters(st))["injected"] + c["stale"] - c0["injected"] - c0["stale"] >= n
                         and c["sim_odometry"] - c0["sim_odometry"] >= c["injected"] - c0["injected"] and c,
                         8, f"{n} fresh odometry messages handled by fmu and received by the sim")
-        err = float(diag(st, "sim").values["vision_error_m"])
+        err = float(st.diag("sim").values["vision_error_m"])
     print(f"vio fresh: {c0} -> {c1}, sim vision_error_m {err:.3f}")
     assert c1["stale"] == c0["stale"], f"fresh odometry counted stale: {c0} -> {c1}"
     assert c1["injected"] - c0["injected"] == n, f"{c0} -> {c1}"
@@ -559,7 +491,7 @@ def test_vio_fresh_injected_stale_dropped(fstack):
     assert err < 0.15, f"injected position {err:.3f} m from the truth"
 
     # Stale (3 s old > vio_timeout_s 1 s): dropped by fmu, nothing reaches the sim.
-    with recording(st, truth=("sim/truth/state", VehicleState)) as rec:
+    with st.capture(truth=("sim/truth/state", VehicleState)) as rec:
         wait_until(lambda: rec.last("truth"), 3, "sim/truth/state")
         publish_vio(st, rec, clock, 30, age_s=3.0)
     c2 = wait_until(lambda: (c := vio_counters(st))["stale"] - c1["stale"] >= 30 and c, 8,
@@ -576,7 +508,7 @@ def test_vio_fresh_injected_stale_dropped(fstack):
 @pytest.mark.slow
 def test_fly_interrupted_holds_lands_exits_130(fstack):
     st = fstack
-    ensure_landed(st)
+    st.ensure_landed()
     out: list[str] = []
     err: list[str] = []
     proc = subprocess.Popen(aero_argv() + ["mission", "fly", str(SQUARE), "--timeout", "120"],
@@ -587,7 +519,7 @@ def test_fly_interrupted_holds_lands_exits_130(fstack):
     for r in readers:
         r.start()
     try:
-        with recording(st, truth=("sim/truth/state", VehicleState), status=("mission/status", MissionStatus),
+        with st.capture(truth=("sim/truth/state", VehicleState), status=("mission/status", MissionStatus),
                        vstatus=("fmu/out/vehicle_status", VehicleStatus)) as rec:
             wait_state(st, "EXECUTING", 40)
             time.sleep(1.5)  # under way to the first waypoint
@@ -628,7 +560,7 @@ def test_fly_interrupted_holds_lands_exits_130(fstack):
     final = truth_after[-1]
     assert final.position_m.z < 0.2 and not final.armed, f"truth z {final.position_m.z:.2f} armed {final.armed}"
     assert vstatus is not None and not vstatus.armed
-    assert mission_state(st) == "IDLE"
+    assert st.mission_state() == "IDLE"
     # It stopped where it was interrupted (braking distance), not at a waypoint.
     moved = float(np.linalg.norm(pos(final)[:2] - pos(at_interrupt)[:2]))
     assert moved < 3.0, f"landed {moved:.2f} m from where it was interrupted"

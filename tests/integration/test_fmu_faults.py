@@ -28,9 +28,12 @@ import pytest
 import zenoh
 from pymavlink.dialects.v20 import common as M
 
-from aerotest import clean_env, interrupt, is_service_process, wait_for_message, wait_until, zenoh_client
+from aerotest import (
+    clean_env, diag, free_udp_port, interrupt, is_service_process, latest, pos, speed, wait_until,
+    zenoh_client,
+)
 from aeroperception.schemas import (
-    ArmReply, ArmRequest, DiagnosticStatus, Header, SchemaError, SetModeReply, SetModeRequest,
+    ArmReply, ArmRequest, Header, SchemaError, SetModeReply, SetModeRequest,
     TrajectorySetpoint, Vector3, VehicleState, decode, encode,
 )
 from aeroperception.services.runtime.node import CallError, call, encoding_for
@@ -38,33 +41,6 @@ from aeroperception.services.sim.vehicle import MavlinkEndpoint, SimVehicle, Sim
 
 ALT_M = 3.0
 GCS = M.MAVLink(None, srcSystem=255, srcComponent=190)
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def latest(session, key: str, cls: type, timeout_s: float = 3.0, pred=None):
-    try:
-        return wait_for_message(session, key, cls, pred, timeout_s)
-    except AssertionError:
-        return None
-
-
-def diag(session, name: str) -> dict:
-    d = latest(session, f"diagnostics/{name}", DiagnosticStatus, 3.0)
-    assert d is not None, f"no diagnostics/{name} within 3 s"
-    return d.values
-
-
-def pos(m: VehicleState) -> np.ndarray:
-    return m.position_m.to_array()
-
-
-def speed(m: VehicleState) -> float:
-    return float(np.linalg.norm(m.velocity_mps.to_array()))
 
 
 class Truth:
@@ -207,7 +183,7 @@ def ensure_hovering(st, planner: TestPlanner, truth: Truth) -> VehicleState:
     planner.declare_alive()
     t = wait_until(truth.last, 3, "sim/truth/state")
     planner.law = hold_at([t.position_m.x, t.position_m.y, ALT_M])
-    wait_until(lambda: diag(st.session, "fmu").get("planner") == "streaming", 10, "fmu following the test planner")
+    wait_until(lambda: diag(st.session, "fmu").values.get("planner") == "streaming", 10, "fmu following the test planner")
     if not (t.armed and t.flight_mode == "OFFBOARD"):
         r = wait_until(lambda: (r := fmu_call(st.session, "fmu/srv/set_mode", SetModeRequest(mode="OFFBOARD"),
                                               SetModeReply)) and r.success and r, 10, "OFFBOARD accepted", interval_s=0.3)
@@ -231,7 +207,7 @@ def land(st, planner: TestPlanner, truth: Truth) -> None:
 
 
 def counters(st) -> tuple[dict, dict]:
-    return diag(st.session, "fmu"), diag(st.session, "sim")
+    return diag(st.session, "fmu").values, diag(st.session, "sim").values
 
 
 # ---------------------------------------------------------------- item 5: unsafe setpoints
@@ -256,7 +232,7 @@ def test_unsafe_setpoints_never_reach_the_fc_fmu_holds_and_counts_them(fst):
         planner.law = lambda st_, sp=sp: TrajectorySetpoint(**{f: getattr(sp, f) for f in sp.__struct_fields__})
         time.sleep(0.5)
     planner.law = hold_at(pos(start))
-    wait_until(lambda: diag(st.session, "fmu").get("planner") == "streaming", 5, "following good setpoints again")
+    wait_until(lambda: diag(st.session, "fmu").values.get("planner") == "streaming", 5, "following good setpoints again")
     time.sleep(1.2)  # a fresh diagnostics/sim after the last setpoint fmu could have forwarded
     f1, s1 = counters(st)
     track = np.array([pos(m) for m in truth.since(t0)])
@@ -290,7 +266,7 @@ def test_planner_lost_at_speed_brakes_and_holds_where_it_stops(fst, how):
         planner.vanish()   # liveliness gone, setpoints keep coming: must be ignored at once
     time.sleep(4.0)
     track = truth.since(t_lost)
-    d = diag(st.session, "fmu")
+    d = diag(st.session, "fmu").values
     x = np.array([m.position_m.x for m in track])
     peak, final = float(x.max()), float(x[-1])
     print(f"planner {how} at {speed(at_loss):.2f} m/s: stopped {peak - at_loss.position_m.x:.2f} m on, "
@@ -342,15 +318,15 @@ def test_acceleration_feed_forward_reaches_the_fc_and_accelerates_the_vehicle_an
     ff = [3.0, 0.0, 0.0]
     with_ff = east_acceleration_during(truth, planner, hold_with_feed_forward(pos(rest), ff), hold)
     without = east_acceleration_during(truth, planner, hold_with_feed_forward(pos(rest), ff, valid=False), hold)
-    f0 = diag(st.session, "fmu")
+    f0 = diag(st.session, "fmu").values
     t0 = time.monotonic()
     planner.law = hold_with_feed_forward(pos(rest), ff, jerk=True)
-    held = wait_until(lambda: (d := diag(st.session, "fmu")) and "jerk_valid" in d.get("hold_reason", "") and d, 5,
+    held = wait_until(lambda: (d := diag(st.session, "fmu").values) and "jerk_valid" in d.get("hold_reason", "") and d, 5,
                       "fmu refusing the jerk setpoint")
     time.sleep(0.5)
     moved = max(float(np.linalg.norm(pos(m) - pos(rest))) for m in truth.since(t0))
     planner.law = hold
-    wait_until(lambda: diag(st.session, "fmu").get("planner") == "streaming", 5, "following again")
+    wait_until(lambda: diag(st.session, "fmu").values.get("planner") == "streaming", 5, "following again")
     print(f"true east acceleration: {with_ff:.2f} m/s^2 with a valid 3 m/s^2 feed-forward, {without:.2f} without; "
           f"jerk: rejected {f0['setpoints_rejected']} -> {held['setpoints_rejected']}, moved {moved:.2f} m")
     assert with_ff > 1.0, f"feed-forward 3 m/s^2 east gave {with_ff:.2f} m/s^2"
@@ -382,7 +358,7 @@ def test_fc_reboot_is_detected_and_stream_rates_are_requested_again(fst):
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:  # a GCS on the sim's link reboots it
         s.sendto(GCS.command_long_encode(1, 1, M.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, 0, 1, 0, 0, 0, 0, 0, 0).pack(GCS),
                  st.sim_address)
-    wait_until(lambda: int(diag(st.session, "sim")["reboots"]) == int(s0["reboots"]) + 1, 5, "the sim rebooted")
+    wait_until(lambda: int(diag(st.session, "sim").values["reboots"]) == int(s0["reboots"]) + 1, 5, "the sim rebooted")
     wait_until(lambda: latest(st.session, "state/vehicle", VehicleState, 1.0, lambda m: m.connected), 10, "link back")
     time.sleep(1.0)
     after = rate_hz(st.session, "state/vehicle", VehicleState)
@@ -427,8 +403,8 @@ def test_fmu_killed_mid_motion_restarted_fmu_never_replays_stale_motion(fst):
         t_back = time.monotonic()
         time.sleep(5.0)
         after = truth.since(t_back)
-        d = diag(st.session, "fmu")
-        s = diag(st.session, "sim")
+        d = diag(st.session, "fmu").values
+        s = diag(st.session, "sim").values
         xy = np.array([m.position_m.to_array()[:2] for m in after])
         travel = float(np.linalg.norm(xy - back.position_m.to_array()[:2], axis=1).max())
         print(f"fmu killed: RTL {rtl_s:.2f} s after; back in OFFBOARD, then moved {travel:.2f} m horizontally; "
@@ -441,7 +417,7 @@ def test_fmu_killed_mid_motion_restarted_fmu_never_replays_stale_motion(fst):
         # Fresh motion (computed from the new fmu's state) is followed again.
         planner.replay = None
         planner.law = hold_at(pos(after[-1]))
-        wait_until(lambda: diag(st.session, "fmu").get("planner") == "streaming", 5, "following fresh setpoints")
+        wait_until(lambda: diag(st.session, "fmu").values.get("planner") == "streaming", 5, "following fresh setpoints")
     finally:
         planner.replay = None
         land(st, planner, truth)
@@ -508,7 +484,7 @@ def test_fmu_talks_only_to_the_flight_controller(fmu_alone, zenoh_router):
             tx0 = runner.endpoint.counters["rx_msgs"]
             time.sleep(2.0)
             back = sum(received(s) for s in junk)
-            d = diag(session, "fmu")
+            d = diag(session, "fmu").values
             still = latest(session, "state/vehicle", VehicleState, 2.0, lambda m: m.connected)
             print(f"200 foreign senders: {back} datagrams back; fmu rejected {d.get('rejected_datagrams')}, "
                   f"peer {d.get('fcu_peer')}, sim heard {runner.endpoint.counters['rx_msgs'] - tx0} msgs from fmu")
@@ -578,12 +554,12 @@ def test_fmu_relocks_onto_a_restarted_fc_after_the_link_was_lost(fmu_alone, zeno
                        "fmu connected to the first FC")
             first_port = first.endpoint.local_address[1]
         with sim_vehicle(fcu) as second:  # a new ephemeral port: a different address
-            wait_until(lambda: diag(session, "fmu").get("fcu_peer") == "127.0.0.1:%d" % second.endpoint.local_address[1],
+            wait_until(lambda: diag(session, "fmu").values.get("fcu_peer") == "127.0.0.1:%d" % second.endpoint.local_address[1],
                        15, "fmu locked onto the restarted FC")
             assert second.endpoint.local_address[1] != first_port
             wait_until(lambda: latest(session, "state/vehicle", VehicleState, 1.0, lambda m: m.connected), 10,
                        "state/vehicle from the restarted FC")
-            assert int(diag(session, "fmu")["link_locks"]) == 2
+            assert int(diag(session, "fmu").values["link_locks"]) == 2
     finally:
         session.close()
 
@@ -606,7 +582,7 @@ def test_offboard_right_after_the_link_comes_up_waits_for_the_stream_and_retries
         took = time.monotonic() - t0
         assert reply is not None and reply.success, reply
         assert runner.vehicle.commander.mode == "OFFBOARD"
-        retried = wait_until(lambda: int(diag(session, "fmu").get("commands_retried", 0)), 5,
+        retried = wait_until(lambda: int(diag(session, "fmu").values.get("commands_retried", 0)), 5,
                              "diagnostics/fmu counting the re-sent request")
         print(f"OFFBOARD right after link-up: accepted after {took:.2f} s, {retried} re-sends")
         assert retried >= 1 and took < 5.0

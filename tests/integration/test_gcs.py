@@ -24,26 +24,20 @@ os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil  # noqa: E402
 from pymavlink.dialects.v20 import common as M  # noqa: E402
 
-from aeroperception.schemas import DiagnosticStatus, GcsLink, HomePosition, MissionStatus, decode  # noqa: E402
+from aeroperception.schemas import DiagnosticStatus, GcsLink, HomePosition, MissionStatus  # noqa: E402
 from aeroperception.services.gcs.contract import (  # noqa: E402
     DEFAULT_HOME_ALT_M, DEFAULT_HOME_LAT_DEG, DEFAULT_HOME_LON_DEG,
 )
 from aeroperception.services.gcs.messages import extension_fields  # noqa: E402
 from aeroperception.services.gcs.home import Home  # noqa: E402
 from aeroperception.services.sim.vehicle.params import make_params  # noqa: E402
-from aerotest import wait_for_message, wait_until  # noqa: E402
+from aerotest import Capture, free_udp_port, wait_for_message, wait_until  # noqa: E402
 
 # The flight controller's home: the built-in sim's (PX4 SITL's default, near Zurich), which gcs
 # takes from fmu/out/home_position. gcs's own home parameters (Tokyo) are only the fallback.
 _SIM = make_params()
 HOME = Home(_SIM.SIM_HOME_LAT, _SIM.SIM_HOME_LON, _SIM.SIM_HOME_ALT)
 PARAM_HOME = Home(DEFAULT_HOME_LAT_DEG, DEFAULT_HOME_LON_DEG, DEFAULT_HOME_ALT_M)
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def start_stack(stack, gcs_port: int, gcs_remote: int):
@@ -85,7 +79,6 @@ class Gcs:
 
     def close(self):
         self.conn.close()
-
 
 
 @contextlib.asynccontextmanager
@@ -562,14 +555,6 @@ def test_mavproxy_ground_station(stack, tmp_path):
     assert mp.proc.returncode is not None
 
 
-def latest(st, key: str, cls: type, timeout_s: float = 1.0):
-    """The next message on `key` as `cls`, or None after timeout_s."""
-    try:
-        return wait_for_message(st.session, key, cls, timeout_s=timeout_s)
-    except AssertionError:
-        return None
-
-
 def wait_until_value(get, want, timeout_s=10.0, interval_s=0.3):
     """Poll get() until it returns `want`; the last value either way."""
     deadline = time.monotonic() + timeout_s
@@ -581,37 +566,6 @@ def wait_until_value(get, want, timeout_s=10.0, interval_s=0.3):
 
 
 # ---------------------------------------------------------------- a mission flown end to end
-
-
-class Recorder:
-    """Every message on some keys, decoded, in arrival order: {name: [msg]}."""
-
-    def __init__(self, session, keys: dict):
-        self.lock = threading.Lock()
-        self.data = {name: [] for name in keys}
-        self.subs = [session.declare_subscriber(key, self._cb(name, cls)) for name, (key, cls) in keys.items()]
-
-    def _cb(self, name, cls):
-        def on_sample(sample) -> None:
-            try:
-                msg = decode(sample.payload.to_bytes(), cls)
-            except Exception:  # noqa: BLE001 - not ours
-                return
-            with self.lock:
-                self.data[name].append(msg)
-        return on_sample
-
-    def get(self, name) -> list:
-        with self.lock:
-            return list(self.data[name])
-
-    def last(self, name):
-        with self.lock:
-            return self.data[name][-1] if self.data[name] else None
-
-    def close(self) -> None:
-        for s in self.subs:
-            s.undeclare()
 
 
 @pytest.mark.slow
@@ -633,7 +587,7 @@ def test_mavsdk_mission_flies_in_sim(stack):
 
     port, sdk_port = free_udp_port(), free_udp_port()
     st = start_stack(stack, port, sdk_port)
-    wait_until(lambda: (m := latest(st, "state/vehicle", VehicleState)) is not None and m.connected, 15,
+    wait_until(lambda: (m := st.latest("state/vehicle", VehicleState, 1.0)) is not None and m.connected, 15,
                "state/vehicle connected (fmu <-> sim)")
     alt = 3.0
     pts = waypoints(alt=alt)
@@ -710,7 +664,7 @@ def test_mavsdk_mission_flies_in_sim(stack):
                     t.cancel()
                 await asyncio.gather(*tasks, return_exceptions=True)
 
-    rec = Recorder(st.session, {"truth": ("sim/truth/state", VehicleState),
+    rec = Capture(st.session, {"truth": ("sim/truth/state", VehicleState),
                                 "vstatus": ("fmu/out/vehicle_status", VehicleStatus),
                                 "status": ("mission/status", MissionStatus),
                                 "reached": ("mission/waypoint_reached", WaypointReached)})

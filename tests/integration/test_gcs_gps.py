@@ -13,8 +13,8 @@ from pymavlink.dialects.v20 import common as M  # noqa: E402
 
 from aeroperception.schemas import DiagnosticStatus, EstimatorStatus, GpsPosition  # noqa: E402
 from aeroperception.services.sim.vehicle.params import make_params  # noqa: E402
-from aerotest import wait_for_message  # noqa: E402
-from test_gcs import Gcs, free_udp_port  # noqa: E402
+from aerotest import free_udp_port, wait_for_message  # noqa: E402
+from test_gcs import Gcs  # noqa: E402
 
 SIM = make_params()
 REL, ABS = M.ESTIMATOR_POS_HORIZ_REL, M.ESTIMATOR_POS_HORIZ_ABS

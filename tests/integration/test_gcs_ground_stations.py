@@ -24,13 +24,7 @@ from pymavlink.dialects.v20 import common as M  # noqa: E402
 
 from aeroperception.schemas import DiagnosticStatus, GcsLink, SafetyStatus, VehicleStatus  # noqa: E402
 from aeroperception.services.gcs.link import Parser, make_mav  # noqa: E402
-from aerotest import clean_env, stop_up, wait_for_message, wait_until  # noqa: E402
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+from aerotest import clean_env, free_udp_port, stop_up, wait_for_message, wait_until  # noqa: E402
 
 
 class GcsProcess:

@@ -11,9 +11,9 @@ import time
 import pytest
 
 from aeroperception.schemas import DiagnosticStatus, MissionStatus, VehicleState
-from aerotest import wait_for_message, wait_until
+from aerotest import free_udp_port, wait_for_message, wait_until
 from test_gcs import (
-    HOME, Gcs, MavProxy, free_udp_port, latest, mavsdk_autopilot, start_stack, wait_until_value,
+    HOME, Gcs, MavProxy, mavsdk_autopilot, start_stack, wait_until_value,
 )
 from pymavlink.dialects.v20 import common as M
 
@@ -69,7 +69,7 @@ def test_px4_parameter_names_mode_change_and_ignored_setpoints(stack, tmp_path):
     assert get("mission", "takeoff_altitude_m") == "4.5"
     assert get("planner", "max_velocity_mps") == "3.0"
     assert get("sim", "RTL_RETURN_ALT") == "30.0"
-    wait_until(lambda: (v := latest(st, "state/vehicle", VehicleState)) is not None and v.flight_mode == "POSCTL",
+    wait_until(lambda: (v := st.latest("state/vehicle", VehicleState, 1.0)) is not None and v.flight_mode == "POSCTL",
                5, "the vehicle in POSCTL")
     print(f"start_position_control answered after {timing['posctl_s']:.2f} s")
 
@@ -117,10 +117,10 @@ def test_mavsdk_mission_progress_reaches_finished(stack):
 
     port, sdk_port = free_udp_port(), free_udp_port()
     st = start_stack(stack, port, sdk_port)
-    wait_until(lambda: (m := latest(st, "state/vehicle", VehicleState)) is not None and m.connected, 15,
+    wait_until(lambda: (m := st.latest("state/vehicle", VehicleState, 1.0)) is not None and m.connected, 15,
                "state/vehicle connected")
     # the simulated FC accepts OFFBOARD only after > 1 s of fmu's setpoint stream (PX4's rule)
-    wait_until(lambda: (d := latest(st, "diagnostics/fmu", DiagnosticStatus)) is not None
+    wait_until(lambda: (d := st.latest("diagnostics/fmu", DiagnosticStatus, 1.0)) is not None
                and d.values.get("planner") == "streaming", 15, "fmu streaming the planner's setpoints")
     time.sleep(2.0)
     pts = [HOME.projection.reproject(n, e) for n, e in ((3.0, 0.0), (3.0, 3.0), (0.0, 3.0))]
@@ -171,7 +171,7 @@ def test_mavsdk_mission_progress_reaches_finished(stack):
     last = current[-1]
     assert (last["seq"], last["total"], last["mission_state"]) == (3, 3, M.MISSION_STATE_COMPLETE)
     assert any(c["mission_state"] == M.MISSION_STATE_ACTIVE for c in current)
-    wait_until(lambda: (m := latest(st, "mission/status", MissionStatus)) is not None and m.state == "IDLE", 40,
+    wait_until(lambda: (m := st.latest("mission/status", MissionStatus, 1.0)) is not None and m.state == "IDLE", 40,
                "landed (mission IDLE)")
     assert wait_until_value(lambda: st.aero("param", "get", "planner", "max_velocity_mps").stdout.strip(),
                             "2.0", timeout_s=3) == "2.0"

@@ -17,7 +17,6 @@ One module-scoped stack, flights in order (each lands before the next):
 from __future__ import annotations
 
 import json
-import socket
 import subprocess
 import time
 from pathlib import Path
@@ -25,11 +24,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from aerotest import aero_argv, clean_env, wait_for_message, wait_until
+from aerotest import Capture, aero_argv, clean_env, free_udp_port, wait_until
 from aeroperception.schemas import (
     DiagnosticStatus, MissionStatus, PerceptionHealth, VehicleState, VioHealth, load_mission_file,
 )
-from aeroperception.tools.cmd_chaos import Recorder
 
 REPO = Path(__file__).resolve().parents[2]
 SURVEY = REPO / "examples" / "missions" / "village_survey_gps_denied.json"
@@ -40,22 +38,9 @@ SERVICES = ["sim", "fmu", "planner", "mission", "vio", "perception"]
 SPEED = 0.5
 
 
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def latest(st, key: str, cls: type, timeout_s: float = 3.0, pred=None):
-    try:
-        return wait_for_message(st.session, key, cls, pred, timeout_s)
-    except AssertionError:
-        return None
-
-
 def sim_flag(st, name: str) -> bool:
     """A boolean of the sim's diagnostics (values travel as text)."""
-    d = latest(st, "diagnostics/sim", DiagnosticStatus, 3.0)
+    d = st.latest("diagnostics/sim", DiagnosticStatus, 3.0)
     assert d is not None, "no diagnostics/sim"
     return str(d.values.get(name)) == "True"
 
@@ -69,9 +54,9 @@ def gstack(stack_module):
         "--arg", f"sim:--target=127.0.0.1:{fcu}", "--arg", f"sim:--bind=127.0.0.1:{sim_bind}",
         "--arg", "sim:--param=RTL_RETURN_ALT=6"], timeout_s=60)
     try:
-        wait_until(lambda: latest(st, "state/vehicle", VehicleState, 1.0, lambda m: m.connected),
+        wait_until(lambda: st.latest("state/vehicle", VehicleState, 1.0, lambda m: m.connected),
                    30, "state/vehicle connected (fmu <-> sim MAVLink)")
-        wait_until(lambda: latest(st, "perception/health", PerceptionHealth, 1.5, lambda m: m.overall_healthy),
+        wait_until(lambda: st.latest("perception/health", PerceptionHealth, 1.5, lambda m: m.overall_healthy),
                    60, "perception healthy (VIO TRACKING on the ground)")
         wait_until(lambda: sim_flag(st, "position_valid"), 15,
                    "the GPS-denied FC has a position from the VIO")
@@ -81,10 +66,9 @@ def gstack(stack_module):
     return st
 
 
-def record(st) -> Recorder:
-    return Recorder(st.session, {"truth": ("sim/truth/state", VehicleState),
-                                 "status": ("mission/status", MissionStatus),
-                                 "vio": ("state/vio_health", VioHealth)})
+def record(st) -> Capture:
+    return st.capture(truth=("sim/truth/state", VehicleState), status=("mission/status", MissionStatus),
+                      vio=("state/vio_health", VioHealth))
 
 
 def fly(st, mission: Path, timeout_s: float = 200.0) -> subprocess.Popen:
@@ -107,11 +91,6 @@ def distinct(seq: list) -> list:
     return [s for k, s in enumerate(seq) if k == 0 or s != seq[k - 1]]
 
 
-def landed(st) -> bool:
-    t = latest(st, "sim/truth/state", VehicleState, 2.0)
-    return t is not None and t.position_m.z < 0.1 and not t.armed
-
-
 def line_mission(tmp_path: Path, length_m: float) -> Path:
     p = tmp_path / "line.json"
     p.write_text(json.dumps({"mission_id": "line", "takeoff_altitude_m": 4.0, "waypoint_acceptance_radius_m": 1.0,
@@ -120,7 +99,7 @@ def line_mission(tmp_path: Path, length_m: float) -> Path:
     return p
 
 
-def blackout_when_executing(st, rec: Recorder, seconds: float, after_s: float = 3.0) -> float:
+def blackout_when_executing(st, rec: Capture, seconds: float, after_s: float = 3.0) -> float:
     wait_until(lambda: rec.last("status") is not None and rec.last("status").state == "EXECUTING", 60,
                "mission EXECUTING")
     time.sleep(after_s)
@@ -153,7 +132,7 @@ def test_village_survey_on_vio_alone(gstack, tmp_path):
         code, out = finish(p, 420)
         flight_s = time.monotonic() - t0
         assert code == 0, f"fly exit {code}\n{out}\n{st.describe()}"
-        wait_until(lambda: landed(st), 20, "landed and disarmed per truth")
+        wait_until(lambda: st.landed(0.1), 20, "landed and disarmed per truth")
         track = np.array([m.position_m.to_array() for m in rec.get("truth")])
         final = rec.last("truth")
         ev_code, ev_out = finish(ev, 30)
@@ -188,7 +167,7 @@ def test_blackout_3s_holds_then_resumes(gstack, tmp_path):
         t_black = blackout_when_executing(st, rec, 3.0)
         code, out = finish(p, 180)
         assert code == 0, f"fly exit {code}\n{out}\n{st.describe()}"
-        wait_until(lambda: landed(st), 20, "landed and disarmed per truth")
+        wait_until(lambda: st.landed(0.1), 20, "landed and disarmed per truth")
         wait_until(lambda: rec.last("status").state == "IDLE", 10, "mission IDLE after the landing")
         vio = distinct([m.state_name for m in rec.get("vio", t_black)])
         states = distinct([m.state for m in rec.get("status", t_black - 1.0)])   # EXECUTING before it
@@ -218,7 +197,7 @@ def test_blackout_15s_returns_home_and_lands(gstack, tmp_path):
         x_black = rec.last("truth").position_m.x
         code, out = finish(p, 180)
         assert code == 0, f"fly exit {code}\n{out}\n{st.describe()}"
-        wait_until(lambda: landed(st), 30, "landed and disarmed per truth")
+        wait_until(lambda: st.landed(0.1), 30, "landed and disarmed per truth")
         states = distinct([m.state for m in rec.get("status", t_black - 1.0)])
         msgs = [m.message for m in rec.get("status", t_black)]
         final = rec.last("truth")

@@ -29,7 +29,7 @@ import msgspec
 import numpy as np
 import pytest
 
-from aerotest import is_service_process, wait_until
+from aerotest import free_udp_port, is_service_process, wait_until
 from aeroperception.schemas import (
     GoalReply, GoalStatus, GoToPositionGoal, LandGoal, LoadMissionReply, LoadMissionRequest,
     MissionCommand, MissionGoal, MissionStatus, Reply, SafetyStatus, SetModeReply, SetModeRequest,
@@ -37,9 +37,7 @@ from aeroperception.schemas import (
 )
 from aeroperception.services.runtime import ActionClient
 from aeroperception.services.runtime.node import call, encoding_for
-from test_flight import (  # helpers only (no test functions: they would be collected twice)
-    SURVEY, diag, fly_in_background, free_udp_port, latest, recording, truth, wait_at_rest,
-)
+from test_flight import SURVEY, fly_in_background, wait_at_rest  # helpers only (no test functions here)
 
 SERVICES = ["sim", "fmu", "planner", "mission", "diagnostics"]
 
@@ -54,16 +52,7 @@ def mstack(stack_module, tmp_path_factory):
         "--arg", f"sim:--target=127.0.0.1:{fcu}", "--arg", f"sim:--bind=127.0.0.1:{sim_bind}",
         "--arg", "sim:--sensors=none", "--arg", f"mission:--param=state_dir={state_dir}"], timeout_s=30)
     st.state_dir = state_dir
-    try:
-        wait_until(lambda: latest(st, "state/vehicle", VehicleState, 1.0, lambda m: m.connected),
-                   15, "state/vehicle connected (fmu <-> sim MAVLink)")
-        wait_until(lambda: int(diag(st, "fmu").values.get("setpoints_sent", 0)) > 100, 15,
-                   "planner setpoints streaming through fmu")
-        wait_until(lambda: latest(st, "mission/status", MissionStatus, 1.5, lambda m: "restarting" not in m.message),
-                   15, "mission/status, restore done")
-    except BaseException:
-        print(st.describe())
-        raise
+    st.wait_flight_ready(45, mission_ready=lambda m: "restarting" not in m.message)   # its restore done
     return st
 
 
@@ -71,47 +60,23 @@ def mstack(stack_module, tmp_path_factory):
 
 
 def status(st, pred=None, timeout_s: float = 3.0) -> MissionStatus:
-    s = latest(st, "mission/status", MissionStatus, timeout_s, pred)
+    s = st.latest("mission/status", MissionStatus, timeout_s, pred)
     assert s is not None, "no (matching) mission/status"
     return s
 
 
 def wait_status(st, pred, timeout_s: float, what: str) -> MissionStatus:
-    return wait_until(lambda: latest(st, "mission/status", MissionStatus, 1.0, pred), timeout_s, what)
-
-
-def command(st, cmd: str, timeout_s: float = 15.0) -> Reply:
-    return call(st.session, "mission/srv/command", MissionCommand(command=cmd), Reply, timeout_s)
+    return wait_until(lambda: st.latest("mission/status", MissionStatus, 1.0, pred), timeout_s, what)
 
 
 def load(st, text: str) -> LoadMissionReply:
     return call(st.session, "mission/srv/load", LoadMissionRequest(mission_json=text), LoadMissionReply, 5.0)
 
 
-def landed(st) -> bool:
-    t = truth(st)
-    return t.position_m.z < 0.2 and not t.armed
-
-
-def ensure_landed(st) -> None:
-    """On the ground, disarmed, mission IDLE (LAND if needed), judged by the truth."""
-    if not landed(st):
-        s = status(st)
-        if s.state not in ("LAND", "IDLE"):
-            r = command(st, "LAND")
-            assert r.success, f"LAND refused: {r.message}"
-        wait_until(lambda: landed(st), 60, "vehicle landed and disarmed (truth)")
-    wait_status(st, lambda m: m.state == "IDLE", 15, "mission IDLE")
-
-
 def start_survey(st) -> None:
-    ensure_landed(st)
-    r = load(st, SURVEY.read_text())
-    assert r.success, r.message
-    for cmd in ("TAKEOFF", "START"):
-        r = command(st, cmd)
-        assert r.success, f"{cmd}: {r.message}"
-    wait_status(st, lambda m: m.state == "EXECUTING", 40, "mission EXECUTING")
+    st.ensure_landed()
+    why = st.start_mission(SURVEY.read_text())
+    assert why is None, why
 
 
 def first_since(rec, name: str, since: float, pred):
@@ -138,7 +103,7 @@ def kill9(st, name: str) -> int:
 @pytest.mark.slow
 def test_mission_killed_mid_flight_restarts_holding_then_resumes_and_lands(mstack):
     st = mstack
-    ensure_landed(st)
+    st.ensure_landed()
     with fly_in_background(st, SURVEY, "--quiet", "--timeout", "150") as (proc, out):
         wait_status(st, lambda m: m.state == "EXECUTING" and m.active_waypoint >= 2, 60,
                     "survey under way to waypoint index 2")
@@ -151,22 +116,22 @@ def test_mission_killed_mid_flight_restarts_holding_then_resumes_and_lands(mstac
         print(f"mission HOLDING {time.monotonic() - t_kill:.1f} s after kill -9: {s.message}")
         assert "mission restarted in flight" in s.message, s.message
         assert s.mission_id == "survey_01" and s.active_waypoint == persisted["wp_index"], s
-        t = truth(st)
+        t = st.truth()
         assert t.armed and t.position_m.z > 3.0, f"vehicle not flying: z {t.position_m.z:.2f}"
         time.sleep(2.0)
         assert proc.poll() is None, "aero mission fly ended although the vehicle is flying:\n" + "".join(out)
         assert "landed" not in "".join(out), "".join(out)
 
         # START resumes from the persisted waypoint
-        r = command(st, "START")
+        r = st.command("START")
         assert r.success and "resumed at waypoint" in r.message, r.message
         s = status(st, lambda m: m.state == "EXECUTING")
         assert s.active_waypoint == persisted["wp_index"], s
         # LAND works (the defect: "LAND not possible in IDLE", hovering for 10+ minutes)
         time.sleep(1.0)
-        r = command(st, "LAND")
+        r = st.command("LAND")
         assert r.success, r.message
-        wait_until(lambda: landed(st), 60, "landed and disarmed (truth)")
+        wait_until(lambda: st.landed(), 60, "landed and disarmed (truth)")
         code = proc.wait(20)
     text = "".join(out)
     print(text)
@@ -182,7 +147,7 @@ def test_mission_killed_mid_flight_restarts_holding_then_resumes_and_lands(mstac
 def test_fc_switched_to_hold_mid_mission_holds_and_start_resumes_to_completion(mstack):
     st = mstack
     start_survey(st)
-    with recording(st, status=("mission/status", MissionStatus), truth=("sim/truth/state", VehicleState),
+    with st.capture(status=("mission/status", MissionStatus), truth=("sim/truth/state", VehicleState),
                    reached=("mission/waypoint_reached", WaypointReached),
                    goal=("mission/active_goal", MissionGoal)) as rec:
         wait_status(st, lambda m: m.state == "EXECUTING" and m.active_waypoint == 1
@@ -203,17 +168,17 @@ def test_fc_switched_to_hold_mid_mission_holds_and_start_resumes_to_completion(m
         held = wait_at_rest(st, 10)
         n_reached = len(rec.get("reached"))
         time.sleep(3.0)
-        t = truth(st)
+        t = st.truth()
         assert np.linalg.norm(t.position_m.to_array() - held.position_m.to_array()) < 0.5
         assert len(rec.get("reached")) == n_reached and status(st).state == "HOLDING"
         assert t.flight_mode == "HOLD", f"the mission fought the FC: mode {t.flight_mode}"
 
         # START resumes (asks for OFFBOARD again) and the survey completes
-        r = command(st, "START")
+        r = st.command("START")
         assert r.success, r.message
-        wait_until(lambda: truth(st).flight_mode == "OFFBOARD", 5, "FC back in OFFBOARD")
+        wait_until(lambda: st.truth().flight_mode == "OFFBOARD", 5, "FC back in OFFBOARD")
         wait_status(st, lambda m: m.state == "LAND", 90, "survey complete: LAND")
-        wait_until(lambda: landed(st), 60, "landed and disarmed (truth)")
+        wait_until(lambda: st.landed(), 60, "landed and disarmed (truth)")
         reached = [m.index for m in rec.get("reached")]
     assert reached[-3:] == [1, 2, 3], f"waypoints reached {reached}"
 
@@ -225,7 +190,7 @@ def test_fc_switched_to_hold_mid_mission_holds_and_start_resumes_to_completion(m
 def test_fmu_killed_mid_mission_holds_and_does_not_resume_by_itself(mstack):
     st = mstack
     start_survey(st)
-    with recording(st, status=("mission/status", MissionStatus),
+    with st.capture(status=("mission/status", MissionStatus),
                    reached=("mission/waypoint_reached", WaypointReached)) as rec:
         wait_status(st, lambda m: m.state == "EXECUTING" and m.active_waypoint == 1, 40, "flying to index 1")
         old = kill9(st, "fmu")
@@ -235,15 +200,15 @@ def test_fmu_killed_mid_mission_holds_and_does_not_resume_by_itself(mstack):
         print(f"mission HOLDING {t_hold - t_kill:.2f} s after fmu kill -9: {s.message}")
         assert "fmu" in s.message and "outage" in s.message, s.message
         wait_until(lambda: st.pids().get("fmu") not in (None, old), 20, "aero up restarted fmu")
-        wait_until(lambda: latest(st, "state/vehicle", VehicleState, 1.0, lambda m: m.connected), 20,
+        wait_until(lambda: st.latest("state/vehicle", VehicleState, 1.0, lambda m: m.connected), 20,
                    "fmu back, FC connected")
         n_reached = len(rec.get("reached"))
         time.sleep(5.0)
         s = status(st)
-        print(f"5 s after fmu is back: {s.state}: {s.message}; truth mode {truth(st).flight_mode}")
+        print(f"5 s after fmu is back: {s.state}: {s.message}; truth mode {st.truth().flight_mode}")
         assert s.state in ("HOLDING", "IDLE"), s  # IDLE only if the FC's failsafe landed it
         assert len(rec.get("reached")) == n_reached, "the survey carried on after the outage"
-    ensure_landed(st)
+    st.ensure_landed()
 
 
 # ---------------------------------------------------------------- safety/status reactions
@@ -290,17 +255,17 @@ def test_safety_hold_acts_once_and_safety_land_lands(mstack):
         safety.recommend(SafetyStatus.ACTION_HOLD, "geofence warning")
         s = wait_status(st, lambda m: m.state == "HOLDING", 5, "HOLDING on safety HOLD")
         assert "safety: HOLD (geofence warning)" in s.message, s.message
-        r = command(st, "START")                      # the operator acknowledges and resumes
+        r = st.command("START")                      # the operator acknowledges and resumes
         assert r.success, r.message
         time.sleep(3.0)                               # three more 1 Hz HOLD recommendations
         assert status(st).state == "EXECUTING", "the repeated recommendation overrode the operator"
         safety.recommend(SafetyStatus.ACTION_LAND, "battery critical")
         s = wait_status(st, lambda m: m.state == "LAND", 5, "LAND on safety LAND")
         assert "safety: LAND (battery critical)" in s.message, s.message
-        wait_until(lambda: landed(st), 60, "landed and disarmed (truth)")
+        wait_until(lambda: st.landed(), 60, "landed and disarmed (truth)")
     finally:
         safety.close()
-    ensure_landed(st)
+    st.ensure_landed()
 
 
 # ---------------------------------------------------------------- item 5: unsafe inputs
@@ -323,19 +288,19 @@ def mission_text(**changes) -> str:
 ])
 def test_unsafe_missions_refused_by_the_service(mstack, changes, words):
     st = mstack
-    ensure_landed(st)
+    st.ensure_landed()
     text = mission_text(**changes)
     r = load(st, text)
     assert not r.success and all(w in r.message for w in words), r.message
     # the same through mission/srv/command LOAD
     r2 = call(st.session, "mission/srv/command", MissionCommand(command="LOAD", mission_json=text), Reply, 5.0)
     assert not r2.success and all(w in r2.message for w in words), r2.message
-    assert status(st).state == "IDLE" and landed(st)
+    assert status(st).state == "IDLE" and st.landed()
 
 
 def test_unsafe_takeoff_and_goto_goals_refused(mstack):
     st = mstack
-    ensure_landed(st)
+    st.ensure_landed()
     takeoff, goto = ActionClient(st.session, "mission/action/takeoff"), ActionClient(st.session, "mission/action/goto")
     try:
         g = takeoff.send_goal(TakeoffGoal(target_altitude_m=1e12))
@@ -346,7 +311,7 @@ def test_unsafe_takeoff_and_goto_goals_refused(mstack):
         takeoff.close()
         goto.close()
     time.sleep(0.5)
-    assert landed(st) and status(st).state == "IDLE"
+    assert st.landed() and status(st).state == "IDLE"
 
 
 @pytest.mark.slow
@@ -362,9 +327,9 @@ def test_garbage_land_goal_is_refused_and_the_mission_keeps_flying(mstack):
     time.sleep(2.0)
     s = status(st)
     assert s.state == "EXECUTING", f"garbage goal changed the mission: {s.state} {s.message}"
-    t = truth(st)
+    t = st.truth()
     assert t.armed and t.position_m.z > 3.0 and t.flight_mode == "OFFBOARD"
-    ensure_landed(st)
+    st.ensure_landed()
 
 
 # ---------------------------------------------------------------- item 9: takeoff altitude
@@ -372,7 +337,7 @@ def test_garbage_land_goal_is_refused_and_the_mission_keeps_flying(mstack):
 
 def test_takeoff_settles_on_the_target_altitude(mstack):
     st = mstack
-    ensure_landed(st)
+    st.ensure_landed()
     client = ActionClient(st.session, "mission/action/takeoff")
     try:
         g = client.send_goal(TakeoffGoal(target_altitude_m=3.0))
@@ -384,4 +349,4 @@ def test_takeoff_settles_on_the_target_altitude(mstack):
     rest = wait_at_rest(st, 20, speed_mps=0.05, for_s=2.0)
     print(f"takeoff to 3 m: at rest at z = {rest.position_m.z:.3f} m (truth)")
     assert abs(rest.position_m.z - 3.0) < 0.1, f"settled at {rest.position_m.z:.2f} m for a 3 m target"
-    ensure_landed(st)
+    st.ensure_landed()

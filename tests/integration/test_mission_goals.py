@@ -22,14 +22,13 @@ import time
 import numpy as np
 import pytest
 
-from aerotest import wait_until
+from aerotest import free_udp_port, wait_until
 from aeroperception.schemas import (
     GoalStatus, GoToPositionGoal, LandGoal, LandResult, MissionStatus, TakeoffGoal, Vector3, VehicleState,
 )
 from aeroperception.services.runtime import ActionClient
-from aeroperception.tools.cmd_chaos import Recorder
-from test_flight import flight_stack, latest, recording, truth, wait_at_rest
-from test_mission_faults import command, ensure_landed, kill9, load, wait_status
+from test_flight import flight_stack, wait_at_rest
+from test_mission_faults import kill9, load, wait_status
 
 SHORT = {"mission_id": "short_hop", "takeoff_altitude_m": 2.5,
          "waypoints": [{"x": 2.0, "y": 0.0, "z": 2.5}], "waypoint_acceptance_radius_m": 0.5}
@@ -51,17 +50,17 @@ def restart_mission(st) -> MissionStatus:
 
 def test_a_finished_flight_is_not_restored_after_a_restart(gstack):
     st = gstack
-    ensure_landed(st)
+    st.ensure_landed()
     r = load(st, json.dumps(SHORT))
     assert r.success, r.message
     for cmd in ("TAKEOFF", "START"):
-        r = command(st, cmd)
+        r = st.command(cmd)
         assert r.success, f"{cmd}: {r.message}"
     wait_status(st, lambda m: m.state == "EXECUTING", 30, "short hop EXECUTING")
     persisted = json.loads(st.state_file.read_text())
     assert persisted["mission_json"] and persisted["state"] == "EXECUTING", persisted   # in flight: kept
     wait_status(st, lambda m: m.state == "LAND", 30, "short hop complete: LAND")
-    ensure_landed(st)
+    st.ensure_landed()
     persisted = json.loads(st.state_file.read_text())
     assert persisted["state"] == "IDLE" and persisted["mission_json"] is None, persisted
 
@@ -81,7 +80,7 @@ def test_a_finished_flight_is_not_restored_after_a_restart(gstack):
     print(f"after an old finished snapshot: {s.message}")
     assert "5/4" not in s.message and "was complete (4/4 waypoints)" in s.message, s.message
     assert s.mission_id == "" and s.active_waypoint == -1, s
-    assert not truth(st).armed and latest(st, "mission/status", MissionStatus, 2.0).state == "IDLE"
+    assert not st.truth().armed and st.latest("mission/status", MissionStatus, 2.0).state == "IDLE"
 
 
 def test_mavsdk_set_current_mission_item_makes_the_vehicle_jump(stack):
@@ -90,7 +89,7 @@ def test_mavsdk_set_current_mission_item_makes_the_vehicle_jump(stack):
     from mavsdk.asyncio.plugins.mission_raw.mission_raw import MissionRawAsync
     from mavsdk.plugins.mission_raw import MissionItem
     from pymavlink.dialects.v20 import common as M
-    from test_gcs import HOME, free_udp_port, mavsdk_autopilot, start_stack, waypoints
+    from test_gcs import HOME, mavsdk_autopilot, start_stack, waypoints
 
     port, sdk_port = free_udp_port(), free_udp_port()
     st = start_stack(stack, port, sdk_port)
@@ -105,7 +104,7 @@ def test_mavsdk_set_current_mission_item_makes_the_vehicle_jump(stack):
     jumped: dict[str, float] = {}
 
     def status(pred):
-        m = latest(st, "mission/status", MissionStatus, 1.0, pred)
+        m = st.latest("mission/status", MissionStatus, 1.0, pred)
         return m
 
     async def session():
@@ -125,7 +124,7 @@ def test_mavsdk_set_current_mission_item_makes_the_vehicle_jump(stack):
             await asyncio.to_thread(wait_until, lambda: status(lambda m: m.state in ("LAND", "IDLE")), 40,
                                     "the mission completes after item 3")
 
-    rec = Recorder(st.session, {"truth": ("sim/truth/state", VehicleState)})
+    rec = st.capture(truth=("sim/truth/state", VehicleState))
     try:
         asyncio.run(asyncio.wait_for(session(), 120))
         track = np.array([m.position_m.to_array() for m in rec.get("truth")[jumped["at"]:]])
@@ -142,7 +141,7 @@ def run_goal(st, action: str, goal, timeout_s: float = 60.0) -> tuple[list[Vehic
     """Send one mission action goal, wait for SUCCEEDED; the true states meanwhile and its result."""
     client = ActionClient(st.session, f"mission/action/{action}")
     try:
-        with recording(st, truth=("sim/truth/state", VehicleState)) as rec:
+        with st.capture(truth=("sim/truth/state", VehicleState)) as rec:
             g = client.send_goal(goal)
             assert g.success, f"{action} refused: {g.message}"
             res = client.result(g.goal_id, timeout_s)
@@ -160,7 +159,7 @@ def vertical_speeds(track: list[VehicleState], z_from: float, z_to: float) -> np
 
 def test_takeoff_land_goto_fields_are_honoured_by_truth(gstack):
     st = gstack
-    ensure_landed(st)
+    st.ensure_landed()
     slow_up, _ = run_goal(st, "takeoff", TakeoffGoal(target_altitude_m=3.0, climb_rate_mps=0.5))
     wait_at_rest(st)
     track, _ = run_goal(st, "goto", GoToPositionGoal(position_m=Vector3(x=4.0, y=0.0, z=3.0), velocity_mps=0.6))
@@ -168,7 +167,7 @@ def test_takeoff_land_goto_fields_are_honoured_by_truth(gstack):
     target = np.array([0.0, 3.0])
     slow_down, res = run_goal(st, "land", LandGoal(land_at_current_position=False, descent_rate_mps=0.5,
                                                    target_position_m=Vector3(x=0.0, y=3.0, z=0.0)))
-    landed_at = truth(st).position_m
+    landed_at = st.truth().position_m
     miss = float(np.hypot(landed_at.x - target[0], landed_at.y - target[1]))
 
     fast_up, _ = run_goal(st, "takeoff", TakeoffGoal(target_altitude_m=5.0, climb_rate_mps=1.5))
@@ -182,12 +181,12 @@ def test_takeoff_land_goto_fields_are_honoured_by_truth(gstack):
     assert climb[0.5] < 0.65 and climb[1.5] > 1.1, climb
     assert descent[0.5] < 0.65 and descent[1.5] > 1.1, descent
     assert 0.45 < goto_speed < 0.75, goto_speed
-    assert miss < 0.5 and not truth(st).armed, f"landed at {landed_at}, {miss:.2f} m from {target}"
+    assert miss < 0.5 and not st.truth().armed, f"landed at {landed_at}, {miss:.2f} m from {target}"
 
 
 def test_why_the_mission_holds_reaches_ground_stations_once(zenoh_router, make_node, tmp_path):
     from pymavlink.dialects.v20 import common as M
-    from test_gcs_ground_stations import GcsProcess, Station, free_udp_port
+    from test_gcs_ground_stations import GcsProcess, Station
 
     reason = ("holding: waypoint 2/3 (5.0, 13.0, 1.5) unreachable for 5 s (planner unreachable: goal "
               "(5.0, 13.0) is inside an obstacle); START retries, SET_CURRENT skips, LAND/RTL")

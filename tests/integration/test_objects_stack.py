@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as M
 
-from aerotest import wait_for_message, wait_until
+from aerotest import free_udp_port, wait_for_message, wait_until
 
 from aeroperception.schemas import (
     DiagnosticStatus, HomePosition, ObjectEvent, TrackedObjectArray, decode,
@@ -39,12 +39,6 @@ sensors:
   camera: {width: 640, height: 480, rate_hz: 20, hfov_deg: 90, stereo: true, baseline_m: 0.08, pitch_down_deg: 10}
   imu: {rate_hz: 200}
 """
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 class GroundStation:

@@ -17,12 +17,12 @@ import time
 import numpy as np
 import pytest
 
-from aerotest import wait_until
+from aerotest import free_udp_port, wait_until
 from aeroperception.schemas import (
     GoalStatus, GoToPositionGoal, MissionStatus, TrajectorySetpoint, TrajectoryStatus, Vector3, VehicleState,
 )
 from aeroperception.services.runtime import ActionClient
-from test_flight import diag, ensure_hovering, ensure_landed, free_udp_port, latest, recording  # helpers only
+from test_flight import ensure_hovering  # helpers only
 
 ALT_M = 1.5                       # below a parked car's roof line + margin: the car is in the way
 WAYPOINTS = [(1.0, 13.0), (9.0, 7.0), (0.0, 7.0), (15.0, -3.5), (25.0, -5.5)]
@@ -63,12 +63,9 @@ def ostack(stack_module):
     st = stack_module(["sim", "fmu", "planner", "mission", "lidar", "diagnostics"], extra_args=[
         "--scenario", "village", "--sensors", "lidar", "--fcu-url", f"udpin:127.0.0.1:{fcu}",
         "--arg", f"sim:--target=127.0.0.1:{fcu}", "--arg", f"sim:--bind=127.0.0.1:{sim_bind}"], timeout_s=40)
+    st.wait_flight_ready(45)
     try:
-        wait_until(lambda: latest(st, "state/vehicle", VehicleState, 1.0, lambda m: m.connected),
-                   20, "state/vehicle connected (fmu <-> sim MAVLink)")
-        wait_until(lambda: int(diag(st, "fmu").values.get("setpoints_sent", 0)) > 100, 20,
-                   "planner setpoints streaming through fmu")
-        wait_until(lambda: int(diag(st, "lidar").values.get("scans", 0)) > 5, 30, "lidar processing scans")
+        wait_until(lambda: int(st.diag("lidar").values.get("scans", 0)) > 5, 30, "lidar processing scans")
     except BaseException:
         print(st.describe())
         raise
@@ -83,11 +80,11 @@ def test_planner_status_reports_progress_times_setpoint_and_errors_of_a_goto(ost
     against that setpoint."""
     st = ostack
     ensure_hovering(st, ALT_M)
-    start = latest(st, "sim/truth/state", VehicleState, 2.0).position_m.to_array()
+    start = st.latest("sim/truth/state", VehicleState, 2.0).position_m.to_array()
     goal = np.array([start[0] - 8.0, start[1], ALT_M])                  # west of home: open ground
     goto = ActionClient(st.session, "mission/action/goto")
     try:
-        with recording(st, truth=("sim/truth/state", VehicleState), pstatus=("planner/status", TrajectoryStatus),
+        with st.capture(truth=("sim/truth/state", VehicleState), pstatus=("planner/status", TrajectoryStatus),
                        sent=("fmu/in/trajectory_setpoint", TrajectorySetpoint)) as rec:
             t0 = time.monotonic()
             g = goto.send_goal(GoToPositionGoal(position_m=Vector3.from_array(goal)))
@@ -136,12 +133,12 @@ def test_planner_status_reports_progress_times_setpoint_and_errors_of_a_goto(ost
 @pytest.mark.slow
 def test_mission_through_pole_building_corner_and_car_keeps_one_metre(ostack, scene, tmp_path):
     st = ostack
-    ensure_landed(st)
+    st.ensure_landed()
     mission = {"mission_id": "obstacles", "takeoff_altitude_m": ALT_M, "waypoint_acceptance_radius_m": 0.5,
                "waypoints": [{"x": x, "y": y, "z": ALT_M} for x, y in WAYPOINTS]}
     path = tmp_path / "obstacles.json"
     path.write_text(json.dumps(mission))
-    with recording(st, truth=("sim/truth/state", VehicleState), pstatus=("planner/status", TrajectoryStatus)) as rec:
+    with st.capture(truth=("sim/truth/state", VehicleState), pstatus=("planner/status", TrajectoryStatus)) as rec:
         wait_until(lambda: rec.last("truth"), 5, "sim/truth/state")
         r = st.aero("mission", "fly", str(path), "--quiet", "--timeout", "240", timeout_s=270)
         track = np.array([[m.position_m.x, m.position_m.y, m.position_m.z] for m in rec.get("truth")])
@@ -173,22 +170,22 @@ def test_goal_inside_a_building_is_unreachable_and_the_vehicle_holds(ostack, sce
         sent_ns = time.time_ns()
         g = goto.send_goal(GoToPositionGoal(position_m=inside, acceptance_radius_m=0.5))
         assert g.success, g.message
-        status = wait_until(lambda: latest(st, "planner/status", TrajectoryStatus, 1.0,
+        status = wait_until(lambda: st.latest("planner/status", TrajectoryStatus, 1.0,
                                            lambda m: m.header.stamp_ns > sent_ns
                                            and (m.obstacle_state == "blocked"
                                                 or m.obstacle_state == "unreachable" and "(12.0, 15.0)" in m.message)),
                             60, "planner/status unreachable or blocked")
         assert status.message, "a hold must say why"
         time.sleep(1.0)                                            # braking after the verdict
-        at = latest(st, "sim/truth/state", VehicleState, 2.0).position_m
+        at = st.latest("sim/truth/state", VehicleState, 2.0).position_m
         time.sleep(3.0)
-        now = latest(st, "sim/truth/state", VehicleState, 2.0)
+        now = st.latest("sim/truth/state", VehicleState, 2.0)
         moved = np.hypot(now.position_m.x - at.x, now.position_m.y - at.y)
         speed = np.hypot(now.velocity_mps.x, now.velocity_mps.y)
         assert moved < 0.5 and speed < 0.3, f"moved {moved:.2f} m, speed {speed:.2f} m/s after '{status.message}'"
         # keeps saying so: the planner, or (after blocked_timeout_s) the mission holding with its reason
-        still = latest(st, "planner/status", TrajectoryStatus, 2.0)
-        mission = latest(st, "mission/status", MissionStatus, 2.0)
+        still = st.latest("planner/status", TrajectoryStatus, 2.0)
+        mission = st.latest("mission/status", MissionStatus, 2.0)
         assert still.obstacle_state in ("unreachable", "blocked") or (
             mission.state == "HOLDING" and "unreachable" in mission.message), \
             f"planner {still.obstacle_state}: {still.message}; mission {mission.state}: {mission.message}"
@@ -197,7 +194,7 @@ def test_goal_inside_a_building_is_unreachable_and_the_vehicle_holds(ostack, sce
         goto.cancel(g.goal_id)
     finally:
         goto.close()
-        ensure_landed(st)
+        st.ensure_landed()
 
 
 @pytest.mark.slow
@@ -210,17 +207,17 @@ def test_waypoint_on_a_building_face_holds_the_mission_saying_why(ostack, scene,
     from aeroperception.schemas import LoadMissionReply, LoadMissionRequest
     from aeroperception.services.runtime.node import call
     from test_flight import fly_in_background
-    from test_mission_faults import command, wait_status
+    from test_mission_faults import wait_status
 
     st = ostack
-    ensure_landed(st)
+    st.ensure_landed()
     face = (5.0, 13.0)                   # the west face of the building at (12, 15), 14 x 10 m
     mission = {"mission_id": "face", "takeoff_altitude_m": ALT_M, "waypoint_acceptance_radius_m": 0.5,
                "waypoints": [{"x": 1.0, "y": 7.0, "z": ALT_M}, {"x": face[0], "y": face[1], "z": ALT_M},
                              {"x": 1.0, "y": 2.0, "z": ALT_M}]}
     path = tmp_path / "face.json"
     path.write_text(json.dumps(mission))
-    rec = recording(st, pstatus=("planner/status", TrajectoryStatus))
+    rec = st.capture(pstatus=("planner/status", TrajectoryStatus))
     with fly_in_background(st, path, "--quiet", "--timeout", "120") as (proc, out):
         s = wait_status(st, lambda m: m.state == "EXECUTING" and m.active_waypoint == 1, 60, "flying to the face")
         t0 = time.monotonic()
@@ -229,21 +226,21 @@ def test_waypoint_on_a_building_face_holds_the_mission_saying_why(ostack, scene,
                 s = wait_status(st, lambda m: m.state == "HOLDING", 40, "mission HOLDING with the reason")
             except AssertionError:
                 seen = [(m.obstacle_state, m.message) for m in planner.get("pstatus")]
-                print("planner said:", sorted(set(seen)), "truth:", latest(st, "sim/truth/state", VehicleState).position_m)
+                print("planner said:", sorted(set(seen)), "truth:", st.latest("sim/truth/state", VehicleState).position_m)
                 raise
         print(f"HOLDING {time.monotonic() - t0:.1f} s after heading for the face: {s.message}")
         assert "waypoint 2/3 (5.0, 13.0, 1.5) unreachable for 5 s (planner " in s.message, s.message
         wait_until(lambda: any("unreachable" in line for line in out), 5, "aero mission fly printing the reason")
-        at = latest(st, "sim/truth/state", VehicleState, 2.0)
+        at = st.latest("sim/truth/state", VehicleState, 2.0)
         clearance = float(scene.obstacle_distance_m(np.array([at.position_m.to_array()]))[0])
         assert clearance >= CLEARANCE_M, f"holding {clearance:.2f} m from the building"
         time.sleep(2.0)
-        assert latest(st, "mission/status", MissionStatus, 2.0).state == "HOLDING"   # waits for the operator
+        assert st.latest("mission/status", MissionStatus, 2.0).state == "HOLDING"   # waits for the operator
 
         r = call(st.session, "mission/srv/load", LoadMissionRequest(mission_json=path.read_text()),
                  LoadMissionReply, 5.0)
         assert r.success and "waypoint 2 (5, 13, 1.5) inside an obstacle" in r.message, r.message
-        assert command(st, "LAND").success
+        assert st.command("LAND").success
         code = proc.wait(60)
     text = "".join(out)
     print(text)

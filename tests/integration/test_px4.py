@@ -20,92 +20,25 @@ from __future__ import annotations
 
 import os
 import signal
-import socket
 import subprocess
-import threading
 import time
 
 import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
-from aerotest import aero_argv, clean_env, is_service_process, wait_for_message, wait_until
+from aerotest import Capture, SihTruth, aero_argv, clean_env, is_service_process, wait_for_message, wait_until
 from aeroperception.schemas import (
     MissionCommand, MissionStatus, Reply, VehicleState, WaypointReached, load_mission_file,
 )
-from aeroperception.services.mavlink.geo import MapProjection
 from aeroperception.services.runtime.node import call
 from aeroperception.tools import px4_sitl
-from aeroperception.tools.cmd_chaos import Recorder
+from aeroperception.tools.harness.px4_stack import SIH_DISPLAY_PORT
 from test_flight import SURVEY
 
 pytestmark = [pytest.mark.px4, pytest.mark.slow]
 
 SERVICES = ["px4", "fmu", "planner", "mission", "diagnostics"]
-SIH_DISPLAY_PORT = 19410      # + instance: where PX4's SIH display link sends HIL_STATE_QUATERNION
-
-
-class SihTruth:
-    """SIH's ground truth (HIL_STATE_QUATERNION at 25 Hz) as ENU metres about the first sample (the
-    vehicle on its pad): (monotonic time, [x, y, z]) in `track`."""
-
-    def __init__(self, port: int):
-        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.sock.bind(("127.0.0.1", port))
-        self.sock.settimeout(0.2)
-        self.mav = mavlink.MAVLink(None)
-        self.track: list[tuple[float, np.ndarray]] = []
-        self.lock = threading.Lock()
-        self.origin: tuple[MapProjection, float] | None = None
-        self.stop = threading.Event()
-        self.thread = threading.Thread(target=self._run, daemon=True)
-        self.thread.start()
-
-    def _run(self) -> None:
-        while not self.stop.is_set():
-            try:
-                data = self.sock.recv(65535)
-            except OSError:
-                continue
-            try:
-                msgs = self.mav.parse_buffer(data) or []
-            except mavlink.MAVError:
-                continue
-            for m in msgs:
-                if m.get_type() == "HIL_STATE_QUATERNION":
-                    self._add(m.lat * 1e-7, m.lon * 1e-7, m.alt * 1e-3)
-
-    def _add(self, lat: float, lon: float, alt: float) -> None:
-        if self.origin is None:
-            self.origin = (MapProjection(lat, lon), alt)
-        proj, alt0 = self.origin
-        north, east = proj.project(lat, lon)
-        with self.lock:
-            self.track.append((time.monotonic(), np.array([east, north, alt - alt0])))
-
-    def now(self) -> np.ndarray:
-        wait_until(lambda: self.track, 5, "SIH ground truth (HIL_STATE_QUATERNION)")
-        with self.lock:
-            return self.track[-1][1]
-
-    def at_rest(self, timeout_s: float, within_m: float = 0.15, for_s: float = 1.0) -> np.ndarray:
-        """The position once the vehicle has stayed within `within_m` for `for_s`."""
-        def settled():
-            recent = self.since(time.monotonic() - for_s)
-            span = time.monotonic() - self.track[0][0] if self.track else 0.0
-            if len(recent) > 5 and span > for_s and float(np.ptp(recent, axis=0).max()) < within_m:
-                return [recent[-1]]
-            return None
-        return wait_until(settled, timeout_s, f"the vehicle at rest (within {within_m} m for {for_s} s)")[0]
-
-    def since(self, t: float) -> np.ndarray:
-        with self.lock:
-            return np.array([p for ts, p in self.track if ts >= t])
-
-    def close(self) -> None:
-        self.stop.set()
-        self.thread.join(2)
-        self.sock.close()
 
 
 @pytest.fixture(scope="module")
@@ -232,7 +165,7 @@ def test_px4_flies_survey_01_to_landing_reaching_every_waypoint(px4):
     ensure_landed(st)
     pad = st.truth.now()
     home = state(st).position_m.to_array()
-    rec = Recorder(st.session, {"state": ("state/vehicle", VehicleState), "status": ("mission/status", MissionStatus),
+    rec = Capture(st.session, {"state": ("state/vehicle", VehicleState), "status": ("mission/status", MissionStatus),
                                 "reached": ("mission/waypoint_reached", WaypointReached)})
     t0 = time.monotonic()
     try:
@@ -273,7 +206,7 @@ def test_px4_flies_survey_01_to_landing_reaching_every_waypoint(px4):
 def test_px4_switched_to_hold_by_a_pilot_holds_the_mission_and_start_resumes(px4):
     st = px4
     start_survey(st)
-    rec = Recorder(st.session, {"reached": ("mission/waypoint_reached", WaypointReached)})
+    rec = Capture(st.session, {"reached": ("mission/waypoint_reached", WaypointReached)})
     try:
         wait_until(lambda: mission_status(st, lambda m: m.state == "EXECUTING" and m.active_waypoint == 1
                                           and (m.distance_to_goal_m or 0) > 4.0), 40, "flying to waypoint 1")

@@ -14,14 +14,13 @@ from __future__ import annotations
 
 import re
 import shlex
-import socket
 import subprocess
 import time
 from pathlib import Path
 
 import pytest
 
-from aerotest import aero, aero_argv, clean_env, free_port, wait_for_message, wait_until
+from aerotest import aero, aero_argv, clean_env, free_port, free_udp_port, wait_for_message, wait_until
 
 from aeroperception.schemas import VehicleState
 
@@ -214,17 +213,11 @@ def test_readme_skipped_lines_still_checked(line):
     assert r.returncode == 0, r.stderr
 
 
-def _free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 @pytest.fixture(scope="module")
 def readme_stack(stack_module):
     """`aero up --except planner` (free ports, no sensor rendering) and, beside it,
     `aero run planner --param kp=1.0 --connect <router>` in the foreground."""
-    fcu, sim_bind, gcs_local, gcs_remote = (_free_udp_port() for _ in range(4))
+    fcu, sim_bind, gcs_local, gcs_remote = (free_udp_port() for _ in range(4))
     st = stack_module(["sim", "fmu", "mission", "gcs", "diagnostics"], extra_args=[
         "--fcu-url", f"udpin:127.0.0.1:{fcu}", "--arg", f"sim:--target=127.0.0.1:{fcu}",
         "--arg", f"sim:--bind=127.0.0.1:{sim_bind}", "--sensors", "none",

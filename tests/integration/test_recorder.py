@@ -20,7 +20,6 @@ from __future__ import annotations
 import os
 import resource
 import signal
-import socket
 import subprocess
 import threading
 import time
@@ -30,7 +29,10 @@ import msgpack
 import pytest
 from mcap.reader import make_reader
 
-from aerotest import aero, aero_argv, clean_env, interrupt, is_service_process, validate_foxglove_export, wait_for_message, wait_until
+from aerotest import (
+    aero, aero_argv, clean_env, free_udp_port, interrupt, is_service_process, validate_foxglove_export,
+    wait_for_message, wait_until,
+)
 from aeroperception.schemas import DiagnosticStatus, MissionStatus, TrajectorySetpoint, VehicleState, decode
 from aeroperception.services.recorder.contract import ESSENTIALS
 
@@ -45,12 +47,6 @@ RATES = {"state/vehicle": 50.0, "fmu/in/trajectory_setpoint": 50.0, "fmu/out/veh
          "fmu/out/vehicle_status": 5.0}
 PRODUCED = [*RATES, "mission/active_goal"]
 FSIZE_LIMIT = 300_000
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def record_cli(endpoint: str, out: Path, *extra: str, fsize: int | None = None) -> subprocess.Popen:

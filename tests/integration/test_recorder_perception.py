@@ -21,7 +21,6 @@ recording runs, so the file holds every input it saw.
 from __future__ import annotations
 
 import json
-import socket
 import subprocess
 import threading
 import time
@@ -32,7 +31,10 @@ import pytest
 from mcap.reader import make_reader
 
 import aeroperception.schemas as schemas
-from aerotest import aero, aero_argv, clean_env, interrupt, validate_foxglove_export, wait_for_message, wait_until, zenoh_client
+from aerotest import (
+    aero, aero_argv, clean_env, free_udp_port, interrupt, validate_foxglove_export, wait_for_message, wait_until,
+    zenoh_client,
+)
 from aeroperception.schemas import (
     MissionStatus, Odometry, PerceptionHealth, VehicleState, VehicleStatus, VioHealth, decode, schema_id,
 )
@@ -56,12 +58,6 @@ RATES = {"state/vehicle": 50.0, "fmu/out/vehicle_local_position": 50.0, "fmu/in/
 ON_CHANGE = {"perception/health": (PerceptionHealth, ("vio_status", "detector_status", "lidar_status", "overall_healthy")),
              "state/vio_health": (VioHealth, ("state",)),
              "fmu/out/vehicle_status": (VehicleStatus, ("nav_state", "armed", "landed_state", "failsafe"))}
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def read_file(path: Path) -> tuple[dict[str, list[tuple[int, bytes]]], dict[str, str]]:

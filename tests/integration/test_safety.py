@@ -17,14 +17,13 @@ from __future__ import annotations
 
 import os
 import signal
-import socket
 import threading
 import time
 
 import msgspec
 import pytest
 
-from aerotest import is_service_process, wait_for_message, wait_until
+from aerotest import free_udp_port, is_service_process, wait_for_message, wait_until
 from aeroperception.schemas import (
     BatteryState, EmergencyStopReply, EmergencyStopRequest, GcsLink, GoalStatus, GoToPositionGoal, LandedState, LandGoal, MissionStatus,
     ParamSet, ParamSetReply, PerceptionHealth, SafetyStatus, TakeoffGoal, Vector3, VehicleState, decode,
@@ -34,12 +33,6 @@ from aeroperception.services.runtime.node import call
 
 S = SafetyStatus
 STACK = ["sim", "fmu", "planner", "mission", "diagnostics", "safety"]
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def safety_status(st, pred=None, timeout_s: float = 5.0) -> SafetyStatus:

@@ -21,7 +21,7 @@ os.environ.setdefault("MAVLINK20", "1")  # before mavutil picks its dialect
 from pymavlink import mavutil  # noqa: E402
 from pymavlink.dialects.v20 import common as M  # noqa: E402
 
-from aerotest import signal_other_thread  # noqa: E402
+from aerotest import free_udp_port, signal_other_thread  # noqa: E402
 from aeroperception.services.mavlink import px4  # noqa: E402
 from aeroperception.services.sim.vehicle import MavlinkEndpoint, SimVehicle, SimVehicleRunner  # noqa: E402
 
@@ -30,12 +30,6 @@ POSITION_ONLY = (M.POSITION_TARGET_TYPEMASK_VX_IGNORE | M.POSITION_TARGET_TYPEMA
                  | M.POSITION_TARGET_TYPEMASK_VZ_IGNORE | M.POSITION_TARGET_TYPEMASK_AX_IGNORE
                  | M.POSITION_TARGET_TYPEMASK_AY_IGNORE | M.POSITION_TARGET_TYPEMASK_AZ_IGNORE
                  | M.POSITION_TARGET_TYPEMASK_YAW_RATE_IGNORE)
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 class Peer:

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import os
 import re
-import socket
 import threading
 import time
 from collections import defaultdict
@@ -26,7 +25,7 @@ import numpy as np
 import pytest
 import zenoh
 
-from aerotest import wait_for_message
+from aerotest import free_udp_port, wait_for_message
 
 from aeroperception.schemas import (
     CameraInfo, Clock, DiagnosticStatus, Detection2DArray, Image, Imu, PointCloud, SchemaError, VehicleState, decode,
@@ -53,12 +52,6 @@ KEYS = {
     "diagnostics/sim": DiagnosticStatus,
 }
 BIG = {"sensors/camera/left/image", "sensors/camera/right/image", "sensors/lidar/points", "sim/truth/lidar_labels"}
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @dataclass

@@ -14,19 +14,15 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from aerotest import Stack, aero_argv, clean_env, is_service_process, wait_for_message, wait_until, zenoh_client
+from aerotest import (
+    aero_argv, clean_env, free_udp_port, is_service_process, Stack, wait_for_message, wait_until, zenoh_client,
+)
 
 from aeroperception.schemas import TrajectorySetpoint, VehicleState
 from aeroperception.services.runtime.node import LIVELINESS_ROOT
 from aeroperception.services.runtime.supervision import EXIT_DUPLICATE, INSTANCE_ROOT, Instance
 
 VEHICLE = ["sim", "fmu", "planner", "diagnostics"]
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def vehicle_args(fcu: int, sim_bind: int) -> list[str]:

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import signal
-import socket
 import subprocess
 import threading
 import time
@@ -18,7 +17,7 @@ import numpy as np
 import pytest
 import zenoh
 
-from aerotest import aero_argv, clean_env, wait_until, zenoh_client
+from aerotest import aero_argv, clean_env, free_udp_port, wait_until, zenoh_client
 
 from aeroperception.schemas import (
     CameraInfo, DiagnosticStatus, Header, Image, Imu, Odometry, ParamSet, ParamSetReply, Pose, Reply, SchemaError,
@@ -217,12 +216,6 @@ def test_unavailable_strategy_fails_at_start_naming_what_exists(zenoh_router, tm
     assert fatal and "okvis2" in fatal[0]["error"] and "klt_stereo, klt_mono" in fatal[0]["error"]
 
 
-def _free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 @pytest.mark.slow
 @pytest.mark.timeout(180)
 def test_vio_service_tracks_on_the_simulators_sensors(stack, tmp_path):
@@ -230,8 +223,8 @@ def test_vio_service_tracks_on_the_simulators_sensors(stack, tmp_path):
     the VIO initialises from the sim's IMU, reads the calibration from the sim, stays TRACKING and
     its pose stays with the truth (the vehicle does not move)."""
     st = stack(["sim"], extra_args=["--scenario", "village",
-                                    "--arg", f"sim:--target=127.0.0.1:{_free_udp_port()}",
-                                    "--arg", f"sim:--bind=127.0.0.1:{_free_udp_port()}"], timeout_s=60)
+                                    "--arg", f"sim:--target=127.0.0.1:{free_udp_port()}",
+                                    "--arg", f"sim:--bind=127.0.0.1:{free_udp_port()}"], timeout_s=60)
     log = tmp_path / "vio.log"
     with open(log, "wb") as f:
         proc = _start_vio(st.endpoint, f)

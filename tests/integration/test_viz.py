@@ -17,7 +17,6 @@ One stack for the module; the flight runs once (fixture). Marked slow: it flies.
 from __future__ import annotations
 
 import os
-import socket
 import time
 import urllib.parse
 from pathlib import Path
@@ -25,7 +24,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from aerotest import free_port, wait_for_message, wait_until
+from aerotest import free_port, free_udp_port, wait_for_message, wait_until
 from aeroperception.schemas import (
     DiagnosticStatus, GoalStatus, GoToPositionGoal, LandGoal, MissionStatus, TakeoffGoal, Vector3, VehicleState,
 )
@@ -36,12 +35,6 @@ pytestmark = pytest.mark.slow
 
 SERVICES = ["sim", "fmu", "planner", "mission", "diagnostics", "viz"]   # lidar left out: ~1 core on CI
 GOTO = (6.0, 0.0, 3.0)       # along the village street, people and cars ahead in the camera
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def cpu_s(pid: int) -> float:

@@ -1,0 +1,92 @@
+"""Running rows on a stack: fly, inject, observe, judge by the truth, leave the stack on the ground
+(restarted when a row broke it); and the figures table."""
+from __future__ import annotations
+
+import time
+
+from aeroperception.schemas import DiagnosticStatus, GcsLink, Imu, MissionStatus, TrajectoryStatus, VehicleState
+from aeroperception.tools.harness import FlightStack
+
+from .judging import RowResult, judge_safety
+from .row import Ctx, Row
+
+# Rows that fail on this branch until another branch's fix is merged (the lead removes entries).
+EXPECTED_FIXED_BY: dict[str, str] = {}
+
+
+RECORDED = dict(truth=("sim/truth/state", VehicleState), status=("mission/status", MissionStatus),
+                state=("state/vehicle", VehicleState), fmu_diag=("diagnostics/fmu", DiagnosticStatus),
+                gcs_link=("gcs/link", GcsLink), imu=("fmu/out/sensor_combined", Imu),
+                planner=("planner/status", TrajectoryStatus))
+
+
+def run_row(st: FlightStack, row: Row, mission_json: str, inject_after_s: float = 2.5) -> RowResult:
+    """Fly, inject, observe, judge. Leaves the stack on the ground (restarted if it had to be)."""
+    res = RowResult(row.name, row.injected, row.expected, fixed_by=EXPECTED_FIXED_BY.get(row.name, ""))
+    t_start = time.monotonic()
+    if st.sensors != row.sensors:
+        st.sensors = row.sensors
+        st.restart()
+    elif not st.ensure_ground():
+        st.restart()
+    rec = st.capture(**RECORDED)
+    ctx = Ctx(st, rec)
+    t_unsafe = time.monotonic()
+    try:
+        row.prepare(ctx)
+        if row.airborne:
+            why = st.start_mission(mission_json)
+            if why:   # a previous row may have left the stack odd: once more on a fresh one
+                row.cleanup(ctx)
+                rec.close()
+                st.restart()
+                rec = st.capture(**RECORDED)   # on the new stack's session
+                ctx = Ctx(st, rec)
+                row.prepare(ctx)
+                why = st.start_mission(mission_json)
+            if why:
+                res.observed = f"could not start the mission: {why}"
+                return res
+            time.sleep(inject_after_s)
+        ctx.t_inject = time.monotonic()
+        row.inject(ctx)
+        res.passed, res.observed, res.detect_s = row.observe(ctx)
+    except Exception as e:  # noqa: BLE001 - one broken row must not stop the table
+        res.observed = f"harness error: {type(e).__name__}: {e}"
+        res.passed = False
+    finally:
+        try:
+            row.cleanup(ctx)
+        except Exception:  # noqa: BLE001
+            pass
+        t_from = ctx.t_inject or t_unsafe
+        track = rec.since("truth", t_from)
+        if st.tap and (not track or track[-1][0] < time.monotonic() - 2.0):   # Zenoh gone: the FC's view
+            track = st.tap.fc_track_since(t_from)
+            res.details["safety_from"] = "FC LOCAL_POSITION_NED (no ground truth over Zenoh)"
+        status = rec.last("status")
+        res.safe, res.safe_why = judge_safety(track, st.tap.unsafe_since(t_unsafe) if st.tap else [], st.fence,
+                                              status.state if status else "?")
+        if "safety_from" in res.details:
+            res.safe_why += " (by the FC's own position: no Zenoh)"
+        rec.close()
+    res.passed = bool(res.passed and res.safe)
+    # A failed row leaves the stack in whatever state the fault made (a restarted service that lost
+    # its state, a FC in LAND): the next row starts on a fresh stack.
+    if row.breaks_stack or not res.passed or not st.ensure_ground():
+        st.restart()
+    res.duration_s = time.monotonic() - t_start
+    return res
+
+
+def format_table(results: list[RowResult]) -> str:
+    head = ["row", "injected", "expected outcome", "observed", "detect/react s", "vehicle safe (truth)", "result"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for r in results:
+        det = f"{r.detect_s:.2f}" if r.detect_s is not None else "-"
+        safe = ("yes" if r.safe else "NO") + (f": {r.safe_why}" if r.safe_why else "")
+        verdict = r.verdict + (f" (needs {r.fixed_by})" if not r.passed and r.fixed_by else "")
+        lines.append("| " + " | ".join([r.row, r.injected, r.expected, r.observed, det, safe, verdict]) + " |")
+    return "\n".join(lines)
+
+
