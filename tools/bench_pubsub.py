@@ -8,6 +8,9 @@ Ping (this process, or dora's ping node) stamps and sends, pong (a child process
 
 - zenoh via router: client -> router -> client, the deployed topology (the router in this process).
 - zenoh peer-to-peer: pong listens on loopback, ping connects to it; no router on the path.
+- zenoh peers + router: both are peers that connect to the router and listen on loopback; the
+  router introduces them (gossip) and data may take their direct link: co-located services that
+  keep the router for discovery.
 - typed (router / peer-to-peer): the same links; ping encodes a schema message through
   Node.publisher, pong decodes it through Node.subscribe (validation, lock, callback), re-encodes
   and publishes it back, and ping decodes the echo. Raw pong echoes the payload untouched.
@@ -78,10 +81,16 @@ def echoed(send: Callable[[], None], got: threading.Event) -> Callable[[], bool]
 # ---------------------------------------------------------------- zenoh: raw and typed, router and peer
 
 
-def link_config(endpoint: str, peer: bool, side: str) -> zenoh.Config:
-    """Via the router: a client of `endpoint`. Peer-to-peer: pong listens on `endpoint`, ping connects."""
-    if not peer:
+LINKS = ("router", "peer", "mesh")
+
+
+def link_config(endpoint: str, link: str, side: str) -> zenoh.Config:
+    """router: a client of the router at `endpoint`. peer: pong listens on `endpoint`, ping connects.
+    mesh: a peer of the router at `endpoint` that also listens on loopback (direct links by gossip)."""
+    if link == "router":
         return make_config(connect=endpoint)
+    if link == "mesh":
+        return make_config(connect=endpoint, mode="peer", listen=["tcp/127.0.0.1:0"])
     if side == "pong":
         conf = make_config(mode="peer", listen=[endpoint])
         conf.insert_json5("connect/endpoints", "[]")
@@ -89,9 +98,9 @@ def link_config(endpoint: str, peer: bool, side: str) -> zenoh.Config:
     return make_config(connect=endpoint, mode="peer", listen=[])
 
 
-def zenoh_side(endpoint: str, peer: bool, path: str, kind: str, side: str, on_echo: Callable | None = None):
+def zenoh_side(endpoint: str, link: str, path: str, kind: str, side: str, on_echo: Callable | None = None):
     """Open one end; returns (send or None, close). Pong echoes; ping calls on_echo per echo."""
-    conf = link_config(endpoint, peer, side)
+    conf = link_config(endpoint, link, side)
     cls = type(make_payload(kind))
     out_key, in_key = (PONG, PING) if side == "pong" else (PING, PONG)
     if path == "raw":
@@ -108,13 +117,12 @@ def zenoh_side(endpoint: str, peer: bool, path: str, kind: str, side: str, on_ec
     return (lambda: pub.publish(msg)), node.close
 
 
-def measure(endpoint: str, path: str, kind: str, n: int, peer: bool = False) -> np.ndarray:
-    """Ping-pong over zenoh: path "raw" or "typed"; via the router at `endpoint`, or (peer) over a
-    direct link on `endpoint` (pong listens there)."""
-    child = _child("zenoh", endpoint, str(int(peer)), path, kind)
+def measure(endpoint: str, path: str, kind: str, n: int, link: str = "router") -> np.ndarray:
+    """Ping-pong over zenoh: path "raw" or "typed", over a link of LINKS (link_config)."""
+    child = _child("zenoh", endpoint, link, path, kind)
     try:
         got = threading.Event()
-        send, close = zenoh_side(endpoint, peer, path, kind, "ping", got.set)
+        send, close = zenoh_side(endpoint, link, path, kind, "ping", got.set)
         try:
             time.sleep(0.3)  # let declarations propagate
             return ping_loop(echoed(send, got), n)
@@ -288,8 +296,10 @@ def run(n: int = 1000, port: int = 17480, peers: bool = False, repeats: int = 3)
                 ("typed via router", lambda: measure(endpoint, "typed", kind, count)),
             ]
             if peers:
-                paths += [("zenoh peer-to-peer", lambda: measure(peer_ep(), "raw", kind, count, peer=True)),
-                          ("typed peer-to-peer", lambda: measure(peer_ep(), "typed", kind, count, peer=True))]
+                paths += [("zenoh peer-to-peer", lambda: measure(peer_ep(), "raw", kind, count, "peer")),
+                          ("typed peer-to-peer", lambda: measure(peer_ep(), "typed", kind, count, "peer")),
+                          ("zenoh peers+router", lambda: measure(endpoint, "raw", kind, count, "mesh")),
+                          ("typed peers+router", lambda: measure(endpoint, "typed", kind, count, "mesh"))]
                 if not missing["dora-rs"]:
                     paths.append(("dora-rs", lambda: measure_dora(kind, count)))
                 if not missing["Cyclone DDS"]:
@@ -333,8 +343,8 @@ def run(n: int = 1000, port: int = 17480, peers: bool = False, repeats: int = 3)
 
 def pong(transport: str, *args: str) -> None:
     if transport == "zenoh":
-        endpoint, peer, path, kind = args
-        _, close = zenoh_side(endpoint, peer == "1", path, kind, "pong")
+        endpoint, link, path, kind = args
+        _, close = zenoh_side(endpoint, link, path, kind, "pong")
     else:
         domain, kind = args
         os.environ.update(dds_env())

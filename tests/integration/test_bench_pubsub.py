@@ -23,7 +23,12 @@ def _check(lat: np.ndarray) -> None:
 @pytest.mark.parametrize("path", ["raw", "typed"])
 @pytest.mark.parametrize("kind", ["state", "image"])
 def test_zenoh_peer_to_peer_without_a_router(path, kind):
-    _check(bench.measure(f"tcp/127.0.0.1:{free_port()}", path, kind, N, peer=True))
+    _check(bench.measure(f"tcp/127.0.0.1:{free_port()}", path, kind, N, "peer"))
+
+
+@pytest.mark.parametrize("path", ["raw", "typed"])
+def test_zenoh_peers_introduced_by_the_router(zenoh_router, path):
+    _check(bench.measure(zenoh_router, path, "state", N, "mesh"))
 
 
 @pytest.mark.skipif(not importlib.util.find_spec("cyclonedds"), reason="extra `bench` (cyclonedds) not installed")
