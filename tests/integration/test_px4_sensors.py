@@ -158,7 +158,7 @@ def test_px4_vio_tracks_sih_truth_on_a_short_hop(px4s, tmp_path):
     # (a frozen or lost estimate) is metres off on this path even after the alignment
     assert ate < 0.6, ate
     assert pole_cost >= 99, pole_cost                         # lethal where the street light stands
-    # The truth's (the images') stamps against PX4's gyro: -6 and -22 ms measured. PX4's HIGHRES_IMU gyro is
-    # the mean over its integration interval, stamped at its end, and the truth is SIH's state when PX4's
-    # MAVLink thread sends it, stamped from the IMU sample sent beside it (older when PX4 runs late).
-    assert lag is not None and abs(float(lag)) < 30.0, lag
+    # The truth's (the images') stamps against PX4's gyro, the median of 4 s windows: -11 to +0.9 ms measured
+    # (PX4's gyro is the mean over its integration interval, stamped at its end, and its IMU integration and
+    # SIH's steps beat: a few ms are PX4's own; a calm window alone can read -22 ms: a flat optimum)
+    assert lag is not None and abs(float(lag)) < 20.0, lag
