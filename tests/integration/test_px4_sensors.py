@@ -12,11 +12,14 @@ sends (sensors/imu via fmu), and where the scenario puts its objects.
   (only marked in the air) has the street light lethal there;
 - VIO: a short hop (take-off to 3 m, 5 m East, land) tracked against SIH's truth (ATE after a
   yaw + translation alignment: VIO's frame starts where and as it initialised), and the truth's
-  stamps measured against PX4's gyro (diagnostics/sim truth_imu_lag_ms).
+  stamps measured against PX4's gyro (diagnostics/sim truth_imu_lag_ms);
+- fmu kill -9: no ground truth, the simulator says so and renders nothing; frames resume with fmu.
 """
 from __future__ import annotations
 
 import json
+import os
+import signal
 import subprocess
 import time
 
@@ -24,7 +27,9 @@ import numpy as np
 import pytest
 
 from aerotest import SihTruth, aero_argv, clean_env, wait_until
-from aeroperception.schemas import Image, Imu, OccupancyGrid, Odometry, PointCloud, VehicleState, VioHealth
+from aeroperception.schemas import (
+    DiagnosticStatus, Image, Imu, OccupancyGrid, Odometry, PointCloud, VehicleState, VioHealth,
+)
 from aeroperception.tools import px4_sitl
 from aeroperception.tools.eval_vio import align_se3
 from aeroperception.tools.harness.px4_stack import SIH_DISPLAY_PORT
@@ -162,3 +167,23 @@ def test_px4_vio_tracks_sih_truth_on_a_short_hop(px4s, tmp_path):
     # (PX4's gyro is the mean over its integration interval, stamped at its end, and its IMU integration and
     # SIH's steps beat: a few ms are PX4's own; a calm window alone can read -22 ms: a flat optimum)
     assert lag is not None and abs(float(lag)) < 20.0, lag
+
+
+def test_px4_fmu_killed_the_renders_stop_said_so_and_resume_with_it(px4s):
+    """No ground truth (fmu gone): sim says so (WARN) and renders nothing; the restarted fmu's truth
+    brings the frames back, stamped after the last ones."""
+    st = px4s
+    st.ensure_landed()
+    before = st.latest("sensors/camera/left/image", Image, 30.0)
+    assert before is not None, "no image before the kill"
+    pid = st.pid("fmu")
+    assert pid is not None
+    os.kill(pid, signal.SIGKILL)
+    d = wait_until(lambda: (lambda d: d if d.level == DiagnosticStatus.WARN and "ground truth" in d.message else None)(
+        st.latest_diag("sim")), 10, "sim: WARN, no fresh ground truth")
+    print(f"fmu killed: sim says {d.message!r}")
+    wait_until(lambda: st.pid("fmu") not in (None, pid), 20, "aero up restarted fmu")
+    after = st.latest("sensors/camera/left/image", Image, 60.0, lambda m: m.header.stamp_ns > before.header.stamp_ns)
+    assert after is not None, "no image after fmu came back"
+    wait_until(lambda: st.latest_diag("sim").level == DiagnosticStatus.OK or "Hz" in st.latest_diag("sim").message, 10,
+               "sim healthy again (or only slow)")
