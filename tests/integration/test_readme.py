@@ -55,6 +55,13 @@ HOW: dict[str, tuple] = {
     "aero up --arg gcs:--gcs-ip=192.168.1.20": (DRY, None, "--gcs-ip=192.168.1.20"),
     "mavproxy.py --master=udpin:127.0.0.1:14550": (SKIP, None, "interactive ground station: test_gcs drives MAVProxy"),
     "aero up --arg gcs:--signing-key-file=/etc/aero/gcs.key": (DRY, None, "--signing-key-file=/etc/aero/gcs.key"),
+    "aero fc params show gps-denied": (SKIP, ["aero", "fc", "params", "show", "gps-denied"], "needs no stack: run as written"),
+    "aero fc params apply gps-denied --fcu-url /dev/ttyACM0,921600": (
+        SKIP, ["aero", "fc", "params", "apply", "--help"],
+        "needs a real FC: test_fc_params applies it to a PX4 stand-in, test_px4_gps_denied the SITL set to PX4"),
+    "aero fc params apply gps-denied-sih --fcu-url udpout:127.0.0.1:18570": (
+        SKIP, ["aero", "fc", "params", "show", "gps-denied-sih"],
+        "needs PX4 SITL instance 0: test_px4_gps_denied applies it to its own instance"),
     "aero up --profile px4 --px4 ~/PX4-Autopilot/build/px4_sitl_default": (
         SKIP, ["aero", "up", "--help"], "needs a PX4 build: test_px4 flies the bundle through this profile"),
     "aero up --profile px4 --px4 DIR --px4-instance 1": (
