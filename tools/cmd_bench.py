@@ -14,7 +14,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-n", type=int, default=1000, help="round trips for the small message")
     p.add_argument("--port", type=int, default=17480, help="loopback port of the benchmark router")
     p.add_argument("--peers", action="store_true",
-                   help="also zenoh peer-to-peer (raw and typed), dora-rs and Cyclone DDS (those installed: "
+                   help="also zenoh peer-to-peer and as peers the router introduces (raw and typed), dora-rs and "
+                        "Cyclone DDS (those installed: "
                         "pip install 'aeroperception[bench]')")
     p.add_argument("--repeat", type=int, default=3, help="interleaved rounds of every path (n split among them)")
     p.set_defaults(func=lambda a: importlib.import_module("aeroperception.tools.bench_pubsub").run(
