@@ -22,7 +22,8 @@ from .planning import CollisionConstraint, Trajectory, TrajectoryStatus
 from .gcs import GcsLink, Joystick
 from .objects import ObjectEvent, TrackedObject, TrackedObjectArray
 from .mission import (
-    Mission, MissionCommand, MissionGoal, MissionStatus, Waypoint, WaypointReached, load_mission_file, parse_mission,
+    Mission, MissionCommand, MissionGoal, MissionStatus, MissionTrajectory, Waypoint, WaypointReached, load_mission_file,
+    parse_mission,
 )
 from .services import (
     ArmReply, ArmRequest, EmergencyStopReply, EmergencyStopRequest, Empty, GetMissionReply, LoadMissionReply,
@@ -50,7 +51,7 @@ __all__ = [
     "VehicleStatus", "LocalPosition", "Attitude", "HomePosition", "GpsPosition", "EstimatorStatus",
     # planning and mission
     "Trajectory", "TrajectoryStatus", "CollisionConstraint", "Waypoint", "Mission", "parse_mission",
-    "load_mission_file", "MissionStatus", "MissionCommand", "MissionGoal", "WaypointReached",
+    "load_mission_file", "MissionStatus", "MissionTrajectory", "MissionCommand", "MissionGoal", "WaypointReached",
     # ground station link
     "GcsLink", "Joystick",
     # tracked objects

@@ -139,6 +139,22 @@ class Waypoint(msgspec.Struct, kw_only=True):
             check_finite(name, getattr(self, name))
 
 
+TRAJECTORY_GENERATORS = ("waypoint", "smooth")
+
+
+class MissionTrajectory(msgspec.Struct, kw_only=True):
+    """How the waypoints are flown: `waypoint` = goal by goal, stopping at each; `smooth` = one
+    jerk-limited trajectory through them (the planner's limits). Overrides the mission service's
+    `trajectory_generator` parameter for this mission."""
+
+    generator: str
+
+    def __post_init__(self) -> None:
+        if self.generator not in TRAJECTORY_GENERATORS:
+            raise ValueError(f"field `generator` must be one of {', '.join(TRAJECTORY_GENERATORS)}, "
+                             f"got {self.generator!r}")
+
+
 @schema("Mission", 1)
 class Mission(Message, kw_only=True):
     """A mission: take off, fly the waypoints in order. Seed 000 §5.1's JSON, unchanged:
@@ -147,7 +163,8 @@ class Mission(Message, kw_only=True):
      "waypoints": [{"x": 0.0, "y": 0.0, "z": 5.0, "yaw_deg": 0.0}, ...],
      "waypoint_acceptance_radius_m": 0.5}
 
-    `require_vio` overrides the mission service's default VIO gate for this mission when set.
+    `require_vio` overrides the mission service's default VIO gate for this mission when set;
+    `trajectory` ({"generator": "smooth"}) how its waypoints are flown.
     """
 
     header: Header = msgspec.field(default_factory=Header)
@@ -156,6 +173,7 @@ class Mission(Message, kw_only=True):
     waypoints: list[Waypoint]
     waypoint_acceptance_radius_m: float = 0.5
     require_vio: bool | None = None
+    trajectory: MissionTrajectory | None = None
 
     def __post_init__(self) -> None:
         super().__post_init__()

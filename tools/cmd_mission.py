@@ -16,9 +16,10 @@ from pathlib import Path
 import zenoh
 
 from aeroperception.schemas import (
-    LandedState, LoadMissionReply, LoadMissionRequest, MissionCommand, MissionStatus, Reply, SchemaError,
-    VehicleState, WaypointReached, decode, load_mission_file,
+    LandedState, LoadMissionReply, LoadMissionRequest, MissionCommand, MissionStatus, MissionTrajectory, Reply,
+    SchemaError, VehicleState, WaypointReached, decode, load_mission_file,
 )
+from aeroperception.schemas.mission import TRAJECTORY_GENERATORS
 
 from .cmd_topic import call_or_fail
 from .common import CliError, add_session_arguments, full_key, open_client
@@ -32,10 +33,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("file", help="mission file, JSON or YAML, e.g. examples/missions/survey_01.json")
     p.add_argument("--timeout", type=float, default=600.0, help="give up after this many seconds")
     p.add_argument("--quiet", action="store_true", help="only print state changes")
+    _trajectory_argument(p)
     p.set_defaults(func=fly)
     p = msub.add_parser("load", help="validate and load a mission file (JSON or YAML)")
     add_session_arguments(p)
     p.add_argument("file")
+    _trajectory_argument(p)
     p.set_defaults(func=load)
     p = msub.add_parser("command", help="ARM, DISARM, TAKEOFF, START, HOLD, LAND or RTL")
     add_session_arguments(p)
@@ -43,16 +46,25 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=command)
 
 
-def _read(path: str) -> str:
+def _trajectory_argument(p) -> None:
+    p.add_argument("--trajectory", choices=TRAJECTORY_GENERATORS, default=None, metavar="NAME",
+                   help="how to fly the waypoints this time: waypoint (goal by goal) or smooth (one jerk-limited "
+                        "trajectory); default: the file's trajectory section, else the mission service's parameter")
+
+
+def _read(path: str, trajectory: str | None = None) -> str:
     """The file's text, validated locally first (the error names the file and the field); the
-    service parses it again, JSON or YAML alike."""
+    service parses it again, JSON or YAML alike. `trajectory` replaces the file's generator."""
     p = Path(path)
     if not p.is_file():
         raise CliError(f"{p}: no such file")
     try:
-        load_mission_file(p)
+        mission = load_mission_file(p)
     except SchemaError as e:
         raise CliError(f"{p}: {e}") from None
+    if trajectory is not None:
+        mission.trajectory = MissionTrajectory(generator=trajectory)
+        return mission.to_json()
     return p.read_text()
 
 
@@ -72,7 +84,7 @@ def _command(session, args, cmd: str, timeout_s: float = 15.0) -> Reply:
 
 
 def load(args) -> int:
-    text = _read(args.file)
+    text = _read(args.file, args.trajectory)
     session = open_client(args)
     try:
         r = _load(session, args, text)
@@ -148,7 +160,7 @@ def reached_line(ev: WaypointReached, total: int) -> str:
 
 
 def fly(args) -> int:
-    text = _read(args.file)
+    text = _read(args.file, args.trajectory)
     session = open_client(args)
     prog = Progress()
     subs = prog.subscribe(session, args)

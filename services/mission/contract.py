@@ -4,6 +4,7 @@ from aeroperception.schemas import (
     MissionCommand, MissionGoal, MissionStatus, OccupancyGrid, PerceptionHealth, Reply, SafetyStatus,
     SetModeReply, SetModeRequest, Trajectory, TrajectoryStatus, VehicleState, WaypointReached,
 )
+from aeroperception.schemas.mission import TRAJECTORY_GENERATORS
 from aeroperception.services.runtime import Param, Queries, Query, Topic, Topics
 from aeroperception.services.safety.geofence import GEOFENCE_PARAMS
 
@@ -56,7 +57,7 @@ PARAMS = [
                       "in flight) and when set live; '' = none (aero up --mission FILE sets it)"),
     Param("blocked_timeout_s", 5.0, "s", 0.5, 600.0,
           description="planner/status says the goal is blocked/unreachable this long -> blocked_action"),
-    Param("trajectory_generator", "waypoint", choices=("waypoint", "smooth"),
+    Param("trajectory_generator", "waypoint", choices=TRAJECTORY_GENERATORS,
           description="how the waypoints are flown: waypoint = goal by goal, stopping at each (the planner's "
                       "P-controller); smooth = one jerk-limited trajectory through them (a mission file's "
                       "trajectory section wins; applies from the next start)"),

@@ -14,7 +14,6 @@ import math
 
 from aeroperception.schemas import Header, Pose, PoseStamped, Quaternion, Trajectory, Vector3
 
-GENERATORS = ("waypoint", "smooth")    # waypoint: goal by goal (the planner's P-controller)
 NONE = Trajectory()
 
 

@@ -4,10 +4,10 @@ from __future__ import annotations
 from pathlib import Path
 from types import SimpleNamespace
 
-from aeroperception.schemas import Trajectory, load_mission_file
+import pytest
+
+from aeroperception.schemas import SchemaError, Trajectory, load_mission_file, parse_mission
 from aeroperception.services.mission.trajectory import NONE, TrajectoryHandover
-
-
 
 SURVEY = load_mission_file(Path(__file__).resolve().parents[2] / "examples/missions/survey_01.json")
 
@@ -35,3 +35,14 @@ def test_the_mission_files_own_choice_wins_over_the_parameter():
     assert msg.generator_name == "smooth" and msg.waypoints[0].pose.orientation.to_yaw() == 0.0
     assert len(msg.waypoints) == 4
     assert h.message(True, SURVEY, 4) == NONE            # past the last waypoint: nothing left to fly
+
+
+def test_a_mission_files_trajectory_section_is_read_strictly():
+    base = '{"mission_id": "m", "waypoints": [{"x": 0, "y": 0, "z": 2}], "trajectory": %s}'
+    assert parse_mission(base % '{"generator": "smooth"}').trajectory.generator == "smooth"
+    assert parse_mission("mission_id: m\nwaypoints: [{x: 0, y: 0, z: 2}]\ntrajectory: {generator: waypoint}\n"
+                         ).trajectory.generator == "waypoint"
+    for bad, why in [('{"generator": "fast"}', "generator"), ('{"generator": "smooth", "speed": 3}', "trajectory.speed"),
+                     ("{}", "generator")]:
+        with pytest.raises(SchemaError, match=why):
+            parse_mission(base % bad)

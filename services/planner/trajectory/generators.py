@@ -11,12 +11,12 @@ import math
 import numpy as np
 
 from aeroperception.schemas import Trajectory
+from aeroperception.schemas.mission import TRAJECTORY_GENERATORS as GENERATORS
 
 from .blend import smooth
 from .core import Limits, Path, peaks
 from .evaluate import TrajectoryRefused, evaluate
 
-GENERATORS = ("waypoint", "smooth")
 LIMIT_TOLERANCE = 0.10
 
 
