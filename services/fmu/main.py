@@ -93,6 +93,7 @@ class FmuService(Service):
                        lambda st: self._planner_health(st.status != TrajectoryStatus.STATUS_ERROR, "planner reports ERROR"))
         node.subscribe("state/visual_odometry", Odometry, self._on_vio)
         self.imu_stamps_ns: deque[int] = deque(maxlen=400)      # recent sensors/imu stamps (2 s)
+        self.vio_age_ms: deque[float] = deque(maxlen=100)       # exposure -> ODOMETRY sent: the pipeline's latency
         self.camera_imu_dt_ms: deque[float] = deque(maxlen=50)  # image stamp - newest IMU stamp before it
         if p.publish_imu:  # seed 000 imu_adapter: verify camera / IMU time alignment
             node.subscribe("sensors/camera/left/image", Image, self._on_image_stamp)
@@ -405,6 +406,7 @@ class FmuService(Service):
             return
         f = odometry_fields(odom, odom.header.stamp_ns // 1000)
         self._send(lambda mav: mav.odometry_send(**f))
+        self.vio_age_ms.append(age_s * 1000.0)
         self.counters["vio_injected"] += 1
 
     def _on_image_stamp(self, img: Image) -> None:
@@ -509,6 +511,10 @@ class FmuService(Service):
             dts = np.array(self.camera_imu_dt_ms)
             self.counters["camera_imu_dt_p50_ms"] = round(float(np.nanmedian(dts)), 3)
             self.counters["camera_imu_dt_max_ms"] = round(float(np.nanmax(np.abs(dts))), 3)
+        if self.vio_age_ms:   # what EKF2_EV_DELAY would have to be without PX4's time sync
+            ages = np.array(self.vio_age_ms)
+            self.counters["vio_age_p50_ms"] = round(float(np.median(ages)), 1)
+            self.counters["vio_age_max_ms"] = round(float(ages.max()), 1)
         values = dict(self.counters, mode=self.tm.flight_mode, armed=self.tm.armed, autopilot=self.tm.autopilot.name,
                       **self.arbiter.counters, planner=self.arbiter.label(), offboard=self.arbiter.phase,
                       hold_reason=self.arbiter.reason,

@@ -227,13 +227,15 @@ def test_px4_gps_denied_hop_flies_on_vision_alone_fused_by_ekf2(px4_gd, tmp_path
     tru = np.array([t for _, t in track])
     err = np.linalg.norm((est - est[0]) - (tru - tru[0]), axis=1)   # both about where the flight began
     farthest = tru[np.argmax(tru[:, 0])]
+    fmu = st.diag("fmu").values
     latency = px4_shell(st, "listener", "vehicle_visual_odometry")
     lag = re.search(r"timestamp_sample: \d+ \((\d+) us before timestamp\)", latency)
     print(f"PX4 GPS-denied hop: {flight_s:.1f} s, {len(samples)} flag samples in the air, vision sent "
           f"{st.vision.sent}; truth reached x={farthest[0]:.2f} y={farthest[1]:.2f} z={farthest[2]:.2f} m; "
           f"landing {np.linalg.norm(end[:2] - [3.0, 0.0]):.2f} m from the waypoint; PX4 estimate vs truth "
           f"median {np.median(err):.3f} m, max {err.max():.3f} m; PX4 stamp lag "
-          f"{lag.group(1) if lag else '?'} us")
+          f"{lag.group(1) if lag else '?'} us; stamp -> ODOMETRY sent at fmu p50 {fmu.get('vio_age_p50_ms')} ms, "
+          f"max {fmu.get('vio_age_max_ms')} ms")
     assert len(samples) >= 5, samples
     assert not any(f.get(k) for _, f in samples for k in GNSS_FLAGS), samples          # never GNSS
     # vision fused in the air; a sample without it comes right after a gap in the vision stream itself
