@@ -47,12 +47,16 @@ def _derivative(ts: np.ndarray, values: np.ndarray, window_s: float) -> tuple[np
 @dataclass
 class TrajectoryEval:
     waypoints_m: np.ndarray                                  # the mission's waypoints (n x 3)
-    truth: list[tuple[float, np.ndarray, np.ndarray]] = field(default_factory=list)   # (t, position, velocity)
+    truth: list[tuple[float, np.ndarray, np.ndarray, float]] = field(default_factory=list)  # (t, p, v, stamp)
     reached: dict[int, float] = field(default_factory=dict)  # waypoint index -> time first reached
     reference_errors: list[float] = field(default_factory=list)
 
-    def add_truth(self, t_s: float, position_m: np.ndarray, velocity_mps: np.ndarray) -> None:
-        self.truth.append((t_s, np.asarray(position_m, float), np.asarray(velocity_mps, float)))
+    def add_truth(self, t_s: float, position_m: np.ndarray, velocity_mps: np.ndarray,
+                  stamp_s: float | None = None) -> None:
+        """`t_s` on the clock of the waypoint events (arrival time); `stamp_s` the sample's own
+        stamp, for the differences (arrival times bunch up when a loaded host delivers late)."""
+        self.truth.append((t_s, np.asarray(position_m, float), np.asarray(velocity_mps, float),
+                           t_s if stamp_s is None else stamp_s))
 
     def add_reached(self, index: int, t_s: float) -> None:
         self.reached.setdefault(index, t_s)
@@ -66,14 +70,14 @@ class TrajectoryEval:
             missing = [i for i in (0, n - 1) if i not in self.reached]
             raise ValueError(f"waypoint(s) {missing} never reached: no complete flight to score")
         t0, t1 = self.reached[0], self.reached[n - 1]
-        rows = [(t, p, v) for t, p, v in self.truth if t0 <= t <= t1]
+        rows = [r for r in self.truth if t0 <= r[0] <= t1]
         if len(rows) < 5:
             raise ValueError(f"{len(rows)} truth samples between the first and the last waypoint")
-        ts = np.array([r[0] for r in rows])
+        stamps = np.array([r[3] for r in rows])
         pos = np.array([r[1] for r in rows])
         vel = np.array([r[2] for r in rows])
         cross = distances_to_polyline(pos, self.waypoints_m)
-        ta, acc = _derivative(ts, vel, DIFF_WINDOW_S)
+        ta, acc = _derivative(stamps, vel, DIFF_WINDOW_S)
         _, jerk = _derivative(ta, acc, DIFF_WINDOW_S)
         overshoot = []
         for k in range(1, n - 1):
@@ -145,7 +149,8 @@ def run_live(args) -> int:
                 return
             watch.update(m.armed, m.position_m.z)
             with lock:
-                ev.add_truth(time.monotonic(), m.position_m.to_array(), m.velocity_mps.to_array())
+                ev.add_truth(time.monotonic(), m.position_m.to_array(), m.velocity_mps.to_array(),
+                             m.header.stamp_ns * 1e-9)
 
         def on_reached(sample) -> None:
             try:

@@ -115,6 +115,14 @@ class PlannerService(Service):
         self.state, self.state_rx_s = msg, time.monotonic()
         self._cycle()  # event-driven: a fresh state goes out as a setpoint at once (hot path)
 
+    def _state_age_s(self, st: VehicleState) -> float:
+        """How old the state is: its delay on one clock; across machines (a lowest delay that is
+        not a plausible latency: clock offset) only the delay above the lowest one seen."""
+        delay = self.node.now_ns() - st.header.stamp_ns
+        floor = self.delay_floor_ns or 0
+        age_ns = delay if 0 <= floor < 50_000_000 else delay - floor
+        return min(max(0.0, age_ns * 1e-9), self.params.state_timeout_s)
+
     def _tick(self) -> None:
         """The 50 Hz deadline loop: guarantees the rate when state arrives slower or late."""
         if time.monotonic() - self.last_pub_s > 1.25 * self.loop.period_s:
@@ -144,8 +152,9 @@ class PlannerService(Service):
         res = self.planner.step(st.position_m.to_array(), st.yaw_rad, time.monotonic())
         follow = None
         if self.planner.goal is not None:
+            age_s = self._state_age_s(st)
             follow = self.tracker.step(st.position_m.to_array(), st.yaw_rad, time.monotonic(), self.planner.goal.position_m,
-                                       self._path_blocked if self.params.obstacle_avoidance else None)
+                                       self._path_blocked if self.params.obstacle_avoidance else None, age_s)
         self.tracking_error_m = follow.tracking_error_m if follow is not None else None
         if follow is not None:
             res.setpoint = follow.setpoint       # the trajectory is clear of obstacles ahead (checked in step)

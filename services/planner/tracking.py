@@ -93,7 +93,7 @@ class TrajectoryTracker:
         return 0 if self.typed_end is not None and np.linalg.norm(goal_m - self.typed_end) < ON_PATH_M else None
 
     def step(self, position_m: np.ndarray, yaw_rad: float, now_s: float, goal_m: np.ndarray | None,
-             path_blocked: Callable[[np.ndarray], bool] | None = None) -> FollowStep | None:
+             path_blocked: Callable[[np.ndarray], bool] | None = None, position_age_s: float = 0.0) -> FollowStep | None:
         """The setpoint from the trajectory, or None: fly goal by goal (no trajectory, a hold, a
         goal off the trajectory, refused, or avoiding an obstacle towards the current goal)."""
         if self.msg is None or goal_m is None or self.refused or self.blocked:
@@ -110,7 +110,7 @@ class TrajectoryTracker:
             if not self._build(position_m, yaw_rad, now_s, k):
                 return None
         wait = self._wait_at(k)
-        fs = self.follower.step(position_m, now_s, wait)
+        fs = self.follower.step(position_m, now_s, wait, position_age_s)
         if path_blocked is not None and path_blocked(self.follower.ahead_xy(AHEAD_S)):
             self.follower = None
             if self._generated():

@@ -51,13 +51,15 @@ class Follower:
         self.t_s = 0.0                  # the reference's own time along the path
         self.last_s: float | None = None
 
-    def step(self, position_m: np.ndarray, now_s: float, wait_at: tuple[float, np.ndarray] | None = None) -> FollowStep:
+    def step(self, position_m: np.ndarray, now_s: float, wait_at: tuple[float, np.ndarray] | None = None,
+             position_age_s: float = 0.0) -> FollowStep:
         """The setpoint now. `wait_at` (time on the path, a point): the reference may not pass that
         time; there it holds the point itself (zero velocity) until the caller lifts the wait —
-        the planner waits at a waypoint the mission has not yet counted as reached."""
+        the planner waits at a waypoint the mission has not yet counted as reached.
+        `position_age_s`: how old the vehicle's position is; it is compared with where the
+        reference was then (a 50 ms old state at 3 m/s is not 0.15 m of tracking error)."""
         if self.last_s is not None and now_s > self.last_s:
-            ref = self.path.sample(self.t_s)
-            error = float(np.linalg.norm(ref.position_m - position_m))
+            error = self._error(position_m, position_age_s)
             rate = float(np.clip(2.0 * (self.lag_m - error) / self.lag_m, 0.0, 1.0))
             self.t_s = min(self.path.duration_s, self.t_s + rate * (now_s - self.last_s))
         if now_s >= self.started_s:     # a path given a later start waits at its beginning
@@ -70,9 +72,14 @@ class Follower:
             ref.yaw_rate_radps = 0.0
         else:
             ref = self.path.sample(self.t_s)
-        error = float(np.linalg.norm(ref.position_m - position_m))
+        error = (float(np.linalg.norm(ref.position_m - position_m)) if wait_at is not None and self.t_s >= wait_at[0]
+                 else self._error(position_m, position_age_s))
         finished = self.t_s >= self.path.duration_s and error < self.lag_m / 2
         return FollowStep(setpoint_of(ref, self.setpoint_type), ref, error, finished)
+
+    def _error(self, position_m: np.ndarray, age_s: float) -> float:
+        then = self.path.sample(max(0.0, self.t_s - max(0.0, age_s)))
+        return float(np.linalg.norm(then.position_m - position_m))
 
     def progress(self, now_s: float) -> tuple[float, float, float]:
         """(percent of the path's time flown, seconds since it was taken up, seconds of path left)."""
