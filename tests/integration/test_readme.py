@@ -35,6 +35,12 @@ HOW: dict[str, tuple] = {
     "aero mission fly examples/missions/survey_01.json": (
         STACK, ["aero", "mission", "load", "examples/missions/survey_01.json"],
         "loaded"),   # flying it takes minutes: test_flight flies missions (slow); here it is validated and loaded
+    "aero mission fly examples/missions/survey_01.json --trajectory smooth": (
+        STACK, ["aero", "mission", "load", "examples/missions/survey_01.json", "--trajectory", "smooth"],
+        "loaded"),   # test_trajectory_flight flies it (slow)
+    "aero param set mission trajectory_generator smooth": (STACK, None, "trajectory_generator = smooth"),
+    "aero eval trajectory --live --until-landed --json traj.json": (
+        SKIP, ["aero", "eval", "trajectory", "--help"], "needs a flight: test_trajectory_flight scores two by truth"),
     "aero node list": (STACK, None, "planner"),
     "aero topic list": (STACK, None, "state/vehicle"),
     "aero topic echo state/vehicle -n 1": (STACK, ["--timeout", "15"], "# state/vehicle [VehicleState@"),
