@@ -1,4 +1,4 @@
-"""Obstacle-aware velocity (seed 000 §5.2's growth hook) over the lidar service's costmap.
+"""Obstacle-aware velocity (requirement PLAN-2) over the lidar service's costmap.
 
 The waypoint planner says where to go; this decides how to get there horizontally without
 touching anything the costmap calls inscribed or lethal:

@@ -17,7 +17,7 @@ from .trajectory.generators import limits_from
 
 
 class PlannerService(Service):
-    """50 Hz waypoint planner (seed 000 §5.2)."""
+    """50 Hz waypoint planner (requirement PLAN-1)."""
 
     NAME = contract.NAME
     PARAMS = contract.PARAMS
