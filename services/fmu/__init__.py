@@ -1,4 +1,4 @@
-"""fmu: the only place that knows the flight controller (seed 000 §3).
+"""fmu: the only place that knows the flight controller (requirements FC-1 - FC-6).
 
 MAVLink client (pymavlink) of PX4, ArduPilot or the built-in simulated vehicle, through one
 code path. Telemetry becomes fmu/out/** and state/vehicle in ENU/FLU; setpoints from the

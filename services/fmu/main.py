@@ -95,7 +95,7 @@ class FmuService(Service):
         self.imu_stamps_ns: deque[int] = deque(maxlen=400)      # recent sensors/imu stamps (2 s)
         self.vio_age_ms: deque[float] = deque(maxlen=100)       # exposure -> ODOMETRY sent: the pipeline's latency
         self.camera_imu_dt_ms: deque[float] = deque(maxlen=50)  # image stamp - newest IMU stamp before it
-        if p.publish_imu:  # seed 000 imu_adapter: verify camera / IMU time alignment
+        if p.publish_imu:  # requirement SIM-1: verify camera / IMU time alignment
             node.subscribe("sensors/camera/left/image", Image, self._on_image_stamp)
         node.serve("fmu/srv/arm", ArmRequest, ArmReply, self._srv_arm, locked=False)
         node.serve("fmu/srv/set_mode", SetModeRequest, SetModeReply, self._srv_set_mode, locked=False)
