@@ -1,4 +1,4 @@
-"""safety: one verdict on whether the vehicle may keep flying (seed 002 SafetyStatus on safety/status).
+"""safety: one verdict on whether the vehicle may keep flying (IF-2's SafetyStatus on safety/status).
 
 It watches the required services' liveliness and health, the flight-controller link, battery,
 geofence, ground-station link and perception health, and recommends an action from an explicit

@@ -16,7 +16,7 @@ from .rules import ACTION_NAMES, LEVEL_NAMES
 
 
 class SafetyService(Service):
-    """SafetyStatus from liveliness, FC link, battery, geofence, GCS and perception (seed 002)."""
+    """SafetyStatus from liveliness, FC link, battery, geofence, GCS and perception (IF-2's SafetyStatus)."""
 
     NAME = contract.NAME
     PARAMS = contract.PARAMS
