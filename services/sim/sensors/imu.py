@@ -2,7 +2,7 @@
 
 Specific force f = R_enu_flu^T (a_world - g_world), g_world = (0, 0, -9.80665) ENU, so a vehicle
 at rest or hovering reads +9.81 m/s^2 on body z. Noise follows the continuous-time model VIO is
-configured with (seed 000 §4.1 densities): per sample, white noise sigma = density / sqrt(dt)
+configured with (requirement VIO-2 densities): per sample, white noise sigma = density / sqrt(dt)
 and the bias random walk b += walk * sqrt(dt) * N(0, 1). Truth angular velocity and acceleration
 come from the vehicle dynamics, so integrating the noiseless output reproduces the trajectory.
 """

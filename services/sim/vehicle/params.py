@@ -101,7 +101,7 @@ PARAMS: tuple[Param, ...] = (
     Param("MPC_THR_MIN", 0.12, "", 0.05, 0.5, description="minimum collective thrust in flight (of max)"),
     Param("MPC_ACC_HOR", 3.0, "m/s^2", 2.0, 15.0, description="braking deceleration when entering HOLD"),
     Param("MC_ROLLRATE_MAX", 220.0, "deg/s", 0.0, 1800.0, description="roll/pitch rate limit"),
-    Param("MC_YAWRATE_MAX", 60.0, "deg/s", 0.0, 1800.0, description="yaw rate limit (seed 000: 60)"),
+    Param("MC_YAWRATE_MAX", 60.0, "deg/s", 0.0, 1800.0, description="yaw rate limit (FC-6: 60)"),
 )
 
 
