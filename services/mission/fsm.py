@@ -1,9 +1,9 @@
-"""The 5-state mission FSM of seed 000 §5.1 as an explicit transition table, free of Zenoh.
+"""The 5-state mission FSM of requirement MIS-1 as an explicit transition table, free of Zenoh.
 
 States IDLE, TAKEOFF, EXECUTING, HOLDING, LAND. Everything that happens is an Event; the only
 way the state changes is TRANSITIONS[(state, event)]. Side effects (bridge calls, goal
 publication) go through the injected Bridge and `publish_goal`, so tests drive the whole FSM
-with plain objects. A bridge call that fails is the ERROR path of the seed: in the air the
+with plain objects. A bridge call that fails is MIS-1's error path: in the air the
 vehicle holds (planner keeps streaming), on the ground it goes back to IDLE, reason reported.
 
 Fault policy (ARCHITECTURE §8), every automatic transition reported in `message`:
@@ -388,7 +388,7 @@ class MissionManager:
             self._request_mode("OFFBOARD")
         elif event == E.ALTITUDE_REACHED and self.start_requested:
             if self.perception_required() and not self.perception_healthy:
-                # seed 000 §5.1: TAKEOFF exits to EXECUTING on "VIO healthy + altitude reached";
+                # MIS-1 / VIO-3: TAKEOFF exits to EXECUTING on "VIO healthy + altitude reached";
                 # wait here like a perception hold (recovered -> EXECUTING, recovery time -> RTL)
                 self.hold_reason = "perception"
                 self.message = "takeoff complete: waiting for perception (VIO TRACKING) to start the mission"
