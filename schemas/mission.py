@@ -1,12 +1,12 @@
 """Mission manager messages: the mission file format (Mission, Waypoint), its status, the
 operator's commands, the goal it hands the planner and the waypoint-reached event.
 
-Mission/Waypoint are exactly seed 000 §5.1's JSON (x/y/z in metres ENU, yaw_deg in degrees — the
+Mission/Waypoint are exactly requirement MIS-3's JSON (x/y/z in metres ENU, yaw_deg in degrees — the
 only non-SI field names in the project, kept so existing mission files load unchanged).
 `parse_mission` is the one place mission text (JSON or YAML) is validated; it never returns a
 mission the vehicle cannot fly (no waypoints, non-finite numbers, non-positive radius or altitude).
 
-State and command names are the seed 000 strings (readable in logs and any language); the set of
+State and command names are MIS-1's and MIS-5's strings (readable in logs and any language); the set of
 commands is closed, so a typo is rejected at decode instead of being silently ignored by the FSM.
 """
 from __future__ import annotations
@@ -157,7 +157,7 @@ class MissionTrajectory(msgspec.Struct, kw_only=True):
 
 @schema("Mission", 1)
 class Mission(Message, kw_only=True):
-    """A mission: take off, fly the waypoints in order. Seed 000 §5.1's JSON, unchanged:
+    """A mission: take off, fly the waypoints in order. Requirement MIS-3's JSON, unchanged:
 
     {"mission_id": "survey_01", "takeoff_altitude_m": 5.0,
      "waypoints": [{"x": 0.0, "y": 0.0, "z": 5.0, "yaw_deg": 0.0}, ...],

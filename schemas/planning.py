@@ -17,7 +17,7 @@ __all__ = ["Trajectory", "TrajectoryStatus", "CollisionConstraint"]
 class Trajectory(Message, kw_only=True):
     """A complete trajectory for the planner to follow; `trajectory_type` says which part is used.
 
-    Seed 002 Trajectory: its start_time/duration/total_duration_s become `start_time_ns`
+    IF-2's Trajectory: its start_time/duration/total_duration_s become `start_time_ns`
     (same clock as header.stamp_ns, 0 = start on receipt) and `total_duration_s`.
     Waypoints are ENU poses; `waypoint_times_s`, when given, has one entry per waypoint
     (seconds from start). Polynomial coefficients are lowest order first.
@@ -95,7 +95,7 @@ class CollisionConstraint(Message, kw_only=True):
     """A region the vehicle must stay out of (multi-agent coordination), ENU.
 
     Half-plane: allowed where normal . p <= offset_m. Sphere: keep out of `center_m`/`radius_m`.
-    Polygon: keep out of the prism over `polygon_m` (seed 002 names the type but gives no field).
+    Polygon: keep out of the prism over `polygon_m` (IF-2 names the type but gives no field).
     `expires_at_ns` is on the header's clock (0 = never).
     """
 

@@ -307,7 +307,7 @@ class Odometry(Message, kw_only=True):
     """Estimated pose and velocity with 6x6 covariances (state/visual_odometry,
     fmu/in/vehicle_visual_odometry).
 
-    Replaces nav_msgs/Odometry, px4 VehicleOdometry and seed 003's VioOutput pose part. `pose` is
+    Replaces nav_msgs/Odometry, px4 VehicleOdometry and the pose part of VIO-7's output. `pose` is
     `child_frame_id` (body FLU, "base_link") in `header.frame_id` (ENU, "odom"); `twist` is
     expressed in the child (body FLU) frame, as in ROS. Covariance order: x, y, z, roll, pitch, yaw
     (resp. vx, vy, vz, wx, wy, wz); None when the estimator has none.
@@ -332,7 +332,7 @@ class Odometry(Message, kw_only=True):
 class VioHealth(Message, kw_only=True):
     """State of the visual-inertial odometry (state/vio_health, 1 Hz and on change).
 
-    Seed 003's VioHealth plus the non-pose parts of VioOutput (IMU bias, feature quality), so the
+    VIO-1's health plus the non-pose parts of VIO-7's output (IMU bias, feature quality), so the
     perception coordinator and logs see why VIO is degraded.
     """
 
