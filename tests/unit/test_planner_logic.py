@@ -1,4 +1,4 @@
-"""WaypointPlanner (services/planner/logic.py): seed 000 §5.2's P-controller on position error,
+"""WaypointPlanner (services/planner/logic.py): requirement PLAN-1's P-controller on position error,
 velocity = direction * min(max_velocity, kp * distance), one `reached` per goal, hold without one."""
 from __future__ import annotations
 

@@ -338,7 +338,7 @@ def test_offboard_loss_fails_over_to_hold_then_land():
 
 def test_offboard_loss_default_is_rtl_like_px4_sitl_and_setpoints_back_resume_offboard():
     """PX4 SITL defaults: RTL COM_OF_LOSS_T after the last setpoint; the failsafe clears when the
-    stream comes back and the vehicle is in OFFBOARD again (ARCHITECTURE §9)."""
+    stream comes back and the vehicle is in OFFBOARD again (the PX4 facts in ARCHITECTURE §7)."""
     v = SimVehicle(seed=0)
     assert v.params.COM_OBL_ACT == 2 and v.params.SIM_OF_RESUME
     sp = start_offboard(v, [3.0, 0.0, 5.0])
