@@ -279,7 +279,7 @@ def fed_services(names: list[str], sensors: str | None) -> tuple[list[str], dict
 
 
 # `aero up --gps-denied`: the sim FC estimates position from the VIO only (SIM_GPS_DENIED); the
-# mission gates EXECUTING on perception/health (seed 000 §4.1 / §5.1).
+# mission gates EXECUTING on perception/health (requirements VIO-3, MIS-1).
 GPS_DENIED_NEEDS = ("vio", "perception")
 GPS_DENIED_ARGS = {
     # EKF2_EV_NOISE_MD=1: vio's covariance includes its accumulated drift (services/vio/drift.py),
