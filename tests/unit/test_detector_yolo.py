@@ -1,6 +1,6 @@
 """The detector's plain logic (services/detector/yolo.py) against hand-built ONNX graphs:
 letterbox + decode put boxes back at the right pixels of the original image (both output
-layouts, several aspect ratios and input sizes), NMS is per class, thresholds are the seed's,
+layouts, several aspect ratios and input sizes), NMS is per class, thresholds are requirement DET-1's,
 class names come from the model / a classes file / COCO, and non-YOLO models are refused
 with a message naming what was found."""
 from __future__ import annotations
