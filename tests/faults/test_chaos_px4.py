@@ -12,10 +12,10 @@ import pytest
 
 from aerotest import assert_chaos_row, chaos_row_param
 from aeroperception.tools.cmd_chaos import build_rows
-from aeroperception.tools.harness import Px4Stack, profile_services
+from aeroperception.tools.harness import Px4Stack
+from aeroperception.tools.harness.px4_stack import PX4_FLIGHT_SERVICES
 
-SERVICES = [s for s in profile_services("px4") if s != "recorder"]
-ROWS = build_rows(SERVICES, "px4")
+ROWS = build_rows(PX4_FLIGHT_SERVICES, "px4")
 CI_ROWS = ("pilot_hold",)
 
 pytestmark = [pytest.mark.px4, pytest.mark.slow]
@@ -23,7 +23,7 @@ pytestmark = [pytest.mark.px4, pytest.mark.slow]
 
 @pytest.fixture(scope="module")
 def px4_chaos(px4_build, tmp_path_factory):
-    st = Px4Stack(px4_build, tmp_path_factory.mktemp("chaos-px4"), SERVICES)
+    st = Px4Stack(px4_build, tmp_path_factory.mktemp("chaos-px4"))
     try:
         yield st
     finally:

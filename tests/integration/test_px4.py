@@ -27,13 +27,13 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
-from aerotest import Capture, SihTruth, aero_argv, clean_env, is_service_process, wait_for_message, wait_until
+from aerotest import Capture, SihTruth, aero_argv, clean_env, is_service_process, wait_until
 from aeroperception.schemas import (
     MissionCommand, MissionStatus, Reply, VehicleState, WaypointReached, load_mission_file,
 )
 from aeroperception.services.runtime.node import call
 from aeroperception.tools import px4_sitl
-from aeroperception.tools.harness.px4_stack import SIH_DISPLAY_PORT
+from aeroperception.tools.harness.px4_stack import SIH_DISPLAY_PORT, px4_command
 from test_flight import SURVEY
 
 pytestmark = [pytest.mark.px4, pytest.mark.slow]
@@ -67,58 +67,27 @@ def px4(stack_module, px4_build, tmp_path_factory):
 # ---------------------------------------------------------------- helpers
 
 
-def latest(st, key: str, cls: type, pred=None, timeout_s: float = 2.0):
-    try:
-        return wait_for_message(st.session, key, cls, pred, timeout_s)
-    except AssertionError:
-        return None
-
-
 def state(st, pred=None) -> VehicleState | None:
-    return latest(st, "state/vehicle", VehicleState, pred)
+    return st.latest("state/vehicle", VehicleState, 2.0, pred)
 
 
 def mission_status(st, pred=None) -> MissionStatus | None:
-    return latest(st, "mission/status", MissionStatus, pred)
-
-
-def command(st, cmd: str) -> Reply:
-    r = call(st.session, "mission/srv/command", MissionCommand(command=cmd), Reply, 15.0)
-    assert r.success, f"{cmd}: {r.message}"
-    return r
+    return st.latest("mission/status", MissionStatus, 2.0, pred)
 
 
 def px4_shell(st, *args: str) -> str:
     """A PX4 shell command against the stack's instance (`bin/px4-commander --instance N mode ...`)."""
-    r = subprocess.run([str(st.px4_bin / f"px4-{args[0]}"), "--instance", str(st.px4_instance), *args[1:]],
-                       capture_output=True, text=True, timeout=10)
-    assert r.returncode == 0, f"px4-{' '.join(args)}: exit {r.returncode}: {r.stdout}{r.stderr}"
-    return r.stdout
-
-
-def on_ground_disarmed(st) -> bool:
-    """By PX4's land detector: its local z on the ground is not 0 (0.55 m measured: EKF2's height
-    origin is taken at boot and drifts with the baro) as the built-in sim's is."""
-    s = state(st)
-    return s is not None and not s.armed and s.landed
-
-
-def ensure_landed(st) -> None:
-    if not on_ground_disarmed(st):
-        s = mission_status(st)
-        if s is not None and s.state not in ("LAND", "IDLE"):
-            command(st, "LAND")
-        wait_until(lambda: on_ground_disarmed(st), 60, "landed and disarmed (PX4)")
-    wait_until(lambda: mission_status(st, lambda m: m.state == "IDLE"), 15, "mission IDLE")
+    return px4_command(st.px4_bin.parent, st.px4_instance, *args)
 
 
 def start_survey(st) -> None:
-    ensure_landed(st)
+    st.ensure_landed()
     text = SURVEY.read_text()
     r = call(st.session, "mission/srv/command", MissionCommand(command="LOAD", mission_json=text), Reply, 5.0)
     assert r.success, r.message
-    command(st, "TAKEOFF")
-    command(st, "START")
+    for cmd in ("TAKEOFF", "START"):
+        r = st.command(cmd)
+        assert r.success, f"{cmd}: {r.message}"
     wait_until(lambda: mission_status(st, lambda m: m.state == "EXECUTING"), 40, "mission EXECUTING")
 
 
@@ -162,7 +131,7 @@ def test_px4_is_supervised_like_a_service_restarted_stopped_and_gone_with_aero_u
 
 def test_px4_flies_survey_01_to_landing_reaching_every_waypoint(px4):
     st = px4
-    ensure_landed(st)
+    st.ensure_landed()
     pad = st.truth.now()
     home = state(st).position_m.to_array()
     rec = Capture(st.session, {"state": ("state/vehicle", VehicleState), "status": ("mission/status", MissionStatus),
@@ -172,7 +141,7 @@ def test_px4_flies_survey_01_to_landing_reaching_every_waypoint(px4):
         r = subprocess.run(aero_argv() + ["mission", "fly", str(SURVEY), "--quiet", "--timeout", "150"],
                            env=clean_env(st.endpoint), capture_output=True, text=True, timeout=170,
                            stdin=subprocess.DEVNULL)
-        wait_until(lambda: on_ground_disarmed(st), 10, "on the ground, disarmed (PX4)")
+        wait_until(lambda: st.landed(), 10, "on the ground, disarmed (PX4)")
     finally:
         rec.close()
     flight_s = time.monotonic() - t0
@@ -225,10 +194,11 @@ def test_px4_switched_to_hold_by_a_pilot_holds_the_mission_and_start_resumes(px4
         assert drift < 1.0, f"vehicle moved {drift:.2f} m while HOLDING"
         assert len(rec.get("reached")) == n_reached and mission_status(st).state == "HOLDING"
 
-        command(st, "START")
+        r = st.command("START")
+        assert r.success, r.message
         wait_until(lambda: state(st, lambda m: m.flight_mode == "OFFBOARD"), 10, "PX4 back in OFFBOARD")
         wait_until(lambda: mission_status(st, lambda m: m.state in ("LAND", "IDLE")), 90, "survey complete")
-        wait_until(lambda: on_ground_disarmed(st), 60, "landed and disarmed (PX4)")
+        wait_until(lambda: st.landed(), 60, "landed and disarmed (PX4)")
         reached = [m.index for m in rec.get("reached")]
     finally:
         rec.close()
@@ -265,4 +235,4 @@ def test_px4_fmu_killed_mid_mission_the_vehicle_stays_safe_and_holds(px4):
     # in OFFBOARD, which the built-in sim imitates (COM_OBL_ACT 2, SIM_OF_RESUME).
     wait_until(lambda: state(st, lambda m: m.flight_mode == "OFFBOARD"), 10, "PX4 back in OFFBOARD")
     st.truth.at_rest(10, within_m=0.3)     # holding still, not flying on
-    ensure_landed(st)
+    st.ensure_landed()

@@ -10,6 +10,7 @@ from pathlib import Path
 from aeroperception.tools.common import CliError
 from aeroperception.tools import px4_sitl
 from aeroperception.tools.harness import Px4Stack, SimStack, StackStartError, profile_services
+from aeroperception.tools.harness.px4_stack import PX4_FLIGHT_SERVICES
 
 from .rows import build_rows
 from .judging import RowResult
@@ -38,7 +39,7 @@ def run(args) -> int:
     px4_build = None
     if args.profile == "px4":
         px4_build = px4_sitl.build_dir(args.px4)
-        services = [s for s in profile_services("px4") if s != "recorder"]
+        services = PX4_FLIGHT_SERVICES
     elif args.px4 is not None:
         raise CliError("--px4: the sim profile starts no PX4 (use --profile px4)")
     else:

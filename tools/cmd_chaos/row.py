@@ -50,7 +50,7 @@ def kill(ctx: Ctx, name: str) -> None:
 def restarted(ctx: Ctx, name: str, timeout_s: float = 20.0) -> float | None:
     """Seconds from the kill until a new `name` process holds the liveliness token, else None."""
     old = ctx.notes["old_pid"]
-    ok = poll_until(lambda: ctx.st.pid(name) not in (None, old) and ctx.st.alive(name, 0.5), timeout_s, 0.1)
+    ok = poll_until(lambda: ctx.st.pid(name) not in (None, old) and ctx.st.alive(name, timeout_s=0.5), timeout_s, 0.1)
     return time.monotonic() - ctx.t_inject if ok else None
 
 

@@ -298,19 +298,15 @@ def _setpoints_stop(ctx: Ctx) -> None:
 
 
 def _failsafe_rtl_observe(ctx: Ctx):
-    """PX4 fails safe to RTL on its own; the mission holds its plan and does not take the vehicle
-    back from PX4 (no OFFBOARD again without an operator's START)."""
+    """PX4 fails safe to RTL on its own; the mission holds its plan; once setpoints reach PX4 again
+    the vehicle is held where it is (fmu takes OFFBOARD back holding, as after its own restart),
+    never flown on along the mission."""
     t0 = ctx.t_inject
     rtl = next((t for t, m in ctx.rec.since("truth", t0) if m.flight_mode == "RTL"), None)
-    time.sleep(8.0)
-    modes = [m.flight_mode for _, m in ctx.rec.since("truth", t0)]
-    modes = [x for k, x in enumerate(modes) if k == 0 or x != modes[k - 1]]
-    states = mission_states(ctx, t0)
-    retaken = "OFFBOARD" in modes[modes.index("RTL"):] if "RTL" in modes else False
+    held, obs = held_after(ctx)
     react = rtl - t0 if rtl is not None else None
-    ok = react is not None and react <= 3.5 and not retaken and any(x in ("HOLDING", "LAND") for x in states)
-    return ok, ((f"PX4 RTL after {react:.2f} s" if react is not None else "PX4 never in RTL")
-                + f"; PX4 modes {'->'.join(modes)}; mission {'->'.join(states)}"), react
+    ok = react is not None and react <= 2.0 and held
+    return ok, (f"PX4 RTL after {react:.2f} s" if react is not None else "PX4 never in RTL") + "; " + obs, react
 
 
 def _gps_failure_prepare(ctx: Ctx) -> None:
@@ -318,6 +314,7 @@ def _gps_failure_prepare(ctx: Ctx) -> None:
 
 
 def _gps_failure(ctx: Ctx) -> None:
+    ctx.notes["gps_off"] = True
     ctx.st.px4_shell("failure", "gps", "off")
 
 
@@ -349,14 +346,14 @@ def px4_rows() -> list[Row]:
             "no waypoint flown until START",
             _pilot_hold, _pilot_hold_observe),
         Row("failsafe_rtl", "PX4 hears no setpoints for 3 s (companion -> FC cut)",
-            "PX4's offboard-loss failsafe RTL; the mission holds its plan (HOLDING) and never takes the "
-            "vehicle back into OFFBOARD by itself",
+            "PX4's offboard-loss failsafe RTL within 2 s; the mission HOLDING; once setpoints arrive again the "
+            "vehicle is held (fmu takes OFFBOARD back holding, as after its restart), never flies the mission on",
             _setpoints_stop, _failsafe_rtl_observe, cleanup=lambda c: c.st.tap.cut_to_fc.clear()),
         Row("gps_failure", "GPS off in PX4 (px4-failure gps off)",
             "PX4's estimator loses position and its failsafe lands; the mission stops flying its plan; "
             "landed and disarmed, no impact (truth)",
             _gps_failure, _gps_failure_observe, prepare=_gps_failure_prepare, breaks_stack=True,
-            cleanup=lambda c: c.st.px4_shell("failure", "gps", "ok")),
+            cleanup=lambda c: c.notes.get("gps_off") and c.st.px4_shell("failure", "gps", "ok")),
     ]
 
 

@@ -37,7 +37,7 @@ def run_row(st: FlightStack, row: Row, mission_json: str, inject_after_s: float 
         if row.airborne:
             why = st.start_mission(mission_json)
             if why:   # a previous row may have left the stack odd: once more on a fresh one
-                row.cleanup(ctx)
+                _cleanup(row, ctx)
                 rec.close()
                 st.restart()
                 rec = st.capture(**RECORDED)   # on the new stack's session
@@ -55,10 +55,7 @@ def run_row(st: FlightStack, row: Row, mission_json: str, inject_after_s: float 
         res.observed = f"harness error: {type(e).__name__}: {e}"
         res.passed = False
     finally:
-        try:
-            row.cleanup(ctx)
-        except Exception:  # noqa: BLE001
-            pass
+        _cleanup(row, ctx)
         t_from = ctx.t_inject or t_unsafe
         track = rec.since("truth", t_from)
         if st.tap and (not track or track[-1][0] < time.monotonic() - 2.0):   # Zenoh gone: the FC's view
@@ -77,6 +74,13 @@ def run_row(st: FlightStack, row: Row, mission_json: str, inject_after_s: float 
         st.restart()
     res.duration_s = time.monotonic() - t_start
     return res
+
+
+def _cleanup(row: Row, ctx: Ctx) -> None:
+    try:
+        row.cleanup(ctx)
+    except Exception:  # noqa: BLE001 - the stack restarts after a row that cannot clean up
+        pass
 
 
 def format_table(results: list[RowResult]) -> str:

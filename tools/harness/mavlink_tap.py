@@ -43,9 +43,10 @@ _IGNORE = {  # type_mask bit -> field
 }
 
 
-def setpoint_problem(m, fence: Geofence) -> str | None:
+def setpoint_problem(m, fence: Geofence, floor_m: float = -1.0) -> str | None:
     """Why a SET_POSITION_TARGET_LOCAL_NED the FC received is unsafe, or None: a used field not
-    finite, a speed above SAFE_SETPOINT_SPEED_MPS, a position outside the fence (NED: z down)."""
+    finite, a speed above SAFE_SETPOINT_SPEED_MPS, a position outside the fence or below `floor_m`
+    (the FC's local frame; NED: z down)."""
     used = {f: getattr(m, f) for bit, f in _IGNORE.items() if not m.type_mask & bit}
     bad = [f for f, v in used.items() if not math.isfinite(v)]
     if bad:
@@ -55,7 +56,7 @@ def setpoint_problem(m, fence: Geofence) -> str | None:
         return f"speed {math.hypot(*v):.1f} m/s"
     if all(f in used for f in ("x", "y", "z")):
         east, north, up = m.y, m.x, -m.z
-        if math.hypot(east, north) > fence.radius_m or up > fence.max_altitude_m or up < -1.0:
+        if math.hypot(east, north) > fence.radius_m or up > fence.max_altitude_m or up < floor_m:
             return f"position ({east:.1f}, {north:.1f}, {up:.1f}) ENU outside the fence"
     return None
 
@@ -77,6 +78,7 @@ class MavlinkTap:
         self.to_fmu.bind(("127.0.0.1", 0))
         self.fmu = ("127.0.0.1", fmu_port)
         self.fence = fence or Geofence()
+        self.floor_m = -1.0          # a setpoint below this (ENU up, the FC's local frame) is unsafe
         self.sim_addr: tuple[str, int] | None = None
         self.cut = threading.Event()          # both ways (FC link loss)
         self.cut_to_fc = threading.Event()    # companion -> FC only (the FC hears no setpoints)
@@ -170,7 +172,7 @@ class MavlinkTap:
         for m in self._parse(pkt):
             if m.get_type() != "SET_POSITION_TARGET_LOCAL_NED":
                 continue
-            why = setpoint_problem(m, self.fence)
+            why = setpoint_problem(m, self.fence, self.floor_m)
             with self.lock:
                 self.setpoints_total += 1
                 self.setpoints.append((now, m))

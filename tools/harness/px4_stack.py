@@ -27,6 +27,19 @@ from .topics import Capture
 from .waiting import poll_until, wait_until
 
 SIH_DISPLAY_PORT = 19410      # + instance: where PX4's SIH display link sends HIL_STATE_QUATERNION
+PX4_GROUND_BELOW_ORIGIN_M = -2.0
+# The vehicle profile's services and PX4: no rendered sensors (the px4 profile's follow-mode sim and
+# perception), no recorder (nothing here reads its files).
+PX4_FLIGHT_SERVICES = [s for s in profile_services("vehicle") if s != "recorder"] + ["px4"]
+
+
+def px4_command(build: Path, instance: int, *args: str) -> str:
+    """A PX4 shell command against running instance N (`px4_command(build, 1, "commander", "mode",
+    "auto:loiter")` runs bin/px4-commander --instance 1 mode auto:loiter); AssertionError if it fails."""
+    r = subprocess.run([str(Path(build) / "bin" / f"px4-{args[0]}"), "--instance", str(instance), *args[1:]],
+                       capture_output=True, text=True, timeout=10)
+    assert r.returncode == 0, f"px4-{' '.join(args)}: exit {r.returncode}: {r.stdout}{r.stderr}"
+    return r.stdout
 
 
 class SihTruth:
@@ -110,8 +123,9 @@ class SihTruth:
 
 class Px4Stack(FlightStack):
     """`aero up --profile px4 --px4 BUILD` on a free PX4 instance, with a MavlinkTap between PX4 and
-    fmu, gcs on free ports and SIH's truth (`sih`). `truth()`, `capture(truth=...)` and `landed()`
-    answer from PX4 (SIH's truth; PX4's land detector) as SimStack's do from the built-in sim."""
+    fmu, gcs on free ports and SIH's truth (`sih`). `truth()` and `capture(truth=...)` answer from
+    SIH's truth as SimStack's do from the built-in sim (`landed()`: PX4's land detector, as Stack's
+    for every px4 profile)."""
 
     tap_before_up = False
 
@@ -119,8 +133,7 @@ class Px4Stack(FlightStack):
                  extra_args: list[str] = (), startup_timeout_s: float = 90.0):
         self.build = Path(build)
         self.sih: SihTruth | None = None
-        # The vehicle profile's services and PX4, without the recorder (nothing here reads its files).
-        services = services or [s for s in profile_services("px4") if s != "recorder"]
+        services = services or PX4_FLIGHT_SERVICES
         super().__init__(log_dir, services, "px4", extra_args, startup_timeout_s)
 
     def start(self) -> None:
@@ -139,6 +152,15 @@ class Px4Stack(FlightStack):
     def fc_args(self) -> list[str]:
         return ["--px4", str(self.build), "--px4-instance", str(self.instance),
                 "--arg", f"fmu:--fcu-url=udpin:127.0.0.1:{self.fmu_port}"]   # through the tap, not 14540+N
+
+    def launch_env(self) -> dict[str, str]:
+        return {"PX4_PARAM_SYS_FAILURE_EN": "1"}   # px4-failure (GPS off) is acked only when enabled at boot
+
+    def open_tap(self) -> None:
+        super().open_tap()
+        # PX4's local frame: EKF2's height origin is taken at boot and drifts with the baro, so the
+        # ground is at up -0.5..-1.1 m (measured) and fmu's hold on the ground is there, not at 0.
+        self.tap.floor_m = PX4_GROUND_BELOW_ORIGIN_M
 
     def wait_ready(self, deadline: float) -> None:
         self.open_tap()
@@ -163,11 +185,7 @@ class Px4Stack(FlightStack):
 
     def px4_shell(self, *args: str) -> str:
         """A PX4 shell command against this instance (`px4_shell("commander", "mode", "auto:loiter")`)."""
-        r = subprocess.run([str(self.build / "bin" / f"px4-{args[0]}"), "--instance", str(self.instance), *args[1:]],
-                           capture_output=True, text=True, timeout=10)
-        if r.returncode != 0:
-            raise RuntimeError(f"px4-{' '.join(args)}: exit {r.returncode}: {r.stdout}{r.stderr}")
-        return r.stdout
+        return px4_command(self.build, self.instance, *args)
 
     def truth(self, timeout_s: float = 3.0) -> VehicleState:
         wait_until(lambda: self.sih.last, timeout_s, "SIH ground truth (HIL_STATE_QUATERNION)")
@@ -181,8 +199,3 @@ class Px4Stack(FlightStack):
             cap.feed("truth", self.sih.listeners)
         return cap
 
-    def landed(self, below_m: float = 0.2) -> bool:
-        """By PX4's land detector (state/vehicle landed) and disarmed: PX4's local z on the ground is not
-        0 (EKF2's height origin is taken at boot and drifts with the baro) as the built-in sim's is."""
-        s = self.latest("state/vehicle", VehicleState, 2.0)
-        return s is not None and not s.armed and s.landed

@@ -60,6 +60,10 @@ class Stack:
         """Arguments for `aero up` besides profile, services, router and log dir (per start)."""
         return []
 
+    def launch_env(self) -> dict[str, str]:
+        """Environment for `aero up` besides a clean one (AERO_* dropped) and the private state dir."""
+        return {}
+
     def wait_ready(self, deadline: float) -> None:
         """Readiness beyond every service's liveliness token (StackStartError if not by `deadline`)."""
 
@@ -74,7 +78,7 @@ class Stack:
         self._stdout_path = self.run_dir / "aero-up.out"
         with open(self._stdout_path, "wb") as out:
             # Each stack persists mission state in its own folder (never the user's ~/.aero).
-            env = dict(clean_env(), AERO_STATE_DIR=str(self.run_dir / "state"))
+            env = dict(clean_env(), AERO_STATE_DIR=str(self.run_dir / "state"), **self.launch_env())
             self.proc = subprocess.Popen(argv, stdout=out, stderr=subprocess.STDOUT,
                                          stdin=subprocess.DEVNULL, env=env)
         try:
@@ -214,7 +218,12 @@ class Stack:
     # -------------------------------------------------------- flying
 
     def landed(self, below_m: float = 0.2) -> bool:
-        """On the ground (truth z below `below_m`) and disarmed; False without a truth sample."""
+        """On the ground (truth z below `below_m`) and disarmed; False without a sample. PX4 (the px4
+        profile, no sim truth): by its land detector (state/vehicle landed), as its local z on the
+        ground is not 0 (EKF2's height origin is taken at boot and drifts with the baro: 0.55 m seen)."""
+        if self.profile == "px4":
+            s = self.latest("state/vehicle", VehicleState, 2.0)
+            return s is not None and not s.armed and s.landed
         t = self.latest("sim/truth/state", VehicleState, 3.0)
         return t is not None and t.position_m.z < below_m and not t.armed
 
