@@ -54,6 +54,8 @@ def input_keys(contracts) -> dict[str, tuple[type, list[str]]]:
     """{concrete key: (schema, [services subscribed])}; wildcards get a concrete chunk."""
     keys: dict[str, tuple[type, list[str]]] = {}
     for svc, c in contracts.items():
+        if svc == "sim":
+            continue  # sim subscribes only with --follow (an external FC's truth); this stack flies its own
         for key, cls in getattr(c, "INPUTS", {}).items():
             key = key.replace("*", "fuzz")
             keys.setdefault(key, (cls, []))[1].append(svc)
