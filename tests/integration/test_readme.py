@@ -100,6 +100,9 @@ HOW: dict[str, tuple] = {
     "aero chaos --list": (SKIP, ["aero", "chaos", "--list"], "lists the rows"),
     "aero chaos --rows kill_planner,gcs_loss --json chaos.json": (
         SKIP, ["aero", "chaos", "--help"], "flies a mission per row: tests/faults runs the rows"),
+    "aero chaos --profile px4 --px4 DIR --rows pilot_hold,failsafe_rtl": (
+        SKIP, ["aero", "chaos", "--profile", "px4", "--help"],
+        "needs a PX4 build: tests/faults/test_chaos_px4.py flies the rows on the bundle"),
     "aero topic echo perception/costmap -n 1": (SKIP, ["aero", "topic", "echo", "--help"],
                                                 "needs the LiDAR rendered (2 cores): test_lidar_service reads the costmap"),
     "aero eval lidar --altitude 4 --altitude 1.5": (SKIP, ["aero", "eval", "lidar", "--help"],
