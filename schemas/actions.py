@@ -273,10 +273,10 @@ class ActionSpec(NamedTuple):
     feedback: type[Message]
 
 
-# Keyed by the action's key segment: mission/action/{takeoff,land,goto,trajectory}.
+# Keyed by the action's key segment: mission/action/{takeoff,land,goto,set_trajectory}.
 ACTIONS: dict[str, ActionSpec] = {
     "takeoff": ActionSpec(TakeoffGoal, TakeoffResult, TakeoffFeedback),
     "land": ActionSpec(LandGoal, LandResult, LandFeedback),
     "goto": ActionSpec(GoToPositionGoal, GoToPositionResult, GoToPositionFeedback),
-    "trajectory": ActionSpec(SetTrajectoryGoal, SetTrajectoryResult, SetTrajectoryFeedback),
+    "set_trajectory": ActionSpec(SetTrajectoryGoal, SetTrajectoryResult, SetTrajectoryFeedback),
 }

@@ -9,23 +9,27 @@ only forwards each Step to the action's goal handle.
   a pilot's takeover).
 - goto: feedback (distance, ETA) while EXECUTING it; succeeds when the FSM holds at the target
   (GOTO_DONE); aborts in any other state (a safety hold, a blocked goal, an operator LAND).
+- trajectory: flown as a goto to the trajectory's end (the planner follows the trajectory on the
+  way): feedback is the planner's TrajectoryStatus; ends like a goto.
 A cancel asks HOLD while the vehicle moves (TAKEOFF, EXECUTING, LAND) and ends as canceled.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
 from aeroperception.schemas import (
-    GoToPositionFeedback, GoToPositionResult, LandFeedback, LandResult, TakeoffFeedback, TakeoffResult, Vector3,
+    GoToPositionFeedback, GoToPositionResult, LandFeedback, LandResult, SetTrajectoryFeedback, SetTrajectoryResult,
+    TakeoffFeedback, TakeoffResult, TrajectoryStatus, Vector3,
 )
 
 from .fsm import MissionManager, Outcome, State
 
 MOVING = (State.TAKEOFF, State.EXECUTING, State.LAND)    # a cancel asks HOLD in these
-RESULTS = {"takeoff": TakeoffResult, "land": LandResult, "goto": GoToPositionResult}
+RESULTS = {"takeoff": TakeoffResult, "land": LandResult, "goto": GoToPositionResult,
+           "trajectory": SetTrajectoryResult}
 TAKEOFF_DONE_M = 1.0                                       # within this of the target altitude: done
 
 
@@ -40,12 +44,14 @@ class Step:
 
 @dataclass
 class ActionRun:
-    """One accepted goal of `kind` ("takeoff", "land", "goto"); `outcome` is the takeoff's
-    arming answer (None for the others)."""
+    """One accepted goal of `kind` ("takeoff", "land", "goto", "trajectory"); `outcome` is the
+    takeoff's arming answer (None for the others); `status` the planner's latest TrajectoryStatus
+    (a trajectory's feedback)."""
 
     kind: str
     goal: Any
     outcome: Outcome | None = None
+    status: Callable[[], TrajectoryStatus | None] | None = None
 
     def step(self, mgr: MissionManager) -> Step | None:
         """Feedback or the end of this action now, by the FSM's state; None: nothing to say."""
@@ -87,6 +93,17 @@ class ActionRun:
             return Step(result=GoToPositionResult(success=True, message="reached", final_position_m=pos),
                         succeeded=True)
         return Step(result=GoToPositionResult(success=False, message=mgr.message, final_position_m=pos))
+
+
+    def _trajectory(self, mgr: MissionManager, s: State, pos: Vector3) -> Step:
+        if s == State.EXECUTING and mgr.goto_target is not None:
+            return Step(feedback=SetTrajectoryFeedback(status=(self.status() if self.status else None)
+                                                       or TrajectoryStatus()))
+        if s == State.HOLDING and mgr.goto_target is None:
+            return Step(result=SetTrajectoryResult(success=True, message="trajectory flown",
+                                                   completion_status=TrajectoryStatus.STATUS_COMPLETED), succeeded=True)
+        return Step(result=SetTrajectoryResult(success=False, message=mgr.message,
+                                               completion_status=TrajectoryStatus.STATUS_ABORTED))
 
 
 def _position(mgr: MissionManager) -> Vector3:

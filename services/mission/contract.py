@@ -32,7 +32,7 @@ SERVICES = Queries(
     Query("mission/srv/command", MissionCommand, Reply),
     Query("mission/srv/get", Empty, GetMissionReply, note="the loaded mission (gcs serves it to downloads)"),
 )
-ACTIONS = ("mission/action/takeoff", "mission/action/land", "mission/action/goto")
+ACTIONS = ("mission/action/takeoff", "mission/action/land", "mission/action/goto", "mission/action/set_trajectory")
 CALLS = Queries(
     Query("fmu/srv/arm", ArmRequest, ArmReply),
     Query("fmu/srv/set_mode", SetModeRequest, SetModeReply),

@@ -7,10 +7,11 @@ import time
 import numpy as np
 
 from aeroperception.schemas import (
-    ArmReply, ArmRequest, DiagnosticStatus, Empty, GcsLink, GetMissionReply, GoToPositionGoal, GoToPositionResult,
-    LandGoal, LandResult, LoadMissionReply, LoadMissionRequest, MissionCommand, MissionGoal, OccupancyGrid,
-    PerceptionHealth, Pose, Quaternion, Reply, SafetyStatus, SchemaError, SetModeReply, SetModeRequest, TakeoffGoal,
-    TakeoffResult, Trajectory, TrajectoryStatus, VehicleState, Vector3, WaypointReached, load_mission_file, parse_mission,
+    ArmReply, ArmRequest, DiagnosticStatus, Empty, GcsLink, GetMissionReply, GoToPositionGoal,
+    GoToPositionResult, LandGoal, LandResult, LoadMissionReply, LoadMissionRequest, MissionCommand, MissionGoal,
+    OccupancyGrid, PerceptionHealth, Pose, Quaternion, Reply, SafetyStatus, SchemaError, SetModeReply,
+    SetModeRequest, SetTrajectoryGoal, SetTrajectoryResult, TakeoffGoal, TakeoffResult, Trajectory,
+    TrajectoryStatus, Vector3, VehicleState, WaypointReached, load_mission_file, parse_mission,
 )
 from aeroperception.services.runtime import ActionServer, CallError, GoalHandle, Health, ParamError, Service, run
 
@@ -21,7 +22,7 @@ from .actions import MOVING, ActionRun
 from .fsm import Config, GoalOut, MissionManager, Outcome, State
 from .limits import Limits, waypoints_in_obstacles
 from .store import MissionStore, default_state_dir
-from .trajectory import TrajectoryHandover
+from .trajectory import TRAJECTORY_END_RADIUS_M, TrajectoryHandover, check_given
 
 
 class ZenohBridge:
@@ -90,8 +91,8 @@ class MissionService(Service):
         node.subscribe("safety/status", SafetyStatus, self._on_safety)
         self.costmap: OccupancyGrid | None = None   # the latest, for the load-time obstacle check
         node.subscribe("perception/costmap", OccupancyGrid, lambda m: setattr(self, "costmap", m))
-        node.subscribe("planner/status", TrajectoryStatus,
-                       lambda m: self.mgr.on_planner(m.obstacle_state, m.message, time.monotonic()))
+        self.planner_status: TrajectoryStatus | None = None
+        node.subscribe("planner/status", TrajectoryStatus, self._on_planner_status)
         node.on_liveliness("fmu", lambda name, alive: self.mgr.on_fmu_alive(alive, time.monotonic()))
         node.on_liveliness("planner", lambda name, alive: self.mgr.on_planner_alive(alive, time.monotonic()))
         gcs_up = {"last": None}
@@ -115,6 +116,8 @@ class MissionService(Service):
                                  self._land_goal, self._cancel_to_hold),
             "goto": ActionServer(node, "mission/action/goto", GoToPositionGoal, GoToPositionResult,
                                  self._goto_goal, self._cancel_to_hold),
+            "set_trajectory": ActionServer(node, "mission/action/set_trajectory", SetTrajectoryGoal,
+                                           SetTrajectoryResult, self._trajectory_goal, self._cancel_to_hold),
         }
         self.last_goal: MissionGoal | None = None
         self.status_loop = node.every(1.0 / p.status_rate_hz, self._tick, name="status")
@@ -230,8 +233,10 @@ class MissionService(Service):
         """The waypoints ahead for the planner's generator (none while not flying them): with
         each goal, and re-sent with the status for late joiners (the planner skips repeats)."""
         mgr = self.mgr
-        flying = mgr.state == State.EXECUTING and mgr.goto_target is None
-        self.pub_trajectory.publish(self.handover.message(flying, mgr.mission, mgr.wp_index))
+        executing = mgr.state == State.EXECUTING
+        goto_m = mgr.goto_target.position_m if executing and mgr.goto_target is not None else None
+        self.pub_trajectory.publish(self.handover.message(executing and goto_m is None, mgr.mission, mgr.wp_index,
+                                                          goto_m))
 
     def _on_reached(self, index: int, pos: np.ndarray) -> None:
         self.pub_reached.publish(WaypointReached(header=self.node.header("map"), index=index,
@@ -267,6 +272,26 @@ class MissionService(Service):
         yaw = g.yaw_rad if g.yaw_rad is not None and math.isfinite(g.yaw_rad) else None
         ok, message = self.mgr.goto(g.position_m.to_array(), yaw, g.acceptance_radius_m, g.velocity_mps)
         return self._accepted(h, ActionRun("goto", g), ok, message)
+
+    def _on_planner_status(self, m: TrajectoryStatus) -> None:
+        self.planner_status = m
+        self.mgr.on_planner(m.obstacle_state, m.message, time.monotonic())
+
+    def _trajectory_goal(self, h: GoalHandle) -> str | None:
+        """Fly a given trajectory: checked here as the planner will make it (from where the vehicle
+        is), then a goto to its end with the trajectory handed to the planner on the way."""
+        g: SetTrajectoryGoal = h.goal
+        v = self.mgr.vehicle
+        if v is None:
+            return "no vehicle state yet"
+        why, end = check_given(g, v.position_m.to_array(), v.yaw_rad, self.mgr.acceptance_radius_m())
+        if why:
+            return why
+        ok, message = self.mgr.goto(end, None, TRAJECTORY_END_RADIUS_M)
+        if ok:
+            self.handover.give(g.trajectory, end)
+            self._publish_trajectory()
+        return self._accepted(h, ActionRun("trajectory", g, status=lambda: self.planner_status), ok, message)
 
     def _accepted(self, h: GoalHandle, run: ActionRun, ok: bool, message: str) -> str | None:
         """None (accepted: `run` is stepped from now on) or why the goal is refused."""

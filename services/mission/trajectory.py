@@ -6,15 +6,22 @@ it can fly through them instead of stopping at each; the mission still hands it 
 (mission/active_goal) and counts each waypoint by the vehicle's distance, exactly as before.
 The message stays the same for the whole stretch (the planner makes its path once); a hold, a
 goto, a landing or a new start ends the stretch, and the next one starts from the waypoint then
-current. Anything else (or the `waypoint` generator) hands over an empty message: none.
+current. A trajectory given through the SetTrajectory action is handed over as given while the
+mission flies to its end (a goto there); anything else (or the `waypoint` generator) hands over an
+empty message: none.
 """
 from __future__ import annotations
 
 import math
 
-from aeroperception.schemas import Header, Pose, PoseStamped, Quaternion, Trajectory, Vector3
+import numpy as np
+
+from aeroperception.schemas import Header, Pose, PoseStamped, Quaternion, SetTrajectoryGoal, Trajectory, Vector3
+from aeroperception.services.planner.trajectory import Limits, TrajectoryRefused
+from aeroperception.services.planner.trajectory.generators import path_for
 
 NONE = Trajectory()
+TRAJECTORY_END_RADIUS_M = 0.3    # a given trajectory is done within this of its end (it ends at rest there)
 
 
 def waypoint_pose(wp) -> PoseStamped:
@@ -31,14 +38,24 @@ class TrajectoryHandover:
         self.start_index: int | None = None
         self._key: tuple | None = None
         self._msg: Trajectory = NONE
+        self.given: tuple[Trajectory, np.ndarray] | None = None
 
     def generator_for(self, mission) -> str:
         """The mission file's own choice, else the parameter's."""
         spec = getattr(mission, "trajectory", None)
         return spec.generator if spec is not None else self.generator
 
-    def message(self, flying_waypoints: bool, mission, wp_index: int) -> Trajectory:
-        """`flying_waypoints`: EXECUTING the mission's waypoints (not a goto, not holding)."""
+    def give(self, msg: Trajectory, end_m: np.ndarray) -> None:
+        """The SetTrajectory action's trajectory, flown while the mission's goto goes to `end_m`."""
+        self.given = (msg, np.asarray(end_m, float).copy())
+
+    def message(self, flying_waypoints: bool, mission, wp_index: int, goto_m: np.ndarray | None = None) -> Trajectory:
+        """`flying_waypoints`: EXECUTING the mission's waypoints (not a goto, not holding);
+        `goto_m`: EXECUTING a goto to there (None otherwise)."""
+        if self.given is not None:
+            if goto_m is not None and np.linalg.norm(np.asarray(goto_m) - self.given[1]) < 1e-6:
+                return self.given[0]
+            self.given = None                  # the goto ended or another took its place
         generator = self.generator_for(mission) if mission is not None else self.generator
         if not flying_waypoints or generator == "waypoint" or mission is None or wp_index >= len(mission.waypoints):
             self.start_index, self._key, self._msg = None, None, NONE
@@ -54,3 +71,23 @@ class TrajectoryHandover:
                 setpoint_type=Trajectory.SETPOINT_FULL_STATE,
                 waypoints=[waypoint_pose(w) for w in mission.waypoints[self.start_index:]])
         return self._msg
+
+
+def check_given(goal: SetTrajectoryGoal, position_m: np.ndarray, yaw_rad: float,
+                acceptance_radius_m: float) -> tuple[str, np.ndarray | None]:
+    """("", the trajectory's end) when the SetTrajectory goal can be flown from here as given, else
+    (why, None) naming the field. The planner checks it again against its own limits."""
+    msg = goal.trajectory
+    if not goal.replace_current:
+        return "`replace_current` false (append to the current trajectory) is not supported: send it whole", None
+    if msg.start_time_ns:
+        return "`trajectory.start_time_ns`: a delayed start is not supported (0 = on receipt)", None
+    try:
+        path = path_for(msg, position_m, yaw_rad, Limits(), acceptance_radius_m)
+    except TrajectoryRefused as e:
+        return f"trajectory refused: {e}", None
+    end = path.sample(path.duration_s).position_m
+    if np.linalg.norm(end - np.asarray(position_m, float)) < acceptance_radius_m:
+        return ("the trajectory ends within the acceptance radius of where it starts: a loop cannot be "
+                "told done by position (not supported)"), None
+    return "", end

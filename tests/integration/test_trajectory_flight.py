@@ -1,6 +1,7 @@
-"""Missions flown with the smooth trajectory generator on the built-in sim, judged by its truth:
-survey_01 faster than goal by goal at the same 2 m/s cap and on its legs; figure8 at 3 m/s
-tracking its reference; limits kept; every waypoint passed and landed."""
+"""Trajectories flown on the built-in sim, judged by its truth: survey_01 with the smooth generator
+faster than goal by goal at the same 2 m/s cap and on its legs; figure8 at 3 m/s; limits kept;
+every waypoint passed and landed; a POLYNOMIAL trajectory through the SetTrajectory action, and
+the goals it refuses."""
 from __future__ import annotations
 
 import time
@@ -9,11 +10,13 @@ import numpy as np
 import pytest
 
 from aeroperception.schemas import (
-    TrajectorySetpoint, TrajectoryStatus, VehicleState, WaypointReached, load_mission_file,
+    GoalStatus, SetTrajectoryFeedback, SetTrajectoryGoal, TakeoffGoal, Trajectory, TrajectorySetpoint,
+    TrajectoryStatus, VehicleState, WaypointReached, load_mission_file,
 )
+from aeroperception.services.runtime import ActionClient
 from aeroperception.tools.eval_trajectory import TrajectoryEval
 from aerotest import wait_until
-from test_flight import REPO, SURVEY, flight_stack
+from test_flight import REPO, SURVEY, flight_stack, wait_at_rest
 
 pytestmark = pytest.mark.slow
 
@@ -75,3 +78,50 @@ def test_figure8_at_3_mps_tracks_its_reference(tstack):
     # reference in time (along-track lag included) 0.29 m RMS measured: bounded at 0.45 m
     assert res["cross_track_rms_m"] < 0.3 and res["reference_error_rms_m"] < 0.45, res
     assert res["peak_xy_speed_mps"] < 3.0 * 1.1 and res["peak_xy_acc_mps2"] < 3.0 * 1.1, res
+
+
+def cubic_x(x0: float, y0: float, z0: float, distance_m: float, duration_s: float, **kw) -> Trajectory:
+    """x from x0 to x0 + distance, at rest at both ends (3u^2 - 2u^3), as one POLYNOMIAL segment."""
+    d, t = distance_m, duration_s
+    return Trajectory(trajectory_id="cubic", trajectory_type=Trajectory.TRAJECTORY_POLYNOMIAL, total_duration_s=t,
+                      poly_order=3, poly_coeffs_x=[x0, 0.0, 3 * d / t ** 2, -2 * d / t ** 3],
+                      poly_coeffs_y=[y0, 0, 0, 0], poly_coeffs_z=[z0, 0, 0, 0],
+                      setpoint_type=Trajectory.SETPOINT_FULL_STATE, **kw)
+
+
+def test_set_trajectory_action_flies_a_polynomial_and_refuses_what_it_cannot(tstack):
+    st = tstack
+    st.ensure_landed()
+    takeoff = ActionClient(st.session, "mission/action/takeoff")
+    fly = ActionClient(st.session, "mission/action/set_trajectory")
+    try:
+        g = takeoff.send_goal(TakeoffGoal(target_altitude_m=3.0))
+        assert g.success, g.message
+        assert takeoff.result(g.goal_id, 40).status == GoalStatus.SUCCEEDED
+        here = wait_at_rest(st).position_m
+        x0, y0, z0 = here.x, here.y, here.z
+        for goal, why in [
+            (SetTrajectoryGoal(trajectory=cubic_x(x0, y0, z0, 6.0, 8.0), replace_current=False), "replace_current"),
+            (SetTrajectoryGoal(trajectory=cubic_x(x0, y0, z0, 6.0, 8.0, start_time_ns=5)), "start_time_ns"),
+            (SetTrajectoryGoal(trajectory=cubic_x(x0 + 20, y0, z0, 6.0, 8.0)), "starts 20"),
+            (SetTrajectoryGoal(trajectory=cubic_x(x0, y0, z0, 60.0, 2.0)), "MPC_XY_VEL_MAX"),
+        ]:
+            r = fly.send_goal(goal)
+            assert not r.success and why in r.message, (why, r.message)
+        feedback: list = []
+        with st.capture(truth=("sim/truth/state", VehicleState)) as rec:
+            r = fly.send_goal(SetTrajectoryGoal(trajectory=cubic_x(x0, y0, z0, 6.0, 8.0)), feedback_cb=feedback.append)
+            assert r.success, r.message
+            res = fly.result(r.goal_id, 40)
+            assert res.status == GoalStatus.SUCCEEDED, f"{GoalStatus.name(res.status)}: {res.message}"
+            track = np.array([m.position_m.to_array() for m in rec.get("truth")])
+        end = np.array([x0 + 6.0, y0, z0])
+        assert np.linalg.norm(track - end, axis=1).min() < 0.35        # done within 0.3 m of its end (estimate)
+        assert np.abs(track[:, 1] - y0).max() < 0.3 and np.abs(track[:, 2] - z0).max() < 0.4   # along its line
+        statuses = [f.unwrap(SetTrajectoryFeedback).status for f in feedback]
+        assert any(s.trajectory_id == "cubic" and s.progress_percent > 50 for s in statuses), statuses[-3:]
+        assert st.mission_state() == "HOLDING"
+    finally:
+        takeoff.close()
+        fly.close()
+        st.ensure_landed()

@@ -4,10 +4,11 @@ from __future__ import annotations
 from pathlib import Path
 from types import SimpleNamespace
 
+import numpy as np
 import pytest
 
-from aeroperception.schemas import SchemaError, Trajectory, load_mission_file, parse_mission
-from aeroperception.services.mission.trajectory import NONE, TrajectoryHandover
+from aeroperception.schemas import SchemaError, SetTrajectoryGoal, Trajectory, load_mission_file, parse_mission
+from aeroperception.services.mission.trajectory import NONE, TrajectoryHandover, check_given
 
 SURVEY = load_mission_file(Path(__file__).resolve().parents[2] / "examples/missions/survey_01.json")
 
@@ -46,3 +47,27 @@ def test_a_mission_files_trajectory_section_is_read_strictly():
                      ("{}", "generator")]:
         with pytest.raises(SchemaError, match=why):
             parse_mission(base % bad)
+
+
+def line(x0=0.0, distance=6.0, duration=8.0, poly_order=3, **kw) -> Trajectory:
+    d, t = distance, duration
+    return Trajectory(trajectory_type=Trajectory.TRAJECTORY_POLYNOMIAL, total_duration_s=t, poly_order=poly_order,
+                      poly_coeffs_x=[x0, 0.0, 3 * d / t ** 2, -2 * d / t ** 3], poly_coeffs_y=[0, 0, 0, 0],
+                      poly_coeffs_z=[3, 0, 0, 0], **kw)
+
+
+def test_a_given_trajectory_is_checked_from_where_the_vehicle_is_and_handed_over_while_flown():
+    here = np.array([0.0, 0.0, 3.0])
+    why, end = check_given(SetTrajectoryGoal(trajectory=line()), here, 0.0, 0.5)
+    assert why == "" and end == pytest.approx([6.0, 0.0, 3.0])
+    for goal, field in [(SetTrajectoryGoal(trajectory=line(), replace_current=False), "replace_current"),
+                        (SetTrajectoryGoal(trajectory=line(start_time_ns=7)), "start_time_ns"),
+                        (SetTrajectoryGoal(trajectory=line(x0=20.0)), "starts 20.0 m"),
+                        (SetTrajectoryGoal(trajectory=line(distance=0.2)), "loop"),
+                        (SetTrajectoryGoal(trajectory=line(poly_order=4)), "poly_coeffs_x")]:
+        assert field in check_given(goal, here, 0.0, 0.5)[0], field
+    h = TrajectoryHandover("smooth")
+    h.give(line(), end)
+    assert h.message(False, SURVEY, 0, goto_m=end) == line()          # the goto to its end: handed over
+    assert h.message(True, SURVEY, 0).generator_name == "smooth"      # the goto ended: back to the mission's
+    assert h.given is None
