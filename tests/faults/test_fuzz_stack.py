@@ -50,12 +50,18 @@ def service_contracts() -> dict[str, object]:
     return out
 
 
+# Services whose inputs and queryables depend on how they were started, and that this stack starts
+# without them: sim subscribes only with --follow (it flies its own vehicle here) and serves the
+# camera models only while cameras render (--sensors none here).
+STARTED_WITHOUT = {"sim"}
+
+
 def input_keys(contracts) -> dict[str, tuple[type, list[str]]]:
     """{concrete key: (schema, [services subscribed])}; wildcards get a concrete chunk."""
     keys: dict[str, tuple[type, list[str]]] = {}
     for svc, c in contracts.items():
-        if svc == "sim":
-            continue  # sim subscribes only with --follow (an external FC's truth); this stack flies its own
+        if svc in STARTED_WITHOUT:
+            continue
         for key, cls in getattr(c, "INPUTS", {}).items():
             key = key.replace("*", "fuzz")
             keys.setdefault(key, (cls, []))[1].append(svc)
@@ -67,7 +73,8 @@ def queryables(contracts) -> dict[str, type | None]:
     out: dict[str, type | None] = {}
     for svc, c in contracts.items():
         for key, (req, _reply) in getattr(c, "SERVICES", {}).items():
-            out[key] = req
+            if svc not in STARTED_WITHOUT:
+                out[key] = req
         if svc == "mission":
             from aeroperception.schemas import ACTIONS, CancelRequest, ResultRequest
 
