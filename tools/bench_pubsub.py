@@ -248,7 +248,7 @@ def dora_node(role: str, kind: str, n: int = 0, out_file: str = "") -> None:
 def measure_dora(kind: str, n: int, timeout_s: float = 120.0) -> np.ndarray:
     work = tempfile.mkdtemp(prefix="aero-bench-dora-")
     out_file = os.path.join(work, "ping.json")
-    me = f"-m aeroperception.tools.bench_pubsub --dora"
+    me = "-m aeroperception.tools.bench_pubsub --dora"
     flow = {"nodes": [
         {"id": "ping", "path": sys.executable, "args": f"{me} ping {kind} {n} {out_file}",
          "inputs": {"pong": "pong/out"}, "outputs": ["out"]},

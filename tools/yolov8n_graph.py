@@ -15,7 +15,6 @@ import onnx
 from onnx import TensorProto, helper, numpy_helper
 
 NC, REG_MAX = 80, 16
-STRIDES = (8, 16, 32)
 
 
 class _Graph:

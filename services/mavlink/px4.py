@@ -27,7 +27,6 @@ PX4_AUTO_SUB = {
     "READY": 1, "TAKEOFF": 2, "LOITER": 3, "MISSION": 4, "RTL": 5, "LAND": 6, "FOLLOW_TARGET": 8,
     "PRECLAND": 9, "VTOL_TAKEOFF": 10,
 }
-PX4_POSCTL_SUB = {"POSCTL": 0, "ORBIT": 1, "SLOW": 2}
 
 # our name -> (main, sub)
 PX4_MODES: dict[str, tuple[int, int]] = {

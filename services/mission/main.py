@@ -305,11 +305,11 @@ class MissionService(Service):
 
     def _update_actions(self) -> None:
         """Forward each running action's step (actions.py decides) to its goal handle."""
-        for run, h in list(self.actions):
-            step = None if not h.active else run.cancel(self.mgr) if h.cancel_requested else run.step(self.mgr)
+        for act, h in list(self.actions):
+            step = None if not h.active else act.cancel(self.mgr) if h.cancel_requested else act.step(self.mgr)
             if step is None:
                 if not h.active:
-                    self.actions.remove((run, h))
+                    self.actions.remove((act, h))
             elif step.result is None:
                 h.feedback(step.feedback)
             elif h.cancel_requested:

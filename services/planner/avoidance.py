@@ -141,10 +141,6 @@ class CostmapView:
         h, w = self.cost.shape
         return 0 <= cxy[0] < w and 0 <= cxy[1] < h
 
-    def cost_at(self, xy: np.ndarray) -> int:
-        c = self.cell(xy)
-        return int(self.cost[c[1], c[0]]) if self.inside(c) else 0
-
     def distance_along(self, xy: np.ndarray) -> np.ndarray:
         """Distance to the nearest lethal cell at each point (inf outside the grid)."""
         c = self.cell(np.atleast_2d(xy))

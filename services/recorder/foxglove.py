@@ -26,7 +26,6 @@ from .logic import json_schema
 
 # ---------------------------------------------------------------- Foxglove schemas
 
-FOXGLOVE_TYPES = ("PoseInFrame", "FrameTransform", "RawImage", "PointCloud", "Grid", "Log")
 NUMERIC = {"uint8": 1, "int8": 2, "uint16": 3, "int16": 4, "uint32": 5, "int32": 6, "float32": 7, "float64": 8}
 LOG_LEVEL = {DiagnosticStatus.OK: 2, DiagnosticStatus.WARN: 3, DiagnosticStatus.ERROR: 4, DiagnosticStatus.STALE: 3}
 

@@ -8,7 +8,6 @@ replaced frame is counted as dropped) and queue IMU samples.
 from __future__ import annotations
 
 import threading
-import time
 from collections import deque
 
 import numpy as np

@@ -23,7 +23,7 @@ from .backend import Backend, BackendConfig, BackendError, adjoint, tangent_to_w
 from .calibration import CameraCalibration
 from .drift import DriftConfig, DriftCovariance
 from .dto import (
-    DEGRADED, INIT, LOST, FeatureQuality, ImuBias, ImuSample, ImuWindow, NavCameraFrame,
+    DEGRADED, LOST, FeatureQuality, ImuBias, ImuSample, ImuWindow, NavCameraFrame,
     StrategyNotAvailableError, VioDegradedError, VioFatalError, VioHealth, VioInitializingError,
     VioOutput, WarmStartPose,
 )

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 import zenoh
 
-from aerotest import wait_for_message, wait_until
+from aerotest import wait_for_message
 from detector_graphs import box_finder_model, classifier_model, paint_blocks
 
 from aeroperception.schemas import (

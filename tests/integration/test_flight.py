@@ -30,7 +30,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import zenoh
 
 from aerotest import (
     Capture, aero, aero_argv, clean_env, free_udp_port, is_service_process, pos, wait_until,
@@ -38,8 +37,8 @@ from aerotest import (
 from aeroperception.schemas import (
     ArmReply, ArmRequest, Clock, DiagnosticStatus, GoalStatus, GoToPositionGoal, Header,
     LandGoal, LoadMissionReply, LoadMissionRequest, MissionStatus, Odometry, Pose,
-    SchemaError, SetModeReply, SetModeRequest, TakeoffGoal, TakeoffResult, Vector3,
-    VehicleState, VehicleStatus, WaypointReached, decode, encode, load_mission_file,
+    SetModeReply, SetModeRequest, TakeoffGoal, TakeoffResult, Vector3,
+    VehicleState, VehicleStatus, WaypointReached, encode, load_mission_file,
 )
 from aeroperception.services.runtime import ActionClient
 from aeroperception.services.runtime.node import CallError, call, encoding_for

@@ -25,7 +25,6 @@ import time
 
 import numpy as np
 import pytest
-from pymavlink.dialects.v20 import common as mavlink
 
 from aerotest import Capture, SihTruth, aero_argv, clean_env, is_service_process, wait_until
 from aeroperception.schemas import (

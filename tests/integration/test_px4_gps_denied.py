@@ -35,7 +35,7 @@ from aeroperception.services.mavlink import frames
 from aeroperception.services.mavlink.geo import MapProjection
 from aeroperception.services.runtime.node import encoding_for
 from aeroperception.tools import fc_params, px4_sitl
-from aeroperception.schemas import MissionCommand, MissionStatus, Reply, VehicleState
+from aeroperception.schemas import MissionCommand, MissionStatus, Reply
 from aeroperception.services.runtime.node import call
 from test_px4 import mission_status, px4_shell, state
 

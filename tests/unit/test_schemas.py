@@ -682,7 +682,7 @@ def test_empty_request_decodes_from_an_empty_map():
 
 
 def test_actions_table_is_complete_and_typed():
-    assert set(ACTIONS) == {"takeoff", "land", "goto", "trajectory"}
+    assert set(ACTIONS) == {"takeoff", "land", "goto", "set_trajectory"}
     for spec in ACTIONS.values():
         goal, result, feedback = spec
         assert {goal, result, feedback} <= set(REGISTRY.values())
@@ -701,7 +701,7 @@ def test_feedback_envelope_is_a_nested_plain_map_and_unwraps():
 
 def test_result_envelope_carries_success_and_unwraps():
     res = SetTrajectoryResult(success=False, message="obstacle", completion_status=TrajectoryStatus.STATUS_ABORTED)
-    env = decode(encode(ActionResult.wrap("g2", res, GoalStatus.ABORTED, action="trajectory")), ActionResult)
+    env = decode(encode(ActionResult.wrap("g2", res, GoalStatus.ABORTED, action="set_trajectory")), ActionResult)
     assert (env.success, env.message, env.status) == (False, "obstacle", GoalStatus.ABORTED)
     assert env.unwrap() == res
     assert GoalStatus.ABORTED in GoalStatus.TERMINAL and GoalStatus.name(GoalStatus.ABORTED) == "ABORTED"

@@ -4,7 +4,6 @@ reordered to x, y, z, w); the registry covers the contract; sampling and frame g
 from __future__ import annotations
 
 import math
-from types import SimpleNamespace
 
 import numpy as np
 import pytest

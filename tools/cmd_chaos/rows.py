@@ -195,11 +195,11 @@ def _clock_observe(ctx: Ctx):
     holds0 = ctx.notes.get("holds0", 0)
     stamps = [t for t, _ in ctx.rec.since("state", t0)]
     gaps = np.diff(stamps) if len(stamps) > 1 else np.array([math.inf])
-    progressing = progressing(ctx, 2.0) or ctx.rec.last("status").state in ("LAND", "IDLE")
+    moving = progressing(ctx, 2.0) or ctx.rec.last("status").state in ("LAND", "IDLE")
     holds = int(ctx.st.latest_diag("fmu").values.get("holds_sent", 0)) - holds0
-    ok = progressing and float(gaps.max()) < 0.2 and holds <= 0
+    ok = moving and float(gaps.max()) < 0.2 and holds <= 0
     return ok, (f"state/vehicle max gap {gaps.max() * 1e3:.0f} ms; fmu holds +{holds}; mission "
-                f"{'->'.join(mission_states(ctx, t0))}{'' if progressing else ', not progressing'}"), None
+                f"{'->'.join(mission_states(ctx, t0))}{'' if moving else ', not progressing'}"), None
 
 
 def _clock_prepare(ctx: Ctx) -> None:

@@ -1,7 +1,8 @@
-"""Trajectory generators by name, and the one place a Trajectory message becomes a path.
+"""The one place a Trajectory message becomes a path.
 
-`waypoint` is the planner's goal-by-goal P-controller (no path: it flies each goal as it comes);
-`smooth` times the waypoints through blend.smooth. A typed or timed message is evaluated as given
+Of the generators (schemas.mission.TRAJECTORY_GENERATORS), `waypoint` is the planner's goal-by-goal
+P-controller (no path: it flies each goal as it comes) and `smooth` times the waypoints through
+blend.smooth. A typed or timed message is evaluated as given
 and refused when it would exceed the limits by more than LIMIT_TOLERANCE.
 """
 from __future__ import annotations
@@ -11,7 +12,6 @@ import math
 import numpy as np
 
 from aeroperception.schemas import Trajectory
-from aeroperception.schemas.mission import TRAJECTORY_GENERATORS as GENERATORS
 
 from .blend import smooth
 from .core import Limits, Path, peaks
