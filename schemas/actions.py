@@ -1,4 +1,4 @@
-"""Long-running goals (the seeds' actions): per-action Goal/Result/Feedback types and the generic
+"""Long-running goals (requirement IF-3's actions): per-action Goal/Result/Feedback types and the generic
 envelope the runtime's one action implementation uses (ARCHITECTURE §3).
 
 Protocol, for an action at `<area>/action/<name>` (e.g. mission/action/takeoff); ARCHITECTURE §3
@@ -123,7 +123,7 @@ class SetTrajectoryFeedback(Message, kw_only=True):
 
 @schema("GoToPositionGoal", 1)
 class GoToPositionGoal(Message, kw_only=True):
-    """Fly to `position_m` (ENU). `yaw_rad` None (or NaN, as in the seed) keeps the current
+    """Fly to `position_m` (ENU). `yaw_rad` None (or NaN, as in IF-3's GoToPosition) keeps the current
     heading; `velocity_mps` 0 = the planner's default speed."""
 
     header: Header = msgspec.field(default_factory=Header)
