@@ -51,16 +51,21 @@ def px4(stack_module, px4_build, tmp_path_factory):
             "--px4", str(px4_build), "--px4-instance", str(instance),
             "--arg", f"mission:--param=state_dir={state_dir}"])
         st.px4_instance, st.px4_bin, st.truth = instance, px4_build / "bin", truth
-        try:
-            wait_until(lambda: "Ready for takeoff" in st.service_log("px4"), 60, "PX4: Ready for takeoff")
-            wait_until(lambda: state(st, lambda m: m.connected), 20, "state/vehicle connected (fmu <-> PX4)")
-            wait_until(lambda: mission_status(st), 15, "mission/status")
-        except BaseException:
-            print(st.describe())
-            raise
+        wait_px4_ready(st)
         yield st
     finally:
         truth.close()
+
+
+def wait_px4_ready(st) -> None:
+    """PX4 ready for takeoff, fmu connected to it, the mission up (the stack described on failure)."""
+    try:
+            wait_until(lambda: "Ready for takeoff" in st.service_log("px4"), 60, "PX4: Ready for takeoff")
+            wait_until(lambda: state(st, lambda m: m.connected), 20, "state/vehicle connected (fmu <-> PX4)")
+            wait_until(lambda: mission_status(st), 15, "mission/status")
+    except BaseException:
+        print(st.describe())
+        raise
 
 
 # ---------------------------------------------------------------- helpers

@@ -37,7 +37,7 @@ from aeroperception.services.runtime.node import encoding_for
 from aeroperception.tools import fc_params, px4_sitl
 from aeroperception.schemas import MissionCommand, MissionStatus, Reply
 from aeroperception.services.runtime.node import call
-from test_px4 import mission_status, px4_shell, state
+from test_px4 import mission_status, px4_shell, state, wait_px4_ready
 
 pytestmark = [pytest.mark.px4, pytest.mark.slow]
 
@@ -165,13 +165,7 @@ def px4_gd(stack_module, px4_build, tmp_path_factory):
         st.px4_instance, st.px4_bin, st.truth = instance, px4_build / "bin", truth
         vision = VisionFromTruth(st.session, truth)
         st.vision = vision
-        try:
-            wait_until(lambda: "Ready for takeoff" in st.service_log("px4"), 60, "PX4: Ready for takeoff")
-            wait_until(lambda: state(st, lambda m: m.connected), 20, "state/vehicle connected (fmu <-> PX4)")
-            wait_until(lambda: mission_status(st), 15, "mission/status")
-        except BaseException:
-            print(st.describe())
-            raise
+        wait_px4_ready(st)
         yield st
     finally:
         if vision is not None:

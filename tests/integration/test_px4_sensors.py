@@ -33,6 +33,7 @@ from aeroperception.schemas import (
 from aeroperception.tools import px4_sitl
 from aeroperception.tools.eval_vio import align_se3
 from aeroperception.tools.harness.px4_stack import SIH_DISPLAY_PORT
+from test_px4 import wait_px4_ready
 
 pytestmark = [pytest.mark.px4, pytest.mark.slow]
 
@@ -56,10 +57,8 @@ def px4s(stack_module, px4_build, tmp_path_factory):
             # 1 m/s: with the camera at 0.5-4 Hz on a loaded machine consecutive frames still overlap
             "--arg", "planner:--param=max_velocity_mps=1.0"])
         st.truth = truth
+        wait_px4_ready(st)
         try:
-            wait_until(lambda: "Ready for takeoff" in st.service_log("px4"), 60, "PX4: Ready for takeoff")
-            wait_until(lambda: st.latest("state/vehicle", VehicleState, 2.0, lambda m: m.connected), 20,
-                       "state/vehicle connected (fmu <-> PX4)")
             wait_until(lambda: st.latest("fmu/out/vehicle_ground_truth", VehicleState, 2.0), 20, "PX4's ground truth via fmu")
             # the render processes import Open3D and build the scene first: 20-60 s on a loaded machine
             wait_until(lambda: st.latest("sensors/camera/left/image", Image, 2.0), 150, "the first rendered image")
