@@ -7,6 +7,7 @@ import json
 import os
 import sys
 import threading
+import time
 from typing import Any
 
 import yaml
@@ -170,6 +171,12 @@ class FlightWatch:
             self.flew.set()
         elif self.flew.is_set() and not armed and z_m < 0.2:
             self.down.set()
+
+    def wait(self, duration_s: float, until_landed: bool) -> None:
+        """Block for `duration_s`, or (`until_landed`) until the flight is down, whichever is first."""
+        end = time.monotonic() + duration_s
+        while time.monotonic() < end and not (until_landed and self.down.is_set()):
+            time.sleep(0.1)
 
     def on_sample(self, sample) -> None:
         """Subscriber callback for sim/truth/state (payloads that do not decode are skipped)."""

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import json
 import threading
-import time
 from collections import defaultdict
 from dataclasses import dataclass, field
 
@@ -155,9 +154,7 @@ def run_live(args) -> int:
         print(f"scoring perception/objects against {args.scenario}'s {len(ev.targets)} targets for "
               f"{args.duration:g} s" + (" at most, until the vehicle has flown and landed" if args.until_landed else "")
               + " ...", flush=True)
-        end = time.monotonic() + args.duration
-        while time.monotonic() < end and not (args.until_landed and watch.down.is_set()):
-            time.sleep(0.1)
+        watch.wait(args.duration, args.until_landed)
     finally:
         for s in subs:
             s.undeclare()

@@ -174,9 +174,7 @@ def run_live(args) -> int:
                 session.declare_subscriber(prefix + "planner/status", on_status)]
         print(f"scoring the flight of {len(ev.waypoints_m)} waypoints for {args.duration:g} s"
               + (" at most, until the vehicle has flown and landed" if args.until_landed else "") + " ...", flush=True)
-        end = time.monotonic() + args.duration
-        while time.monotonic() < end and not (args.until_landed and watch.down.is_set()):
-            time.sleep(0.1)
+        watch.wait(args.duration, args.until_landed)
     finally:
         for s in subs:
             s.undeclare()
