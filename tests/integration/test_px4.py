@@ -22,6 +22,7 @@ import os
 import signal
 import subprocess
 import time
+from contextlib import contextmanager
 
 import numpy as np
 import pytest
@@ -40,21 +41,38 @@ pytestmark = [pytest.mark.px4, pytest.mark.slow]
 SERVICES = ["px4", "fmu", "planner", "mission", "diagnostics"]
 
 
-@pytest.fixture(scope="module")
-def px4(stack_module, px4_build, tmp_path_factory):
+@contextmanager
+def px4_up(stack_module, px4_build, services: list[str], extra_args: list[str], truth_cls=SihTruth):
+    """PX4 SITL on a free instance with `services` (profile px4) and SIH's truth (`st.truth`), the
+    truth receiver closed on the way out. Not waited for: a GPS-denied PX4 is ready only once it
+    sees vision, which the caller starts first (then wait_px4_ready)."""
     instance = px4_sitl.free_instance(1)
     assert instance is not None, "no free PX4 instance in 1..9"
-    truth = SihTruth(SIH_DISPLAY_PORT + instance)
-    state_dir = tmp_path_factory.mktemp("mission-state")
+    truth = truth_cls(SIH_DISPLAY_PORT + instance)
     try:
-        st = stack_module(SERVICES, profile="px4", timeout_s=60, extra_args=[
-            "--px4", str(px4_build), "--px4-instance", str(instance),
-            "--arg", f"mission:--param=state_dir={state_dir}"])
+        st = stack_module(services, profile="px4", timeout_s=60, extra_args=[
+            "--px4", str(px4_build), "--px4-instance", str(instance), *extra_args])
         st.px4_instance, st.px4_bin, st.truth = instance, px4_build / "bin", truth
-        wait_px4_ready(st)
         yield st
     finally:
         truth.close()
+
+
+@pytest.fixture(scope="module")
+def px4(stack_module, px4_build, tmp_path_factory):
+    state_dir = tmp_path_factory.mktemp("mission-state")
+    with px4_up(stack_module, px4_build, SERVICES, ["--arg", f"mission:--param=state_dir={state_dir}"]) as st:
+        wait_px4_ready(st)
+        yield st
+
+
+def fly_file(st, path, timeout_s: float, landed_s: float = 10.0) -> subprocess.CompletedProcess:
+    """`aero mission fly PATH --quiet` against the PX4 stack, then PX4 on the ground and disarmed."""
+    r = subprocess.run(aero_argv() + ["mission", "fly", str(path), "--quiet", "--timeout", f"{timeout_s:g}"],
+                       env=clean_env(st.endpoint), capture_output=True, text=True, timeout=timeout_s + 20,
+                       stdin=subprocess.DEVNULL)
+    wait_until(lambda: st.landed(), landed_s, "on the ground, disarmed (PX4)")
+    return r
 
 
 def wait_px4_ready(st) -> None:
@@ -142,10 +160,7 @@ def test_px4_flies_survey_01_to_landing_reaching_every_waypoint(px4):
                                 "reached": ("mission/waypoint_reached", WaypointReached)})
     t0 = time.monotonic()
     try:
-        r = subprocess.run(aero_argv() + ["mission", "fly", str(SURVEY), "--quiet", "--timeout", "150"],
-                           env=clean_env(st.endpoint), capture_output=True, text=True, timeout=170,
-                           stdin=subprocess.DEVNULL)
-        wait_until(lambda: st.landed(), 10, "on the ground, disarmed (PX4)")
+        r = fly_file(st, SURVEY, 150)
     finally:
         rec.close()
     flight_s = time.monotonic() - t0

@@ -34,10 +34,10 @@ from aeroperception.schemas import Header, NDArray, Odometry, Pose, Quaternion, 
 from aeroperception.services.mavlink import frames
 from aeroperception.services.mavlink.geo import MapProjection
 from aeroperception.services.runtime.node import encoding_for
-from aeroperception.tools import fc_params, px4_sitl
+from aeroperception.tools import fc_params
 from aeroperception.schemas import MissionCommand, MissionStatus, Reply
 from aeroperception.services.runtime.node import call
-from test_px4 import mission_status, px4_shell, state, wait_px4_ready
+from test_px4 import fly_file, mission_status, px4_shell, px4_up, state, wait_px4_ready
 
 pytestmark = [pytest.mark.px4, pytest.mark.slow]
 
@@ -47,7 +47,6 @@ SERVICES = ["px4", "fmu", "planner", "mission", "diagnostics", "vio", "perceptio
 VISION_HZ = 30.0
 HOP = {"mission_id": "hop", "takeoff_altitude_m": 3.0, "waypoint_acceptance_radius_m": 0.5,
        "waypoints": [{"x": 0.0, "y": 0.0, "z": 3.0, "yaw_deg": 90.0}, {"x": 3.0, "y": 0.0, "z": 3.0, "yaw_deg": 90.0}]}
-SIH_DISPLAY_PORT = 19410      # + instance: where PX4's SIH display link sends HIL_STATE_QUATERNION
 EV_FLAGS = ("cs_ev_pos", "cs_ev_vel", "cs_ev_hgt")
 GNSS_FLAGS = ("cs_gnss_pos", "cs_gnss_vel", "cs_gps_hgt")
 
@@ -150,27 +149,18 @@ def ekf_flags(st) -> dict[str, bool]:
 
 
 @pytest.fixture(scope="module")
-def px4_gd(stack_module, px4_build, tmp_path_factory):
-    instance = px4_sitl.free_instance(1)
-    assert instance is not None, "no free PX4 instance in 1..9"
-    truth = SihState(SIH_DISPLAY_PORT + instance)
-    vision = None
-    try:
-        st = stack_module(SERVICES, profile="px4", timeout_s=60, extra_args=[
-            "--px4", str(px4_build), "--px4-instance", str(instance), "--gps-denied",
-            "--arg", "mission:--param=require_perception=false",
+def px4_gd(stack_module, px4_build):
+    with px4_up(stack_module, px4_build, SERVICES, [
+            "--gps-denied", "--arg", "mission:--param=require_perception=false",
             # a loaded 2-core machine starves the mission of state/vehicle for 0.5-1.2 s now and then
             # (fmu itself saw no gap): an fmu-outage hold that this test does not judge
-            "--arg", "mission:--param=vehicle_timeout_s=2.0"])
-        st.px4_instance, st.px4_bin, st.truth = instance, px4_build / "bin", truth
-        vision = VisionFromTruth(st.session, truth)
-        st.vision = vision
-        wait_px4_ready(st)
-        yield st
-    finally:
-        if vision is not None:
-            vision.close()
-        truth.close()
+            "--arg", "mission:--param=vehicle_timeout_s=2.0"], truth_cls=SihState) as st:
+        st.vision = VisionFromTruth(st.session, st.truth)
+        try:
+            wait_px4_ready(st)
+            yield st
+        finally:
+            st.vision.close()
 
 
 def test_px4_gps_denied_parameters_are_what_px4_holds(px4_gd):
@@ -207,10 +197,7 @@ def test_px4_gps_denied_hop_flies_on_vision_alone_fused_by_ekf2(px4_gd, tmp_path
     watcher.start()
     t0 = time.monotonic()
     try:
-        r = subprocess.run(aero_argv() + ["mission", "fly", str(mission), "--quiet", "--timeout", "60"],
-                           env=clean_env(st.endpoint), capture_output=True, text=True, timeout=80,
-                           stdin=subprocess.DEVNULL)
-        wait_until(lambda: st.landed(), 15, "on the ground, disarmed (PX4)")
+        r = fly_file(st, mission, 60, landed_s=15)
     finally:
         done.set()
         watcher.join(3)

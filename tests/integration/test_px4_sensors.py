@@ -26,14 +26,12 @@ import time
 import numpy as np
 import pytest
 
-from aerotest import SihTruth, aero_argv, clean_env, wait_until
+from aerotest import aero_argv, clean_env, wait_until
 from aeroperception.schemas import (
     DiagnosticStatus, Image, Imu, OccupancyGrid, Odometry, PointCloud, VehicleState, VioHealth,
 )
-from aeroperception.tools import px4_sitl
 from aeroperception.tools.eval_vio import align_se3
-from aeroperception.tools.harness.px4_stack import SIH_DISPLAY_PORT
-from test_px4 import wait_px4_ready
+from test_px4 import px4_up, wait_px4_ready
 
 pytestmark = [pytest.mark.px4, pytest.mark.slow]
 
@@ -46,17 +44,11 @@ HOP = {"mission_id": "px4_sensors_hop", "takeoff_altitude_m": 3.0, "waypoint_acc
 
 @pytest.fixture(scope="module")
 def px4s(stack_module, px4_build, tmp_path_factory):
-    instance = px4_sitl.free_instance(1)
-    assert instance is not None, "no free PX4 instance in 1..9"
-    truth = SihTruth(SIH_DISPLAY_PORT + instance)
     state_dir = tmp_path_factory.mktemp("mission-state")
-    try:
-        st = stack_module(SERVICES, profile="px4", timeout_s=60, extra_args=[
-            "--px4", str(px4_build), "--px4-instance", str(instance), "--scenario", "village",
-            "--arg", f"mission:--param=state_dir={state_dir}",
+    with px4_up(stack_module, px4_build, SERVICES, [
+            "--scenario", "village", "--arg", f"mission:--param=state_dir={state_dir}",
             # 1 m/s: with the camera at 0.5-4 Hz on a loaded machine consecutive frames still overlap
-            "--arg", "planner:--param=max_velocity_mps=1.0"])
-        st.truth = truth
+            "--arg", "planner:--param=max_velocity_mps=1.0"]) as st:
         wait_px4_ready(st)
         try:
             wait_until(lambda: st.latest("fmu/out/vehicle_ground_truth", VehicleState, 2.0), 20, "PX4's ground truth via fmu")
@@ -66,8 +58,6 @@ def px4s(stack_module, px4_build, tmp_path_factory):
             print(st.describe())
             raise
         yield st
-    finally:
-        truth.close()
 
 
 def test_px4_camera_frames_at_rate_stamped_on_the_fc_imu_clock(px4s):
