@@ -105,7 +105,7 @@ def chaos_row_param(name: str, ci_rows: tuple[str, ...], mark: Any):
     (EXPECTED_FIXED_BY), `mark` (e.g. pytest.mark.extended) unless CI flies it (`ci_rows`)."""
     import pytest
 
-    from aeroperception.tools.cmd_chaos import EXPECTED_FIXED_BY
+    from aeroperception.tools.cli.chaos import EXPECTED_FIXED_BY
 
     marks = [pytest.mark.xfail(reason=f"needs {EXPECTED_FIXED_BY[name]} fix", strict=False)] \
         if name in EXPECTED_FIXED_BY else []
@@ -116,7 +116,7 @@ def chaos_row_param(name: str, ci_rows: tuple[str, ...], mark: Any):
 
 def assert_chaos_row(st: Any, row: Any, mission_json: str) -> None:
     """Fly `row` on `st` (a SimStack or Px4Stack): the vehicle safe by the truth, the row's expected outcome met."""
-    from aeroperception.tools.cmd_chaos import run_row
+    from aeroperception.tools.cli.chaos import run_row
 
     res = run_row(st, row, mission_json)
     print(f"{row.name} ({st.profile}): {res.verdict} in {res.duration_s:.0f} s; observed: {res.observed}; "

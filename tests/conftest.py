@@ -35,7 +35,7 @@ import pytest
 from aerotest import (  # noqa: F401
     Stack, StackFactory, StackStartError, aero, free_port, wait_for_message, wait_until, zenoh_client,
 )
-from aeroperception.tools.cmd_router import open_router
+from aeroperception.tools.cli.router import open_router
 
 
 # ---------------------------------------------------------------- order

@@ -21,7 +21,7 @@ import zenoh
 
 from aeroperception.services.runtime.node import LIVELINESS_ROOT
 from aeroperception.services.runtime.session import make_config, open_session
-from aeroperception.tools.cmd_topic import decode_sample
+from aeroperception.tools.cli.topic import decode_sample
 
 _lock = threading.Lock()
 

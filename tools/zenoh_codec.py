@@ -65,7 +65,7 @@ def decode_payload(key: str, payload: bytes) -> str:
 def encode_value(key: str, value: str) -> bytes:
     """A typed message from what the user typed: `{yaml/json fields}` with the schema the key is
     declared with, or `SchemaName {fields}` to name it (needed for undeclared keys)."""
-    from .cmd_topic import build_message  # the one place `aero topic pub` builds a message too
+    from aeroperception.tools.cli.topic import build_message  # the one place `aero topic pub` builds a message too
 
     text = value.strip()
     head, _, rest = text.partition(" ")

@@ -18,7 +18,7 @@ OUTPUTS = Topics(
     Topic("perception/detector_health", DiagnosticStatus, 1.0,
           note="OK / WARN (slow, no images) / ERROR (no model)"),
 )
-# The bundled model, relative to this package (tools/train_detector.py makes it; models/MODEL_CARD.md).
+# The bundled model, relative to this package (tools/training/train_detector.py makes it; models/MODEL_CARD.md).
 BUNDLED_MODEL = "models/aero_sim_det.onnx"
 # Changing one of these loads a new model beside the running one (swapped only if it works).
 RELOAD_PARAMS = ("model_path", "classes_file", "intra_op_threads", "input_width", "input_height", "execution_provider")

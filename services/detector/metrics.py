@@ -1,6 +1,6 @@
 """Detection accuracy against truth boxes: AP@IoU per class, mAP, precision/recall.
 
-The one home of the metric (`aero eval detector`, tools/train_detector.py, tests).
+The one home of the metric (`aero eval detector`, tools/training/train_detector.py, tests).
 
 Matching (COCO/VOC style), per image and class: detections in descending score each take the
 unmatched truth box of highest IoU >= iou_thresh (true positive); otherwise, if they overlap an

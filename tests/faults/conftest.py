@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from aeroperception.tools.cmd_chaos import DEFAULT_MISSION
+from aeroperception.tools.cli.chaos import DEFAULT_MISSION
 from aeroperception.tools.harness import SimStack
 
 

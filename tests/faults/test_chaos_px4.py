@@ -11,7 +11,7 @@ from __future__ import annotations
 import pytest
 
 from aerotest import assert_chaos_row, chaos_row_param
-from aeroperception.tools.cmd_chaos import build_rows
+from aeroperception.tools.cli.chaos import build_rows
 from aeroperception.tools.harness import Px4Stack
 from aeroperception.tools.harness.px4_stack import PX4_FLIGHT_SERVICES
 

@@ -2,7 +2,7 @@
 fault mid-leg (or on the ground for the FC reboot), assert the row's expected outcome (issue 8 /
 ARCHITECTURE §8, stated in each Row) and that the vehicle stayed safe by sim/truth/state.
 
-Rows whose fix is on another branch are xfail (non-strict) from cmd_chaos.EXPECTED_FIXED_BY;
+Rows whose fix is on another branch are xfail (non-strict) from chaos.EXPECTED_FIXED_BY;
 after merging a fix, remove its entry there and the row must pass.
 """
 from __future__ import annotations
@@ -10,7 +10,7 @@ from __future__ import annotations
 import pytest
 
 from aerotest import assert_chaos_row, chaos_row_param
-from aeroperception.tools.cmd_chaos import build_rows
+from aeroperception.tools.cli.chaos import build_rows
 from aeroperception.tools.harness import profile_services
 
 ROWS = build_rows(profile_services("sim"))

@@ -26,7 +26,7 @@ from aeroperception.schemas import (
     REGISTRY, GcsLink, MissionStatus, SchemaError, TrajectorySetpoint, Vector3, VehicleState, decode, encode,
 )
 from aeroperception.services.runtime.node import encoding_for
-from aeroperception.tools.cmd_chaos import AT_REST_MPS
+from aeroperception.tools.cli.chaos import AT_REST_MPS
 from aeroperception.tools.harness import poll_until, profile_services, speed
 from faults.payloads import collect, garbage, mutated, schema_maps
 

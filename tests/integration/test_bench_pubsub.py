@@ -1,4 +1,4 @@
-"""`aero bench pubsub --peers` (tools/bench_pubsub.py): every transport it compares carries the
+"""`aero bench pubsub --peers` (tools/bench/pubsub.py): every transport it compares carries the
 same payload both ways. Latency figures are not asserted (the machine is shared); that each path
 delivers every round trip, with a one-way time that is plausible, is."""
 from __future__ import annotations
@@ -10,7 +10,7 @@ import pytest
 
 from aerotest import free_port
 
-from aeroperception.tools import bench_pubsub as bench
+from aeroperception.tools.bench import pubsub as bench
 
 N = 30
 

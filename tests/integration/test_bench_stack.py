@@ -1,4 +1,4 @@
-"""`aero bench stack`: the whole sim profile hovering, measured from outside (tools/bench_stack.py).
+"""`aero bench stack`: the whole sim profile hovering, measured from outside (tools/bench/stack.py).
 
 Short (LiDAR only, 10 s window): the table lists every service the profile starts with the CPU
 /proc saw and the CPU the service reports itself in diagnostics/<service> (the runtime's
@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from aeroperception.tools.bench_stack import STREAMS, measure
-from aeroperception.tools.cmd_up import fed_services
+from aeroperception.tools.bench.stack import STREAMS, measure
+from aeroperception.tools.cli.up import fed_services
 from aeroperception.tools.harness import profile_services
 
 

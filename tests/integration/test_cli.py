@@ -25,7 +25,7 @@ from aerotest import (
 
 from aeroperception.schemas import DiagnosticStatus, MissionCommand, VehicleState, encode
 from aeroperception.services.runtime.node import encoding_for
-from aeroperception.tools.cmd_up import MESSAGE_COL, Child, format_table, last_error_line
+from aeroperception.tools.cli.up import MESSAGE_COL, Child, format_table, last_error_line
 
 REPO = Path(__file__).resolve().parents[2]
 

@@ -21,7 +21,7 @@ from aerotest import aero, free_udp_port, wait_until
 
 from aeroperception.schemas import DiagnosticStatus, PerceptionHealth, SafetyStatus, decode
 from aeroperception.tools.harness import profile_services
-from aeroperception.tools.cmd_up import fed_services
+from aeroperception.tools.cli.up import fed_services
 
 PH = PerceptionHealth
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(240)]

@@ -32,7 +32,7 @@ from aeroperception.schemas import (
     MissionCommand, MissionStatus, Reply, VehicleState, WaypointReached, load_mission_file,
 )
 from aeroperception.services.runtime.node import call
-from aeroperception.tools import px4_sitl
+from aeroperception.tools.cli import px4_sitl
 from aeroperception.tools.harness.px4_stack import SIH_DISPLAY_PORT, px4_command
 from test_flight import SURVEY
 

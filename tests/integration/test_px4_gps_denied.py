@@ -1,5 +1,5 @@
 """GPS-denied on PX4's own EKF2: `aero up --profile px4 --gps-denied` boots PX4 SITL (SIH) with
-tools/fc_params.py's set (SIH's GPS without satellites, EKF2_GPS_CTRL 0, EKF2 on external vision),
+tools/cli/fc_params.py's set (SIH's GPS without satellites, EKF2_GPS_CTRL 0, EKF2 on external vision),
 and fmu's ODOMETRY is what EKF2 fuses. Judged by PX4's own state (`px4-listener
 estimator_status_flags`: vision position, velocity and height fused, no GNSS) and SIH's ground truth.
 
@@ -34,7 +34,7 @@ from aeroperception.schemas import Header, NDArray, Odometry, Pose, Quaternion, 
 from aeroperception.services.mavlink import frames
 from aeroperception.services.mavlink.geo import MapProjection
 from aeroperception.services.runtime.node import encoding_for
-from aeroperception.tools import fc_params
+from aeroperception.tools.cli import fc_params
 from aeroperception.schemas import MissionCommand, MissionStatus, Reply
 from aeroperception.services.runtime.node import call
 from test_px4 import fly_file, mission_status, px4_shell, px4_up, state, wait_px4_ready

@@ -30,7 +30,7 @@ from aerotest import aero_argv, clean_env, wait_until
 from aeroperception.schemas import (
     DiagnosticStatus, Image, Imu, OccupancyGrid, Odometry, PointCloud, VehicleState, VioHealth,
 )
-from aeroperception.tools.eval_vio import align_se3
+from aeroperception.tools.eval.vio import align_se3
 from test_px4 import px4_up, wait_px4_ready
 
 pytestmark = [pytest.mark.px4, pytest.mark.slow]

@@ -14,7 +14,7 @@ from aeroperception.schemas import (
     TrajectoryStatus, VehicleState, WaypointReached, load_mission_file,
 )
 from aeroperception.services.runtime import ActionClient
-from aeroperception.tools.eval_trajectory import TrajectoryEval
+from aeroperception.tools.eval.trajectory import TrajectoryEval
 from aerotest import wait_until
 from test_flight import REPO, SURVEY, flight_stack, wait_at_rest
 

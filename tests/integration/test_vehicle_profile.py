@@ -13,7 +13,7 @@ import numpy as np
 from aeroperception.schemas import DiagnosticStatus, Imu, VehicleState
 from aeroperception.services.recorder.files import info, is_indexed
 from aeroperception.services.recorder.logic import SinkConfig, split_files
-from aeroperception.tools.cmd_up import load_profiles
+from aeroperception.tools.cli.up import load_profiles
 from aerotest import free_port, sample_stream, standalone_fc, wait_for_message
 
 

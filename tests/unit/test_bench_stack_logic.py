@@ -1,10 +1,10 @@
-"""`aero bench stack`'s verdict rule and table (tools/bench_stack.py), on figures given here."""
+"""`aero bench stack`'s verdict rule and table (tools/bench/stack.py), on figures given here."""
 from __future__ import annotations
 
 import numpy as np
 
-from aeroperception.tools.bench_flight import HotPath
-from aeroperception.tools.bench_stack import StackReport, idle_pct, rated_rates
+from aeroperception.tools.bench.flight import HotPath
+from aeroperception.tools.bench.stack import StackReport, idle_pct, rated_rates
 
 
 def report(idle: float = 40.0, state_hz: float = 50.0, lat_ms: float = 2.0, gap_ms: float = 20.0,

@@ -15,8 +15,8 @@ import sys
 
 import pytest
 
-from aeroperception.tools import cli
-from aeroperception.tools.cmd_run import available
+from aeroperception.tools.cli import aero as cli
+from aeroperception.tools.cli.run import available
 
 
 def command_paths(parser: argparse.ArgumentParser, path: tuple[str, ...] = ()) -> list[tuple[str, ...]]:

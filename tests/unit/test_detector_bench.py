@@ -8,8 +8,8 @@ import numpy as np
 from detector_graphs import box_finder_model, paint_blocks
 
 from aeroperception.services.detector.yolo import YoloModel, letterbox
-from aeroperception.tools.bench_detector import bench_model
-from aeroperception.tools.yolov8n_graph import build, calibrate_scores
+from aeroperception.tools.bench.detector import bench_model
+from aeroperception.tools.training.yolov8n_graph import build, calibrate_scores
 
 
 def test_yolov8n_sized_graph_has_yolov8n_cost_and_layout(tmp_path):

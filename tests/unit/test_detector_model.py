@@ -7,8 +7,8 @@ import pytest
 from aeroperception.services.detector import contract
 from aeroperception.services.detector.logic import resolve_model_path
 from aeroperception.services.detector.yolo import YoloModel, parse_names_metadata
-from aeroperception.tools.detector_data import SIM_CLASSES
-from aeroperception.tools.eval_detector import evaluate_offline
+from aeroperception.tools.training.detector_data import SIM_CLASSES
+from aeroperception.tools.eval.detector import evaluate_offline
 
 MODEL = resolve_model_path(contract.BUNDLED_MODEL)
 

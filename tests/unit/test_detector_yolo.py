@@ -315,7 +315,7 @@ def test_a_provider_change_the_runtime_lacks_keeps_the_running_model(tmp_path):
 
 def test_bench_says_which_provider_ran_and_refuses_an_absent_one(tmp_path, capsys):
     import onnxruntime as ort
-    from aeroperception.tools.bench_detector import bench_model, run
+    from aeroperception.tools.bench.detector import bench_model, run
 
     r = bench_model(box_finder_model(tmp_path / "f.onnx"), 1, None, paint_blocks((480, 640), {0: (1, 2, 30, 40)}), 2)
     assert r["provider"] == "CPUExecutionProvider"

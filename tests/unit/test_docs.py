@@ -4,7 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from aeroperception.tools import cmd_docs, contracts
+from aeroperception.tools.cli import docs as cmd_docs
+from aeroperception.tools import contracts
 
 DOC = Path(__file__).resolve().parents[2] / "docs" / "ARCHITECTURE.md"
 

@@ -1,9 +1,9 @@
-"""The pure parts of `aero eval detector --live` (tools/eval_detector.py): stamp pairing, the
+"""The pure parts of `aero eval detector --live` (tools/eval/detector.py): stamp pairing, the
 one-flight watch behind --until-landed, and the window's rates and detector counter deltas."""
 import pytest
 
 from aeroperception.tools.common import FlightWatch
-from aeroperception.tools.eval_detector import LiveWindow, StampPairer
+from aeroperception.tools.eval.detector import LiveWindow, StampPairer
 
 
 def test_pairs_by_equal_stamp_in_either_order_and_bounds_the_unmatched():

@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from aeroperception.tools.eval_trajectory import TrajectoryEval, distances_to_polyline
+from aeroperception.tools.eval.trajectory import TrajectoryEval, distances_to_polyline
 
 SQUARE = np.array([[0, 0, 5], [10, 0, 5], [10, 10, 5]], float)
 

@@ -1,4 +1,4 @@
-"""Flight-controller parameter sets (tools/fc_params.py): every value has its reason, `aero up
+"""Flight-controller parameter sets (tools/cli/fc_params.py): every value has its reason, `aero up
 --profile px4 --gps-denied` boots PX4 with the SIH set, and `aero fc params apply` sets a set over
 MAVLink and reads each value back (here against a loopback PX4 stand-in that keeps a parameter
 table; tests/integration/test_px4_gps_denied.py applies it to real PX4 SITL)."""
@@ -12,7 +12,7 @@ import threading
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
-from aeroperception.tools import cmd_up, fc_params, px4_sitl
+from aeroperception.tools.cli import up as cmd_up, fc_params, px4_sitl
 from aeroperception.tools.common import CliError
 
 from test_px4_sitl import fake_build, up_args

@@ -134,7 +134,7 @@ def test_real_kitti_scan_road_is_ground_and_cars_walls_are_obstacles(path):
 
 @pytest.mark.parametrize("scenario, min_f1", [("open_field", 0.95), ("village", 0.95), ("slope_forest", 0.90)])
 def test_seed_004_targets_against_simulator_truth(scenario, min_f1):
-    from aeroperception.tools.eval_lidar import evaluate, sim_scans
+    from aeroperception.tools.eval.lidar import evaluate, sim_scans
 
     m = evaluate(sim_scans(scenario, 6))
     assert m["ground_f1"] >= min_f1

@@ -13,7 +13,7 @@ import pytest
 import zenoh
 
 from aeroperception.services.sim.qos import BULK_STREAMS, SMALL_STREAMS, qos_for
-from aeroperception.tools.cmd_router import thin_link_downsampling
+from aeroperception.tools.cli.router import thin_link_downsampling
 from aeroperception.tools.common import CliError
 
 SERVICES = Path(__file__).resolve().parents[2] / "services"
@@ -54,7 +54,7 @@ def test_thin_link_none_is_no_rule_and_bad_input_is_one_line():
 # ---------------------------------------------------------------- profiles (tools/profiles.yaml)
 
 def test_ros2_profile_is_sim_plus_the_bridge_and_opt_in():
-    from aeroperception.tools.cmd_up import load_profiles
+    from aeroperception.tools.cli.up import load_profiles
 
     profiles = load_profiles()
     assert profiles["ros2"]["services"] == [*profiles["sim"]["services"], "ros2bridge"]
@@ -67,7 +67,7 @@ def test_optional_service_without_its_extra_is_one_line(monkeypatch):
     import subprocess
     import sys
 
-    from aeroperception.tools import cmd_up
+    from aeroperception.tools.cli import up as cmd_up
 
     real = importlib.util.find_spec
     monkeypatch.setattr(importlib.util, "find_spec", lambda m, *a: None if m == "rosbags" else real(m, *a))

@@ -1,4 +1,4 @@
-"""`aero mission fly` (tools/cmd_mission.py) without a stack: the progress lines (1-based
+"""`aero mission fly` (tools/cli/mission.py) without a stack: the progress lines (1-based
 waypoints, "landing", never 0/4 or 5/4) and the end of the flight judged from the vehicle
 (state/vehicle on the ground and disarmed), never from the mission FSM's IDLE label.
 """
@@ -11,7 +11,7 @@ import time
 import pytest
 
 from aeroperception.schemas import LandedState, MissionStatus, Vector3, VehicleState, WaypointReached
-from aeroperception.tools.cmd_mission import Progress, _follow, progress_line, reached_line
+from aeroperception.tools.cli.mission import Progress, _follow, progress_line, reached_line
 from aeroperception.tools.common import CliError
 
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from aeroperception.schemas import TrackedObject, TrackedObjectArray, Vector3
-from aeroperception.tools.eval_objects import ObjectsEval, Target, scenario_targets, table
+from aeroperception.tools.eval.objects import ObjectsEval, Target, scenario_targets, table
 
 S = 1_000_000_000
 TARGETS = [Target(0, "person", np.array([10.0, 0.0, 0.9])), Target(1, "person", np.array([20.0, 5.0, 0.9])),

@@ -1,4 +1,4 @@
-"""`aero up --profile px4`: the PX4 SITL launcher's checks (tools/px4_sitl.py) and how aero up plans
+"""`aero up --profile px4`: the PX4 SITL launcher's checks (tools/cli/px4_sitl.py) and how aero up plans
 and stops it, without running PX4 (tests/integration/test_px4.py flies it)."""
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ import time
 import pytest
 
 from aeroperception.services.runtime.supervision import terminate
-from aeroperception.tools import cmd_up, px4_sitl
+from aeroperception.tools.cli import up as cmd_up, px4_sitl
 from aeroperception.tools.common import CliError
 
 

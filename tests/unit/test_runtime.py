@@ -999,7 +999,7 @@ def test_supervised_process_stops_when_its_supervisor_is_killed(tmp_path):
 
 
 def test_profiles_give_the_hot_path_realtime_and_rendering_less(monkeypatch):
-    from aeroperception.tools.cmd_up import PRIORITIES_ENV, load_priorities
+    from aeroperception.tools.cli.up import PRIORITIES_ENV, load_priorities
 
     monkeypatch.delenv(PRIORITIES_ENV, raising=False)
     prio = load_priorities()
@@ -1012,7 +1012,7 @@ def test_profiles_give_the_hot_path_realtime_and_rendering_less(monkeypatch):
 
 
 def test_supervisor_holds_a_duplicate_until_the_other_instance_is_gone(tmp_path, capsys):
-    from aeroperception.tools.cmd_up import Child
+    from aeroperception.tools.cli.up import Child
 
     c = Child("planner", ["true"], tmp_path / "planner.log")
     c.last_exit, c.token = 1, True

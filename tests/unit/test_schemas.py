@@ -739,7 +739,7 @@ def test_goal_validation():
 
 @pytest.fixture
 def aero():
-    from aeroperception.tools import cmd_schema
+    from aeroperception.tools.cli import schema as cmd_schema
 
     parser = argparse.ArgumentParser(prog="aero")
     cmd_schema.register(parser.add_subparsers())

@@ -9,7 +9,7 @@ from aeroperception.services.sim.world.scenario import ImuConfig
 from aeroperception.services.vio.backend import Backend, BackendConfig, tangent_to_world_cov
 from aeroperception.services.vio.dto import ImuBias, ImuSample
 from aeroperception.services.vio.imu import ImuNoise, ImuPreintegrator, gravity_aligned_rotation
-from aeroperception.tools.bench_vio import orbit_from_rest
+from aeroperception.tools.bench.vio import orbit_from_rest
 
 GYRO_BIAS = np.array([0.01, -0.02, 0.015])
 ACCEL_BIAS = np.array([0.12, -0.08, 0.1])

@@ -10,7 +10,7 @@ from aeroperception.services.vio.dto import ImuBias
 from aeroperception.services.vio.euroc import EurocDataset, default_euroc_dir
 from aeroperception.services.vio.frontend import FrontEndConfig, detect_corners, stereo_points, track_klt
 from aeroperception.services.vio.imu import ImuPreintegrator
-from aeroperception.tools.eval_vio import run_euroc
+from aeroperception.tools.eval.vio import run_euroc
 
 EUROC = default_euroc_dir()
 pytestmark = pytest.mark.skipif(EUROC is None, reason="EuRoC data not found: expected ../shared/data/euroc/"

@@ -8,8 +8,8 @@ from aeroperception.services.vio.calibration import CameraCalibration
 from aeroperception.services.vio.dto import ImuWindow, NavCameraFrame, VioDegradedError, VioInitializingError
 from aeroperception.services.vio.frontend import FrontEnd, FrontEndConfig, pnp_covariance
 from aeroperception.services.vio.strategy import create_strategy
-from aeroperception.tools.bench_vio import sim_sequence
-from aeroperception.tools.eval_vio import metrics
+from aeroperception.tools.bench.vio import sim_sequence
+from aeroperception.tools.eval.vio import metrics
 
 
 def pose(tr) -> np.ndarray:

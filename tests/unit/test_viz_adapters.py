@@ -327,7 +327,7 @@ def test_spawned_viewer_is_asked_for_with_the_sinks_own_recording(monkeypatch, t
 def viz_args(*argv: str):
     import argparse
 
-    from aeroperception.tools import cmd_viz
+    from aeroperception.tools.cli import viz as cmd_viz
 
     parser = argparse.ArgumentParser()
     cmd_viz.register(parser.add_subparsers())
@@ -344,7 +344,7 @@ def test_aero_viz_flags_become_viz_parameters():
 
 
 def test_aero_viz_without_outputs_spawns_the_native_viewer_or_says_what_to_do(monkeypatch):
-    from aeroperception.tools import cmd_viz
+    from aeroperception.tools.cli import viz as cmd_viz
     from aeroperception.tools.common import CliError
 
     monkeypatch.setattr(cmd_viz.shutil, "which", lambda name: "/usr/bin/rerun")

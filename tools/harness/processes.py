@@ -101,7 +101,7 @@ def stop_up(session: zenoh.Session | None, proc: subprocess.Popen | None, childr
 
 def profile_services(profile: str = "sim") -> list[str]:
     """The services `aero up --profile PROFILE` starts (profiles.yaml)."""
-    from aeroperception.tools.cmd_up import load_profiles
+    from aeroperception.tools.cli.up import load_profiles
 
     return list(load_profiles()[profile]["services"])
 

@@ -137,7 +137,7 @@ class Px4Stack(FlightStack):
         super().__init__(log_dir, services, "px4", extra_args, startup_timeout_s)
 
     def start(self) -> None:
-        from aeroperception.tools import px4_sitl
+        from aeroperception.tools.cli import px4_sitl
 
         instance = px4_sitl.free_instance(1)
         if instance is None:

@@ -78,7 +78,7 @@ class SimStack(FlightStack):
         super().__init__(log_dir, self.requested, "sim", extra_args, startup_timeout_s)
 
     def start(self) -> None:
-        from aeroperception.tools.cmd_up import fed_services
+        from aeroperception.tools.cli.up import fed_services
 
         self.services = fed_services(self.requested, self.sensors)[0]   # what `aero up` starts for them
         self._sim_port, self._sim_bind = free_udp_port(), free_udp_port()

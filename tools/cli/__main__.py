@@ -1,0 +1,5 @@
+import sys
+
+from .aero import main
+
+sys.exit(main())

@@ -1,0 +1,1 @@
+"""Evaluations against ground truth: `aero eval ...` (VIO, LiDAR, detector, objects, trajectories)."""

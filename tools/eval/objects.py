@@ -1,0 +1,170 @@
+"""`aero eval objects --live`: the objects service's tracks against the simulator's truth.
+
+Truth is the scenario's detector targets (their 3D box centres, ENU): the running sim's scenario,
+named with --scenario. Every perception/objects message is scored as it comes:
+- each confirmed track is matched to the nearest target of its class within `match_m`; a target
+  with one track is found, each further track on it is a duplicate, a target with none is missed;
+- a confirmed track near no target of its class is a false track (reported with how long it lived);
+- position error: every sample of a matched confirmed track at a range inside `range_m`;
+- ID switches: a target whose matched track id changes from one message to the next;
+- time to confirmation: a track's first confirmed message minus its first detection.
+"""
+from __future__ import annotations
+
+import json
+import threading
+from collections import defaultdict
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from aeroperception.schemas import TrackedObjectArray
+
+MATCH_M = 3.0
+
+
+@dataclass(frozen=True)
+class Target:
+    index: int
+    class_name: str
+    center_m: np.ndarray
+
+
+def scenario_targets(scenario: str) -> list[Target]:
+    from aeroperception.services.sim.world.scenario import load_scenario
+    from aeroperception.services.sim.world.scene import get_scene
+
+    return [Target(b.target_index, b.class_name, np.asarray(b.center_enu_m, float))
+            for b in get_scene(load_scenario(scenario)).target_boxes]
+
+
+@dataclass
+class ObjectsEval:
+    targets: list[Target]
+    match_m: float = MATCH_M
+    range_m: tuple[float, float] = (5.0, 30.0)
+    errors: dict[str, list[float]] = field(default_factory=lambda: defaultdict(list))
+    tracks_on: dict[int, set[int]] = field(default_factory=lambda: defaultdict(set))     # target -> track ids
+    false_tracks: dict[int, tuple[str, float]] = field(default_factory=dict)             # id -> (class, lifetime s)
+    last_id: dict[int, int] = field(default_factory=dict)                                # target -> track id
+    id_switches: int = 0
+    confirm_s: dict[int, float] = field(default_factory=dict)                            # track id -> s
+    messages: int = 0
+
+    def match(self, class_name: str, position: np.ndarray) -> Target | None:
+        best, best_d = None, self.match_m
+        for t in self.targets:
+            if t.class_name == class_name:
+                d = float(np.linalg.norm(t.center_m - position))
+                if d <= best_d:
+                    best, best_d = t, d
+        return best
+
+    def add(self, msg: TrackedObjectArray) -> None:
+        self.messages += 1
+        nearest: dict[int, tuple[float, int]] = {}
+        for o in msg.objects:
+            if not o.confirmed:
+                continue
+            p = o.position_m.to_array()
+            self.confirm_s.setdefault(o.track_id, (o.last_seen_ns - o.first_seen_ns) * 1e-9)
+            t = self.match(o.class_name, p)
+            if t is None:
+                self.false_tracks[o.track_id] = (o.class_name, (o.last_seen_ns - o.first_seen_ns) * 1e-9)
+                continue
+            self.false_tracks.pop(o.track_id, None)
+            self.tracks_on[t.index].add(o.track_id)
+            err = float(np.linalg.norm(t.center_m - p))
+            if self.range_m[0] <= o.range_m <= self.range_m[1]:
+                self.errors[t.class_name].append(err)
+            if t.index not in nearest or err < nearest[t.index][0]:
+                nearest[t.index] = (err, o.track_id)
+        for index, (_, track_id) in nearest.items():
+            if index in self.last_id and self.last_id[index] != track_id:
+                self.id_switches += 1
+            self.last_id[index] = track_id
+
+    def summary(self) -> dict:
+        per_class: dict[str, dict] = {}
+        for cls in sorted({t.class_name for t in self.targets}):
+            mine = [t for t in self.targets if t.class_name == cls]
+            errs = np.asarray(self.errors.get(cls, []))
+            per_class[cls] = {
+                "targets": len(mine),
+                "found": sum(1 for t in mine if self.tracks_on.get(t.index)),
+                "missed": sum(1 for t in mine if not self.tracks_on.get(t.index)),
+                "duplicates": sum(max(0, len(self.tracks_on.get(t.index, ())) - 1) for t in mine),
+                "false_tracks": sum(1 for c, _ in self.false_tracks.values() if c == cls),
+                "false_tracks_over_2s": sum(1 for c, life in self.false_tracks.values() if c == cls and life > 2.0),
+                "error_median_m": round(float(np.median(errs)), 3) if errs.size else None,
+                "error_p95_m": round(float(np.percentile(errs, 95)), 3) if errs.size else None,
+                "error_samples": int(errs.size),
+            }
+        others = sorted({c for c, _ in self.false_tracks.values()} - set(per_class))
+        for cls in others:
+            per_class[cls] = {"targets": 0, "found": 0, "missed": 0, "duplicates": 0,
+                              "false_tracks": sum(1 for c, _ in self.false_tracks.values() if c == cls),
+                              "false_tracks_over_2s": sum(1 for c, life in self.false_tracks.values()
+                                                          if c == cls and life > 2.0),
+                              "error_median_m": None, "error_p95_m": None, "error_samples": 0}
+        delays = list(self.confirm_s.values())
+        return {"classes": per_class, "id_switches": self.id_switches, "messages": self.messages,
+                "confirm_s_median": round(float(np.median(delays)), 2) if delays else None,
+                "confirm_s_max": round(float(max(delays)), 2) if delays else None}
+
+
+def table(res: dict) -> str:
+    rows = [f"{'class':<10} {'targets':>7} {'found':>5} {'missed':>6} {'dup':>3} {'false':>5} {'>2s':>3} "
+            f"{'err p50 m':>9} {'p95 m':>6} {'n':>5}"]
+    for cls, r in res["classes"].items():
+        f = (lambda v: "-" if v is None else f"{v:.2f}")
+        rows.append(f"{cls:<10} {r['targets']:>7} {r['found']:>5} {r['missed']:>6} {r['duplicates']:>3} "
+                    f"{r['false_tracks']:>5} {r['false_tracks_over_2s']:>3} {f(r['error_median_m']):>9} "
+                    f"{f(r['error_p95_m']):>6} {r['error_samples']:>5}")
+    rows.append(f"ID switches {res['id_switches']}; time to confirmation median {res['confirm_s_median']} s, "
+                f"max {res['confirm_s_max']} s; {res['messages']} perception/objects messages")
+    return "\n".join(rows)
+
+
+def run_live(args) -> int:
+    from aeroperception.schemas import SchemaError, decode
+
+    from aeroperception.tools.common import CliError, FlightWatch, open_client
+
+    try:
+        ev = ObjectsEval(scenario_targets(args.scenario))
+    except Exception as e:  # noqa: BLE001 - a bad scenario name or file: one line
+        raise CliError(f"--scenario {args.scenario}: {e}") from None
+    prefix = f"{args.vehicle}/" if args.vehicle else ""
+    lock, watch = threading.Lock(), FlightWatch()
+
+    def on_objects(sample) -> None:
+        try:
+            msg = decode(sample.payload.to_bytes(), TrackedObjectArray)
+        except SchemaError:
+            return
+        with lock:
+            ev.add(msg)
+
+    session = open_client(args)
+    subs = []
+    try:
+        subs = [session.declare_subscriber(prefix + "perception/objects", on_objects),
+                session.declare_subscriber(prefix + "sim/truth/state", watch.on_sample)]
+        print(f"scoring perception/objects against {args.scenario}'s {len(ev.targets)} targets for "
+              f"{args.duration:g} s" + (" at most, until the vehicle has flown and landed" if args.until_landed else "")
+              + " ...", flush=True)
+        watch.wait(args.duration, args.until_landed)
+    finally:
+        for s in subs:
+            s.undeclare()
+        session.close()
+    with lock:
+        if ev.messages == 0:
+            raise CliError("no perception/objects message: is the objects service running (aero up)?")
+        res = ev.summary()
+    print(table(res))
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(res, f, indent=2)
+    return 0
