@@ -109,6 +109,14 @@ class WaypointPlanner:
         if goal is None:
             self.hold_position_m = None  # captured from the next state
 
+    def retake_hold(self) -> None:
+        """Holding: hold where the next state puts the vehicle, not where the hold began. For while
+        the flight controller flies a mode of its own (a failsafe RTL, a pilot's HOLD) or no state
+        came: the vehicle moved without our setpoints, and PX4 returns to OFFBOARD by itself once
+        its offboard-loss failsafe clears, so an old hold point would be flown back to."""
+        if self.goal is None:
+            self.hold_position_m = None
+
     def step(self, position_m: np.ndarray, yaw_rad: float, now_s: float = 0.0) -> StepResult:
         if self.goal is not None and self.leg is None:
             self.leg = Leg(position_m.copy(), now_s)

@@ -112,6 +112,8 @@ class PlannerService(Service):
         if (delay - self.delay_floor_ns) * 1e-9 > self.params.state_timeout_s:
             self.stale_states += 1
             return
+        if not self.state_fresh() or msg.flight_mode not in ("", "OFFBOARD"):
+            self.planner.retake_hold()   # state came back after a gap, or the FC flies on its own
         self.state, self.state_rx_s = msg, time.monotonic()
         self._cycle()  # event-driven: a fresh state goes out as a setpoint at once (hot path)
 

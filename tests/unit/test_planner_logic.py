@@ -243,3 +243,17 @@ def test_remaining_time_is_at_the_goals_own_speed_caps():
     planner.set_goal(Goal(np.array([0.0, 0.0, 1.0]), None, index=2, max_vertical_speed_mps=0.5))   # 4 m down
     planner.step(np.array([0.0, 0.0, 5.0]), 0.0, now_s=1.0)
     assert planner.progress(np.array([0.0, 0.0, 5.0]), 1.0).remaining_s == pytest.approx(time_to_go_s(4.0, 0.5, 0.8, 0.5))
+
+
+def test_a_hold_is_retaken_where_the_vehicle_is_after_the_fc_flew_on_its_own():
+    """PX4's offboard-loss failsafe (RTL) moves the vehicle while we hold; once setpoints flow again
+    PX4 returns to OFFBOARD by itself: the hold must be where the vehicle is then, not flown back to."""
+    planner = WaypointPlanner()
+    planner.step(np.zeros(3), 0.0)                          # holding at the origin
+    planner.retake_hold()                                   # the FC flew RTL meanwhile
+    res = planner.step(np.array([3.0, 1.0, 6.0]), 0.5)
+    np.testing.assert_allclose(res.setpoint.position_m.to_array(), [3.0, 1.0, 6.0])
+    assert res.setpoint.yaw_rad == pytest.approx(0.5)
+    planner.set_goal(Goal(np.array([9.0, 0.0, 5.0]), None))  # a goal is never dropped by it
+    planner.retake_hold()
+    assert planner.step(np.zeros(3), 0.0).distance_m == pytest.approx(np.hypot(9.0, 5.0))
