@@ -101,17 +101,10 @@ def signal_other_thread(pid: int, sig: int) -> None:
 
 
 def chaos_row_param(name: str, ci_rows: tuple[str, ...], mark: Any):
-    """An `aero chaos` row as a pytest param: xfail (non-strict) while its fix is pending
-    (EXPECTED_FIXED_BY), `mark` (e.g. pytest.mark.extended) unless CI flies it (`ci_rows`)."""
+    """An `aero chaos` row as a pytest param, `mark`ed (e.g. pytest.mark.extended) unless CI flies it (`ci_rows`)."""
     import pytest
 
-    from aeroperception.tools.cli.chaos import EXPECTED_FIXED_BY
-
-    marks = [pytest.mark.xfail(reason=f"needs {EXPECTED_FIXED_BY[name]} fix", strict=False)] \
-        if name in EXPECTED_FIXED_BY else []
-    if name not in ci_rows:
-        marks.append(mark)
-    return pytest.param(name, marks=marks, id=name)
+    return pytest.param(name, marks=[] if name in ci_rows else [mark], id=name)
 
 
 def assert_chaos_row(st: Any, row: Any, mission_json: str) -> None:

@@ -1,9 +1,6 @@
 """Every `aero chaos` row as a test, on one module-scoped sim stack: fly survey_01, inject one
-fault mid-leg (or on the ground for the FC reboot), assert the row's expected outcome (issue 8 /
-ARCHITECTURE §8, stated in each Row) and that the vehicle stayed safe by sim/truth/state.
-
-Rows whose fix is on another branch are xfail (non-strict) from chaos.EXPECTED_FIXED_BY;
-after merging a fix, remove its entry there and the row must pass.
+fault mid-leg (or on the ground for the FC reboot), assert the row's expected outcome (ARCHITECTURE
+§8, stated in each Row) and that the vehicle stayed safe by sim/truth/state.
 """
 from __future__ import annotations
 

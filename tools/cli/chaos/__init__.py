@@ -19,13 +19,11 @@ The stack is the harness's `SimStack` (aeroperception.tools.harness): `aero up -
 free ports with a MavlinkTap relaying sim <-> fmu in this process, so a row can cut the FC link,
 speak to the FC (reboot) and check every SET_POSITION_TARGET_LOCAL_NED fmu sends. tests/faults and
 `aero bench soak` use the same class. Every process is stopped by its own pid, never by name.
-
-A row whose fix is not in yet can be listed in EXPECTED_FIXED_BY (empty: every row is expected to pass).
 """
 from .cli import DEFAULT_MISSION, register, run
 from .judging import AT_REST_MPS, RowResult, judge_safety
 from .rows import build_rows
-from .running import EXPECTED_FIXED_BY, format_table, run_row
+from .running import format_table, run_row
 
-__all__ = ["AT_REST_MPS", "DEFAULT_MISSION", "EXPECTED_FIXED_BY", "RowResult", "build_rows", "format_table",
+__all__ = ["AT_REST_MPS", "DEFAULT_MISSION", "RowResult", "build_rows", "format_table",
            "judge_safety", "register", "run", "run_row"]

@@ -25,7 +25,6 @@ class RowResult:
     safe: bool | None = None
     safe_why: str = ""
     passed: bool = False
-    fixed_by: str = ""
     duration_s: float = 0.0
     details: dict = field(default_factory=dict)
 

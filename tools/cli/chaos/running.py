@@ -10,10 +10,6 @@ from aeroperception.tools.harness import FlightStack
 from .judging import RowResult, judge_safety
 from .row import Ctx, Row
 
-# Rows that fail on this branch until another branch's fix is merged (the lead removes entries).
-EXPECTED_FIXED_BY: dict[str, str] = {}
-
-
 RECORDED = dict(truth=("sim/truth/state", VehicleState), status=("mission/status", MissionStatus),
                 state=("state/vehicle", VehicleState), fmu_diag=("diagnostics/fmu", DiagnosticStatus),
                 gcs_link=("gcs/link", GcsLink), imu=("fmu/out/sensor_combined", Imu),
@@ -22,7 +18,7 @@ RECORDED = dict(truth=("sim/truth/state", VehicleState), status=("mission/status
 
 def run_row(st: FlightStack, row: Row, mission_json: str, inject_after_s: float = 2.5) -> RowResult:
     """Fly, inject, observe, judge. Leaves the stack on the ground (restarted if it had to be)."""
-    res = RowResult(row.name, row.injected, row.expected, fixed_by=EXPECTED_FIXED_BY.get(row.name, ""))
+    res = RowResult(row.name, row.injected, row.expected)
     t_start = time.monotonic()
     if st.sensors != row.sensors:
         st.sensors = row.sensors
@@ -89,8 +85,7 @@ def format_table(results: list[RowResult]) -> str:
     for r in results:
         det = f"{r.detect_s:.2f}" if r.detect_s is not None else "-"
         safe = ("yes" if r.safe else "NO") + (f": {r.safe_why}" if r.safe_why else "")
-        verdict = r.verdict + (f" (needs {r.fixed_by})" if not r.passed and r.fixed_by else "")
-        lines.append("| " + " | ".join([r.row, r.injected, r.expected, r.observed, det, safe, verdict]) + " |")
+        lines.append("| " + " | ".join([r.row, r.injected, r.expected, r.observed, det, safe, r.verdict]) + " |")
     return "\n".join(lines)
 
 
