@@ -41,7 +41,7 @@ ACTION_CALLS = ("mission/action/takeoff", "mission/action/goto")   # goals only 
 # Requirement GCS-1: bind 14551, send to the ground station at 14550 until one talks; then to every
 # ground station heard (link.py).
 DEFAULT_LOCAL_PORT = 14551
-# Who gcs is on the ground-station link (issue 9 #6). In the sim profile the stack is the vehicle
+# Who gcs is on the ground-station link. In the sim profile the stack is the vehicle
 # (the built-in sim has no ground-station link of its own). In the vehicle profile the flight
 # controller (PX4 SITL or real, its own GCS link on 14550) is the vehicle and gcs is its onboard
 # computer: MAV_COMP_ID_ONBOARD_COMPUTER of the FC's system, MAV_TYPE_ONBOARD_CONTROLLER heartbeats,

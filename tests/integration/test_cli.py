@@ -1,4 +1,4 @@
-"""The `aero` CLI as a user meets it (issue 9, items 9-14): argument order, pipes into `head`,
+"""The `aero` CLI as a user meets it: argument order, pipes into `head`,
 silent keys, type checks against the contracts, `aero up` refusing what would crash-loop, the
 installed (non-editable) package finding its Zenoh config, number parsing and rates.
 Real `aero up` stacks, real routers, real pipes, on 127.0.0.1."""

@@ -1,4 +1,4 @@
-"""The stack a newcomer starts comes up healthy, for every `--sensors` choice (issue 18 items 7, 8).
+"""The stack a newcomer starts comes up healthy, for every `--sensors` choice.
 
 `aero up` (default scenario open_field, the vehicle on the ground): every service's diagnostics OK,
 the VIO TRACKING from what the forward camera sees on the ground, perception HEALTHY and safety

@@ -1,4 +1,4 @@
-"""fmu under faults, against the real simulated PX4 over MAVLink (issue 8 items 5, 6, 8, 9b, 7/3c).
+"""fmu under faults, against the real simulated PX4 over MAVLink.
 
 Two set-ups, everything on 127.0.0.1 with free ports:
 - `aero up --only sim,fmu,diagnostics` (module-scoped) with the test itself as the planner: it
@@ -282,7 +282,7 @@ def test_planner_lost_at_speed_brakes_and_holds_where_it_stops(fst, how):
     assert truth.last().flight_mode == "OFFBOARD"
 
 
-# ---------------------------------------------------------------- issue 18 item 4: feed-forward
+# ---------------------------------------------------------------------------------- feed-forward
 
 
 def hold_with_feed_forward(p, accel_enu_mps2, valid: bool = True, jerk: bool = False) -> callable:

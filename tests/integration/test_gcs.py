@@ -573,7 +573,7 @@ def wait_until_value(get, want, timeout_s=10.0, interval_s=0.3):
 def test_mavsdk_mission_flies_in_sim(stack):
     """MAVSDK uploads takeoff + DO_CHANGE_SPEED + 4 waypoints (a 4 m square at 3 m), arms and
     starts the mission; the speed item sets the planner's speed when the mission starts (not at
-    upload) and only for the mission (issue 9 #7: back to 2.0 once it is over); every waypoint's MISSION_ITEM_REACHED arrives at the ground station in order, the
+    upload) and only for the mission (back to 2.0 once it is over); every waypoint's MISSION_ITEM_REACHED arrives at the ground station in order, the
     vehicle lands and disarms (simulator ground truth, fmu's vehicle status), all within 90 s.
     The takeoff item's MISSION_ITEM_REACHED comes first, as PX4 sends it when the takeoff is done."""
     pytest.importorskip("mavsdk.asyncio")
@@ -679,7 +679,7 @@ def test_mavsdk_mission_flies_in_sim(stack):
         rec.close()
     print(f"gcs mission: waypoints after {timing['waypoints_s']:.1f} s, landed+disarmed after "
           f"{timing['flight_s']:.1f} s; reached {reached}; progress {sorted(set(progress))}")
-    # every item, in order, once each: the takeoff, the DO_CHANGE_SPEED after it (issue 9 #2: it runs
+    # every item, in order, once each: the takeoff, the DO_CHANGE_SPEED after it (it runs
     # once the takeoff is done), then every waypoint including the last
     assert reached == list(range(len(rows)))
     assert timing["speed_after_upload"] == "2.0" and planner_speed_seen == [speed]

@@ -1,4 +1,4 @@
-"""gcs as a process next to real ground-station traffic (issue 8 #4, issue 9 #4, #6, #8): who counts
+"""gcs as a process next to real ground-station traffic: who counts
 as a ground station, gcs restarts and stalls, a second listen-only station, the vehicle profile's
 identity beside a real PX4's heartbeat, and safety/status forwarded to ground stations.
 

@@ -1,5 +1,5 @@
-"""gcs against the sim stack, as PX4 ground-station software expects an autopilot to behave
-(issue 9 #1, #2, #3, #5): PX4 parameter names read and set through MAVSDK and MAVProxy, mode
+"""gcs against the sim stack, as PX4 ground-station software expects an autopilot to behave:
+PX4 parameter names read and set through MAVSDK and MAVProxy, mode
 changes answered with one final COMMAND_ACK (MAVSDK manual control), ignored setpoints counted,
 and mission progress to "finished" with MAVSDK's Mission plugin."""
 from __future__ import annotations
@@ -43,7 +43,7 @@ def test_px4_parameter_names_mode_change_and_ignored_setpoints(stack, tmp_path):
     async def session():
         async with mavsdk_autopilot(sdk_port) as system:
             param = ParamAsync(system)
-            # issue 9 #3: PX4 names, the services' live values
+            # PX4 names, the services' live values
             assert await _retry(lambda: param.get_param_float("MIS_TAKEOFF_ALT"), 20, "MIS_TAKEOFF_ALT") == 3.0
             assert await _retry(lambda: param.get_param_float("RTL_RETURN_ALT"), 20, "RTL_RETURN_ALT") == 60.0
             assert await param.get_param_float("MPC_XY_VEL_MAX") == pytest.approx(2.0)
@@ -58,7 +58,7 @@ def test_px4_parameter_names_mode_change_and_ignored_setpoints(stack, tmp_path):
             with pytest.raises(Exception):                                  # unknown: PX4's silence
                 await asyncio.wait_for(param.get_param_float("NOT_A_PX4_PARAM"), 10)
 
-            # issue 9 #1: a mode change answered once, finally, within MAVSDK's timeout
+            # a mode change answered once, finally, within MAVSDK's timeout
             manual = ManualControlAsync(system)
             await manual.set_manual_control_input(0.0, 0.0, 0.5, 0.0)
             t0 = time.monotonic()
@@ -85,7 +85,7 @@ def test_px4_parameter_names_mode_change_and_ignored_setpoints(stack, tmp_path):
     finally:
         mp.stop()
 
-    # issue 9 #5: a ground station's position setpoint is ignored, and counted
+    # a ground station's position setpoint is ignored, and counted
     g = Gcs(port)
     try:
         g.heartbeat()

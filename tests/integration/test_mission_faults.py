@@ -1,4 +1,4 @@
-"""The mission service when things break (issue 8 items 2, 3, 5, 9 and the safety reactions),
+"""The mission service when things break (and the safety reactions),
 against the real stack: `aero up` with sim (no sensors), fmu, planner, mission and diagnostics as
 separate processes, MAVLink on free UDP ports, Zenoh on a free loopback port. What the vehicle
 did is judged from sim/truth/state, never from the autonomy.

@@ -1,4 +1,4 @@
-"""Mission files, JSON and YAML alike, through the real mission service (issue 18 #3): `aero up
+"""Mission files, JSON and YAML alike, through the real mission service: `aero up
 --mission FILE` loads one at start-up (the mission service's `mission_file` parameter), `aero
 mission load` and mission/srv/load take either format, and both are decoded strictly (an
 unknown or a missing field is refused, naming it). A bad start-up file is refused in one line

@@ -2,15 +2,15 @@
 separate processes; MAVLink on free UDP ports, Zenoh on a free loopback port), judged from the
 sim's truth (sim/truth/state) and the real state file:
 
-- issue 18 #9: a finished flight leaves nothing to restore; a restarted mission service on the
+- a finished flight leaves nothing to restore; a restarted mission service on the
   ground comes up with no mission (and one killed after completing its waypoints never
   reports "waypoint 5/4").
-- issue 18 #4: the takeoff / land / goto actions' fields are honoured, judged by the truth:
+- the takeoff / land / goto actions' fields are honoured, judged by the truth:
   climb and descent rate 0.5 vs 1.5 m/s give measurably different vertical speeds, a goto's
   velocity_mps caps the horizontal speed, a land at target_position_m lands there.
-- issue 18 #13 (the ground-station side): why the mission holds reaches ground stations as a
+- the ground-station side: why the mission holds reaches ground stations as a
   STATUSTEXT, once per reason.
-- issue 18 #5: MAVSDK's set_current_mission_item while the mission flies to item 1 makes the
+- MAVSDK's set_current_mission_item while the mission flies to item 1 makes the
   vehicle fly to item 3 next (truth: items 1 and 2 are never approached), as PX4 jumps.
 """
 from __future__ import annotations

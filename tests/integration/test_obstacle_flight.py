@@ -1,4 +1,4 @@
-"""The vehicle never flies into what it can see (issue 11): a mission in `village` whose straight
+"""The vehicle never flies into what it can see: a mission in `village` whose straight
 legs pass through a street-light pole, a building corner and a parked car completes, and the
 true track (sim/truth/state) keeps >= 1 m from every obstacle surface of the scenario geometry.
 The straight legs are proven to collide first (their clearance from the same geometry is below

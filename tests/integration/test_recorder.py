@@ -1,4 +1,4 @@
-"""The recorder on a real flight (issue 13): one module stack (sim, fmu, planner, mission,
+"""The recorder on a real flight: one module stack (sim, fmu, planner, mission,
 diagnostics, recorder) flies survey_01 once while
 
 - `aero record` (essentials + sim/truth/state) records it from the CLI: every essentials key the

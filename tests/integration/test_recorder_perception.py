@@ -1,4 +1,4 @@
-"""The recorder on the perception stack, and a replay that drives the real vio (issue 13).
+"""The recorder on the perception stack, and a replay that drives the real vio.
 
 One module stack (sim with its cameras, IMU and LiDAR in the village, fmu, planner, mission,
 diagnostics, lidar, perception, detector) in real time: the cameras render what 2 loaded cores

@@ -1,4 +1,4 @@
-"""Supervision (issue 8 #7, issue 9 #15; ARCHITECTURE §8) with the real `aero up`, real services,
+"""Supervision (ARCHITECTURE §8) with the real `aero up`, real services,
 the sim vehicle on MAVLink: one instance per service per vehicle, no service outlives `aero up`,
 and a dead router is restarted with every service reconnecting by itself."""
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Obstacle-aware velocity over a costmap (issue 11 item 3): around walls, never into blocked
+"""Obstacle-aware velocity over a costmap: around walls, never into blocked
 cells, stop when boxed in, refuse goals inside obstacles; unchanged in free space."""
 import math
 
@@ -102,7 +102,7 @@ def test_boxed_in_holds_with_the_reason():
 
 
 def test_a_way_cut_only_by_a_shadow_goes_to_look_and_then_reaches_the_goal():
-    """The obstacle mission's last leg (issue 18): past a parked car, a person 1.35 m beside it
+    """The obstacle mission's last leg: past a parked car, a person 1.35 m beside it
     closes the gap, and the person's LiDAR shadow (a strip of never-seen cells) runs from behind
     them to the window's edge, cutting the way round them off from the goal. That was "boxed in"
     (the vehicle held for minutes where it stood, seeing the same shadow). Now the planner flies
