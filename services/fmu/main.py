@@ -5,6 +5,7 @@ import math
 import threading
 import time
 from collections import deque
+from typing import Any, Callable
 
 import numpy as np
 import zenoh
@@ -105,6 +106,7 @@ class FmuService(Service):
         node.every(1.0, self._heartbeat_tick, name="heartbeat")
         node.every(1.0 / contract.STATUS_RATE_HZ, self._status_tick, name="status")
         node.every(1.0, self._home_tick, name="home")
+        self.handlers = self._mavlink_handlers()
         self.reader = threading.Thread(target=self._read_loop, name="fmu-mavlink", daemon=True)
         self.reader.start()
         self.log.info("fcu_link", url=self.args.fcu_url)
@@ -144,62 +146,78 @@ class FmuService(Service):
             return  # other components (cameras, gimbals, GCS) on the same link
         self.counters["rx"] += 1
         self.tm.last_rx_s = time.monotonic()
-        stamp = self.node.now_ns()
-        if t == "HEARTBEAT":
-            if m.type == mavlink.MAV_TYPE_GCS:
-                return
-            self.tm.system_id = m.get_srcSystem()
-            self.tm.on_heartbeat(m)
-            self._publish_status(stamp, periodic=False)
-            why = self.reboots.on_heartbeat(time.monotonic())
-            if not self.streams_requested:
-                self._request_streams()
-            elif why:
-                self._fc_rebooted(why)
-        elif t == "LOCAL_POSITION_NED":
-            local = self.tm.on_local_position(m, stamp)
-            # connected once the FC has identified itself (heartbeat: mode, armed); hot path first
-            self.pubs["state/vehicle"].publish(self.tm.vehicle_state(stamp, connected=self.tm.last_heartbeat_s > 0))
-            now = time.monotonic()
-            new_session = now - self.state_published_s > self.params.link_timeout_s
-            self.state_published_s = now
-            self.arbiter.on_state(stamp, new_session=new_session)
-            if new_session:
-                self.log.info("state_session", stamp_ns=stamp, following=False)
-            self.pubs["fmu/out/vehicle_local_position"].publish(local)
-            self._check_boot_time(m.time_boot_ms)
-        elif t == "ATTITUDE_QUATERNION":
-            self.pubs["fmu/out/vehicle_attitude"].publish(self.tm.on_attitude_quaternion(m, stamp))
-            self._check_boot_time(m.time_boot_ms)
-        elif t == "EXTENDED_SYS_STATE":
-            self.tm.on_extended_sys_state(m)
-        elif t == "SYS_STATUS":
-            self.tm.on_sys_status(m)
-        elif t == "BATTERY_STATUS":
-            self.pubs["fmu/out/battery_status"].publish(self.tm.on_battery_status(m, stamp))
-        elif t == "HIGHRES_IMU":
-            imu = highres_imu_to_imu(m, self.fc_clock.stamp(m.time_usec, stamp))
-            self.pubs["fmu/out/sensor_combined"].publish(imu)
-            if "sensors/imu" in self.pubs:
-                self.pubs["sensors/imu"].publish(imu)
-                self.imu_stamps_ns.append(imu.header.stamp_ns)
-        elif t == "HIL_STATE_QUATERNION":
-            self._on_ground_truth(m, stamp)
-        elif t == "GPS_GLOBAL_ORIGIN":
-            self._on_origin(m)
-        elif t == "GPS_RAW_INT":
-            self.pubs["fmu/out/vehicle_gps_position"].publish(gps_from_mavlink(m, stamp))
-        elif t == "ESTIMATOR_STATUS":
-            self.pubs["fmu/out/estimator_status"].publish(estimator_status_from_mavlink(m, stamp))
-        elif t == "HOME_POSITION":  # answer to our request, and sent by PX4 whenever home changes
-            self._on_home_position(m, stamp)
-        elif t == "COMMAND_ACK":
-            self.acks.on_ack(m)
-        elif t == "STATUSTEXT":  # the FC says why it refused a command (PX4: "Arming denied: ...")
-            self.statustexts.append((time.monotonic(), m.severity, str(m.text)))
-            self.log.info("fc_statustext", severity=m.severity, text=str(m.text))
-        elif t == "TIMESYNC" and m.tc1 == 0:  # PX4 asks the companion: answered in the clock ODOMETRY is
-            # stamped in (the node's), so PX4 maps each vision pose's stamp into its own time
+        handler = self.handlers.get(t)
+        if handler is not None:
+            handler(m, self.node.now_ns())
+
+    def _mavlink_handlers(self) -> dict[str, Callable[[Any, int], None]]:
+        """{MAVLink message type: handler(msg, receive stamp ns)}: what fmu reads from the FC.
+        Adding a message = one entry here and its handler."""
+        tm, pubs = self.tm, self.pubs
+        return {
+            "HEARTBEAT": self._on_heartbeat,
+            "LOCAL_POSITION_NED": self._on_local_position,
+            "ATTITUDE_QUATERNION": self._on_attitude,
+            "EXTENDED_SYS_STATE": lambda m, _s: tm.on_extended_sys_state(m),
+            "SYS_STATUS": lambda m, _s: tm.on_sys_status(m),
+            "BATTERY_STATUS": lambda m, s: pubs["fmu/out/battery_status"].publish(tm.on_battery_status(m, s)),
+            "HIGHRES_IMU": self._on_highres_imu,
+            "HIL_STATE_QUATERNION": self._on_ground_truth,
+            "GPS_GLOBAL_ORIGIN": lambda m, _s: self._on_origin(m),
+            "GPS_RAW_INT": lambda m, s: pubs["fmu/out/vehicle_gps_position"].publish(gps_from_mavlink(m, s)),
+            "ESTIMATOR_STATUS": lambda m, s: pubs["fmu/out/estimator_status"].publish(
+                estimator_status_from_mavlink(m, s)),
+            "HOME_POSITION": self._on_home_position,   # our request's answer; PX4 also sends it when home changes
+            "COMMAND_ACK": lambda m, _s: self.acks.on_ack(m),
+            "STATUSTEXT": self._on_statustext,
+            "TIMESYNC": self._on_timesync,
+        }
+
+    def _on_heartbeat(self, m, stamp: int) -> None:
+        if m.type == mavlink.MAV_TYPE_GCS:
+            return
+        self.tm.system_id = m.get_srcSystem()
+        self.tm.on_heartbeat(m)
+        self._publish_status(stamp, periodic=False)
+        why = self.reboots.on_heartbeat(time.monotonic())
+        if not self.streams_requested:
+            self._request_streams()
+        elif why:
+            self._fc_rebooted(why)
+
+    def _on_local_position(self, m, stamp: int) -> None:
+        local = self.tm.on_local_position(m, stamp)
+        # connected once the FC has identified itself (heartbeat: mode, armed); hot path first
+        self.pubs["state/vehicle"].publish(self.tm.vehicle_state(stamp, connected=self.tm.last_heartbeat_s > 0))
+        now = time.monotonic()
+        new_session = now - self.state_published_s > self.params.link_timeout_s
+        self.state_published_s = now
+        self.arbiter.on_state(stamp, new_session=new_session)
+        if new_session:
+            self.log.info("state_session", stamp_ns=stamp, following=False)
+        self.pubs["fmu/out/vehicle_local_position"].publish(local)
+        self._check_boot_time(m.time_boot_ms)
+
+    def _on_attitude(self, m, stamp: int) -> None:
+        self.pubs["fmu/out/vehicle_attitude"].publish(self.tm.on_attitude_quaternion(m, stamp))
+        self._check_boot_time(m.time_boot_ms)
+
+    def _on_highres_imu(self, m, stamp: int) -> None:
+        imu = highres_imu_to_imu(m, self.fc_clock.stamp(m.time_usec, stamp))
+        self.pubs["fmu/out/sensor_combined"].publish(imu)
+        if "sensors/imu" in self.pubs:
+            self.pubs["sensors/imu"].publish(imu)
+            self.imu_stamps_ns.append(imu.header.stamp_ns)
+
+    def _on_statustext(self, m, _stamp: int) -> None:
+        """The FC says why it refused a command (PX4: "Arming denied: ...")."""
+        self.statustexts.append((time.monotonic(), m.severity, str(m.text)))
+        self.log.info("fc_statustext", severity=m.severity, text=str(m.text))
+
+    def _on_timesync(self, m, _stamp: int) -> None:
+        """PX4 asks the companion (tc1 == 0): answered in the clock ODOMETRY is stamped in (the
+        node's), so PX4 maps each vision pose's stamp into its own time."""
+        if m.tc1 == 0:
             self._send(lambda mav: mav.timesync_send(self.node.now_ns(), m.ts1))
 
     def _on_ground_truth(self, m, rx_ns: int) -> None:
