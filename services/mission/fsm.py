@@ -717,9 +717,11 @@ class MissionManager:
                 self._ask_fc(FcRequest("disarm"))
 
     def _watch_fc_mode(self, st: VehicleState) -> None:
-        """The FC left the mode we asked for without being asked: never fight it."""
+        """The FC left the mode we asked for without being asked: never fight it. Not when it
+        disarms: PX4 then switches to the last mode it can arm in (after a LAND that ends in
+        OFFBOARD), which flies nothing and is no takeover."""
         mode = st.flight_mode
-        if not mode or self.expected_mode is None:
+        if not mode or self.expected_mode is None or not st.armed:
             return
         landing = self.state == State.LAND and self.expected_mode in ("LAND", "RTL")
         ours = ("LAND", "RTL") if landing else (self.expected_mode,)
@@ -856,6 +858,13 @@ class MissionManager:
             self._next_waypoint()
         else:
             self.fire(E.GOAL_BLOCKED, f"holding: {reason}; START retries, SET_CURRENT skips, LAND/RTL")
+
+    def on_trajectory_refused(self, why: str) -> None:
+        """planner/status: the trajectory handed over is refused for what it asks (limits above the
+        planner's own, a frame, a generator; a SetTrajectory one against the planner's live limits).
+        The planner holds rather than fly it goal by goal: so does the mission, saying why."""
+        if self.state == State.EXECUTING:
+            self.fire(E.GOAL_BLOCKED, f"holding: {why}; START retries, LAND/RTL")
 
     def on_link(self, up: bool) -> None:
         if not up:

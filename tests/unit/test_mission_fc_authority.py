@@ -136,3 +136,17 @@ def test_start_after_a_takeover_answers_with_the_fcs_offboard_outcome():
     rig.mgr.command("START", rig.outcome())
     rig.bridge.answer_pending()
     assert rig.results[-1][0] is True and rig.mgr.state == State.EXECUTING
+
+
+def test_px4_back_in_offboard_as_it_disarms_after_landing_is_a_landing_not_a_takeover():
+    """PX4 (UserModeIntention::onDisarm) switches to the last mode it can arm in when it disarms:
+    after our LAND that is OFFBOARD, reported in the same heartbeat as the disarm."""
+    rig = Rig()
+    rig.to_executing()
+    rig.feed(fc())
+    rig.mgr.command("LAND")
+    rig.feed(fc(z=2.0, mode="LAND"))                  # LAND confirmed
+    rig.feed(fc(z=0.0, mode="LAND", landed=LandedState.ON_GROUND))
+    rig.feed(fc(z=0.0, mode="OFFBOARD", armed=False, landed=LandedState.ON_GROUND))
+    assert rig.mgr.transitions[-1] == (State.LAND, Event.LANDED, State.IDLE)
+    assert rig.mgr.status().message == "landed and disarmed"
