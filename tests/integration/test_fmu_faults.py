@@ -29,7 +29,7 @@ import zenoh
 from pymavlink.dialects.v20 import common as M
 
 from aerotest import (
-    clean_env, diag, free_udp_port, interrupt, is_service_process, latest, pos, speed, wait_until,
+    Capture, clean_env, diag, free_udp_port, interrupt, is_service_process, latest, pos, speed, wait_until,
     zenoh_client,
 )
 from aeroperception.schemas import (
@@ -41,34 +41,6 @@ from aeroperception.services.sim.vehicle import MavlinkEndpoint, SimVehicle, Sim
 
 ALT_M = 3.0
 GCS = M.MAVLink(None, srcSystem=255, srcComponent=190)
-
-
-class Truth:
-    """Every sim/truth/state sample with its arrival time."""
-
-    def __init__(self, session):
-        self.lock = threading.Lock()
-        self.samples: list[tuple[float, VehicleState]] = []
-        self.sub = session.declare_subscriber("sim/truth/state", self._on)
-
-    def _on(self, sample: zenoh.Sample) -> None:
-        try:
-            m = decode(sample.payload.to_bytes(), VehicleState)
-        except SchemaError:
-            return
-        with self.lock:
-            self.samples.append((time.monotonic(), m))
-
-    def since(self, t: float) -> list[VehicleState]:
-        with self.lock:
-            return [m for ts, m in self.samples if ts >= t]
-
-    def last(self) -> VehicleState | None:
-        with self.lock:
-            return self.samples[-1][1] if self.samples else None
-
-    def close(self) -> None:
-        self.sub.undeclare()
 
 
 class TestPlanner:
@@ -157,7 +129,7 @@ def fst(stack_module):
     st.sim_address = ("127.0.0.1", sim_bind)
     planner = TestPlanner(st.session)
     planner.declare_alive()
-    truth = Truth(st.session)
+    truth = Capture(st.session, {"truth": ("sim/truth/state", VehicleState)})
     try:
         wait_until(lambda: latest(st.session, "state/vehicle", VehicleState, 1.0, lambda m: m.connected), 15,
                    "state/vehicle connected (fmu <-> sim)")
@@ -167,21 +139,21 @@ def fst(stack_module):
         planner.close()
 
 
-def wait_at_rest(truth: Truth, timeout_s: float = 20.0, for_s: float = 1.0) -> VehicleState:
+def wait_at_rest(truth: Capture, timeout_s: float = 20.0, for_s: float = 1.0) -> VehicleState:
     def settled():
         now = time.monotonic()
-        with truth.lock:
-            recent = [m for t, m in truth.samples if t >= now - for_s]
-            full = truth.samples and truth.samples[0][0] <= now - for_s
+        recent = truth.get("truth", now - for_s)
+        first = truth.since("truth")[:1]
+        full = first and first[0][0] <= now - for_s
         return full and len(recent) > 10 and all(speed(m) < 0.15 for m in recent) and recent[-1]
     return wait_until(settled, timeout_s, f"truth at rest for {for_s} s", interval_s=0.1)
 
 
-def ensure_hovering(st, planner: TestPlanner, truth: Truth) -> VehicleState:
+def ensure_hovering(st, planner: TestPlanner, truth: Capture) -> VehicleState:
     """In the air at ALT_M, OFFBOARD, fmu following the test planner (hold where we are)."""
     planner.replay = None
     planner.declare_alive()
-    t = wait_until(truth.last, 3, "sim/truth/state")
+    t = wait_until(lambda: truth.last("truth"), 3, "sim/truth/state")
     planner.law = hold_at([t.position_m.x, t.position_m.y, ALT_M])
     wait_until(lambda: diag(st.session, "fmu").values.get("planner") == "streaming", 10, "fmu following the test planner")
     if not (t.armed and t.flight_mode == "OFFBOARD"):
@@ -191,18 +163,18 @@ def ensure_hovering(st, planner: TestPlanner, truth: Truth) -> VehicleState:
         if not t.armed:
             r = fmu_call(st.session, "fmu/srv/arm", ArmRequest(arm=True), ArmReply)
             assert r is not None and r.success, r
-    wait_until(lambda: (m := truth.last()) and m.position_m.z > ALT_M - 0.3, 20, "climbed to the hover altitude")
+    wait_until(lambda: (m := truth.last("truth")) and m.position_m.z > ALT_M - 0.3, 20, "climbed to the hover altitude")
     rest = wait_at_rest(truth)
     assert rest.flight_mode == "OFFBOARD" and rest.armed
     return rest
 
 
-def land(st, planner: TestPlanner, truth: Truth) -> None:
-    t = truth.last()
+def land(st, planner: TestPlanner, truth: Capture) -> None:
+    t = truth.last("truth")
     if t is not None and t.armed:
         r = fmu_call(st.session, "fmu/srv/set_mode", SetModeRequest(mode="LAND"), SetModeReply)
         assert r is not None and r.success, r
-        wait_until(lambda: not truth.last().armed, 40, "landed and disarmed")
+        wait_until(lambda: not truth.last("truth").armed, 40, "landed and disarmed")
     planner.law = None
 
 
@@ -235,7 +207,7 @@ def test_unsafe_setpoints_never_reach_the_fc_fmu_holds_and_counts_them(fst):
     wait_until(lambda: diag(st.session, "fmu").values.get("planner") == "streaming", 5, "following good setpoints again")
     time.sleep(1.2)  # a fresh diagnostics/sim after the last setpoint fmu could have forwarded
     f1, s1 = counters(st)
-    track = np.array([pos(m) for m in truth.since(t0)])
+    track = np.array([pos(m) for m in truth.get("truth", t0)])
     drift = float(np.linalg.norm(track - pos(start), axis=1).max())
     rejected = int(f1.get("setpoints_rejected", 0)) - int(f0.get("setpoints_rejected", 0))
     print(f"unsafe setpoints: fmu rejected {rejected}; FC got non-finite {s0['setpoints_nonfinite']} -> "
@@ -245,7 +217,7 @@ def test_unsafe_setpoints_never_reach_the_fc_fmu_holds_and_counts_them(fst):
     assert int(s1["setpoints"]) > int(s0["setpoints"]) + 100, "fmu stopped streaming to the FC"
     assert rejected >= len(bad) * 15, f"only {rejected} setpoints counted as rejected"
     assert drift < 0.5, f"vehicle moved {drift:.2f} m while fed garbage"
-    assert truth.last().flight_mode == "OFFBOARD"
+    assert truth.last("truth").flight_mode == "OFFBOARD"
 
 
 # ---------------------------------------------------------------- item 9b: brake, no fly-back
@@ -256,16 +228,16 @@ def test_planner_lost_at_speed_brakes_and_holds_where_it_stops(fst, how):
     st, planner, truth = fst
     ensure_hovering(st, planner, truth)
     planner.law = cruise_east(2.0)
-    wait_until(lambda: (m := truth.last()) and m.velocity_mps.x > 1.9, 10, "cruising east at 2 m/s")
+    wait_until(lambda: (m := truth.last("truth")) and m.velocity_mps.x > 1.9, 10, "cruising east at 2 m/s")
     time.sleep(0.5)
     t_lost = time.monotonic()
-    at_loss = truth.last()
+    at_loss = truth.last("truth")
     if how == "silent":
         planner.law = None
     else:
         planner.vanish()   # liveliness gone, setpoints keep coming: must be ignored at once
     time.sleep(4.0)
-    track = truth.since(t_lost)
+    track = truth.get("truth", t_lost)
     d = diag(st.session, "fmu").values
     x = np.array([m.position_m.x for m in track])
     peak, final = float(x.max()), float(x[-1])
@@ -279,7 +251,7 @@ def test_planner_lost_at_speed_brakes_and_holds_where_it_stops(fst, how):
     assert d["hold_reason"] == ("planner silent" if how == "silent" else "planner not alive")
     planner.law = hold_at(pos(track[-1]))  # before coming back: fmu would follow a cruise law again
     planner.declare_alive()
-    assert truth.last().flight_mode == "OFFBOARD"
+    assert truth.last("truth").flight_mode == "OFFBOARD"
 
 
 # ---------------------------------------------------------------------------------- feed-forward
@@ -295,14 +267,14 @@ def hold_with_feed_forward(p, accel_enu_mps2, valid: bool = True, jerk: bool = F
     return law
 
 
-def east_acceleration_during(truth: Truth, planner: TestPlanner, law, hold, pulse_s: float = 0.5) -> float:
+def east_acceleration_during(truth: Capture, planner: TestPlanner, law, hold, pulse_s: float = 0.5) -> float:
     """Mean true east acceleration (m/s^2) while `law` is followed for pulse_s (its first 0.1 s,
     the attitude settling, left out); then back to `hold` and at rest."""
     t0 = time.monotonic()
     planner.law = law
     time.sleep(pulse_s)
     planner.law = hold
-    samples = [m for m in truth.since(t0 + 0.1) if m.header.stamp_ns]
+    samples = [m for m in truth.get("truth", t0 + 0.1) if m.header.stamp_ns]
     samples = samples[:int(100 * (pulse_s - 0.1))]          # 100 Hz truth, within the pulse
     wait_at_rest(truth)
     return float(np.mean([m.acceleration_mps2.x for m in samples]))
@@ -324,7 +296,7 @@ def test_acceleration_feed_forward_reaches_the_fc_and_accelerates_the_vehicle_an
     held = wait_until(lambda: (d := diag(st.session, "fmu").values) and "jerk_valid" in d.get("hold_reason", "") and d, 5,
                       "fmu refusing the jerk setpoint")
     time.sleep(0.5)
-    moved = max(float(np.linalg.norm(pos(m) - pos(rest))) for m in truth.since(t0))
+    moved = max(float(np.linalg.norm(pos(m) - pos(rest))) for m in truth.get("truth", t0))
     planner.law = hold
     wait_until(lambda: diag(st.session, "fmu").values.get("planner") == "streaming", 5, "following again")
     print(f"true east acceleration: {with_ff:.2f} m/s^2 with a valid 3 m/s^2 feed-forward, {without:.2f} without; "
@@ -385,7 +357,7 @@ def test_fmu_killed_mid_motion_restarted_fmu_never_replays_stale_motion(fst):
     st, planner, truth = fst
     ensure_hovering(st, planner, truth)
     planner.law = cruise_east(1.5)
-    wait_until(lambda: (m := truth.last()) and m.velocity_mps.x > 1.4, 10, "moving east")
+    wait_until(lambda: (m := truth.last("truth")) and m.velocity_mps.x > 1.4, 10, "moving east")
     time.sleep(0.3)
     old_pid = st.pids()["fmu"]
     assert is_service_process(old_pid, "fmu")
@@ -393,16 +365,16 @@ def test_fmu_killed_mid_motion_restarted_fmu_never_replays_stale_motion(fst):
     t_kill = time.monotonic()
     os.kill(old_pid, signal.SIGKILL)
     try:
-        rtl = wait_until(lambda: next((m for m in truth.since(t_kill) if m.flight_mode == "RTL"), None), 5,
+        rtl = wait_until(lambda: next((m for m in truth.get("truth", t_kill) if m.flight_mode == "RTL"), None), 5,
                          "sim offboard-loss failsafe RTL")
-        rtl_s = (rtl.header.stamp_ns - truth.since(t_kill)[0].header.stamp_ns) / 1e9
+        rtl_s = (rtl.header.stamp_ns - truth.get("truth", t_kill)[0].header.stamp_ns) / 1e9
         wait_until(lambda: st.pids().get("fmu") not in (None, old_pid), 20, "aero up restarted fmu")
-        back = wait_until(lambda: next((m for m in truth.since(t_kill) if m.flight_mode == "OFFBOARD"
+        back = wait_until(lambda: next((m for m in truth.get("truth", t_kill) if m.flight_mode == "OFFBOARD"
                                         and m.header.stamp_ns > rtl.header.stamp_ns), None), 20,
                           "OFFBOARD again once the new fmu streams")
         t_back = time.monotonic()
         time.sleep(5.0)
-        after = truth.since(t_back)
+        after = truth.get("truth", t_back)
         d = diag(st.session, "fmu").values
         s = diag(st.session, "sim").values
         xy = np.array([m.position_m.to_array()[:2] for m in after])
