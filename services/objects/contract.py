@@ -57,6 +57,12 @@ PARAMS = [
           description="a lost track is remembered this long: seen again within gate_distance_m it is reacquired (same id, event)"),
     Param("tentative_timeout_s", 1.0, "s", 0.05, 60.0,
           description="an unconfirmed track unseen this long is deleted (longer than the detection period)"),
+    Param("birth_sigma_m", 1.5, "m", 0.05, 100.0,
+          description="a detection placed less precisely than this (horizontal 1 sigma; far ones) only extends tracks, never starts one"),
+    Param("partial_ratio", 1.25, "", 1.01, 10.0,
+          description="a box this much shorter or taller (at its range) than the track's last boxes is a partial view: it keeps the track alive without moving it"),
+    Param("coast_tau_s", 0.5, "s", 0.0, 60.0,
+          description="an unseen track's velocity decays with this time constant (0: kept); a static object's spurious velocity must not carry it away"),
     Param("gate_distance_m", 3.0, "m", 0.1, 50.0, description="a detection farther than this from a track never joins it"),
-    Param("accel_sigma_mps2", 0.5, "m/s^2", 0.0, 20.0, description="constant-velocity model's process noise"),
+    Param("accel_sigma_mps2", 0.2, "m/s^2", 0.0, 20.0, description="constant-velocity model's process noise"),
 ]

@@ -29,7 +29,8 @@ from .tracker import Observation, Track, Tracker, TrackerConfig
 def tracker_config(p) -> TrackerConfig:
     return TrackerConfig(confirm_hits=p.confirm_hits, lost_timeout_s=p.lost_timeout_s,
                          tentative_timeout_s=p.tentative_timeout_s, high_score=p.high_score, low_score=p.min_score,
-                         gate_distance_m=p.gate_distance_m, accel_noise_mps2=p.accel_sigma_mps2, forget_s=p.forget_s)
+                         gate_distance_m=p.gate_distance_m, accel_noise_mps2=p.accel_sigma_mps2, forget_s=p.forget_s,
+                         birth_sigma_m=p.birth_sigma_m, partial_ratio=p.partial_ratio, coast_tau_s=p.coast_tau_s)
 
 
 def noise(p) -> Noise:
@@ -173,7 +174,7 @@ class ObjectsPipeline:
                 self.dropped["detection_not_placed"] += 1
                 continue
             self.placed[m.method] += 1
-            out.append(Observation(m, d.class_id, d.class_name, d.score))
+            out.append(Observation(m, d.class_id, d.class_name, d.score, d.size_y_px * m.range_m / cam.fy))
         return out
 
     # ------------------------------------------------------------ messages

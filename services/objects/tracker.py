@@ -19,6 +19,7 @@ from scipy.optimize import linear_sum_assignment
 from .projection import Measurement
 
 CHI2_3DOF_99 = 11.345                   # squared Mahalanobis gate, 3 degrees of freedom, 99 %
+HORIZONTAL = np.diag([1.0, 1.0, 0.0])   # the axes a track's velocity moves along (east, north)
 _FAR = 1e9
 
 
@@ -33,6 +34,9 @@ class TrackerConfig:
     accel_noise_mps2: float = 0.5       # constant-velocity model: white acceleration, 1 sigma
     initial_speed_mps: float = 2.0      # 1 sigma of a new track's unknown velocity
     forget_s: float = 600.0             # a lost track is remembered this long: seen again, it is reacquired
+    coast_tau_s: float = 0.5            # an unseen track's velocity decays with this time constant
+    partial_ratio: float = 1.25         # a box this much shorter or taller than the track's boxes is a partial view
+    birth_sigma_m: float = 1.5          # a detection less precise than this (horizontal 1 sigma) never starts a track
 
 
 @dataclass
@@ -43,6 +47,7 @@ class Observation:
     class_id: int
     class_name: str
     score: float
+    height_m: float = 0.0               # the box's height at the placed range (0: unknown)
 
 
 @dataclass
@@ -59,6 +64,9 @@ class Track:
     best_score: float = 0.0
     range_m: float = 0.0
     confirmed: bool = False
+    seen_x: np.ndarray | None = None    # position and its 3x3 covariance just after the last hit
+    seen_P: np.ndarray | None = None
+    heights_m: list[float] = field(default_factory=list)     # the last boxes' heights at their range
 
 
 @dataclass
@@ -89,6 +97,9 @@ class Tracker:
             return
         f, q = self._motion(dt)
         t.x, t.P, t.stamp_ns = f @ t.x, f @ t.P @ f.T + q, stamp_ns
+        unseen_s = (stamp_ns - t.last_seen_ns) * 1e-9
+        if unseen_s > 0 and self.config.coast_tau_s > 0:
+            t.x[3:] *= np.exp(-dt / self.config.coast_tau_s) if unseen_s > dt else 1.0
 
     def _motion(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
         """Transition and process noise for a step of dt s (most tracks share a frame's dt)."""
@@ -99,7 +110,7 @@ class Tracker:
             self._motions.clear()
         f = np.eye(6)
         f[:3, 3:] = np.eye(3) * dt
-        q = self.config.accel_noise_mps2 ** 2 * np.kron([[dt ** 4 / 4, dt ** 3 / 2], [dt ** 3 / 2, dt ** 2]], np.eye(3))
+        q = self.config.accel_noise_mps2 ** 2 * np.kron([[dt ** 4 / 4, dt ** 3 / 2], [dt ** 3 / 2, dt ** 2]], HORIZONTAL)
         self._motions[dt] = (f, q)
         return f, q
 
@@ -112,15 +123,21 @@ class Tracker:
 
     # ------------------------------------------------------------ association
 
-    def _costs(self, tracks: list[Track], obs: list[Observation]) -> np.ndarray:
-        """Squared Mahalanobis distance of every (track, observation) pair; _FAR where the class
-        differs or a gate refuses. One batched solve per frame: the cost stays flat in Python."""
+    @staticmethod
+    def _differences(tracks: list[Track], obs: list[Observation]) -> tuple[np.ndarray, np.ndarray]:
+        """(T, O, 3) position differences and (T, O) squared Mahalanobis distances of every
+        (track, observation) pair. One batched solve: the cost stays flat in Python."""
         pos = np.array([t.x[:3] for t in tracks])                               # (T, 3)
         cov = np.array([t.P[:3, :3] for t in tracks])                           # (T, 3, 3)
         z = np.array([o.measurement.position_m for o in obs])                   # (O, 3)
         r = np.array([o.measurement.covariance_m2 for o in obs])                # (O, 3, 3)
-        diff = z[None, :, :] - pos[:, None, :]                                  # (T, O, 3)
-        d2 = np.einsum("toi,toi->to", diff, np.linalg.solve(cov[:, None] + r[None], diff[..., None])[..., 0])
+        diff = z[None, :, :] - pos[:, None, :]
+        return diff, np.einsum("toi,toi->to", diff, np.linalg.solve(cov[:, None] + r[None], diff[..., None])[..., 0])
+
+    def _costs(self, tracks: list[Track], obs: list[Observation]) -> np.ndarray:
+        """Squared Mahalanobis distance of every (track, observation) pair; _FAR where the class
+        differs or a gate refuses."""
+        diff, d2 = self._differences(tracks, obs)
         same = np.array([t.class_id for t in tracks])[:, None] == np.array([o.class_id for o in obs])[None, :]
         ok = same & (np.linalg.norm(diff, axis=2) <= self.config.gate_distance_m) & (d2 <= CHI2_3DOF_99)
         return np.where(ok, d2, _FAR)
@@ -152,23 +169,32 @@ class Tracker:
             self._hit(remaining[i], low[j], stamp_ns, ev)
         new = self._reacquire([high[j] for j in new], stamp_ns, ev)
         for o in new:
-            self._start(o, stamp_ns, ev)
+            if self._may_start(o):
+                self._start(o, stamp_ns, ev)
         self._expire(stamp_ns, ev)
         return ev
+
+    def _may_start(self, o: Observation) -> bool:
+        """Precise enough, and explained by no known track of its class (live, just started or
+        lost) within the Mahalanobis gate."""
+        if np.sqrt(np.linalg.eigvalsh(o.measurement.covariance_m2[:2, :2])[-1]) > self.config.birth_sigma_m:
+            return False
+        known = [t for t in self.tracks + self.lost if t.class_id == o.class_id]
+        return not known or bool((self._differences(known, [o])[1] > CHI2_3DOF_99).all())
 
     def _reacquire(self, obs: list[Observation], stamp_ns: int, ev: Events) -> list[Observation]:
         """Match what would start new tracks against lost ones first: an object the vehicle comes
         back to (the next leg of a search) keeps its track id instead of becoming a duplicate.
-        Lost tracks stand still (velocity zeroed when lost); their covariance grows with the time
-        unseen, so the distance gate decides. Returns the observations left to start tracks."""
+        Lost tracks stand where they were last seen, with the covariance they had then (a static
+        object; one that moved away while unseen becomes a new track). Returns the observations
+        left to start tracks."""
         self._forget(stamp_ns)
         if not self.lost or not obs:
             return obs
-        for t in self.lost:
-            self._predict(t, stamp_ns)
         pairs, _, rest = self._match(self.lost, obs)
         for i, j in pairs:
             t = self.lost[i]
+            t.stamp_ns = stamp_ns
             self.tracks.append(t)
             self._hit(t, obs[j], stamp_ns, ev)
             ev.reacquired.append(t)
@@ -183,7 +209,9 @@ class Tracker:
         return ev
 
     def _hit(self, t: Track, o: Observation, stamp_ns: int, ev: Events) -> None:
-        self._correct(t, o.measurement)
+        if self._whole(t, o):
+            self._correct(t, o.measurement)
+            t.seen_x, t.seen_P = t.x[:3].copy(), t.P[:3, :3].copy()
         t.hits += 1
         t.last_seen_ns = stamp_ns
         t.best_score = max(t.best_score, o.score)
@@ -192,13 +220,32 @@ class Tracker:
             t.confirmed = True
             ev.confirmed.append(t)
 
+    def _whole(self, t: Track, o: Observation) -> bool:
+        """Whether the box shows the whole object, judged by its height at its range against the
+        median of the track's last whole boxes (`partial_ratio`; the first three are taken as
+        they come). A much shorter box is a partial view
+        (the object half hidden behind something nearer, or cut by the image's edge), a much taller
+        one takes in a neighbour: its centre is not the object's, so it keeps the track alive
+        without moving it."""
+        if o.height_m <= 0:
+            return True
+        heights = t.heights_m
+        if len(heights) >= 3 and not (1 / self.config.partial_ratio <= o.height_m / float(np.median(heights))
+                                      <= self.config.partial_ratio):
+            return False
+        heights.append(o.height_m)
+        del heights[:-9]
+        return True
+
     def _start(self, o: Observation, stamp_ns: int, ev: Events) -> None:
         p = np.zeros((6, 6))
         p[:3, :3] = o.measurement.covariance_m2
-        p[3:, 3:] = np.eye(3) * self.config.initial_speed_mps ** 2
+        p[3:, 3:] = HORIZONTAL * self.config.initial_speed_mps ** 2
         t = Track(self.next_id, o.class_id, o.class_name, np.concatenate([o.measurement.position_m, np.zeros(3)]), p,
-                  stamp_ns, stamp_ns, stamp_ns, best_score=o.score, range_m=o.measurement.range_m)
+                  stamp_ns, stamp_ns, stamp_ns, best_score=o.score, range_m=o.measurement.range_m,
+                  heights_m=[o.height_m] if o.height_m > 0 else [])
         self.next_id += 1
+        t.seen_x, t.seen_P = t.x[:3].copy(), t.P[:3, :3].copy()
         self.tracks.append(t)
         if self.config.confirm_hits <= 1:
             t.confirmed = True
@@ -210,7 +257,7 @@ class Tracker:
             unseen_s = (stamp_ns - t.last_seen_ns) * 1e-9
             if t.confirmed and unseen_s > self.config.lost_timeout_s:
                 ev.lost.append(t)
-                t.x[3:] = 0.0
+                self._remember(t)
                 self.lost.append(t)
             elif not t.confirmed and unseen_s > self.config.tentative_timeout_s:
                 pass                            # never confirmed: dropped without an event
@@ -218,6 +265,14 @@ class Tracker:
                 keep.append(t)
         self.tracks = keep
         self._forget(stamp_ns)
+
+    def _remember(self, t: Track) -> None:
+        """A lost track, as it was just after its last hit, standing still."""
+        t.x = np.concatenate([t.seen_x, np.zeros(3)])
+        p = np.zeros((6, 6))
+        p[:3, :3] = t.seen_P
+        p[3:, 3:] = HORIZONTAL * self.config.initial_speed_mps ** 2
+        t.P = p
 
     def _forget(self, stamp_ns: int) -> None:
         self.lost = [t for t in self.lost if (stamp_ns - t.last_seen_ns) * 1e-9 <= self.config.forget_s]

@@ -59,11 +59,70 @@ def test_a_detection_of_another_class_never_joins_a_track():
     assert sorted((t.class_name, t.hits) for t in tr.tracks) == [("car", 1), ("person", 1)]
 
 
-def test_far_detections_start_their_own_track_despite_wide_covariances():
-    tr = Tracker(TrackerConfig(gate_distance_m=3.0))
-    tr.update(0, [obs((10.0, 2.0), sigma_m=5.0)])
-    tr.update(100 * MS, [obs((14.0, 2.0), sigma_m=5.0)])
+def test_a_far_detection_neither_captures_a_track_metres_away_nor_starts_one():
+    tr = Tracker(TrackerConfig(gate_distance_m=3.0, birth_sigma_m=1.5))
+    tr.update(0, [obs((10.0, 2.0))])
+    tr.update(100 * MS, [obs((14.0, 2.0), sigma_m=5.0)])        # far: metres uncertain
+    assert len(tr.tracks) == 1 and tr.tracks[0].hits == 1 and tr.tracks[0].x[0] == pytest.approx(10.0)
+    tr.update(200 * MS, [obs((14.0, 2.0), sigma_m=0.3)])        # the same place, seen precisely: a second object
+    assert sorted(t.x[0] for t in tr.tracks) == [10.0, 14.0]
+
+
+def test_a_second_box_on_one_object_does_not_start_a_second_track():
+    """The detector sometimes boxes one person twice (once taking in the car behind): the second
+    placement, 1.8 m off but inside the track's Mahalanobis gate, is no second person."""
+    tr = Tracker(TrackerConfig(confirm_hits=3))
+    for k in range(5):
+        tr.update(k * 100 * MS, [obs((30.0, 4.0), sigma_m=0.5), obs((31.8, 4.2), score=0.6, sigma_m=0.8)])
+    assert [(t.track_id, t.hits) for t in tr.tracks] == [(1, 5)]
+    assert tr.tracks[0].x[0] == pytest.approx(30.0, abs=0.05)
+    tr.update(600 * MS, [obs((36.0, 4.0), sigma_m=0.5)])        # well outside its gate: another person
     assert len(tr.tracks) == 2
+
+
+def test_a_partial_box_keeps_a_track_alive_without_moving_it():
+    """A box much shorter than the track's boxes (the object half hidden behind something nearer)
+    has its centre off the object's: the track is seen (not lost) but stays where it was."""
+    tr = Tracker(TrackerConfig(confirm_hits=2, lost_timeout_s=1.0, partial_ratio=1.25))
+
+    def seen(xy, height_m, k):
+        o = obs(xy, sigma_m=0.5)
+        o.height_m = height_m
+        return tr.update(k * 100 * MS, [o])
+
+    for k in range(4):
+        seen((20.0, 2.0), 1.8, k)
+    for k in range(4, 30):                                      # 2.6 s of half-hidden boxes placed 0.8 m short
+        assert seen((19.2, 2.0), 1.0, k).lost == []
+    t = tr.tracks[0]
+    assert t.hits == 30 and t.x[0] == pytest.approx(20.0, abs=0.05)
+    seen((20.1, 2.0), 1.7, 30)                                  # whole again: it moves
+    assert t.x[0] > 20.0
+
+
+def test_ground_objects_do_not_climb_and_an_unseen_tracks_velocity_decays():
+    """Placements that creep as the vehicle approaches (a range-dependent bias) must not read as a
+    climb, and must not carry a static object away while it is unseen."""
+    tr = Tracker(TrackerConfig(confirm_hits=2, lost_timeout_s=5.0, coast_tau_s=0.5))
+    for k in range(10):                                         # creeping 0.5 m/s east and 0.3 m/s up
+        m = Measurement(np.array([10.0 + 0.05 * k, 2.0, 0.9 + 0.03 * k]), np.eye(3) * 0.01, 15.0, "stereo")
+        tr.update(k * 100 * MS, [Observation(m, *PERSON, 0.9)])
+    t = tr.tracks[0]
+    assert t.x[5] == 0.0 and t.x[3] > 0.2
+    x_seen = t.x[0]
+    for k in range(10, 40):                                     # 3 s unseen
+        tr.update(k * 100 * MS, [])
+    assert t.x[0] - x_seen < 0.5 * t.x[3] + 0.35                # ~v * tau, not v * 3 s
+    assert abs(t.x[3]) < 0.01
+
+
+def test_a_lost_track_is_remembered_where_it_was_last_seen():
+    tr = Tracker(TrackerConfig(confirm_hits=2, lost_timeout_s=1.0, coast_tau_s=0.0))
+    for k in range(10):                                         # moving 1 m/s east, then unseen
+        tr.update(k * 100 * MS, [obs((10.0 + 0.1 * k, 2.0), sigma_m=0.1)])
+    last = tr.tracks[0].x[0]
+    lost = tr.update(2200 * MS, []).lost
+    assert len(lost) == 1 and lost[0].x[0] == pytest.approx(last) and not lost[0].x[3:].any()
 
 
 def test_two_objects_of_different_classes_crossing_keep_their_ids():
