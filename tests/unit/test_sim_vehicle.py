@@ -223,6 +223,22 @@ def test_land_descent_rate_follows_PX4_profile():
     assert -v.state.velocity_enu_mps[2] == pytest.approx(v.params.MPC_LAND_SPEED, abs=0.1)  # below ALT2
 
 
+def test_disarmed_after_a_landing_it_is_back_in_the_last_mode_it_can_arm_in_as_px4():
+    """PX4's user mode intention: LAND and RTL prevent arming, so on disarm PX4 switches to the last
+    mode asked for that does not (seen on PX4 SITL: OFFBOARD again in the disarm's heartbeat)."""
+    v = SimVehicle(seed=4)
+    take_off(v, 4.0)
+    c = v.commander
+    assert c.set_mode(v.time_s, "LAND").ok
+    assert fly(v, 40.0, until=lambda v: not v.commander.armed) is not None
+    assert c.mode == "HOLD"                    # take_off's last armable mode
+    sp = start_offboard(v, [0.0, 0.0, 3.0])
+    fly(v, 5.0, sp)
+    assert c.set_mode(v.time_s, "LAND").ok
+    assert fly(v, 40.0, sp, until=lambda v: not v.commander.armed) is not None
+    assert c.mode == "OFFBOARD" and not c.armed and v.state.position_enu_m[2] == 0.0
+
+
 def test_preflight_auto_disarm_when_no_takeoff():
     v = SimVehicle(seed=0)
     assert v.commander.arm(0.0).ok
@@ -365,7 +381,10 @@ def test_offboard_loss_rtl_lands_at_home_and_disarms_without_setpoints():
     assert not v.commander.armed and max_alt == pytest.approx(8.0, abs=0.5)
     assert np.linalg.norm(v.state.position_enu_m[:2]) < 1.0 and v.state.position_enu_m[2] == 0.0
     fly(v, 1.0, sp)
-    assert v.commander.mode != "OFFBOARD"  # landed: the failsafe is over, nothing to resume
+    # landed: the failsafe is over, nothing resumes; disarmed, it is back in the last mode asked for
+    # that it can arm in (OFFBOARD), as PX4 reports after its RTL failsafe lands
+    assert not v.commander.armed and v.state.position_enu_m[2] == 0.0
+    assert v.commander.mode == "OFFBOARD" and not v.commander.failsafe
 
 
 def test_user_mode_change_takes_over_from_failsafe():

@@ -11,6 +11,8 @@ per physics step, with PX4's rules where the stack depends on them:
   flight termination; force (param2 = 21196) skips the checks except termination.
 - The land detector declares ON_GROUND after LNDMC_TRIG_TIME resting on the ground, and the
   vehicle auto-disarms COM_DISARM_LAND after landing (COM_DISARM_PRFLT if it never took off).
+  Disarmed, it switches to the last mode asked for that it can be armed in, as PX4's user mode
+  intention does: after a LAND or RTL it reports OFFBOARD (or HOLD) again.
 - TAKEOFF climbs to the target then switches to HOLD; RTL climbs to RTL_RETURN_ALT, returns and
   lands; LAND descends at PX4's landing speeds.
 Results are MAVLink MAV_RESULT values, as PX4's commander acks vehicle commands.
@@ -36,6 +38,7 @@ DENIED = mavlink.MAV_RESULT_DENIED
 TEMPORARILY_REJECTED = mavlink.MAV_RESULT_TEMPORARILY_REJECTED
 
 FLYABLE_MODES = ("OFFBOARD", "POSCTL", "HOLD", "LAND", "RTL", "TAKEOFF")
+PREVENTS_ARMING = ("LAND", "RTL")   # PX4 cannot be armed in these: not where it goes back to on disarm
 OFFBOARD_LOSS_MODES = {0: "LAND", 1: "HOLD", 2: "RTL"}   # COM_OBL_ACT
 FS_OFFBOARD_LOST = "offboard setpoints lost"
 FS_NO_POSITION = "Navigation error: No valid position estimate"   # PX4's text (modeCheck.cpp)
@@ -72,6 +75,7 @@ class Commander:
         self._battery_remaining = battery_remaining
         self.armed = False
         self.mode = "HOLD"
+        self._mode_after_disarm = "HOLD"   # the last mode asked for that arming allows
         self.failsafe = False
         self.failsafe_reason = ""
         self.terminated = False
@@ -154,8 +158,13 @@ class Commander:
             return Ack(ACCEPTED)
         if not force and not self.landed:
             return self._refuse(DENIED, "disarm denied: not landed (force to cut motors)")
-        self.armed = False
+        self._disarm(now_s)
         return Ack(ACCEPTED)
+
+    def _disarm(self, now_s: float) -> None:
+        self.armed = False
+        if not self.terminated and self.mode != self._mode_after_disarm:
+            self._enter_mode(self._mode_after_disarm, now_s)
 
     def set_mode(self, now_s: float, mode: str) -> Ack:
         """A user mode request (DO_SET_MODE / SET_MODE). Takes over from a failsafe."""
@@ -169,6 +178,8 @@ class Commander:
             return self._refuse(TEMPORARILY_REJECTED, f"offboard denied: no setpoint stream "
                                                       f"(> {self.p.COM_OF_MIN_HZ:g} Hz for {self.p.COM_OF_WARM_T:g} s)")
         self._clear_failsafe()
+        if mode not in PREVENTS_ARMING:
+            self._mode_after_disarm = mode
         if mode != self.mode:
             self._enter_mode(mode, now_s)
         return Ack(ACCEPTED)
@@ -257,7 +268,7 @@ class Commander:
             return
         limit = self.p.COM_DISARM_LAND if self.has_flown else self.p.COM_DISARM_PRFLT
         if limit >= 0 and now_s - max(self._landed_at_s, self._armed_at_s) >= limit:
-            self.armed = False
+            self._disarm(now_s)
             self.counters["auto_disarms"] += 1
 
     # ------------------------------------------------------------------ behaviours
@@ -297,6 +308,7 @@ class Commander:
             target = np.array([self._hold_pos[0], self._hold_pos[1], self._takeoff_alt_m])
             if abs(s.position_enu_m[2] - self._takeoff_alt_m) < _TAKEOFF_DONE_M and not self.landed:
                 self._enter_mode("HOLD", now_s)
+                self._mode_after_disarm = "HOLD"   # PX4's takeoff hands over to Hold as the user's mode
                 self._hold_pos = target
             return Setpoint(position_enu_m=target, yaw_rad=self._hold_yaw, max_up_mps=p.MPC_TKO_SPEED)
         if mode == "LAND":
