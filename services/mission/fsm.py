@@ -14,7 +14,9 @@ Fault policy (ARCHITECTURE §8), every automatic transition reported in `message
   own while we think we fly, the mission goes IDLE (mission kept).
 - fmu outage (state/vehicle stale, fmu's liveliness gone, or the FC link lost): HOLDING; when
   fresh state is back the mission resumes only if `resume_after_outage` (default: stay HOLDING
-  until commanded) and the FC is holding or in OFFBOARD, never out of a failsafe RTL/LAND.
+  until commanded) and the FC is holding or in OFFBOARD, never out of a failsafe RTL/LAND. A stale
+  state that comes back with the next stamp in sequence was late, not missing (fmu kept publishing;
+  a CPU or transport stall delayed it): that hold resumes by itself under the same conditions.
 - Restart: `restore()` with the persisted mission/progress (persisted only while flying, and
   never a completed one); the first vehicle state decides: flying -> HOLDING ("mission
   restarted in flight"), LAND/RTL/HOLD/START accepted; on the ground -> IDLE with the
@@ -280,6 +282,7 @@ class MissionManager:
         self.planner_alive = True               # unknown until its token is seen: assume up
         self.outage: str | None = None          # why we are in an fmu outage, None when not
         self.outage_from: State | None = None
+        self.outage_stamp_ns = 0                # newest state/vehicle stamp when it went stale (0: other outage)
         self.safety_action = SafetyStatus.ACTION_NONE
         self.rebuild_pending = False            # restored: the first vehicle state rebuilds us
         self.restored_state = "IDLE"            # the state the previous run persisted
@@ -678,6 +681,10 @@ class MissionManager:
         return True, self.message
 
     def on_vehicle(self, st: VehicleState, now_s: float) -> None:
+        # The state went stale, but the next one carries the next stamp: fmu kept publishing and the
+        # samples were only late (a CPU or transport stall between fmu and us), not an fmu outage.
+        late_not_missing = bool(self.outage_stamp_ns and st.header.stamp_ns
+                                and st.header.stamp_ns - self.outage_stamp_ns < self.cfg.vehicle_timeout_s * 1e9)
         self.vehicle = st
         self.now_s = now_s
         self.vehicle_rx_s = now_s
@@ -689,7 +696,7 @@ class MissionManager:
         if st.armed:
             self.armed_seen = True
         if self.outage and self.fmu_alive and self.planner_alive:
-            self._outage_ends()
+            self._outage_ends(late_not_missing)
         self._watch_fc_mode(st)
         pos = st.position_m.to_array()
         on_ground = st.landed_state == LandedState.ON_GROUND
@@ -757,27 +764,29 @@ class MissionManager:
                 and now_s - self.vehicle_rx_s < self.cfg.vehicle_timeout_s:
             self._outage_ends()
 
-    def _outage_begins(self, why: str) -> None:
+    def _outage_begins(self, why: str, stamp_ns: int = 0) -> None:
         if self.outage:
             return
-        self.outage, self.outage_from = why, self.state
+        self.outage, self.outage_from, self.outage_stamp_ns = why, self.state, stamp_ns
         self.log("outage", reason=why, state=self.state.value)
         if not self.fire(E.FMU_OUTAGE, f"{why}: holding"):
             if self.state != State.IDLE:
                 self.message = f"{why} ({self.state.value} continues: the flight controller flies on its own)" \
                     if self.state == State.LAND else f"{why}: holding"
 
-    def _outage_ends(self) -> None:
-        was, self.outage = self.outage, None
-        self.log("outage_over", reason=was, state=self.state.value)
+    def _outage_ends(self, late_not_missing: bool = False) -> None:
+        """`late_not_missing`: the stale state came back without a gap in its stamps (it was late)."""
+        was, self.outage, self.outage_stamp_ns = self.outage, None, 0
+        self.log("outage_over", reason=was, state=self.state.value, late_not_missing=late_not_missing)
         if self.state != State.HOLDING:
             return
         mode = self.vehicle.flight_mode if self.vehicle else ""
-        if (self.cfg.resume_after_outage and self.outage_from == State.EXECUTING
+        if ((self.cfg.resume_after_outage or late_not_missing) and self.outage_from == State.EXECUTING
                 and self.hold_reason == "outage" and self.mission is not None
                 and mode in ("", "OFFBOARD", "HOLD")):
             # never out of a failsafe RTL/LAND the FC chose: only from its hold (or our OFFBOARD)
-            self.fire(E.OUTAGE_RESUME, "fmu back after an outage: resuming (resume_after_outage)")
+            self.fire(E.OUTAGE_RESUME, "state/vehicle was late, not missing (no gap in fmu's stamps): resuming"
+                      if late_not_missing else "fmu back after an outage: resuming (resume_after_outage)")
         else:
             self.message = "fmu back after an outage: holding until commanded (START resumes)"
 
@@ -812,7 +821,8 @@ class MissionManager:
         self.last_tick_s = now_s
         if (self.vehicle_rx_s is not None and not self.outage and not stalled
                 and now_s - self.vehicle_rx_s > self.cfg.vehicle_timeout_s):
-            self._outage_begins(f"fmu outage (no state/vehicle for {now_s - self.vehicle_rx_s:.1f} s)")
+            self._outage_begins(f"fmu outage (no state/vehicle for {now_s - self.vehicle_rx_s:.1f} s)",
+                                stamp_ns=self.vehicle.header.stamp_ns if self.vehicle else 0)
         if self.rebuild_pending and self.restore_deadline_s is not None and now_s >= self.restore_deadline_s:
             self.restore_deadline_s = None  # stop refusing commands; rebuild still on the first state
             self.message = "restarted: no vehicle state yet (is fmu running?)"

@@ -132,3 +132,48 @@ def test_a_stalled_mission_process_is_not_an_fmu_outage():
     assert rig.mgr.state == State.EXECUTING and not rig.mgr.outage
     rig.tick(0.1, fresh_state=False)                  # on time again and still no state: outage
     assert rig.mgr.state == State.HOLDING and "fmu outage" in rig.mgr.message
+
+
+def stamped(st: VehicleState, t_s: float) -> VehicleState:
+    st.header.stamp_ns = int(t_s * 1e9)
+    return st
+
+
+def test_state_late_but_not_missing_resumes_by_itself():
+    """fmu stamped every sample on time; they reached us 0.6 s late in a burst (a stall between):
+    the hold ends by itself once the next stamp in sequence arrives."""
+    rig = Rig(Config(vehicle_timeout_s=0.5))
+    rig.to_executing()
+    rig.feed(stamped(flying(*SURVEY_WPS[0]), 100.00))
+    rig.tick(0.3, fresh_state=False)
+    rig.tick(0.3, fresh_state=False)
+    assert rig.mgr.state == State.HOLDING and "fmu outage" in rig.mgr.message
+    rig.feed(stamped(flying(*SURVEY_WPS[0]), 100.02))  # the backlog: the next stamp after the last one
+    assert rig.mgr.state == State.EXECUTING and not rig.mgr.outage
+    assert rig.mgr.transitions[-1] == (State.HOLDING, Event.OUTAGE_RESUME, State.EXECUTING)
+    assert "late, not missing" in rig.mgr.message
+
+
+def test_state_with_a_gap_in_its_stamps_is_an_outage_and_holds():
+    rig = Rig(Config(vehicle_timeout_s=0.5))
+    rig.to_executing()
+    rig.feed(stamped(flying(*SURVEY_WPS[0]), 100.00))
+    rig.silence(1.0)
+    rig.feed(stamped(flying(*SURVEY_WPS[0]), 101.00))  # fmu itself stopped for 1 s (or restarted)
+    assert rig.mgr.state == State.HOLDING and "holding until commanded" in rig.mgr.message
+
+
+def test_late_state_never_resumes_out_of_an_operator_hold_or_a_failsafe():
+    rig = Rig(Config(vehicle_timeout_s=0.5))
+    rig.to_executing()
+    rig.mgr.command("HOLD")
+    rig.feed(stamped(flying(), 100.00))
+    rig.silence(1.0)
+    rig.feed(stamped(flying(), 100.02))
+    assert rig.mgr.state == State.HOLDING
+    rig = Rig(Config(vehicle_timeout_s=0.5))
+    rig.to_executing()
+    rig.feed(stamped(fc(), 100.00))
+    rig.silence(1.0)
+    rig.feed(stamped(fc(mode="RTL"), 100.02))
+    assert rig.mgr.state == State.HOLDING
