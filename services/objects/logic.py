@@ -21,7 +21,7 @@ from aeroperception.services.mavlink.geo import MapProjection
 
 from . import contract
 from .projection import (
-    Camera, Noise, PoseHistory, box_disparity, fuse, locate_by_disparity, locate_on_ground, to_centre,
+    Camera, Noise, PoseHistory, box_disparity, box_scale, fuse, locate_by_disparity, locate_on_ground, to_centre,
 )
 from .tracker import Observation, Track, Tracker, TrackerConfig
 
@@ -174,7 +174,8 @@ class ObjectsPipeline:
                 self.dropped["detection_not_placed"] += 1
                 continue
             self.placed[m.method] += 1
-            out.append(Observation(m, d.class_id, d.class_name, d.score, d.size_y_px * m.range_m / cam.fy))
+            scale = box_scale(cam, view[1], m, d.size_y_px, (length, width, height))
+            out.append(Observation(m, d.class_id, d.class_name, d.score, scale))
         return out
 
     # ------------------------------------------------------------ messages

@@ -199,6 +199,19 @@ def to_centre(m: Measurement, origin: np.ndarray, half_depth_m: float, sigma_m: 
     return Measurement(m.position_m + d * half_depth_m, cov, m.range_m + half_depth_m, m.method)
 
 
+def box_scale(cam: Camera, origin: np.ndarray, m: Measurement, box_height_px: float,
+              size_m: tuple[float, float, float]) -> float:
+    """The box's height over the height an object of typical size (length, width, height) at the
+    placed point would fill: its side (height x cos) plus its top (mean footprint x sin of the
+    angle it is seen down at). Near 1 (times the detector's margin) for a whole view from any range
+    and height; much less for a partial one."""
+    d = m.position_m - origin
+    down = np.arctan2(-d[2], np.hypot(d[0], d[1]))
+    length, width, height = size_m
+    typical_m = height * np.cos(down) + (length + width) / 2 * abs(np.sin(down))
+    return float(box_height_px * m.range_m / cam.fy / typical_m)
+
+
 def box_disparity(left: np.ndarray, right: np.ndarray, box_xyxy: tuple[float, float, float, float],
                   max_disparity_px: int, inner_fraction: float = 0.5, min_valid: int = 8) -> float | None:
     """Median block-matched disparity (px, 1/16 resolution) over the inner `inner_fraction` of the

@@ -47,7 +47,7 @@ class Observation:
     class_id: int
     class_name: str
     score: float
-    height_m: float = 0.0               # the box's height at the placed range (0: unknown)
+    box_scale: float = 0.0              # the box's height over its class's typical one seen from there (0: unknown)
 
 
 @dataclass
@@ -66,7 +66,9 @@ class Track:
     confirmed: bool = False
     seen_x: np.ndarray | None = None    # position and its 3x3 covariance just after the last hit
     seen_P: np.ndarray | None = None
-    heights_m: list[float] = field(default_factory=list)     # the last boxes' heights at their range
+    seen_ns: int = 0                    # when a detection last moved it
+    scales: list[float] = field(default_factory=list)        # the last whole boxes' box_scale
+    partial_run: int = 0                # partial views in a row
 
 
 @dataclass
@@ -97,9 +99,8 @@ class Tracker:
             return
         f, q = self._motion(dt)
         t.x, t.P, t.stamp_ns = f @ t.x, f @ t.P @ f.T + q, stamp_ns
-        unseen_s = (stamp_ns - t.last_seen_ns) * 1e-9
-        if unseen_s > 0 and self.config.coast_tau_s > 0:
-            t.x[3:] *= np.exp(-dt / self.config.coast_tau_s) if unseen_s > dt else 1.0
+        if self.config.coast_tau_s > 0 and stamp_ns - int(dt * 1e9) > t.seen_ns:    # coasting since before this step
+            t.x[3:] *= np.exp(-dt / self.config.coast_tau_s)
 
     def _motion(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
         """Transition and process noise for a step of dt s (most tracks share a frame's dt)."""
@@ -211,7 +212,7 @@ class Tracker:
     def _hit(self, t: Track, o: Observation, stamp_ns: int, ev: Events) -> None:
         if self._whole(t, o):
             self._correct(t, o.measurement)
-            t.seen_x, t.seen_P = t.x[:3].copy(), t.P[:3, :3].copy()
+            t.seen_x, t.seen_P, t.seen_ns = t.x[:3].copy(), t.P[:3, :3].copy(), stamp_ns
         t.hits += 1
         t.last_seen_ns = stamp_ns
         t.best_score = max(t.best_score, o.score)
@@ -221,20 +222,24 @@ class Tracker:
             ev.confirmed.append(t)
 
     def _whole(self, t: Track, o: Observation) -> bool:
-        """Whether the box shows the whole object, judged by its height at its range against the
-        median of the track's last whole boxes (`partial_ratio`; the first three are taken as
-        they come). A much shorter box is a partial view
-        (the object half hidden behind something nearer, or cut by the image's edge), a much taller
-        one takes in a neighbour: its centre is not the object's, so it keeps the track alive
-        without moving it."""
-        if o.height_m <= 0:
+        """Whether the box shows the whole object: its box_scale against the median of the track's
+        last whole boxes (`partial_ratio`; the first three are taken as they come). A much shorter
+        box is a partial view (the object half hidden behind something nearer, or cut by the
+        image's edge), a much taller one takes in a neighbour: its centre is not the object's, so it
+        keeps the track alive without moving it. Five partial views in a row: the object looks
+        different now (it sat down, turned), its boxes are learnt anew."""
+        if o.box_scale <= 0:
             return True
-        heights = t.heights_m
-        if len(heights) >= 3 and not (1 / self.config.partial_ratio <= o.height_m / float(np.median(heights))
-                                      <= self.config.partial_ratio):
+        scales = t.scales
+        if len(scales) >= 3 and t.partial_run < 5 and not (
+                1 / self.config.partial_ratio <= o.box_scale / float(np.median(scales)) <= self.config.partial_ratio):
+            t.partial_run += 1
             return False
-        heights.append(o.height_m)
-        del heights[:-9]
+        if t.partial_run >= 5:
+            scales.clear()
+        t.partial_run = 0
+        scales.append(o.box_scale)
+        del scales[:-9]
         return True
 
     def _start(self, o: Observation, stamp_ns: int, ev: Events) -> None:
@@ -243,7 +248,7 @@ class Tracker:
         p[3:, 3:] = HORIZONTAL * self.config.initial_speed_mps ** 2
         t = Track(self.next_id, o.class_id, o.class_name, np.concatenate([o.measurement.position_m, np.zeros(3)]), p,
                   stamp_ns, stamp_ns, stamp_ns, best_score=o.score, range_m=o.measurement.range_m,
-                  heights_m=[o.height_m] if o.height_m > 0 else [])
+                  seen_ns=stamp_ns, scales=[o.box_scale] if o.box_scale > 0 else [])
         self.next_id += 1
         t.seen_x, t.seen_P = t.x[:3].copy(), t.P[:3, :3].copy()
         self.tracks.append(t)

@@ -1,12 +1,13 @@
 """`aero eval objects` scoring: found / missed / duplicated per class, false tracks and their
-lifetime, position error at 5-30 m, ID switches, time to confirmation."""
+lifetime, position error at 5-30 m (and by range band), ID switches, time to confirmation, the
+service's per-frame cost; which of the search flight's goals a result misses."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
 from aeroperception.schemas import TrackedObject, TrackedObjectArray, Vector3
-from aeroperception.tools.eval.objects import ObjectsEval, Target, scenario_targets, table
+from aeroperception.tools.eval.objects import ObjectsEval, Target, scenario_targets, table, unmet_goals
 
 S = 1_000_000_000
 TARGETS = [Target(0, "person", np.array([10.0, 0.0, 0.9])), Target(1, "person", np.array([20.0, 5.0, 0.9])),
@@ -56,3 +57,34 @@ def test_targets_come_from_the_scenario():
     t = scenario_targets("open_field")
     assert sorted(x.class_name for x in t) == ["car", "person", "person"]
     assert any(np.allclose(x.center_m[:2], [18, 1]) for x in t)
+
+
+def test_errors_by_range_band_and_the_services_cost():
+    ev = ObjectsEval(TARGETS)
+    for k, (dx, rng) in enumerate([(0.1, 7.0), (0.2, 8.0), (0.4, 15.0), (1.0, 25.0), (2.0, 35.0)]):
+        ev.add(TrackedObjectArray(objects=[track(1, "person", [10.0 + dx, 0.0, 0.9], range_m=rng)]))
+    ev.add_diagnostics({"frame_cpu_ms_p50": "1.2", "frame_cpu_ms_p99": "3.1", "frame_cpu_ms_max": "7.0",
+                        "frames_received": "40", "frames_processed": "38", "frames_dropped_busy": "2"})
+    ev.add_diagnostics({"frame_cpu_ms_p50": "1.3", "frame_cpu_ms_p99": "3.3", "frame_cpu_ms_max": "4.0"})
+    r = ev.summary()
+    bands = r["classes"]["person"]["bands"]
+    assert bands["5-10"] == {"median_m": pytest.approx(0.15), "p95_m": pytest.approx(0.195), "samples": 2}
+    assert bands["10-20"]["samples"] == 1 and bands["20-30"]["median_m"] == pytest.approx(1.0)
+    assert r["classes"]["person"]["error_samples"] == 4                  # 35 m: outside 5-30 m
+    assert r["service"] == {"frame_cpu_ms_p50": 1.3, "frame_cpu_ms_p99": 3.3, "frame_cpu_ms_max": 7.0,
+                            "frames_received": 40.0, "frames_processed": 38.0, "frames_dropped_busy": 2.0}
+    assert "5-10 0.15/0.20 (2)" in table(r) and "2 dropped busy" in table(r)
+
+
+def test_unmet_goals_name_each_miss():
+    ev = ObjectsEval(TARGETS)
+    ev.add(TrackedObjectArray(objects=[track(1, "person", [10.0, 0.0, 0.9]), track(2, "car", [30.0, -5.0, 0.75])]))
+    ev.add_diagnostics({"frame_cpu_ms_p99": "1.0"})
+    assert unmet_goals(ev.summary()) == ["person: 1 of 2 targets missed"]
+    ev.add(TrackedObjectArray(objects=[
+        track(1, "person", [10.0, 0.0, 0.9]), track(3, "person", [20.0, 6.9, 0.9]),
+        track(4, "person", [10.5, 0.0, 0.9]), track(5, "car", [60.0, 0.0, 0.75], 0.0, 2.5)]))
+    ev.add_diagnostics({"frame_cpu_ms_p99": "6.0"})
+    assert unmet_goals(ev.summary()) == [
+        "car: 1 false tracks living > 2 s ([2.5] s)", "person: 1 duplicate tracks",
+        "person: position error p95 1.69 m (goal < 1.5 m)", "objects service: CPU p99 6.00 ms per frame (goal < 5 ms)"]

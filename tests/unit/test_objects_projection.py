@@ -170,3 +170,23 @@ def test_stereos_near_face_is_moved_half_a_footprint_farther_to_the_centre():
     along = np.array([0.6, 0.8, 0.0])
     assert along @ c.covariance_m2 @ along == pytest.approx(0.01 + 0.25)
     assert c.range_m == pytest.approx(6.0)
+
+
+def test_box_scale_is_one_for_a_whole_view_from_any_height_and_less_for_a_partial_one():
+    """A person's box (its side and, seen from above, its top) fills the height the class's typical
+    size predicts, from 7 m up at 10 m or 30 m alike; a box showing half of it scales 0.5."""
+    from aeroperception.services.objects.projection import box_scale
+
+    cam = Camera.from_infos(*infos(0.0))
+    size = (0.45, 0.5, 1.75)
+    for dist, alt in ((10.0, 7.0), (30.0, 7.0), (15.0, 1.0)):
+        origin = np.array([0.0, 0.0, alt])
+        centre = np.array([dist, 0.0, 0.875])
+        d = centre - origin
+        down = np.arctan2(-d[2], np.hypot(d[0], d[1]))
+        extent = 1.75 * np.cos(down) + 0.475 * abs(np.sin(down))
+        rng = float(np.linalg.norm(d))
+        m = Measurement(centre, np.eye(3) * 0.01, rng, "ground")
+        whole_px = FX * extent / rng
+        assert box_scale(cam, origin, m, whole_px, size) == pytest.approx(1.0)
+        assert box_scale(cam, origin, m, whole_px / 2, size) == pytest.approx(0.5)

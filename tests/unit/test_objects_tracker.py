@@ -85,19 +85,22 @@ def test_a_partial_box_keeps_a_track_alive_without_moving_it():
     has its centre off the object's: the track is seen (not lost) but stays where it was."""
     tr = Tracker(TrackerConfig(confirm_hits=2, lost_timeout_s=1.0, partial_ratio=1.25))
 
-    def seen(xy, height_m, k):
+    def seen(xy, box_scale, k):
         o = obs(xy, sigma_m=0.5)
-        o.height_m = height_m
+        o.box_scale = box_scale
         return tr.update(k * 100 * MS, [o])
 
     for k in range(4):
-        seen((20.0, 2.0), 1.8, k)
-    for k in range(4, 30):                                      # 2.6 s of half-hidden boxes placed 0.8 m short
-        assert seen((19.2, 2.0), 1.0, k).lost == []
+        seen((20.0, 2.0), 1.4, k)
+    for k in range(4, 9):                                       # half-hidden boxes placed 0.8 m short
+        assert seen((19.2, 2.0), 0.8, k).lost == []
     t = tr.tracks[0]
-    assert t.hits == 30 and t.x[0] == pytest.approx(20.0, abs=0.05)
-    seen((20.1, 2.0), 1.7, 30)                                  # whole again: it moves
+    assert t.hits == 9 and t.x[0] == pytest.approx(20.0, abs=0.05) and not t.x[3:].any()
+    seen((20.1, 2.0), 1.3, 9)                                   # whole again: it moves
     assert t.x[0] > 20.0
+    for k in range(10, 16):                                     # five partial views in a row, then
+        seen((19.2, 2.0), 0.8, k)                               # the object looks different now: learnt anew
+    assert t.x[0] < 19.9 and t.partial_run == 0
 
 
 def test_ground_objects_do_not_climb_and_an_unseen_tracks_velocity_decays():
