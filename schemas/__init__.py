@@ -18,7 +18,7 @@ from .vehicle import (
     Attitude, ControlOutput, EstimatorStatus, GpsPosition, HomePosition, LandedState, LocalPosition, TrajectorySetpoint, UAVMode,
     UAVStatus, VehicleState, VehicleStatus,
 )
-from .planning import CollisionConstraint, Trajectory, TrajectoryStatus
+from .planning import CollisionConstraint, Trajectory, TrajectoryLimits, TrajectoryStatus
 from .gcs import GcsLink, Joystick
 from .objects import ObjectEvent, TrackedObject, TrackedObjectArray
 from .mission import (
@@ -50,7 +50,7 @@ __all__ = [
     "LandedState", "VehicleState", "TrajectorySetpoint", "ControlOutput", "UAVMode", "UAVStatus",
     "VehicleStatus", "LocalPosition", "Attitude", "HomePosition", "GpsPosition", "EstimatorStatus",
     # planning and mission
-    "Trajectory", "TrajectoryStatus", "CollisionConstraint", "Waypoint", "Mission", "parse_mission",
+    "Trajectory", "TrajectoryLimits", "TrajectoryStatus", "CollisionConstraint", "Waypoint", "Mission", "parse_mission",
     "load_mission_file", "MissionStatus", "MissionTrajectory", "MissionCommand", "MissionGoal", "WaypointReached",
     # ground station link
     "GcsLink", "Joystick",

@@ -18,6 +18,7 @@ import msgspec
 from ._base import Header, Message, SchemaError, check_known_fields, from_builtins, schema
 from ._checks import check_choice, check_finite, check_positive
 from .geometry import Pose, Vector3
+from .planning import TrajectoryLimits
 
 __all__ = [
     "Waypoint", "Mission", "parse_mission", "load_mission_file", "MissionStatus", "MissionCommand", "MissionGoal",
@@ -142,15 +143,17 @@ class Waypoint(msgspec.Struct, kw_only=True):
 TRAJECTORY_GENERATORS = ("waypoint", "smooth")
 
 
-class MissionTrajectory(msgspec.Struct, kw_only=True):
-    """How the waypoints are flown: `waypoint` = goal by goal, stopping at each; `smooth` = one
-    jerk-limited trajectory through them (the planner's limits). Overrides the mission service's
-    `trajectory_generator` parameter for this mission."""
+class MissionTrajectory(TrajectoryLimits, kw_only=True):
+    """How the waypoints are flown: `generator` waypoint = goal by goal, stopping at each; smooth =
+    one jerk-limited trajectory through them; "" (default) = the planner's active generator (its
+    `trajectory_generator` parameter). The limits (TrajectoryLimits' fields) tighten the planner's
+    own for this mission; above them the planner refuses the trajectory."""
 
-    generator: str
+    generator: str = ""
 
     def __post_init__(self) -> None:
-        if self.generator not in TRAJECTORY_GENERATORS:
+        super().__post_init__()
+        if self.generator and self.generator not in TRAJECTORY_GENERATORS:
             raise ValueError(f"field `generator` must be one of {', '.join(TRAJECTORY_GENERATORS)}, "
                              f"got {self.generator!r}")
 

@@ -7,10 +7,33 @@ from __future__ import annotations
 import msgspec
 
 from ._base import Header, Message, schema
+from ._checks import check_positive
 from .geometry import PoseStamped, Vector3
 from .vehicle import TrajectorySetpoint
 
-__all__ = ["Trajectory", "TrajectoryStatus", "CollisionConstraint"]
+__all__ = ["TrajectoryLimits", "Trajectory", "TrajectoryStatus", "CollisionConstraint"]
+
+
+class TrajectoryLimits(msgspec.Struct, kw_only=True):
+    """Tighter kinematic limits for one trajectory (a mission file's `trajectory` section, a
+    Trajectory's `limits`), named after the planner's parameters (PX4's MPC_*); None = the
+    planner's own. A value above the planner's own is refused naming the field, never clipped."""
+
+    max_velocity_mps: float | None = None     # MPC_XY_VEL_MAX
+    acc_hor_mps2: float | None = None         # MPC_ACC_HOR
+    jerk_mps3: float | None = None            # MPC_JERK_AUTO
+    z_vel_max_up_mps: float | None = None     # MPC_Z_VEL_MAX_UP
+    z_vel_max_dn_mps: float | None = None     # MPC_Z_VEL_MAX_DN
+
+    def __post_init__(self) -> None:
+        for name in TrajectoryLimits.__struct_fields__:
+            value = getattr(self, name)
+            if value is not None:
+                check_positive(name, value)
+
+    def given(self) -> dict[str, float]:
+        """{field: value} of the limits set."""
+        return {n: getattr(self, n) for n in TrajectoryLimits.__struct_fields__ if getattr(self, n) is not None}
 
 
 @schema("Trajectory", 1)
@@ -45,6 +68,9 @@ class Trajectory(Message, kw_only=True):
     poly_coeffs_yaw: list[float] = []
     poly_order: int = 0
 
+    # tighter limits for this trajectory (None: the planner's own)
+    limits: TrajectoryLimits | None = None
+
     setpoint_type: int = 0
     SETPOINT_POSITION_ONLY = 0
     SETPOINT_POSITION_YAW = 1
@@ -67,7 +93,9 @@ class TrajectoryStatus(Message, kw_only=True):
     remaining_time_s: the distance left at the planner's commanded speed profile;
     current_setpoint: the setpoint last sent to fmu; position_error_m: distance from the vehicle
     to the goal (holding: to the hold point); velocity_error_mps: |current_setpoint velocity -
-    vehicle velocity|. Without a goal the progress fields are 0."""
+    vehicle velocity|. Without a goal the progress fields are 0. `active_*`: the planner's parts
+    running now (its trajectory_generator / controller / estimator, what UAVStatus reports);
+    a refused SetTrajectory trajectory is STATUS_ABORTED under its own trajectory_id, `message` why."""
 
     header: Header = msgspec.field(default_factory=Header)
     trajectory_id: str = ""
@@ -80,6 +108,9 @@ class TrajectoryStatus(Message, kw_only=True):
     # Obstacle handling: "off", "no_costmap", "stale_costmap", "clear", "avoiding", "planning", "blocked", "unreachable"; why.
     obstacle_state: str = ""
     message: str = ""
+    active_trajectory_generator: str = ""
+    active_controller: str = ""
+    active_estimator: str = ""
 
     status: int = 0
     STATUS_IDLE = 0

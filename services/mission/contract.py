@@ -2,9 +2,8 @@
 from aeroperception.schemas import (
     ArmReply, ArmRequest, Empty, GcsLink, GetMissionReply, LoadMissionReply, LoadMissionRequest,
     MissionCommand, MissionGoal, MissionStatus, OccupancyGrid, PerceptionHealth, Reply, SafetyStatus,
-    SetModeReply, SetModeRequest, Trajectory, TrajectoryStatus, VehicleState, WaypointReached,
+    SetModeReply, SetModeRequest, Trajectory, TrajectoryStatus, UAVStatus, VehicleState, WaypointReached,
 )
-from aeroperception.schemas.mission import TRAJECTORY_GENERATORS
 from aeroperception.services.runtime import Param, Queries, Query, Topic, Topics
 from aeroperception.services.safety.geofence import GEOFENCE_PARAMS
 
@@ -14,7 +13,8 @@ INPUTS = Topics(
     Topic("perception/health", PerceptionHealth),
     Topic("mission/command", MissionCommand, note="fire-and-forget operator command"),
     Topic("safety/status", SafetyStatus, note="a rising recommended_action HOLD/RTH/LAND acts once"),
-    Topic("planner/status", TrajectoryStatus, note="obstacle_state blocked/unreachable -> blocked_action"),
+    Topic("planner/status", TrajectoryStatus, note="obstacle_state blocked/unreachable -> blocked_action; its trajectory "
+                                                   "ABORTED (refused) -> hold; the planner's parts for UAVStatus"),
     Topic("perception/costmap", OccupancyGrid, note="a loaded waypoint inside an obstacle is warned about"),
     Topic("gcs/link", GcsLink, note="a ground station once heard going down -> hold"),
 )
@@ -26,6 +26,8 @@ OUTPUTS = Topics(
     Topic("mission/active_trajectory", Trajectory, 2.0,
           note="also at once with each goal: the waypoints ahead for the planner's generator; empty = none"),
     Topic("mission/waypoint_reached", WaypointReached, note="event: a mission waypoint reached"),
+    Topic("mission/uav_status", UAVStatus, 2.0, note="UAVMode from the FSM and vehicle state, the planner's parts, "
+                                                     "links, mission progress (status_rate_hz)"),
 )
 SERVICES = Queries(
     Query("mission/srv/load", LoadMissionRequest, LoadMissionReply),
@@ -57,10 +59,6 @@ PARAMS = [
                       "in flight) and when set live; '' = none (aero up --mission FILE sets it)"),
     Param("blocked_timeout_s", 5.0, "s", 0.5, 600.0,
           description="planner/status says the goal is blocked/unreachable this long -> blocked_action"),
-    Param("trajectory_generator", "waypoint", choices=TRAJECTORY_GENERATORS,
-          description="how the waypoints are flown: waypoint = goal by goal, stopping at each (the planner's "
-                      "P-controller); smooth = one jerk-limited trajectory through them (a mission file's "
-                      "trajectory section wins; applies from the next start)"),
     Param("blocked_action", "hold", choices=("hold", "skip", "rtl"),
           description="an unreachable goal: hold (HOLDING with the reason, wait for the operator), "
                       "skip (fly on to the next waypoint; a goto holds) or rtl"),

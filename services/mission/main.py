@@ -11,7 +11,7 @@ from aeroperception.schemas import (
     GoToPositionResult, LandGoal, LandResult, LoadMissionReply, LoadMissionRequest, MissionCommand, MissionGoal,
     OccupancyGrid, PerceptionHealth, Pose, Quaternion, Reply, SafetyStatus, SchemaError, SetModeReply,
     SetModeRequest, SetTrajectoryGoal, SetTrajectoryResult, TakeoffGoal, TakeoffResult, Trajectory,
-    TrajectoryStatus, Vector3, VehicleState, WaypointReached, load_mission_file, parse_mission,
+    TrajectoryStatus, UAVStatus, Vector3, VehicleState, WaypointReached, load_mission_file, parse_mission,
 )
 from aeroperception.services.runtime import ActionServer, CallError, GoalHandle, Health, ParamError, Service, run
 
@@ -22,7 +22,10 @@ from .actions import MOVING, ActionRun
 from .fsm import Config, GoalOut, MissionManager, Outcome, State
 from .limits import Limits, waypoints_in_obstacles
 from .store import MissionStore, default_state_dir
-from .trajectory import TRAJECTORY_END_RADIUS_M, TrajectoryHandover, check_given
+from .trajectory import NONE, TRAJECTORY_END_RADIUS_M, TrajectoryHandover, check_given
+from .uav_status import UavStatusBuilder
+
+PLANNER_STATUS_FRESH_S = 1.0   # planner/status comes at 10 Hz: older = the planner's parts unknown
 
 
 class ZenohBridge:
@@ -82,7 +85,7 @@ class MissionService(Service):
         self.pub_status = node.publisher("mission/status", contract.OUTPUTS["mission/status"])
         self.pub_goal = node.publisher("mission/active_goal", MissionGoal)
         self.pub_reached = node.publisher("mission/waypoint_reached", WaypointReached)
-        self.handover = TrajectoryHandover(p.trajectory_generator)
+        self.handover = TrajectoryHandover()
         self.pub_trajectory = node.publisher("mission/active_trajectory", Trajectory)
         node.subscribe("state/vehicle", VehicleState, lambda m: self.mgr.on_vehicle(m, time.monotonic()))
         node.subscribe("perception/health", PerceptionHealth,
@@ -92,15 +95,19 @@ class MissionService(Service):
         self.costmap: OccupancyGrid | None = None   # the latest, for the load-time obstacle check
         node.subscribe("perception/costmap", OccupancyGrid, lambda m: setattr(self, "costmap", m))
         self.planner_status: TrajectoryStatus | None = None
+        self.planner_status_rx_s = 0.0
         node.subscribe("planner/status", TrajectoryStatus, self._on_planner_status)
+        self.safety: SafetyStatus | None = None
+        self.uav = UavStatusBuilder(node.vehicle or "default")
+        self.pub_uav = node.publisher("mission/uav_status", UAVStatus)
         node.on_liveliness("fmu", lambda name, alive: self.mgr.on_fmu_alive(alive, time.monotonic()))
         node.on_liveliness("planner", lambda name, alive: self.mgr.on_planner_alive(alive, time.monotonic()))
-        gcs_up = {"last": None}
+        self.gcs_up: bool | None = None
 
         def on_gcs_link(m: GcsLink) -> None:
             # gcs/link repeats at 1 Hz; only a change of a link once seen is an event (a stack
             # flying without any ground station is not "link lost").
-            was, gcs_up["last"] = gcs_up["last"], m.connected
+            was, self.gcs_up = self.gcs_up, m.connected
             if was is not None and was != m.connected:
                 self.mgr.on_link(m.connected)
 
@@ -151,8 +158,6 @@ class MissionService(Service):
             self.file_error = ""
         if name == "status_rate_hz":
             self.status_loop.set_rate(value)
-        if name == "trajectory_generator":
-            self.handover.generator = value      # the next stretch of flying uses it
         if hasattr(self.mgr.cfg, name):
             setattr(self.mgr.cfg, name, value)
         self.mgr.limits = limits
@@ -164,6 +169,7 @@ class MissionService(Service):
             self.log.throttled("error", "persist", "persist_failed", path=str(self.store.path), error=str(e))
 
     def _on_safety(self, msg: SafetyStatus) -> None:
+        self.safety = msg
         reason = "; ".join(msg.active_errors or msg.active_warnings)
         self.mgr.on_safety(msg.recommended_action, reason)
 
@@ -249,10 +255,22 @@ class MissionService(Service):
         st = self.mgr.status()
         st.header = self.node.header()
         self.pub_status.publish(st)
+        self._publish_uav_status()
         if self.last_goal is not None:  # latch for late joiners (planner restart)
             self.pub_goal.publish(self.last_goal)
             self._publish_trajectory()
         self._update_actions()
+
+    def _publish_uav_status(self) -> None:
+        fresh = time.monotonic() - self.planner_status_rx_s < PLANNER_STATUS_FRESH_S
+        m = self.mgr.mission
+        done = 0.0
+        if m is not None and self.mgr.state != State.IDLE:
+            done = 100.0 * min(1.0, max(0, self.mgr.wp_index) / len(m.waypoints))
+        msg = self.uav.build(self.mgr.state, self.mgr.vehicle, self.safety, self.planner_status if fresh else None,
+                             bool(self.gcs_up), m.mission_id if m is not None else "", done)
+        msg.header = self.node.header()
+        self.pub_uav.publish(msg)
 
     # ------------------------------------------------------------ actions
 
@@ -274,8 +292,11 @@ class MissionService(Service):
         return self._accepted(h, ActionRun("goto", g), ok, message)
 
     def _on_planner_status(self, m: TrajectoryStatus) -> None:
-        self.planner_status = m
+        self.planner_status, self.planner_status_rx_s = m, time.monotonic()
         self.mgr.on_planner(m.obstacle_state, m.message, time.monotonic())
+        current = self.handover.current
+        if m.status == TrajectoryStatus.STATUS_ABORTED and current is not NONE and m.trajectory_id == current.trajectory_id:
+            self.mgr.on_trajectory_refused(m.message)
 
     def _trajectory_goal(self, h: GoalHandle) -> str | None:
         """Fly a given trajectory: checked here as the planner will make it (from where the vehicle

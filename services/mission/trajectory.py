@@ -1,14 +1,16 @@
 """The trajectory the mission hands the planner (mission/active_trajectory).
 
-While the mission flies its waypoints with a trajectory generator other than `waypoint`, the
-planner gets the whole way at once — the waypoints from where this stretch of flying began — so
-it can fly through them instead of stopping at each; the mission still hands it one goal at a time
-(mission/active_goal) and counts each waypoint by the vehicle's distance, exactly as before.
+While the mission flies its waypoints, the planner gets the whole way at once — the waypoints
+from where this stretch of flying began — so its trajectory generator can fly through them instead
+of stopping at each (the planner's `waypoint` generator still flies them goal by goal); the
+mission still hands it one goal at a time (mission/active_goal) and counts each waypoint by the
+vehicle's distance, exactly as before. Which generator: the mission file's `trajectory.generator`
+in `generator_name`, else "" = the planner's active one (the planner owns that choice: one
+value, switched by SetTrajectoryGenerator); the file's limits travel in `limits`.
 The message stays the same for the whole stretch (the planner makes its path once); a hold, a
 goto, a landing or a new start ends the stretch, and the next one starts from the waypoint then
 current. A trajectory given through the SetTrajectory action is handed over as given while the
-mission flies to its end (a goto there); anything else (or the `waypoint` generator) hands over an
-empty message: none.
+mission flies to its end (a goto there); anything else hands over an empty message: none.
 """
 from __future__ import annotations
 
@@ -16,7 +18,9 @@ import math
 
 import numpy as np
 
-from aeroperception.schemas import Header, Pose, PoseStamped, Quaternion, SetTrajectoryGoal, Trajectory, Vector3
+from aeroperception.schemas import (
+    Header, Pose, PoseStamped, Quaternion, SetTrajectoryGoal, Trajectory, TrajectoryLimits, Vector3,
+)
 from aeroperception.services.planner.trajectory import Limits, TrajectoryRefused
 from aeroperception.services.planner.trajectory.generators import path_for
 
@@ -33,17 +37,12 @@ def waypoint_pose(wp) -> PoseStamped:
 class TrajectoryHandover:
     """What mission/active_trajectory says now, from the manager's state (see the module doc)."""
 
-    def __init__(self, generator: str = "waypoint"):
-        self.generator = generator
+    def __init__(self) -> None:
         self.start_index: int | None = None
         self._key: tuple | None = None
         self._msg: Trajectory = NONE
         self.given: tuple[Trajectory, np.ndarray] | None = None
-
-    def generator_for(self, mission) -> str:
-        """The mission file's own choice, else the parameter's."""
-        spec = getattr(mission, "trajectory", None)
-        return spec.generator if spec is not None else self.generator
+        self.current: Trajectory = NONE         # what message() said last
 
     def give(self, msg: Trajectory, end_m: np.ndarray) -> None:
         """The SetTrajectory action's trajectory, flown while the mission's goto goes to `end_m`."""
@@ -52,23 +51,28 @@ class TrajectoryHandover:
     def message(self, flying_waypoints: bool, mission, wp_index: int, goto_m: np.ndarray | None = None) -> Trajectory:
         """`flying_waypoints`: EXECUTING the mission's waypoints (not a goto, not holding);
         `goto_m`: EXECUTING a goto to there (None otherwise)."""
+        self.current = self._message(flying_waypoints, mission, wp_index, goto_m)
+        return self.current
+
+    def _message(self, flying_waypoints: bool, mission, wp_index: int, goto_m: np.ndarray | None) -> Trajectory:
         if self.given is not None:
             if goto_m is not None and np.linalg.norm(np.asarray(goto_m) - self.given[1]) < 1e-6:
                 return self.given[0]
             self.given = None                  # the goto ended or another took its place
-        generator = self.generator_for(mission) if mission is not None else self.generator
-        if not flying_waypoints or generator == "waypoint" or mission is None or wp_index >= len(mission.waypoints):
+        if not flying_waypoints or mission is None or wp_index >= len(mission.waypoints):
             self.start_index, self._key, self._msg = None, None, NONE
             return NONE
         if self.start_index is None:
             self.start_index = wp_index
-        key = (mission.mission_id, self.start_index, generator)
+        spec = mission.trajectory
+        key = (mission.mission_id, self.start_index, spec)
         if key != self._key:
             self._key = key
             self._msg = Trajectory(
                 header=Header(frame_id="map"), trajectory_id=f"{mission.mission_id}@{self.start_index}",
-                generator_name=generator, trajectory_type=Trajectory.TRAJECTORY_WAYPOINT,
-                setpoint_type=Trajectory.SETPOINT_FULL_STATE,
+                generator_name=spec.generator if spec is not None else "",
+                limits=TrajectoryLimits(**spec.given()) if spec is not None and spec.given() else None,
+                trajectory_type=Trajectory.TRAJECTORY_WAYPOINT, setpoint_type=Trajectory.SETPOINT_FULL_STATE,
                 waypoints=[waypoint_pose(w) for w in mission.waypoints[self.start_index:]])
         return self._msg
 
@@ -82,6 +86,11 @@ def check_given(goal: SetTrajectoryGoal, position_m: np.ndarray, yaw_rad: float,
         return "`replace_current` false (append to the current trajectory) is not supported: send it whole", None
     if msg.start_time_ns:
         return "`trajectory.start_time_ns`: a delayed start is not supported (0 = on receipt)", None
+    if msg.trajectory_type == Trajectory.TRAJECTORY_WAYPOINT and not msg.waypoint_times_s \
+            and msg.generator_name != "smooth":
+        # flown as a goto to its end: the goal-by-goal generator would skip the waypoints between
+        return (f"`trajectory.generator_name` {msg.generator_name!r}: untimed waypoints are flown with 'smooth' "
+                "(give it, or times, or fly them as a mission)"), None
     try:
         path = path_for(msg, position_m, yaw_rad, Limits(), acceptance_radius_m)
     except TrajectoryRefused as e:

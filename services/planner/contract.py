@@ -1,8 +1,21 @@
-"""Contract of the planner: keys in/out (ENU) and parameters."""
+"""Contract of the planner: keys in/out (ENU) and parameters.
+
+The planner owns all three swappable parts (trajectory generator, controller, estimator) because
+it is the one that turns the goal into setpoints: the generator shapes the reference, the
+controller chooses what of it the flight controller gets, the estimator is what the planner
+measures progress and error against. One owner keeps the rule for a safe switch (plugins.py) and
+the value of what runs in one place; the mission only names a generator for its own waypoints (a
+mission file's trajectory section, carried in the Trajectory's generator_name).
+"""
 from aeroperception.schemas import (
-    MissionGoal, OccupancyGrid, Trajectory, TrajectorySetpoint, TrajectoryStatus, VehicleState, WaypointReached,
+    MissionGoal, OccupancyGrid, Odometry, SelectPluginReply, SelectPluginRequest, Trajectory, TrajectorySetpoint,
+    TrajectoryStatus, VehicleState, WaypointReached,
 )
-from aeroperception.services.runtime import Param, Topic, Topics
+from aeroperception.services.runtime import Param, Queries, Query, Topic, Topics
+
+from .controllers import CONTROLLERS
+from .estimators import ESTIMATORS
+from .trajectory.generators import GENERATORS
 
 NAME = "planner"
 INPUTS = Topics(
@@ -13,6 +26,11 @@ INPUTS = Topics(
     Topic("perception/costmap", OccupancyGrid),
     # The whole way to fly (smooth waypoints or a typed trajectory), flown while the goal is on it (planner/tracking.py).
     Topic("mission/active_trajectory", Trajectory, note="on change + 2 Hz; empty = none"),
+    Topic("state/visual_odometry", Odometry, note="the vio estimator's input (freshness checked before a switch to it)"),
+)
+SERVICES = Queries(
+    Query("planner/srv/select_plugin", SelectPluginRequest, SelectPluginReply,
+          note="SetTrajectoryGenerator / SetController / SetEstimator (role); refused moving or for an unknown name"),
 )
 STATUS_RATE_HZ = 10.0
 OUTPUTS = Topics(
@@ -47,5 +65,15 @@ PARAMS = [
     Param("yaw_rate_max_dps", 45.0, "deg/s", 1.0, 360.0, description="MPC_YAWRAUTO_MAX: heading rate limit"),
     Param("trajectory_lag_m", 1.5, "m", 0.2, 20.0,
           description="the reference slows while the vehicle is more than half this behind it, stops at this"),
+    # swappable parts (plugins.py): switched live only on the ground or hovering
+    Param("trajectory_generator", "waypoint", choices=tuple(GENERATORS),
+          description="how a mission's waypoints are flown unless it names its own: waypoint = goal by goal "
+                      "(P-controller), smooth = one jerk-limited trajectory through them"),
+    Param("controller", "feedforward", choices=tuple(CONTROLLERS),
+          description="feedforward = position + velocity + acceleration to the FC; velocity = velocity only, "
+                      "the planner closes the position loop (kp)"),
+    Param("estimator", "fc", choices=tuple(ESTIMATORS),
+          description="fc = the FC's estimate (state/vehicle); vio = VIO's odometry directly (state/visual_odometry)"),
+    Param("hover_speed_mps", 0.3, "m/s", 0.05, 2.0, description="in the air below this speed = hovering (a part may be switched)"),
     Param("costmap_timeout_s", 0.5, "s", 0.1, 5.0, description="an older costmap -> hold until fresh (stale_costmap); none ever -> straight lines"),
 ]

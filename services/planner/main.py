@@ -4,14 +4,17 @@ from __future__ import annotations
 import time
 
 from aeroperception.schemas import (
-    DiagnosticStatus, Header, MissionGoal, OccupancyGrid, Trajectory, TrajectorySetpoint, TrajectoryStatus, Vector3,
-    VehicleState, WaypointReached,
+    DiagnosticStatus, Header, MissionGoal, OccupancyGrid, Odometry, SelectPluginReply, SelectPluginRequest, Trajectory,
+    TrajectorySetpoint, TrajectoryStatus, Vector3, VehicleState, WaypointReached,
 )
-from aeroperception.services.runtime import Health, LatestWorker, Service, run
+from aeroperception.services.runtime import Health, LatestWorker, ParamError, Service, run
 
 from . import contract
 from .avoidance import AvoidanceConfig, LocalPlanner
+from .controllers import CONTROLLERS, Gains
+from .estimators import VioEstimate, fc_offset_m
 from .logic import Goal, GoalWatchdog, WaypointPlanner, tracking_errors
+from .plugins import REGISTRIES, switch_refusal
 from .tracking import TrackerConfig, TrajectoryTracker
 from .trajectory.generators import limits_from
 
@@ -26,7 +29,10 @@ class PlannerService(Service):
         p = self.params
         self.planner = WaypointPlanner(p.max_velocity_mps, p.kp, p.acceptance_radius_m)
         self.params.on_change(self._on_param)
-        self.state: VehicleState | None = None
+        self.state: VehicleState | None = None        # the active estimator's, in the map frame
+        self.fc_state: VehicleState | None = None     # the flight controller's (state/vehicle)
+        self.vio = VioEstimate()
+        self.odom_rx_s: float | None = None
         self.stale_states = 0
         self.delay_floor_ns: int | None = None
         self.state_rx_s = 0.0
@@ -53,6 +59,8 @@ class PlannerService(Service):
         self.trajectory_msg: Trajectory | None = None
         self.tracking_error_m: float | None = None     # vehicle to the trajectory's reference, while flying one
         self.node.subscribe("mission/active_trajectory", Trajectory, self._on_trajectory, strict=True)
+        self.node.subscribe("state/visual_odometry", Odometry, self._on_odometry)
+        self.node.serve("planner/srv/select_plugin", SelectPluginRequest, SelectPluginReply, self._select_plugin)
         self.last_pub_s = 0.0
         self.loop = self.node.every(1.0 / p.rate_hz, self._tick, name="setpoint")
         self.node.every(1.0 / contract.STATUS_RATE_HZ, self._publish_status, name="status")
@@ -75,7 +83,7 @@ class PlannerService(Service):
 
     def _tracker_config(self) -> TrackerConfig:
         p = self.params
-        return TrackerConfig(limits_from(p), p.acceptance_radius_m, p.trajectory_lag_m)
+        return TrackerConfig(limits_from(p), p.acceptance_radius_m, p.trajectory_lag_m, p.trajectory_generator)
 
     def _on_trajectory(self, msg: Trajectory) -> None:
         if msg == self.trajectory_msg:
@@ -88,7 +96,31 @@ class PlannerService(Service):
     def _path_blocked(self, points_xy) -> bool:
         return self.avoid.path_blocked(points_xy, time.monotonic())
 
+    def _select_plugin(self, req: SelectPluginRequest) -> SelectPluginReply:
+        """SetTrajectoryGenerator / SetController / SetEstimator: the slot's parameter, set live
+        (plugins.py's rule refuses it moving; the parameter's choices list what exists)."""
+        r = self.node.set_param(req.role, req.name)
+        return SelectPluginReply(success=r.success, message=r.message, active=self.params[req.role])
+
+    def _vio_fresh(self) -> bool:
+        return self.odom_rx_s is not None and time.monotonic() - self.odom_rx_s < self.params.state_timeout_s
+
+    def _switch(self, role: str, name: str) -> None:
+        """A part switched (the rule already passed): what changes with it."""
+        if role == "trajectory_generator":
+            self.tracker.set_generator(name)
+        elif role == "estimator":
+            self.vio.alignment = None          # aligned anew, now, with the flight controller's estimate
+            self.delay_floor_ns = None         # another source's stamps
+        self.log.info("plugin_switched", role=role, name=name)
+
     def _on_param(self, name, value) -> None:
+        if name in REGISTRIES:
+            why = switch_refusal(name, value, self.state or self.fc_state, self.params.hover_speed_mps,
+                                 self._vio_fresh())
+            if why:
+                raise ParamError(f"{name} stays {self.params[name]!r}: {why}")
+            self._switch(name, value)
         if name in ("max_velocity_mps", "acceptance_radius_m", "trajectory_lag_m") or name.startswith(("acc_", "jerk_", "z_vel_", "yaw_rate_")):
             self.tracker.cfg = self._tracker_config()   # the next trajectory made uses it
         if name.startswith("avoid_") or name == "costmap_timeout_s":
@@ -103,6 +135,19 @@ class PlannerService(Service):
             self.loop.set_rate(value)
 
     def _on_state(self, msg: VehicleState) -> None:
+        self.fc_state = msg
+        if self.params.estimator == "fc":
+            self._take_state(msg)
+
+    def _on_odometry(self, msg: Odometry) -> None:
+        self.odom_rx_s = time.monotonic()
+        if self.params.estimator == "vio":
+            est = self.vio.estimate(msg, self.fc_state)
+            if est is not None:
+                self._take_state(est)
+
+    def _take_state(self, msg: VehicleState) -> None:
+        """The active estimator's state (estimators.py), in the map frame."""
         # A backlog delivered after this process was stalled (SIGSTOP, swap) must not be planned
         # from: it would capture a hold point or a direction from the past and fly back to it.
         # Judged against the lowest delay seen (creeping up 1 ms a sample), so a constant clock
@@ -112,8 +157,13 @@ class PlannerService(Service):
         if (delay - self.delay_floor_ns) * 1e-9 > self.params.state_timeout_s:
             self.stale_states += 1
             return
-        if not self.state_fresh() or msg.flight_mode not in ("", "OFFBOARD"):
-            self.planner.retake_hold()   # state came back after a gap, or the FC flies on its own
+        if not self.state_fresh():
+            # Back after a gap (fmu restart, FC link, router restart): the vehicle moved without us
+            # and the mission re-checks it after an outage. Hold where it is until the mission's goal
+            # comes again (it re-sends it at 2 Hz), never on to a goal from before the gap.
+            self._forget_goal()
+        elif msg.flight_mode not in ("", "OFFBOARD"):
+            self.planner.retake_hold()   # the FC flies a mode of its own: our hold follows the vehicle
         self.state, self.state_rx_s = msg, time.monotonic()
         self._cycle()  # event-driven: a fresh state goes out as a setpoint at once (hot path)
 
@@ -144,6 +194,10 @@ class PlannerService(Service):
         self.planner.set_goal(Goal(msg.pose.position.to_array(), yaw, self.goals_received,
                                    msg.max_speed_mps, msg.max_vertical_speed_mps))
 
+    def _mission_goal_m(self):
+        g = self.goal_msg
+        return None if g is None or g.header.frame_id == MissionGoal.HOLD_FRAME else g.pose.position.to_array()
+
     def state_fresh(self) -> bool:
         return self.state is not None and time.monotonic() - self.state_rx_s < self.params.state_timeout_s
 
@@ -151,6 +205,8 @@ class PlannerService(Service):
         if not self.state_fresh():
             return  # no state: send nothing; fmu holds on its own after 100 ms of silence
         st = self.state
+        if self.planner.goal is not None and self.tracker.holds_for(self._mission_goal_m()):
+            self.planner.set_goal(None)     # a refused given trajectory is not flown goal by goal (status says why)
         res = self.planner.step(st.position_m.to_array(), st.yaw_rad, time.monotonic())
         follow = None
         if self.planner.goal is not None:
@@ -169,6 +225,7 @@ class PlannerService(Service):
             self.obstacle_state, self.obstacle_reason = out.state, out.reason
         elif self.params.obstacle_avoidance:
             self.obstacle_state, self.obstacle_reason = "clear", ""   # holding: no verdict about an old goal
+        res.setpoint = self._to_fc(res.setpoint, st)
         res.setpoint.header = Header(stamp_ns=st.header.stamp_ns, frame_id="map")
         self.pub_sp.publish(res.setpoint)
         self.last_setpoint = res.setpoint
@@ -180,20 +237,35 @@ class PlannerService(Service):
                                                      position_m=st.position_m))
             self.log.info("waypoint_reached", index=g.index, distance_m=round(res.distance_m, 3))
 
+    def _to_fc(self, sp: TrajectorySetpoint, st: VehicleState) -> TrajectorySetpoint:
+        """The reference as the active controller gives it to the flight controller, its position
+        in the flight controller's own estimate (estimators.fc_offset_m)."""
+        p = self.params
+        sp = CONTROLLERS[p.controller].apply(sp, st.position_m.to_array(), Gains(p.kp, p.max_velocity_mps))
+        if sp.position_valid:
+            sp.position_m = Vector3.from_array(sp.position_m.to_array() + fc_offset_m(self.fc_state, st))
+        return sp
+
     def _check_goal_stream(self) -> None:
         if self.goal_watch.expired(time.monotonic(), self.planner.goal is not None):
-            # Hold here; forget the goal so the mission's next message (re-sent or new) applies.
-            self.planner.set_goal(None)
-            self.goal_msg = None
+            self._forget_goal()
             self.log.warn("mission_silent", timeout_s=self.params.goal_timeout_s,
                           note="no goal from the mission (mission or ground link down): holding")
+
+    def _forget_goal(self) -> None:
+        """Hold here; forget the goal so the mission's next message (re-sent or new) applies."""
+        self.planner.set_goal(None)
+        self.goal_msg = None
 
     def _publish_status(self) -> None:
         self._check_goal_stream()
         fresh = self.state_fresh()
         status = self.planner.status if fresh else TrajectoryStatus.STATUS_ERROR
+        p = self.params
         msg = TrajectoryStatus(header=self.node.header("map"), status=status, trajectory_id=f"goal-{self.goals_received}",
-                               obstacle_state=self.obstacle_state, message=self.obstacle_reason)
+                               obstacle_state=self.obstacle_state, message=self.obstacle_reason,
+                               active_trajectory_generator=p.trajectory_generator, active_controller=p.controller,
+                               active_estimator=p.estimator)
         why = self.tracker.refused or self.tracker.blocked
         if why and not msg.message:
             msg.message = why
@@ -209,6 +281,9 @@ class PlannerService(Service):
                 msg.trajectory_id = self.tracker.trajectory_id
                 msg.progress_percent, msg.elapsed_time_s, msg.remaining_time_s = along
                 msg.position_error_m = self.tracking_error_m
+        if self.tracker.holds_for(self._mission_goal_m()):
+            msg.trajectory_id, msg.status = self.tracker.trajectory_id, TrajectoryStatus.STATUS_ABORTED
+            msg.message = f"trajectory refused: {self.tracker.refused}"
         self.pub_status.publish(msg)
         self._maybe_replan()   # 10 Hz: the vehicle moved on since the last costmap
 
@@ -217,11 +292,15 @@ class PlannerService(Service):
             return Health(DiagnosticStatus.ERROR, "no fresh state/vehicle: not publishing setpoints")
         values = {"distance_m": self.last_distance if self.last_distance is not None else "n/a",
                   "trajectory": self.tracker.trajectory_id if self.tracking_error_m is not None else "-",
+                  "trajectory_generator": self.params.trajectory_generator, "controller": self.params.controller,
+                  "estimator": self.params.estimator, "flying_with": self.tracker.generator() or "-",
                   "trajectories_made": self.tracker.built,
                   "obstacles": self.obstacle_state, "replans": self.replanner.processed,
                   "stale_states_dropped": self.stale_states}
         if self.obstacle_state in ("blocked", "unreachable", "stale_costmap"):
             return Health(DiagnosticStatus.WARN, f"holding: {self.obstacle_reason}", values)
+        if self.tracker.holds_for(self._mission_goal_m()):
+            return Health(DiagnosticStatus.WARN, f"holding: trajectory refused: {self.tracker.refused}", values)
         if self.tracker.refused:
             return Health(DiagnosticStatus.WARN, f"trajectory refused, flying goal by goal: {self.tracker.refused}", values)
         if self.goal_watch.silent:

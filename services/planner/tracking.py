@@ -14,6 +14,13 @@ Rules, each for a reason:
   next goal on (from the vehicle, at rest on its way) — clearance is never traded for smoothness.
   A typed trajectory is not re-planned: the planner leaves it for good and flies to its end goal by
   goal with obstacle avoidance, saying why.
+- Waypoints are timed by the message's own `generator_name`, else the planner's active generator
+  (`cfg.generator`); the `waypoint` generator makes no path: goal by goal.
+- A trajectory refused for what it asks (a typed one's fields, limits above the planner's own, a
+  frame other than map, an unknown generator) is not flown goal by goal instead: the planner holds
+  at its goals (`holds_for`) and says why, and the mission holds (a SetTrajectory goal fails). One
+  the smooth generator cannot time from here (waypoints too close for the limits) is flown goal by
+  goal, saying why.
 """
 from __future__ import annotations
 
@@ -28,7 +35,7 @@ from aeroperception.schemas import Trajectory
 from .trajectory.core import Limits
 from .trajectory.evaluate import TrajectoryRefused, evaluate
 from .trajectory.follow import FollowStep, Follower
-from .trajectory.generators import path_for
+from .trajectory.generators import GENERATORS, check_frames, generator_of, limits_of, path_for
 
 ON_PATH_M = 0.01          # a goal this close to a trajectory waypoint is that waypoint
 AHEAD_S = 3.0             # the stretch of path checked against the costmap
@@ -44,6 +51,7 @@ class TrackerConfig:
     limits: Limits
     acceptance_radius_m: float
     lag_m: float = 1.5
+    generator: str = "smooth"     # the planner's active generator (a message may name its own)
 
 
 class TrajectoryTracker:
@@ -53,6 +61,7 @@ class TrajectoryTracker:
         self.follower: Follower | None = None
         self.first_index = 0            # the message's waypoint the follower's path begins with
         self.refused = ""               # why the message (or its remaining part) cannot be flown
+        self.refusal_holds = False      # ... and the planner holds at its goals rather than fly them one by one
         self.blocked = ""               # a typed trajectory blocked by an obstacle: holding, why
         self.diverted_goal: np.ndarray | None = None   # avoiding obstacles towards this goal
         self.built = 0
@@ -66,14 +75,42 @@ class TrajectoryTracker:
     def offer(self, msg: Trajectory) -> None:
         """A new message from the mission (the caller skips repeats of the same one)."""
         self.follower, self.refused, self.blocked, self.diverted_goal = None, "", "", None
+        self.refusal_holds = False
         self.msg = None if is_clear(msg) else msg
         self.typed_end, self.last_index = None, 0
-        if self.msg is not None and not self._generated():
-            try:
+        if self.msg is None:
+            return
+        try:
+            if not self._generated():
                 path = evaluate(self.msg)
                 self.typed_end = path.sample(path.duration_s).position_m
-            except TrajectoryRefused as e:
-                self.refused = str(e)
+            check_frames(self.msg)
+            limits_of(self.msg, self.cfg.limits)
+            if self._generated() and self.generator() not in GENERATORS:
+                raise TrajectoryRefused(f"`generator_name` {self.msg.generator_name!r} is not a generator: "
+                                        f"{', '.join(GENERATORS)}")
+        except TrajectoryRefused as e:
+            self.refused, self.refusal_holds = str(e), True
+
+    def holds_for(self, goal_m: np.ndarray | None) -> bool:
+        """The trajectory is refused for what it asks and the goal is on it: hold, do not fly there."""
+        if not (self.refused and self.refusal_holds and self.msg is not None and goal_m is not None):
+            return False
+        if self._generated():
+            return self._index_of(goal_m) is not None
+        return self.typed_end is not None and bool(np.linalg.norm(goal_m - self.typed_end) < ON_PATH_M)
+
+    def generator(self) -> str:
+        """The generator the current message's waypoints are flown with ('' for a typed one)."""
+        if self.msg is None or not self._generated():
+            return ""
+        return generator_of(self.msg, self.cfg.generator)
+
+    def set_generator(self, name: str) -> None:
+        """The planner's active generator changed: a path of the old one is made anew with it."""
+        self.cfg.generator = name
+        if self.msg is not None and self._generated():
+            self.follower = None
 
     def _generated(self) -> bool:
         return (self.msg.trajectory_type == Trajectory.TRAJECTORY_WAYPOINT and not self.msg.waypoint_times_s)
@@ -98,6 +135,8 @@ class TrajectoryTracker:
         goal off the trajectory, refused, or avoiding an obstacle towards the current goal)."""
         if self.msg is None or goal_m is None or self.refused or self.blocked:
             return None
+        if self._generated() and GENERATORS[self.generator()].make is None:
+            return None                   # the waypoint generator: goal by goal
         k = self._index_of(goal_m)
         if k is None:
             self.follower = None          # a hold, goto or landing took over
@@ -126,9 +165,11 @@ class TrajectoryTracker:
         if self._generated():
             msg = msgspec.structs.replace(self.msg, waypoints=list(self.msg.waypoints[k:]))
         try:
-            path = path_for(msg, position_m, yaw_rad, self.cfg.limits, self.cfg.acceptance_radius_m)
+            path = path_for(msg, position_m, yaw_rad, self.cfg.limits, self.cfg.acceptance_radius_m, self.cfg.generator)
         except TrajectoryRefused as e:
-            self.refused = str(e)
+            self.refused, self.refusal_holds = str(e), not self._generated()
+            return False
+        if path is None:
             return False
         self.follower = Follower(path, now_s, self.msg.setpoint_type, self.cfg.lag_m)
         self.first_index = k

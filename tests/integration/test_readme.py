@@ -38,7 +38,11 @@ HOW: dict[str, tuple] = {
     "aero mission fly examples/missions/survey_01.json --trajectory smooth": (
         STACK, ["aero", "mission", "load", "examples/missions/survey_01.json", "--trajectory", "smooth"],
         "loaded"),   # test_trajectory_flight flies it (slow)
-    "aero param set mission trajectory_generator smooth": (STACK, None, "trajectory_generator = smooth"),
+    "aero plugin set trajectory_generator smooth": (
+        STACK, ["aero", "plugin", "set", "trajectory_generator", "waypoint"], "trajectory_generator = waypoint"),
+    "aero plugin list": (STACK, None, "controller"),
+    "aero plugin set controller velocity": (
+        STACK, ["aero", "plugin", "set", "controller", "feedforward"], "controller = feedforward"),
     "aero eval trajectory --live --until-landed --json traj.json": (
         SKIP, ["aero", "eval", "trajectory", "--help"], "needs a flight: test_trajectory_flight scores two by truth"),
     "aero node list": (STACK, None, "planner"),

@@ -54,3 +54,12 @@ def test_unreachable_goal_returns_home_with_blocked_action_rtl():
     report_blocked(rig, 5.3)
     assert rig.mgr.state == State.LAND and rig.bridge.modes()[-1] == "RTL"
     assert "returning home (blocked_action rtl)" in rig.mgr.message
+
+
+def test_a_trajectory_the_planner_refuses_for_what_it_asks_holds_at_once_saying_why():
+    rig = blocked_rig("skip")                         # not a blocked goal: never skipped, never flown goal by goal
+    rig.mgr.on_trajectory_refused("trajectory refused: `limits.max_velocity_mps` 5 is above the planner's 2")
+    assert rig.mgr.state == State.HOLDING and "limits.max_velocity_mps" in rig.mgr.status().message
+    assert_hold(rig.goals[-1])
+    rig.mgr.on_trajectory_refused("again")            # holding already: nothing more
+    assert rig.mgr.state == State.HOLDING

@@ -10,8 +10,10 @@ import time
 
 import pytest
 
-from aeroperception.schemas import LandedState, MissionStatus, Vector3, VehicleState, WaypointReached
-from aeroperception.tools.cli.mission import Progress, _follow, progress_line, reached_line
+from aeroperception.schemas import (
+    LandedState, MissionStatus, ParamDescriptor, ParamList, TrajectoryStatus, Vector3, VehicleState, WaypointReached,
+)
+from aeroperception.tools.cli.mission import Progress, _follow, check_limits, progress_line, reached_line
 from aeroperception.tools.common import CliError
 
 
@@ -34,6 +36,30 @@ def test_after_the_last_waypoint_it_says_landing_never_5_of_4():
     assert "5/4" not in (progress_line(status("EXECUTING", 4)) or "")
     assert progress_line(status("IDLE", -1)) is None          # not "waypoint 0/4"
     assert "0/4" not in progress_line(status("TAKEOFF", -1), vehicle(True, LandedState.IN_AIR, 1.0))
+
+
+def test_progress_along_the_trajectory_or_the_leg_comes_from_planner_status():
+    along = TrajectoryStatus(status=TrajectoryStatus.STATUS_EXECUTING, trajectory_id="survey_01@0",
+                             progress_percent=42.4, remaining_time_s=12.25)
+    assert progress_line(status("EXECUTING", 1), None, along).endswith("trajectory  42 % ( 12.2 s left)")
+    leg = TrajectoryStatus(status=TrajectoryStatus.STATUS_EXECUTING, trajectory_id="goal-3", progress_percent=80.0,
+                           remaining_time_s=1.5)
+    assert "leg  80 % (  1.5 s left)" in progress_line(status("EXECUTING", 1), None, leg)
+    assert "left" not in progress_line(status("EXECUTING", 1), None, TrajectoryStatus())   # idle planner: nothing
+
+
+def test_a_files_limits_above_the_planners_are_refused_before_loading(monkeypatch):
+    class Session:
+        def get(self, *a, **kw):
+            raise AssertionError("not called")
+    plain = '{"waypoints": [{"x": 0, "y": 0, "z": 2}]}'
+    check_limits(Session(), argparse.Namespace(vehicle=""), plain)      # no limits: nothing to ask the planner
+    fast = '{"waypoints": [{"x": 0, "y": 0, "z": 2}], "trajectory": {"max_velocity_mps": 9}}'
+    own = ParamList(params=[ParamDescriptor(name="max_velocity_mps", value=2.0)])
+    monkeypatch.setattr("aeroperception.tools.cli.mission.call_or_fail", lambda *a, **kw: own)
+    with pytest.raises(CliError, match="trajectory.max_velocity_mps 9 is above the planner's max_velocity_mps 2"):
+        check_limits(Session(), argparse.Namespace(vehicle=""), fast)
+    check_limits(Session(), argparse.Namespace(vehicle=""), fast.replace("9", "1.5"))
 
 
 def test_every_reached_waypoint_is_shown_even_between_status_samples():

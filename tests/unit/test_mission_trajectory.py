@@ -7,20 +7,25 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from aeroperception.schemas import SchemaError, SetTrajectoryGoal, Trajectory, load_mission_file, parse_mission
-from aeroperception.services.mission.trajectory import NONE, TrajectoryHandover, check_given
+from aeroperception.schemas import (
+    Header, MissionTrajectory, PoseStamped, SchemaError, SetTrajectoryGoal, Trajectory, TrajectoryLimits, Waypoint,
+    load_mission_file, parse_mission,
+)
+from aeroperception.services.mission.trajectory import NONE, TrajectoryHandover, check_given, waypoint_pose
 
 SURVEY = load_mission_file(Path(__file__).resolve().parents[2] / "examples/missions/survey_01.json")
 
 
-def test_the_waypoint_generator_hands_over_nothing():
-    assert TrajectoryHandover("waypoint").message(True, SURVEY, 0) == NONE
+def test_without_a_choice_in_the_file_the_planners_generator_flies_the_waypoints():
+    msg = TrajectoryHandover().message(True, SURVEY, 0)
+    assert msg.generator_name == "" and len(msg.waypoints) == 4 and msg.limits is None
+    assert all(w.header.frame_id == "map" for w in msg.waypoints)
 
 
 def test_one_message_for_a_stretch_of_flying_from_the_waypoint_it_began_at():
-    h = TrajectoryHandover("smooth")
+    h = TrajectoryHandover()
     first = h.message(True, SURVEY, 1)
-    assert first.trajectory_id == "survey_01@1" and first.generator_name == "smooth"
+    assert first.trajectory_id == "survey_01@1" and h.current is first
     assert first.setpoint_type == Trajectory.SETPOINT_FULL_STATE
     assert [(w.pose.position.x, w.pose.position.y) for w in first.waypoints] == [(10, 0), (10, 10), (0, 0)]
     assert h.message(True, SURVEY, 2) is first          # advancing waypoints: the same message
@@ -29,12 +34,13 @@ def test_one_message_for_a_stretch_of_flying_from_the_waypoint_it_began_at():
     assert again.trajectory_id == "survey_01@2" and len(again.waypoints) == 2
 
 
-def test_the_mission_files_own_choice_wins_over_the_parameter():
-    h = TrajectoryHandover("waypoint")
-    mission = SimpleNamespace(mission_id="m", waypoints=SURVEY.waypoints, trajectory=SimpleNamespace(generator="smooth"))
+def test_the_mission_files_own_generator_and_limits_travel_with_its_waypoints():
+    h = TrajectoryHandover()
+    mission = SimpleNamespace(mission_id="m", waypoints=SURVEY.waypoints,
+                              trajectory=MissionTrajectory(generator="smooth", max_velocity_mps=1.5))
     msg = h.message(True, mission, 0)
     assert msg.generator_name == "smooth" and msg.waypoints[0].pose.orientation.to_yaw() == 0.0
-    assert len(msg.waypoints) == 4
+    assert msg.limits == TrajectoryLimits(max_velocity_mps=1.5) and len(msg.waypoints) == 4
     assert h.message(True, SURVEY, 4) == NONE            # past the last waypoint: nothing left to fly
 
 
@@ -43,8 +49,10 @@ def test_a_mission_files_trajectory_section_is_read_strictly():
     assert parse_mission(base % '{"generator": "smooth"}').trajectory.generator == "smooth"
     assert parse_mission("mission_id: m\nwaypoints: [{x: 0, y: 0, z: 2}]\ntrajectory: {generator: waypoint}\n"
                          ).trajectory.generator == "waypoint"
+    limited = parse_mission(base % '{"jerk_mps3": 2, "z_vel_max_dn_mps": 0.5}').trajectory
+    assert limited.generator == "" and limited.given() == {"jerk_mps3": 2.0, "z_vel_max_dn_mps": 0.5}
     for bad, why in [('{"generator": "fast"}', "generator"), ('{"generator": "smooth", "speed": 3}', "trajectory.speed"),
-                     ("{}", "generator")]:
+                     ('{"max_velocity_mps": 0}', "max_velocity_mps"), ('{"acc_hor_mps2": "fast"}', "acc_hor_mps2")]:
         with pytest.raises(SchemaError, match=why):
             parse_mission(base % bad)
 
@@ -64,10 +72,16 @@ def test_a_given_trajectory_is_checked_from_where_the_vehicle_is_and_handed_over
                         (SetTrajectoryGoal(trajectory=line(start_time_ns=7)), "start_time_ns"),
                         (SetTrajectoryGoal(trajectory=line(x0=20.0)), "starts 20.0 m"),
                         (SetTrajectoryGoal(trajectory=line(distance=0.2)), "loop"),
-                        (SetTrajectoryGoal(trajectory=line(poly_order=4)), "poly_coeffs_x")]:
+                        (SetTrajectoryGoal(trajectory=line(poly_order=4)), "poly_coeffs_x"),
+                        (SetTrajectoryGoal(trajectory=line(limits=TrajectoryLimits(max_velocity_mps=9.0))),
+                         "limits.max_velocity_mps"),
+                        (SetTrajectoryGoal(trajectory=Trajectory(waypoints=[waypoint_pose(Waypoint(x=5, y=0, z=3))])),
+                         "generator_name"),
+                        (SetTrajectoryGoal(trajectory=Trajectory(generator_name="smooth", waypoints=[
+                            PoseStamped(header=Header(frame_id="odom"))])), "waypoints[0].header.frame_id")]:
         assert field in check_given(goal, here, 0.0, 0.5)[0], field
-    h = TrajectoryHandover("smooth")
+    h = TrajectoryHandover()
     h.give(line(), end)
     assert h.message(False, SURVEY, 0, goto_m=end) == line()          # the goto to its end: handed over
-    assert h.message(True, SURVEY, 0).generator_name == "smooth"      # the goto ended: back to the mission's
+    assert h.message(True, SURVEY, 0).trajectory_id == "survey_01@0"  # the goto ended: back to the mission's
     assert h.given is None

@@ -13,11 +13,12 @@ import threading
 import time
 from pathlib import Path
 
+import msgspec
 import zenoh
 
 from aeroperception.schemas import (
-    LandedState, LoadMissionReply, LoadMissionRequest, MissionCommand, MissionStatus, MissionTrajectory, Reply,
-    SchemaError, VehicleState, WaypointReached, decode, load_mission_file,
+    LandedState, LoadMissionReply, LoadMissionRequest, MissionCommand, MissionStatus, MissionTrajectory, ParamList,
+    Reply, SchemaError, TrajectoryStatus, VehicleState, WaypointReached, decode, load_mission_file, parse_mission,
 )
 from aeroperception.schemas.mission import TRAJECTORY_GENERATORS
 
@@ -62,10 +63,26 @@ def _read(path: str, trajectory: str | None = None) -> str:
         mission = load_mission_file(p)
     except SchemaError as e:
         raise CliError(f"{p}: {e}") from None
-    if trajectory is not None:
-        mission.trajectory = MissionTrajectory(generator=trajectory)
+    if trajectory is not None:   # this flight's generator; the file's limits stay
+        spec = mission.trajectory or MissionTrajectory()
+        mission.trajectory = msgspec.structs.replace(spec, generator=trajectory)
         return mission.to_json()
     return p.read_text()
+
+
+def check_limits(session, args, text: str) -> None:
+    """A mission file's trajectory limits above the planner's own are refused before loading,
+    naming the field (the planner would refuse the trajectory in the air: the vehicle would hold)."""
+    spec = parse_mission(text).trajectory
+    given = spec.given() if spec is not None else {}
+    if not given:
+        return
+    plist = call_or_fail(session, full_key(args, "config/planner/@params"), None, ParamList)
+    own = {p.name: p.value for p in plist.params}
+    for name, value in given.items():
+        if name in own and value > own[name]:
+            raise CliError(f"mission rejected: trajectory.{name} {value:g} is above the planner's {name} {own[name]:g} "
+                           f"(lower it, or `aero param set planner {name} ...`)")
 
 
 def _load(session, args, text: str) -> LoadMissionReply:
@@ -87,6 +104,7 @@ def load(args) -> int:
     text = _read(args.file, args.trajectory)
     session = open_client(args)
     try:
+        check_limits(session, args, text)
         r = _load(session, args, text)
     finally:
         session.close()
@@ -105,10 +123,11 @@ def command(args) -> int:
 
 
 class Progress:
-    """What `fly` knows, from three subscriptions: mission/status (the FSM), state/vehicle (the
+    """What `fly` knows, from four subscriptions: mission/status (the FSM), state/vehicle (the
     vehicle itself: "landed" is judged from it, never from the FSM label, which a restarted
-    mission service resets) and mission/waypoint_reached (so a waypoint passed between two 2 Hz
-    status samples is still shown)."""
+    mission service resets), mission/waypoint_reached (so a waypoint passed between two 2 Hz
+    status samples is still shown) and planner/status (progress along the trajectory or leg,
+    time left)."""
 
     def __init__(self):
         self.lock = threading.Lock()
@@ -116,6 +135,7 @@ class Progress:
         self.status: MissionStatus | None = None
         self.vehicle: VehicleState | None = None
         self.reached: list[WaypointReached] = []
+        self.planner: TrajectoryStatus | None = None
 
     def subscribe(self, session, args) -> list:
         def sub(key, cls, store):
@@ -130,22 +150,33 @@ class Progress:
             return session.declare_subscriber(full_key(args, key), on_sample)
         return [sub("mission/status", MissionStatus, lambda m: setattr(self, "status", m)),
                 sub("state/vehicle", VehicleState, lambda m: setattr(self, "vehicle", m)),
-                sub("mission/waypoint_reached", WaypointReached, self.reached.append)]
+                sub("mission/waypoint_reached", WaypointReached, self.reached.append),
+                sub("planner/status", TrajectoryStatus, lambda m: setattr(self, "planner", m))]
 
     def on_ground_disarmed(self) -> bool:
         v = self.vehicle
         return v is not None and v.connected and not v.armed and v.landed_state == LandedState.ON_GROUND
 
 
-def progress_line(st: MissionStatus, vehicle: VehicleState | None = None) -> str | None:
+def planner_part(planner: TrajectoryStatus | None) -> str:
+    """The planner's progress: along the trajectory it flies (its id), or along the leg to the
+    current goal (goal by goal), and the time it says is left."""
+    if planner is None or planner.status != TrajectoryStatus.STATUS_EXECUTING:
+        return ""
+    what = "leg" if planner.trajectory_id.startswith("goal-") else "trajectory"
+    return f"  {what} {planner.progress_percent:3.0f} % ({planner.remaining_time_s:5.1f} s left)"
+
+
+def progress_line(st: MissionStatus, vehicle: VehicleState | None = None,
+                  planner: TrajectoryStatus | None = None) -> str | None:
     """One progress line for the mission's state, waypoints 1-based (1/4 .. 4/4), None in IDLE."""
     alt = f"  altitude {vehicle.position_m.z:5.2f} m" if vehicle is not None else ""
     if st.state == MissionStatus.STATE_EXECUTING and 0 <= st.active_waypoint < st.total_waypoints:
         dist = f"{st.distance_to_goal_m:6.2f} m" if st.distance_to_goal_m is not None else "   -   "
         return (f"waypoint {st.active_waypoint + 1}/{st.total_waypoints}  distance {dist}  "
-                f"elapsed {st.elapsed_time_s:6.1f} s")
+                f"elapsed {st.elapsed_time_s:6.1f} s{planner_part(planner)}")
     if st.state == MissionStatus.STATE_EXECUTING:
-        return f"going to the goal  distance {st.distance_to_goal_m or 0.0:6.2f} m"
+        return f"going to the goal  distance {st.distance_to_goal_m or 0.0:6.2f} m{planner_part(planner)}"
     if st.state == MissionStatus.STATE_LAND:
         return f"landing{alt}"
     if st.state == MissionStatus.STATE_TAKEOFF:
@@ -165,6 +196,7 @@ def fly(args) -> int:
     prog = Progress()
     subs = prog.subscribe(session, args)
     try:
+        check_limits(session, args, text)
         r = _load(session, args, text)
         total = r.num_waypoints
         print(f"1/4 loaded: {r.message}", flush=True)
@@ -201,7 +233,7 @@ def _follow(args, prog: Progress, total: int, quiet: bool = False, interrupted: 
         prog.changed.wait(0.5)
         prog.changed.clear()
         with prog.lock:
-            st, vehicle, reached = prog.status, prog.vehicle, list(prog.reached)
+            st, vehicle, reached, planner = prog.status, prog.vehicle, list(prog.reached), prog.planner
             down = prog.on_ground_disarmed()
         for ev in reached[shown_reached:]:
             print(f"   {reached_line(ev, total or (st.total_waypoints if st else 0))}", flush=True)
@@ -213,7 +245,7 @@ def _follow(args, prog: Progress, total: int, quiet: bool = False, interrupted: 
             print(f"   state {st.state}: {st.message}", flush=True)
             last_state = st.state
         elif st is not None and not (args.quiet or quiet) and time.monotonic() - last_line_s >= 1.0:
-            line = progress_line(st, vehicle)
+            line = progress_line(st, vehicle, planner)
             if line:
                 print(f"   {line}", flush=True)
                 last_line_s = time.monotonic()

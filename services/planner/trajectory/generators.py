@@ -1,44 +1,113 @@
-"""The one place a Trajectory message becomes a path.
+"""The one place a Trajectory message becomes a path, and the trajectory generators keyed by name
+(the planner's `trajectory_generator` parameter; SetTrajectoryGenerator through
+planner/srv/select_plugin; a mission may name its own in the message's `generator_name`).
 
-Of the generators (schemas.mission.TRAJECTORY_GENERATORS), `waypoint` is the planner's goal-by-goal
-P-controller (no path: it flies each goal as it comes) and `smooth` times the waypoints through
-blend.smooth. A typed or timed message is evaluated as given
+`waypoint` is the planner's goal-by-goal P-controller (no path: it flies each goal as it comes);
+`smooth` times the waypoints through blend.smooth. A typed or timed message is evaluated as given
 and refused when it would exceed the limits by more than LIMIT_TOLERANCE.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
+from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
 from aeroperception.schemas import Trajectory
+from aeroperception.schemas.mission import TRAJECTORY_GENERATORS
 
 from .blend import smooth
 from .core import Limits, Path, peaks
 from .evaluate import TrajectoryRefused, evaluate
 
 LIMIT_TOLERANCE = 0.10
+FRAME = "map"             # the one frame trajectories are given in (ENU)
+
+
+def _smooth(points_m: np.ndarray, yaws_rad: list[float | None], limits: Limits, acceptance_radius_m: float) -> Path:
+    return smooth(points_m, limits, acceptance_radius_m, yaws_rad=yaws_rad)
+
+
+@dataclass(frozen=True)
+class Generator:
+    description: str
+    # (points from the vehicle on, yaws, limits, acceptance radius) -> path; None: flies goal by goal
+    make: Callable[[np.ndarray, list, Limits, float], Path] | None
+
+
+GENERATORS: dict[str, Generator] = {
+    "waypoint": Generator("goal by goal: the P-controller, stopping at each waypoint", None),
+    "smooth": Generator("one jerk-limited trajectory through the waypoints (straight legs, blended corners)", _smooth),
+}
+if tuple(GENERATORS) != TRAJECTORY_GENERATORS:   # the names a mission file may give: one list
+    raise ImportError(f"GENERATORS {tuple(GENERATORS)} differ from schemas.mission.TRAJECTORY_GENERATORS")
+
+
+def generator_of(msg: Trajectory, active: str) -> str:
+    """The generator an untimed WAYPOINT message is flown with: its own `generator_name`, else
+    the planner's active one."""
+    return msg.generator_name or active
+
+
+def check_frames(msg: Trajectory) -> None:
+    """Trajectories are flown in the map frame: any other frame is refused naming the field
+    (never taken as map)."""
+    if msg.header.frame_id not in ("", FRAME):
+        raise TrajectoryRefused(f"`header.frame_id` {msg.header.frame_id!r}: trajectories are given in {FRAME!r}")
+    for i, w in enumerate(msg.waypoints):
+        if w.header.frame_id != FRAME:
+            raise TrajectoryRefused(f"`waypoints[{i}].header.frame_id` {w.header.frame_id!r}: waypoints are "
+                                    f"given in {FRAME!r}")
+
+
+# a Trajectory's `limits` field -> (the Limits field it tightens, the planner parameter behind it)
+OWN_LIMITS = {"max_velocity_mps": ("xy_vel_max_mps", "max_velocity_mps"), "acc_hor_mps2": ("acc_hor_mps2", "acc_hor_mps2"),
+              "jerk_mps3": ("jerk_mps3", "jerk_mps3"), "z_vel_max_up_mps": ("z_vel_max_up_mps", "z_vel_max_up_mps"),
+              "z_vel_max_dn_mps": ("z_vel_max_dn_mps", "z_vel_max_dn_mps")}
+
+
+def limits_of(msg: Trajectory, limits: Limits) -> Limits:
+    """The planner's `limits` tightened by the message's own; one above the planner's is refused
+    naming the field (a mission asking for more than the vehicle is set up for is not clipped)."""
+    if msg.limits is None:
+        return limits
+    tighter = {}
+    for name, value in msg.limits.given().items():
+        field, param = OWN_LIMITS[name]
+        own = getattr(limits, field)
+        if value > own * (1 + 1e-9):
+            raise TrajectoryRefused(f"`limits.{name}` {value:g} is above the planner's {param} {own:g}")
+        tighter[field] = value
+    return dataclasses.replace(limits, **tighter)
 
 
 def path_for(msg: Trajectory, position_m: np.ndarray, yaw_rad: float, limits: Limits,
-             acceptance_radius_m: float) -> Path:
+             acceptance_radius_m: float, generator: str = "smooth") -> Path | None:
     """The path `msg` asks for, flown from `position_m` (an untimed WAYPOINT message starts at
-    rest there and passes its waypoints in order). Raises TrajectoryRefused naming the field."""
+    rest there and passes its waypoints in order), with `generator` unless the message names its
+    own; None: that generator flies goal by goal. Raises TrajectoryRefused naming the field."""
+    check_frames(msg)
+    limits = limits_of(msg, limits)
     if msg.trajectory_type == Trajectory.TRAJECTORY_WAYPOINT and not msg.waypoint_times_s:
-        if msg.generator_name != "smooth":
-            raise TrajectoryRefused(f"`generator_name` {msg.generator_name!r} cannot time waypoints: generators: smooth "
-                                    "(waypoint flies goal by goal and takes no trajectory)")
-        for name in ("total_duration_s", "poly_order", "poly_coeffs_x", "poly_coeffs_y", "poly_coeffs_z",
-                     "poly_coeffs_yaw"):
-            if getattr(msg, name):
-                raise TrajectoryRefused(f"`{name}` is not used by the smooth generator: leave it empty")
+        name = generator_of(msg, generator)
+        gen = GENERATORS.get(name)
+        if gen is None:
+            raise TrajectoryRefused(f"`generator_name` {name!r} is not a generator: {', '.join(GENERATORS)}")
+        if gen.make is None:
+            return None
+        for field in ("total_duration_s", "poly_order", "poly_coeffs_x", "poly_coeffs_y", "poly_coeffs_z",
+                      "poly_coeffs_yaw"):
+            if getattr(msg, field):
+                raise TrajectoryRefused(f"`{field}` is not used by the {name} generator: leave it empty")
         if not msg.waypoints:
             raise TrajectoryRefused("`waypoints` is empty: nothing to fly")
         points = [np.asarray(position_m, float)] + [np.array([w.pose.position.x, w.pose.position.y, w.pose.position.z])
                                                     for w in msg.waypoints]
         yaws = [yaw_rad] + [w.pose.orientation.to_yaw() for w in msg.waypoints]
         try:
-            return smooth(np.array(points), limits, acceptance_radius_m, yaws_rad=yaws)
+            return gen.make(np.array(points), yaws, limits, acceptance_radius_m)
         except ValueError as e:
             raise TrajectoryRefused(f"`waypoints`: {e}") from None
     path = evaluate(msg)

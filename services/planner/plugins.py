@@ -1,0 +1,52 @@
+"""The planner's swappable parts and when one may be swapped.
+
+Three slots, each a registry keyed by name and a planner parameter naming the one that runs:
+trajectory_generator (trajectory/generators.py), controller (controllers.py), estimator
+(estimators.py). `planner/srv/select_plugin` (SetTrajectoryGenerator / SetController /
+SetEstimator) and `aero param set planner <slot> NAME` are the same switch: both go through the
+parameter, so there is one value of what runs and one rule for when it may change.
+
+A switch is safe on the ground (landed or disarmed) or hovering (in the air, speed below
+`hover_speed_mps`); moving, the old part's reference and the new one's would disagree mid-way
+(a trajectory's timing, a feed-forward the other controller drops), so it is refused, saying
+how fast the vehicle moves. `vio` is refused while VIO's odometry is not fresh.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from aeroperception.schemas import VehicleState
+
+from .controllers import CONTROLLERS
+from .estimators import ESTIMATORS
+from .trajectory.generators import GENERATORS
+
+REGISTRIES: dict[str, dict] = {"trajectory_generator": GENERATORS, "controller": CONTROLLERS, "estimator": ESTIMATORS}
+
+
+def speed_mps(state: VehicleState) -> float:
+    return float(np.linalg.norm(state.velocity_mps.to_array()))
+
+
+def on_ground(state: VehicleState) -> bool:
+    return state.landed or not state.armed
+
+
+def is_hovering(state: VehicleState, hover_speed_mps: float) -> bool:
+    """In the air and (nearly) still: speed below `hover_speed_mps`."""
+    return not on_ground(state) and speed_mps(state) < hover_speed_mps
+
+
+def switch_refusal(role: str, name: str, state: VehicleState | None, hover_speed_mps: float,
+                   vio_fresh: bool = False) -> str:
+    """Why `role` may not switch to `name` now ('' = it may). No vehicle state: the planner
+    sends no setpoints, so any switch is safe."""
+    registry = REGISTRIES[role]
+    if name not in registry:
+        return f"{role} {name!r} is not registered: {', '.join(registry)}"
+    if state is not None and not on_ground(state) and not is_hovering(state, hover_speed_mps):
+        return (f"moving at {speed_mps(state):.2f} m/s: switch the {role} on the ground or hovering "
+                f"(below hover_speed_mps {hover_speed_mps:g} m/s)")
+    if role == "estimator" and name == "vio" and not vio_fresh:
+        return "no fresh state/visual_odometry: VIO must be running before it is the estimator"
+    return ""

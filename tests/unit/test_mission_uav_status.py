@@ -1,0 +1,72 @@
+"""UAVStatus / UAVMode from the mission FSM, the vehicle's state and the planner's status."""
+from __future__ import annotations
+
+import pytest
+
+from aeroperception.schemas import LandedState, SafetyStatus, TrajectoryStatus, UAVMode, Vector3, VehicleState
+from aeroperception.services.mission.fsm import State
+from aeroperception.services.mission.uav_status import UavStatusBuilder, uav_mode
+
+
+def vehicle(speed=0.0, armed=True, landed=LandedState.IN_AIR, mode="OFFBOARD") -> VehicleState:
+    return VehicleState(velocity_mps=Vector3(x=speed), armed=armed, landed_state=landed, flight_mode=mode,
+                        connected=True, battery_remaining=0.8)
+
+
+GROUND = dict(armed=False, landed=LandedState.ON_GROUND, mode="HOLD")
+
+
+@pytest.mark.parametrize("fsm, v, flew, expected", [
+    (State.IDLE, None, False, UAVMode.STATE_IDLE),
+    (State.IDLE, vehicle(**GROUND), False, UAVMode.STATE_IDLE),
+    (State.IDLE, vehicle(**GROUND), True, UAVMode.STATE_LANDED),
+    (State.IDLE, vehicle(landed=LandedState.ON_GROUND), False, UAVMode.STATE_ARMED),
+    (State.TAKEOFF, vehicle(1.0), False, UAVMode.STATE_TAKING_OFF),
+    (State.EXECUTING, vehicle(1.5), True, UAVMode.STATE_FLYING),
+    (State.EXECUTING, vehicle(0.1), True, UAVMode.STATE_HOVERING),    # waiting at a waypoint is hovering
+    (State.HOLDING, vehicle(0.05), True, UAVMode.STATE_HOVERING),
+    (State.HOLDING, vehicle(0.8), True, UAVMode.STATE_FLYING),        # braking into the hold
+    (State.LAND, vehicle(0.5), True, UAVMode.STATE_LANDING),
+])
+def test_state_from_the_fsm_and_the_vehicle(fsm, v, flew, expected):
+    assert uav_mode(fsm, v, None, None, flew).state == expected
+
+
+def test_a_safety_emergency_wins_and_control_mode_follows_the_fc_and_the_planner():
+    emergency = SafetyStatus(safety_level=SafetyStatus.LEVEL_EMERGENCY)
+    assert uav_mode(State.EXECUTING, vehicle(2.0), emergency, None, True).state == UAVMode.STATE_EMERGENCY
+    flying = TrajectoryStatus(status=TrajectoryStatus.STATUS_EXECUTING, trajectory_id="survey_01@0",
+                              active_controller="feedforward")
+    goal_by_goal = TrajectoryStatus(status=TrajectoryStatus.STATUS_EXECUTING, trajectory_id="goal-3",
+                                    active_controller="feedforward")
+    assert uav_mode(State.EXECUTING, vehicle(2.0), None, flying, True).control_mode == UAVMode.MODE_TRAJECTORY
+    assert uav_mode(State.EXECUTING, vehicle(2.0), None, goal_by_goal, True).control_mode == UAVMode.MODE_OFFBOARD
+    velocity = TrajectoryStatus(trajectory_id="goal-3", active_controller="velocity")
+    assert uav_mode(State.EXECUTING, vehicle(2.0), None, velocity, True).control_mode == UAVMode.MODE_VELOCITY
+    assert uav_mode(State.HOLDING, vehicle(mode="POSCTL"), None, None, True).control_mode == UAVMode.MODE_POSITION
+    assert uav_mode(State.HOLDING, vehicle(mode="STABILIZED"), None, None, True).control_mode == UAVMode.MODE_MANUAL
+    rtl = uav_mode(State.LAND, vehicle(mode="RTL"), None, None, True)
+    assert rtl.submode == "rth" and rtl.can_land is False and rtl.armed
+
+
+def test_what_may_be_asked_now():
+    idle = uav_mode(State.IDLE, vehicle(**GROUND), None, None, False)
+    assert idle.can_arm and idle.can_takeoff and not idle.can_land and idle.submode == "idle"
+    air = uav_mode(State.HOLDING, vehicle(), None, None, True)
+    assert not air.can_arm and not air.can_takeoff and air.can_land
+    lost = vehicle(**GROUND)
+    lost.connected = False
+    assert not uav_mode(State.IDLE, lost, None, None, False).can_takeoff
+
+
+def test_the_status_carries_the_planners_parts_links_and_progress_and_remembers_a_flight():
+    b = UavStatusBuilder("uav1")
+    parts = TrajectoryStatus(active_trajectory_generator="smooth", active_controller="velocity", active_estimator="vio")
+    st = b.build(State.EXECUTING, vehicle(1.0), None, parts, True, "survey_01", 50.0)
+    assert (st.uav_id, st.active_trajectory_generator, st.active_controller, st.active_estimator) == \
+        ("uav1", "smooth", "velocity", "vio")
+    assert st.px4_connected and st.gcs_connected and st.battery_remaining == 0.8
+    assert st.current_mission_id == "survey_01" and st.mission_progress_percent == 50.0
+    assert 0.0 <= st.memory_percent <= 100.0 and st.cpu_percent >= 0.0
+    landed = b.build(State.IDLE, vehicle(**GROUND), None, None, False, "", 0.0)
+    assert landed.current_mode.state == UAVMode.STATE_LANDED and landed.active_controller == ""
