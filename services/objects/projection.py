@@ -13,6 +13,7 @@ Frames: camera optical (x right, y down, z forward), body FLU, world ENU.
 from __future__ import annotations
 
 import bisect
+import math
 from dataclasses import dataclass
 
 import cv2
@@ -205,11 +206,11 @@ def box_scale(cam: Camera, origin: np.ndarray, m: Measurement, box_height_px: fl
     placed point would fill: its side (height x cos) plus its top (mean footprint x sin of the
     angle it is seen down at). Near 1 (times the detector's margin) for a whole view from any range
     and height; much less for a partial one."""
-    d = m.position_m - origin
-    down = np.arctan2(-d[2], np.hypot(d[0], d[1]))
+    east, north, up = (float(c) for c in m.position_m - origin)
+    down = math.atan2(-up, math.hypot(east, north))
     length, width, height = size_m
-    typical_m = height * np.cos(down) + (length + width) / 2 * abs(np.sin(down))
-    return float(box_height_px * m.range_m / cam.fy / typical_m)
+    typical_m = height * math.cos(down) + (length + width) / 2 * abs(math.sin(down))
+    return box_height_px * m.range_m / cam.fy / typical_m
 
 
 def box_disparity(left: np.ndarray, right: np.ndarray, box_xyxy: tuple[float, float, float, float],

@@ -11,6 +11,7 @@ a plain distance (a far detection's wide covariance must not capture a track met
 """
 from __future__ import annotations
 
+import statistics
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -232,7 +233,7 @@ class Tracker:
             return True
         scales = t.scales
         if len(scales) >= 3 and t.partial_run < 5 and not (
-                1 / self.config.partial_ratio <= o.box_scale / float(np.median(scales)) <= self.config.partial_ratio):
+                1 / self.config.partial_ratio <= o.box_scale / statistics.median(scales) <= self.config.partial_ratio):
             t.partial_run += 1
             return False
         if t.partial_run >= 5:
