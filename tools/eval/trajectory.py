@@ -123,7 +123,7 @@ def table(res: dict) -> str:
 
 def run_live(args) -> int:
     from aeroperception.schemas import (
-        Empty, GetMissionReply, SchemaError, TrajectoryStatus, VehicleState, WaypointReached, decode, parse_mission,
+        Empty, GetMissionReply, MissionStatus, SchemaError, TrajectoryStatus, VehicleState, WaypointReached, decode, parse_mission,
     )
     from aeroperception.services.runtime.node import call
 
@@ -133,14 +133,16 @@ def run_live(args) -> int:
     session = open_client(args)
     lock, watch, subs = threading.Lock(), FlightWatch(), []
     try:
-        try:
-            reply = call(session, prefix + "mission/srv/get", Empty(), GetMissionReply, 5.0)
-        except Exception as e:  # noqa: BLE001 - no mission service: one line
-            raise CliError(f"mission/srv/get: {e} (is the stack up: aero up?)") from None
-        if not reply.success:
-            raise CliError("no mission loaded (mission/srv/get): load one first (aero mission load FILE)")
-        mission = parse_mission(reply.mission_json)
-        ev = TrajectoryEval(np.array([[w.x, w.y, w.z] for w in mission.waypoints], float))
+        ev = TrajectoryEval(np.zeros((0, 3)))    # the waypoints: the mission's once it flies
+        flying = threading.Event()
+
+        def on_mission_status(sample) -> None:
+            try:
+                m = decode(sample.payload.to_bytes(), MissionStatus)
+            except SchemaError:
+                return
+            if m.state != MissionStatus.STATE_IDLE:
+                flying.set()
 
         def on_truth(sample) -> None:
             try:
@@ -171,10 +173,27 @@ def run_live(args) -> int:
 
         subs = [session.declare_subscriber(prefix + "sim/truth/state", on_truth),
                 session.declare_subscriber(prefix + "mission/waypoint_reached", on_reached),
-                session.declare_subscriber(prefix + "planner/status", on_status)]
+                session.declare_subscriber(prefix + "planner/status", on_status),
+                session.declare_subscriber(prefix + "mission/status", on_mission_status)]
+        end_s = time.monotonic() + args.duration
+        # Started before `aero mission fly FILE` (which loads it): the mission scored is the one
+        # loaded once the mission leaves IDLE, not one a previous flight left loaded.
+        if not flying.is_set():
+            print("waiting for a mission to fly (aero mission fly FILE) ...", flush=True)
+        if not flying.wait(args.duration):
+            raise CliError(f"no mission flew within {args.duration:g} s (mission/status stayed IDLE): "
+                           "start one (aero mission fly FILE)")
+        try:
+            reply = call(session, prefix + "mission/srv/get", Empty(), GetMissionReply, 5.0)
+        except Exception as e:  # noqa: BLE001 - no mission service: one line
+            raise CliError(f"mission/srv/get: {e} (is the stack up: aero up?)") from None
+        if not reply.success:
+            raise CliError("no mission loaded (mission/srv/get) although the mission left IDLE")
+        with lock:
+            ev.waypoints_m = np.array([[w.x, w.y, w.z] for w in parse_mission(reply.mission_json).waypoints], float)
         print(f"scoring the flight of {len(ev.waypoints_m)} waypoints for {args.duration:g} s"
               + (" at most, until the vehicle has flown and landed" if args.until_landed else "") + " ...", flush=True)
-        watch.wait(args.duration, args.until_landed)
+        watch.wait(max(0.0, end_s - time.monotonic()), args.until_landed)
     finally:
         for s in subs:
             s.undeclare()
