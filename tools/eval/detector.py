@@ -31,7 +31,7 @@ AP_CONF = 0.01        # keep low-score detections for the precision/recall curve
 
 
 def default_model() -> str:
-    return str(Path(__file__).resolve().parents[1] / "services/detector/models/aero_sim_det.onnx")
+    return str(Path(__file__).resolve().parents[2] / "services/detector/models/aero_sim_det.onnx")
 
 
 def _load(model_path: str, threads: int):

@@ -333,7 +333,7 @@ def export_onnx(net, path: Path) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", default=str(Path(__file__).resolve().parents[1] / "services/detector/models"))
+    ap.add_argument("--out", default=str(Path(__file__).resolve().parents[2] / "services/detector/models"))
     ap.add_argument("--cache", default="/tmp/aero_detector_data")
     ap.add_argument("--iters", type=int, default=5500)
     ap.add_argument("--threads", type=int, default=1,
