@@ -34,6 +34,13 @@ class CostmapConfig:
     cost_scaling_factor: float = 3.0
 
 
+def _azimuth_bin(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Index of each direction's AZIMUTH_BINS-th of the circle."""
+    b = ((np.arctan2(y, x) + math.pi) * (AZIMUTH_BINS / (2 * math.pi))).astype(np.int64)
+    b %= AZIMUTH_BINS
+    return b
+
+
 class RollingCostmap:
     def __init__(self, cfg: CostmapConfig):
         self.cfg = cfg
@@ -73,54 +80,56 @@ class RollingCostmap:
 
     # ------------------------------------------------------------ update
 
-    def update(self, sensor_xy: tuple[float, float], obstacles_xy: np.ndarray, returns_xy: np.ndarray,
-               ground_xy: np.ndarray | None = None) -> None:
-        """One scan: clear along rays from the sensor to `returns_xy` (every return, obstacle or
-        not), clear the cells of `ground_xy` returns themselves, then mark `obstacles_xy`."""
+    def update(self, sensor_xy: tuple[float, float], obstacles: np.ndarray, returns: np.ndarray,
+               ground: np.ndarray | None = None) -> None:
+        """One scan: clear along rays from the sensor to `returns` (every return, obstacle or
+        not), clear the cells of `ground` returns themselves, then mark `obstacles`.
+
+        Points are (N, >= 2) offsets from the sensor along the world's x, y (the pipeline's
+        levelled frame; further columns are ignored), the sensor is at world `sensor_xy`: the
+        pipeline's arrays are used as they are, without a world-frame copy of each."""
         cfg = self.cfg
-        s = np.asarray(sensor_xy, dtype=np.float64)
-        if len(returns_xy):
-            d = np.linalg.norm(returns_xy - s, axis=1)
-            ends = returns_xy[d <= cfg.raytrace_range_m]
-            self._clear_rays(s, ends)
-        if ground_xy is not None and len(ground_xy):
-            d = np.linalg.norm(ground_xy - s, axis=1)
-            self._set(self.world_to_cell(ground_xy[d <= cfg.raytrace_range_m]), FREE)
-        if len(obstacles_xy):
-            d = np.linalg.norm(obstacles_xy - s, axis=1)
-            cells = self.world_to_cell(obstacles_xy[d <= cfg.obstacle_range_m])
-            cells = cells[self._inside(cells)]
-            if len(cells):
-                flat = cells[:, 1] * self.n + cells[:, 0]
+        sx, sy = float(sensor_xy[0]), float(sensor_xy[1])
+        if len(returns):
+            self._clear_rays(sx, sy, returns)
+        if ground is not None and len(ground):
+            self.grid.ravel()[self._cells(sx, sy, ground, cfg.raytrace_range_m)] = FREE
+        if len(obstacles):
+            flat = self._cells(sx, sy, obstacles, cfg.obstacle_range_m)
+            if len(flat):
                 counts = np.bincount(flat, minlength=self.n * self.n)
-                hit = np.flatnonzero(counts >= cfg.mark_threshold)
-                self.grid.ravel()[hit] = LETHAL
+                self.grid.ravel()[counts >= cfg.mark_threshold] = LETHAL
 
-    def _inside(self, cells: np.ndarray) -> np.ndarray:
-        return (cells[:, 0] >= 0) & (cells[:, 0] < self.n) & (cells[:, 1] >= 0) & (cells[:, 1] < self.n)
+    def _cells(self, sx: float, sy: float, offsets: np.ndarray, range_m: float) -> np.ndarray:
+        """Flat grid index of each offset within `range_m` of the sensor and inside the window."""
+        x, y = offsets[:, 0], offsets[:, 1]
+        near = x * x + y * y <= range_m * range_m
+        inv = 1.0 / self.cfg.resolution_m
+        ox, oy = self.origin_cell or (0, 0)
+        col = np.floor(x[near] * inv + (sx * inv - ox)).astype(np.int64)
+        row = np.floor(y[near] * inv + (sy * inv - oy)).astype(np.int64)
+        inside = (col >= 0) & (col < self.n) & (row >= 0) & (row < self.n)
+        return row[inside] * self.n + col[inside]
 
-    def _set(self, cells: np.ndarray, value: int) -> None:
-        cells = cells[self._inside(cells)]
-        self.grid[cells[:, 1], cells[:, 0]] = value
-
-    def _clear_rays(self, s: np.ndarray, ends: np.ndarray) -> None:
+    def _clear_rays(self, sx: float, sy: float, returns: np.ndarray) -> None:
         """FREE every cell some ray passes before its end: in 2D that is every cell closer to
         the sensor than the farthest return in its azimuth bin (less half a cell, so an end
         cell is not cleared by its own ray). O(cells + returns), ~1 ms, where stepping along
         each of ~20k rays costs hundreds of ms in numpy."""
-        if not len(ends):
-            return
         bins, res = AZIMUTH_BINS, self.cfg.resolution_m
-        v = ends - s
-        b = ((np.arctan2(v[:, 1], v[:, 0]) + math.pi) * (bins / (2 * math.pi))).astype(np.int64) % bins
-        reach = np.zeros(bins)
-        np.maximum.at(reach, b, np.hypot(v[:, 0], v[:, 1]))
+        x, y = returns[:, 0], returns[:, 1]
+        d2 = x * x + y * y
+        near = d2 <= self.cfg.raytrace_range_m ** 2
+        if not near.any():
+            return
+        x, y = x[near], y[near]
+        reach = np.zeros(bins, x.dtype)
+        np.maximum.at(reach, _azimuth_bin(x, y), np.sqrt(d2[near]))
         ox, oy = self.origin_m
         centres = (np.arange(self.n) + 0.5) * res
-        cx = centres[None, :] + ox - s[0]
-        cy = centres[:, None] + oy - s[1]
-        cb = ((np.arctan2(cy, cx) + math.pi) * (bins / (2 * math.pi))).astype(np.int64) % bins
-        free = np.hypot(cx, cy) < reach[cb] - 0.5 * res
+        cx = (centres + (ox - sx))[None, :]
+        cy = (centres + (oy - sy))[:, None]
+        free = np.hypot(cx, cy) < reach[_azimuth_bin(cx, cy)] - 0.5 * res
         self.grid[free] = FREE
 
     # ------------------------------------------------------------ output
