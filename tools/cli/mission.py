@@ -257,7 +257,9 @@ def _follow(args, prog: Progress, total: int, quiet: bool = False, interrupted: 
             raise CliError(f"the vehicle armed and disarmed on the ground but the mission never left IDLE "
                            f"({st.message if st else 'no mission/status'}): check `aero topic echo mission/status`")
         if flew and down:
-            done = "landed after the interruption" if interrupted else "4/4 done: landed"
+            n = len({ev.index for ev in reached})
+            done = "landed after the interruption" if interrupted else \
+                f"{n}/{total or (st.total_waypoints if st else n)} done: landed"
             print(f"{done} and disarmed (vehicle on the ground); states {' -> '.join(seen)}", flush=True)
             return 0
     where = "no vehicle state" if prog.vehicle is None else (
