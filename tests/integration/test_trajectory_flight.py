@@ -1,7 +1,8 @@
 """Trajectories flown on the built-in sim, judged by its truth: survey_01 with the smooth generator
 faster than goal by goal at the same 2 m/s cap and on its legs; figure8 at 3 m/s; limits kept;
 every waypoint passed and landed; a POLYNOMIAL trajectory through the SetTrajectory action, and
-the goals it refuses."""
+the goals it refuses; the planner's swappable parts switched over planner/srv/select_plugin on
+the ground and hovering, refused moving; mission/uav_status along the way."""
 from __future__ import annotations
 
 import time
@@ -10,10 +11,11 @@ import numpy as np
 import pytest
 
 from aeroperception.schemas import (
-    GoalStatus, SetTrajectoryFeedback, SetTrajectoryGoal, TakeoffGoal, Trajectory, TrajectorySetpoint,
-    TrajectoryStatus, VehicleState, WaypointReached, load_mission_file,
+    GoalStatus, Header, ParamSet, ParamSetReply, PoseStamped, SelectPluginReply, SelectPluginRequest, SetTrajectoryFeedback, SetTrajectoryGoal,
+    TakeoffGoal, Trajectory, TrajectorySetpoint, TrajectoryStatus, UAVMode, UAVStatus, VehicleState, WaypointReached,
+    load_mission_file,
 )
-from aeroperception.services.runtime import ActionClient
+from aeroperception.services.runtime import ActionClient, call
 from aeroperception.tools.eval.trajectory import TrajectoryEval
 from aerotest import wait_until
 from test_flight import REPO, SURVEY, flight_stack, wait_at_rest
@@ -89,37 +91,88 @@ def cubic_x(x0: float, y0: float, z0: float, distance_m: float, duration_s: floa
                       setpoint_type=Trajectory.SETPOINT_FULL_STATE, **kw)
 
 
+def set_planner(st, name: str, value) -> None:
+    r = call(st.session, "config/planner/@set", ParamSet(name=name, value=value), ParamSetReply, 10)
+    assert r.success, r.message
+
+
+def select(st, role: str, name: str) -> SelectPluginReply:
+    """SetController / SetEstimator / SetTrajectoryGenerator over Zenoh."""
+    return call(st.session, "planner/srv/select_plugin", SelectPluginRequest(role=role, name=name), SelectPluginReply, 10)
+
+
 def test_set_trajectory_action_flies_a_polynomial_and_refuses_what_it_cannot(tstack):
     st = tstack
     st.ensure_landed()
     takeoff = ActionClient(st.session, "mission/action/takeoff")
     fly = ActionClient(st.session, "mission/action/set_trajectory")
     try:
+        with st.capture(setpoints=("fmu/in/trajectory_setpoint", TrajectorySetpoint)) as rec:
+            r = select(st, "estimator", "gps")
+            assert not r.success and "'gps' is not one of ['fc', 'vio']" in r.message and r.active == "fc", r
+            r = select(st, "estimator", "vio")      # no VIO in this stack
+            assert not r.success and "visual_odometry" in r.message and r.active == "fc", r
+            r = select(st, "controller", "velocity")                     # on the ground: allowed
+            assert r.success and r.active == "velocity", r
+            t = time.monotonic()
+            wait_until(lambda: len(rec.get("setpoints", since=t)) > 5, 5, "setpoints after the switch")
+            assert not any(sp.position_valid for sp in rec.get("setpoints", since=t)[2:])   # velocity only now
+            assert select(st, "controller", "feedforward").success
         g = takeoff.send_goal(TakeoffGoal(target_altitude_m=3.0))
         assert g.success, g.message
         assert takeoff.result(g.goal_id, 40).status == GoalStatus.SUCCEEDED
         here = wait_at_rest(st).position_m
         x0, y0, z0 = here.x, here.y, here.z
+        r = select(st, "trajectory_generator", "smooth")                 # hovering: allowed
+        assert r.success and r.active == "smooth", r
+        assert select(st, "trajectory_generator", "waypoint").success
+        uav = st.capture(uav=("mission/uav_status", UAVStatus))
+        with uav:
+            wait_until(lambda: uav.last("uav") is not None, 5, "mission/uav_status")
+        hovering = uav.last("uav")
+        assert hovering.current_mode.state == UAVMode.STATE_HOVERING and hovering.current_mode.can_land, hovering
+        assert hovering.active_controller == "feedforward" and hovering.active_trajectory_generator == "waypoint"
+        odom_wp = Trajectory(generator_name="smooth", waypoints=[PoseStamped(header=Header(frame_id="odom"))])
         for goal, why in [
             (SetTrajectoryGoal(trajectory=cubic_x(x0, y0, z0, 6.0, 8.0), replace_current=False), "replace_current"),
             (SetTrajectoryGoal(trajectory=cubic_x(x0, y0, z0, 6.0, 8.0, start_time_ns=5)), "start_time_ns"),
             (SetTrajectoryGoal(trajectory=cubic_x(x0 + 20, y0, z0, 6.0, 8.0)), "starts 20"),
             (SetTrajectoryGoal(trajectory=cubic_x(x0, y0, z0, 60.0, 2.0)), "MPC_XY_VEL_MAX"),
+            (SetTrajectoryGoal(trajectory=odom_wp), "`waypoints[0].header.frame_id` 'odom'"),
         ]:
             r = fly.send_goal(goal)
             assert not r.success and why in r.message, (why, r.message)
+        # The planner's live limit below the trajectory's speed (1.1 m/s peak): accepted by the mission
+        # (default limits), refused by the planner, which holds: the action fails, never flown goal by goal.
+        set_planner(st, "max_velocity_mps", 0.5)
+        try:
+            with st.capture(truth=("sim/truth/state", VehicleState)) as rec:
+                r = fly.send_goal(SetTrajectoryGoal(trajectory=cubic_x(x0, y0, z0, 6.0, 8.0)))
+                assert r.success, r.message
+                res = fly.result(r.goal_id, 20)
+                assert res.status == GoalStatus.ABORTED and "MPC_XY_VEL_MAX" in res.message, res.message
+                moved = max(abs(m.position_m.x - x0) for m in rec.get("truth"))
+            assert moved < 0.3, f"flew {moved:.2f} m towards a refused trajectory's end"
+        finally:
+            set_planner(st, "max_velocity_mps", 2.0)
         feedback: list = []
-        with st.capture(truth=("sim/truth/state", VehicleState)) as rec:
+        with st.capture(truth=("sim/truth/state", VehicleState), uav=("mission/uav_status", UAVStatus)) as rec:
             r = fly.send_goal(SetTrajectoryGoal(trajectory=cubic_x(x0, y0, z0, 6.0, 8.0)), feedback_cb=feedback.append)
             assert r.success, r.message
+            wait_until(lambda: (rec.last("truth") is not None and rec.last("truth").velocity_mps.x > 0.6), 10,
+                       f"moving along the trajectory (mission {st.mission_state()})")
+            moving = select(st, "controller", "velocity")                # moving: refused
+            assert not moving.success and "moving at" in moving.message and moving.active == "feedforward", moving
             res = fly.result(r.goal_id, 40)
             assert res.status == GoalStatus.SUCCEEDED, f"{GoalStatus.name(res.status)}: {res.message}"
             track = np.array([m.position_m.to_array() for m in rec.get("truth")])
+            modes = [(m.current_mode.state, m.current_mode.control_mode) for m in rec.get("uav")]
         end = np.array([x0 + 6.0, y0, z0])
         assert np.linalg.norm(track - end, axis=1).min() < 0.35        # done within 0.3 m of its end (estimate)
         assert np.abs(track[:, 1] - y0).max() < 0.3 and np.abs(track[:, 2] - z0).max() < 0.4   # along its line
         statuses = [f.unwrap(SetTrajectoryFeedback).status for f in feedback]
         assert any(s.trajectory_id == "cubic" and s.progress_percent > 50 for s in statuses), statuses[-3:]
+        assert (UAVMode.STATE_FLYING, UAVMode.MODE_TRAJECTORY) in modes, modes
         assert st.mission_state() == "HOLDING"
     finally:
         takeoff.close()
