@@ -21,11 +21,12 @@ from aeroperception.schemas import (
     Empty, EstimatorStatus, GetMissionReply, GoalReply, GoalStatus, GoToPositionFeedback, GoToPositionGoal,
     GoToPositionResult, GpsPosition, Header,
     HomePosition, Image, Imu, LandedState, LandFeedback, LandGoal, LandResult, LoadMissionReply,
-    LoadMissionRequest, LocalPosition, Message, Mission, MissionCommand, MissionGoal, MissionStatus, NDArray,
+    LoadMissionRequest, LocalPosition, Message, Mission, MissionCommand, MissionGoal, MissionStatus, MissionTrajectory,
+    NDArray,
     OccupancyGrid, Odometry, PerceptionHealth, PointCloud, Pose, PoseStamped, Quaternion, Reply,
     ResultRequest, SafetyStatus, SchemaError, SelectPluginReply, SelectPluginRequest, SetModeReply,
     SetModeRequest, SetTrajectoryFeedback, SetTrajectoryGoal, SetTrajectoryResult, TakeoffFeedback,
-    TakeoffGoal, TakeoffResult, Trajectory, TrajectorySetpoint, TrajectoryStatus, Twist, UAVMode,
+    TakeoffGoal, TakeoffResult, Trajectory, TrajectoryLimits, TrajectorySetpoint, TrajectoryStatus, Twist, UAVMode,
     UAVStatus, Vector3, VehicleState, VehicleStatus, VioHealth, VioResetRequest, Waypoint, WaypointReached, decode,
     encode, from_builtins, load_mission_file, parse_mission, to_builtins,
     ObjectEvent, TrackedObject, TrackedObjectArray,
@@ -78,7 +79,7 @@ def _trajectory():
         waypoints=[PoseStamped(header=H, pose=P), PoseStamped(pose=Pose(position=Vector3(x=9.0)))],
         waypoint_times_s=[0.0, 12.5], poly_coeffs_x=[0.0, 1.0, 0.5], poly_coeffs_y=[1.0],
         poly_coeffs_z=[2.0, 0.0], poly_coeffs_yaw=[0.1], poly_order=3,
-        setpoint_type=Trajectory.SETPOINT_FULL_STATE,
+        setpoint_type=Trajectory.SETPOINT_FULL_STATE, limits=TrajectoryLimits(max_velocity_mps=1.5, jerk_mps3=2.0),
     )
 
 
@@ -101,7 +102,8 @@ def _mode():
 def _mission():
     return Mission(header=H, mission_id="survey_01", takeoff_altitude_m=5.0, require_vio=True,
                    waypoints=[Waypoint(x=0.0, y=0.0, z=5.0), Waypoint(x=10.0, y=-1.0, z=6.0, yaw_deg=90.0)],
-                   waypoint_acceptance_radius_m=0.75)
+                   waypoint_acceptance_radius_m=0.75,
+                   trajectory=MissionTrajectory(generator="smooth", acc_hor_mps2=2.0))
 
 
 def _gcs_samples():
