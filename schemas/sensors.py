@@ -311,6 +311,11 @@ class Odometry(Message, kw_only=True):
     `child_frame_id` (body FLU, "base_link") in `header.frame_id` (ENU, "odom"); `twist` is
     expressed in the child (body FLU) frame, as in ROS. Covariance order: x, y, z, roll, pitch, yaw
     (resp. vx, vy, vz, wx, wy, wz); None when the estimator has none.
+
+    `reset_counter` goes up by one each time the estimator restarts (its pose may jump there), so a
+    consumer re-aligns to the new pose instead of taking the jump for motion (MAVLink ODOMETRY's
+    reset_counter). `quality_pct`: the estimator's own tracking quality, 1 (worst) - 100 (best);
+    None when it gives none.
     """
 
     header: Header = msgspec.field(default_factory=Header)
@@ -319,6 +324,8 @@ class Odometry(Message, kw_only=True):
     twist: Twist = msgspec.field(default_factory=Twist)
     pose_covariance: NDArray | None = None
     twist_covariance: NDArray | None = None
+    reset_counter: int = 0
+    quality_pct: int | None = None
 
     __shapes__ = {"pose_covariance": (6, 6), "twist_covariance": (6, 6)}
 
@@ -326,6 +333,10 @@ class Odometry(Message, kw_only=True):
         super().__post_init__()
         check_dtype("pose_covariance", self.pose_covariance, ("float64", "float32"))
         check_dtype("twist_covariance", self.twist_covariance, ("float64", "float32"))
+        if self.reset_counter < 0:
+            raise ValueError(f"field `reset_counter` must be >= 0, got {self.reset_counter}")
+        if self.quality_pct is not None and not 1 <= self.quality_pct <= 100:
+            raise ValueError(f"field `quality_pct` must be 1-100 or None, got {self.quality_pct}")
 
 
 @schema("VioHealth", 1)

@@ -226,8 +226,11 @@ def odometry_fields(odom: Odometry, time_usec: int) -> dict:
     - time_usec: the pose's exposure stamp in the clock fmu answers PX4's TIMESYNC in (the node's),
       so PX4 converts it into its own once its time sync has converged.
     - covariances: upper-right triangles (EKF2 reads the diagonals, used with EKF2_EV_NOISE_MD 0);
-      NaN first element when the estimator gave none. reset_counter 0: the VIO keeps one odom frame
-      (a re-initialisation warm-starts from its last pose); quality 100 (EKF2_EV_QMIN 0 takes any)."""
+      NaN first element when the estimator gave none.
+    - reset_counter: the estimator's (uint8, wrapping): on a change EKF2 re-aligns to the new pose
+      (resets its vision frame and position) instead of rejecting the jump as an innovation outlier.
+    - quality: the estimator's 1-100, 0 (MAVLink's "unknown") when it gives none; EKF2 fuses only
+      samples at or above EKF2_EV_QMIN."""
     p = frames.enu_to_ned(odom.pose.position.to_array())
     o = odom.pose.orientation
     q = frames.q_enu_flu_to_ned_frd(np.array([o.w, o.x, o.y, o.z]))
@@ -245,8 +248,8 @@ def odometry_fields(odom: Odometry, time_usec: int) -> dict:
                 x=float(p[0]), y=float(p[1]), z=float(p[2]), q=[float(x) for x in q],
                 vx=float(v_body[0]), vy=float(v_body[1]), vz=float(v_body[2]),
                 rollspeed=float(w_body[0]), pitchspeed=float(w_body[1]), yawspeed=float(w_body[2]),
-                pose_covariance=urt(pose_cov), velocity_covariance=urt(twist_cov), reset_counter=0,
-                estimator_type=mavlink.MAV_ESTIMATOR_TYPE_VISION, quality=100)
+                pose_covariance=urt(pose_cov), velocity_covariance=urt(twist_cov), reset_counter=odom.reset_counter % 256,
+                estimator_type=mavlink.MAV_ESTIMATOR_TYPE_VISION, quality=odom.quality_pct or 0)
 
 
 def parse_global_origin(text: str) -> tuple[float, float, float] | None:

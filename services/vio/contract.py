@@ -21,7 +21,8 @@ OUTPUTS = Topics(
     # Pose of base_link in odom (gravity-aligned, z up, origin/yaw where VIO initialised) with
     # 6x6 covariances: the smoother's marginals plus the drift accumulated since initialisation
     # (drift.py: grows with distance flown and yaw turned).
-    Topic("state/visual_odometry", Odometry, note="one per processed frame"),
+    Topic("state/visual_odometry", Odometry, note="one per processed frame; with imu_rate_hz also IMU-propagated "
+                                                 "poses between frames, stamps always increasing"),
     Topic("state/vio_health", VioHealth, 1.0, note="and on every state change"),
 )
 SERVICES = Queries(
@@ -49,6 +50,12 @@ _DECLARED = [
           description="1-sigma vertical drift as % of distance flown"),
     Param("imu_gap_warn_s", 0.05, "s", 0.005, 1.0, description="longer IMU gap: DEGRADED for that frame"),
     Param("imu_gap_reset_s", 1.0, "s", 0.05, 10.0, description="longer IMU gap: re-initialise"),
+    Param("imu_rate_hz", 0.0, "Hz", 0.0, 400.0,
+          description="also publish the newest estimate carried forward with the IMU, stamped at IMU samples, at up "
+                      "to this rate (propagate.py): for an FC estimator that needs poses more often and sooner than "
+                      "frames come (PX4 EKF2: < 0.2 s apart); 0 = one pose per frame"),
+    Param("imu_rate_max_horizon_s", 2.0, "s", 0.1, 10.0,
+          description="no IMU-propagated pose further than this past the newest frame's estimate"),
 ]
 # Every parameter configures the strategy built at start (vio_config): a live set is refused, saying
 # so, instead of being reported as in force while the old strategy runs.

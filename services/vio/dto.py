@@ -114,6 +114,8 @@ class VioOutput:
     keyframe: bool = False
     timings_ms: dict[str, float] = field(default_factory=dict)
     emitted_at_ns: int = 0
+    reset_counter: int = 0        # re-initialisations so far: the pose may jump where it changes
+    quality_pct: int = 1          # health.quality_pct: 1 (IMU only) - 100 (a full visual fix)
 
 
 # Health states: the values of schemas VioHealth.state.

@@ -49,3 +49,17 @@ LOG_LEVEL: dict[int, str] = {INIT: "info", TRACKING: "info", DEGRADED: "warn", L
 def next_state(state: int, event: str) -> int:
     """The table's answer; events that do not apply in a state (e.g. GOOD while INIT) keep it."""
     return TRANSITIONS.get((state, event), state)
+
+
+def quality_pct(state: int, inliers: int | None, good_inliers: int, full_inliers: int) -> int:
+    """A pose's quality for consumers that weigh or gate on it (MAVLink ODOMETRY quality, PX4's
+    EKF2_EV_QMIN), 1-100: the health state gives the band, the visual fix's RANSAC inliers the place
+    in it. TRACKING: 50 at `good_inliers` rising to 100 at `full_inliers` (enough for a new keyframe).
+    DEGRADED (a weak fix, or a good one through an IMU gap or a bad image): 2-49 with the inliers;
+    no visual fix (the IMU's pose alone): 1."""
+    if not inliers:
+        return 1
+    if state != TRACKING or inliers < good_inliers:
+        return max(2, min(49, round(50 * inliers / good_inliers)))
+    span = max(1, full_inliers - good_inliers)
+    return min(100, 50 + round(50 * (inliers - good_inliers) / span))

@@ -25,6 +25,7 @@ from .dto import (
     VioError, VioFatalError, VioInitializingError,
 )
 from .health import LOG_LEVEL
+from .propagate import ImuPropagator
 from .strategy import create_strategy
 
 LEVEL = {INIT: DiagnosticStatus.WARN, TRACKING: DiagnosticStatus.OK, DEGRADED: DiagnosticStatus.WARN,
@@ -52,6 +53,10 @@ class VioService(Service):
         self.last_out = None
         self.published_state: int | None = None
         self.pub_odom = self.node.publisher("state/visual_odometry", Odometry, express=True)
+        self.odom_lock = threading.Lock()
+        self.last_odom = (-1, 0)  # (reset_counter, stamp_ns) sent last: stamps only increase until a restart
+        self.propagator = ImuPropagator(contract.vio_config(p).imu, p.imu_rate_hz, p.imu_rate_max_horizon_s) \
+            if p.imu_rate_hz > 0 else None
         self.pub_health = self.node.publisher("state/vio_health", VioHealthMsg)
         for side in ("left", "right"):
             self.node.subscribe(f"sensors/camera/{side}/image", Image, lambda m, s=side: self._on_image(s, m))
@@ -96,8 +101,22 @@ class VioService(Service):
             self.frames.put(side, msg, msg.header.stamp_ns)
 
     def _on_imu(self, msg: Imu) -> None:
+        sample = messages.imu_sample(msg)
         with self.imu_lock:
-            self.imu_pending.append(messages.imu_sample(msg))
+            self.imu_pending.append(sample)
+        if self.propagator is not None and (out := self.propagator.on_imu(sample)) is not None:
+            self._publish_odometry(out)
+
+    def _publish_odometry(self, out) -> None:
+        """Newest first: an output older than one already sent (a frame's estimate, stamped at its
+        exposure, after IMU-propagated poses past it) is not sent; the propagator carries it forward.
+        A re-initialisation (its reset_counter; e.g. after a replay's clock went back) starts over."""
+        with self.odom_lock:
+            counter, stamp = self.last_odom
+            if out.reset_counter == counter and out.stamp_ns <= stamp:
+                return
+            self.last_odom = (out.reset_counter, out.stamp_ns)
+        self.pub_odom.publish(messages.odometry(out))
 
     def _on_reset(self, req: VioResetRequest) -> Reply:
         try:
@@ -120,6 +139,8 @@ class VioService(Service):
                 warm, self.pending_warm = self.pending_warm, None
             if warm is not None:
                 self.strategy.reset_to_warm_start(warm)
+                if self.propagator is not None:
+                    self.propagator.reset()
                 self._publish_health()
             pair = self.frames.take(0.2)
             if pair is None:
@@ -150,7 +171,11 @@ class VioService(Service):
                 self.last_out = out
                 for k, v in out.timings_ms.items():
                     self.timings.setdefault(k, deque(maxlen=200)).append(v)
-                self.pub_odom.publish(messages.odometry(out))
+                if self.propagator is not None:
+                    self.propagator.on_estimate(out)
+                self._publish_odometry(out)
+            elif self.propagator is not None and self.strategy.health_snapshot().state in (INIT, LOST):
+                self.propagator.reset()      # restarting or lost: nothing to carry forward
             if self.strategy.health_snapshot().state != self.published_state:
                 self._publish_health()
 
@@ -175,6 +200,8 @@ class VioService(Service):
                         "frames_in": self.frames.frames_in, "dropped_frames": self.frames.dropped,
                         "unpaired": self.frames.unpaired}
         values.update(getattr(self.strategy, "counters", {}))
+        if self.propagator is not None:
+            values.update(self.propagator.counters)
         if self.last_out is not None:
             q = self.last_out.feature_quality
             values.update(tracked_features=q.tracked, inliers=q.inliers, consecutive_lost=snap.consecutive_lost,

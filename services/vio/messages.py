@@ -31,7 +31,8 @@ def odometry(out: VioOutput) -> Odometry:
         twist=Twist(linear=Vector3.from_array(R.T @ out.velocity_world_mps),
                     angular=Vector3.from_array(out.angular_velocity_body_radps)),
         pose_covariance=NDArray.from_numpy(np.ascontiguousarray(out.pose_covariance_6x6, np.float64)),
-        twist_covariance=NDArray.from_numpy(np.ascontiguousarray(out.twist_covariance_6x6, np.float64)))
+        twist_covariance=NDArray.from_numpy(np.ascontiguousarray(out.twist_covariance_6x6, np.float64)),
+        reset_counter=out.reset_counter, quality_pct=out.quality_pct)
 
 
 def health(snapshot: VioHealth, strategy: str, stamp_ns: int, quality: FeatureQuality | None,

@@ -81,6 +81,7 @@ class KltVio(VioStrategy):
         self.kf_world_T_body = np.eye(4)
         self.last_gyro = np.zeros(3)
         self.continuing = False   # the next initialisation continues the current odom frame
+        self.initialisations = 0  # successful starts; each after the first is a reset of the odom pose
         self.counters = {"frames": 0, "outputs": 0, "bad_frames": 0, "time_backwards": 0,
                          "imu_gaps": 0, "imu_dropped": 0, "resets": 0, "visual_fixes": 0}
         self.last_timings: dict[str, float] = {}
@@ -197,9 +198,11 @@ class KltVio(VioStrategy):
         self.health = VioHealth(H.next_state(self.health.state, H.INITIALIZED), 0, est.bias.norm,
                                 f"initialised ({len(self.frontend.kf_px)} stereo features)")
         self.last_t_ns = t
-        return self._output(frame, est, res.quality, True, res.timings_ms)
+        self.initialisations += 1
+        return self._output(frame, est, res.quality, True, res.timings_ms, inliers=len(self.frontend.kf_px))
 
-    def _output(self, frame, est, quality: FeatureQuality, keyframe: bool, timings) -> VioOutput:
+    def _output(self, frame, est, quality: FeatureQuality, keyframe: bool, timings, inliers: int | None) -> VioOutput:
+        """`inliers`: the visual fix's (stereo features at initialisation; None: no fix, IMU only)."""
         R = est.world_T_body[:3, :3]
         vel_body_cov = R.T @ est.velocity_cov_world @ R
         twist_cov = np.zeros((6, 6))
@@ -218,7 +221,9 @@ class KltVio(VioStrategy):
             velocity_world_mps=est.velocity_world_mps,
             angular_velocity_body_radps=self.last_gyro - est.bias.gyro_radps,
             twist_covariance_6x6=twist_cov, keyframe=keyframe, timings_ms=dict(timings),
-            emitted_at_ns=time.monotonic_ns())
+            emitted_at_ns=time.monotonic_ns(), reset_counter=max(0, self.initialisations - 1),
+            quality_pct=H.quality_pct(self.health.state, inliers, self.cfg.frontend.good_inliers,
+                                      self.cfg.frontend.keyframe_min_inliers))
 
     # ------------------------------------------------------------ per frame
 
@@ -306,7 +311,8 @@ class KltVio(VioStrategy):
         h.bias_norm = est.bias.norm
         h.message = "; ".join(notes) if notes else "tracking"
         quality = res.quality if res is not None else FeatureQuality()
-        out = self._output(frame, est, quality, bool(res and res.new_keyframe), timings)
+        out = self._output(frame, est, quality, bool(res and res.new_keyframe), timings,
+                           inliers=quality.inliers if visual is not None else None)
         out.timings_ms["total"] = (time.perf_counter() - t_start) * 1e3
         self.last_timings = out.timings_ms
         if h.state == LOST:

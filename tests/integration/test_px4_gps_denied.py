@@ -14,6 +14,10 @@ gate is off). The same parameters are read back from PX4 with `aero fc params ap
 - a camera blackout mid-flight (vision stops for good): EKF2 stops fusing it, PX4 loses its position
   and fails safe into a descent, the mission holds naming PX4's mode and never asks for OFFBOARD
   back; the vehicle comes down near where the cameras went dark (truth) and disarms.
+- extended: the village survey (examples/missions/village_survey_gps_denied.json) on OUR VIO: the
+  simulator follows PX4 and renders the cameras, vio runs on them and PX4's IMU (IMU-propagated poses
+  between frames, the px4 profile's imu_rate_hz), fmu sends its ODOMETRY, EKF2 fuses it; flown to
+  landing, judged by PX4's flags and truth: ATE/drift of the VIO and of PX4's estimate, landing error.
 """
 from __future__ import annotations
 
@@ -24,17 +28,21 @@ import socket
 import subprocess
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
-from aerotest import aero_argv, clean_env, wait_until
-from aeroperception.schemas import Header, NDArray, Odometry, Pose, Quaternion, Twist, Vector3, encode
+from aerotest import Capture, aero_argv, clean_env, wait_until
+from aeroperception.schemas import (
+    Header, NDArray, Odometry, Pose, Quaternion, Twist, Vector3, VehicleState, encode, load_mission_file,
+)
 from aeroperception.services.mavlink import frames
 from aeroperception.services.mavlink.geo import MapProjection
 from aeroperception.services.runtime.node import encoding_for
 from aeroperception.tools.cli import fc_params
+from aeroperception.tools.eval.vio import _live_metrics, _pose
 from aeroperception.schemas import MissionCommand, MissionStatus, Reply
 from aeroperception.services.runtime.node import call
 from test_px4 import fly_file, mission_status, px4_shell, px4_up, state, wait_px4_ready
@@ -47,6 +55,9 @@ SERVICES = ["px4", "fmu", "planner", "mission", "diagnostics", "vio", "perceptio
 VISION_HZ = 30.0
 HOP = {"mission_id": "hop", "takeoff_altitude_m": 3.0, "waypoint_acceptance_radius_m": 0.5,
        "waypoints": [{"x": 0.0, "y": 0.0, "z": 3.0, "yaw_deg": 90.0}, {"x": 3.0, "y": 0.0, "z": 3.0, "yaw_deg": 90.0}]}
+VILLAGE = Path(__file__).resolve().parents[2] / "examples" / "missions" / "village_survey_gps_denied.json"
+# our VIO in the loop: the simulator following PX4 renders the cameras (no LiDAR, detector or objects)
+VIO_SERVICES = ["px4", "fmu", "planner", "mission", "diagnostics", "sim", "vio", "perception"]
 EV_FLAGS = ("cs_ev_pos", "cs_ev_vel", "cs_ev_hgt")
 GNSS_FLAGS = ("cs_gnss_pos", "cs_gnss_vel", "cs_gps_hgt")
 
@@ -142,6 +153,28 @@ class VisionFromTruth:
         self.pub.undeclare()
 
 
+def fly_sampling(st, path, timeout_s: float, landed_s: float, period_s: float, sample) -> tuple:
+    """fly_file, calling `sample(state)` every `period_s` while PX4 reports the vehicle in the air:
+    (result, start time, flight s)."""
+    done = threading.Event()
+
+    def watch():
+        while not done.wait(period_s):
+            s = state(st)
+            if s is not None and not s.landed:
+                sample(s)
+
+    watcher = threading.Thread(target=watch, daemon=True)
+    watcher.start()
+    t0 = time.monotonic()
+    try:
+        r = fly_file(st, path, timeout_s, landed_s=landed_s)
+    finally:
+        done.set()
+        watcher.join(period_s + 10)
+    return r, t0, time.monotonic() - t0
+
+
 def ekf_flags(st) -> dict[str, bool]:
     """PX4's estimator_status_flags (uORB) as {name: bool}."""
     out = px4_shell(st, "listener", "estimator_status_flags")
@@ -184,24 +217,12 @@ def test_px4_gps_denied_hop_flies_on_vision_alone_fused_by_ekf2(px4_gd, tmp_path
     pad = st.truth.now()
     samples: list[tuple[float, dict[str, bool]]] = []
     track: list[tuple[np.ndarray, np.ndarray]] = []      # (PX4's estimate, SIH truth), ENU
-    done = threading.Event()
 
-    def watch():
-        while not done.wait(0.5):
-            s = state(st)
-            if s is not None and not s.landed:
-                track.append((s.position_m.to_array(), st.truth.now() - pad))
-                samples.append((time.monotonic(), ekf_flags(st)))
+    def sample(s):
+        track.append((s.position_m.to_array(), st.truth.now() - pad))
+        samples.append((time.monotonic(), ekf_flags(st)))
 
-    watcher = threading.Thread(target=watch, daemon=True)
-    watcher.start()
-    t0 = time.monotonic()
-    try:
-        r = fly_file(st, mission, 60, landed_s=15)
-    finally:
-        done.set()
-        watcher.join(3)
-    flight_s = time.monotonic() - t0
+    r, t0, flight_s = fly_sampling(st, mission, 60, 15, 0.5, sample)
     assert r.returncode == 0, r.stdout + r.stderr
     end = st.truth.now() - pad
     est = np.array([e for e, _ in track])
@@ -281,3 +302,64 @@ def test_px4_gps_denied_camera_blackout_px4_fails_safe_down_and_the_mission_hold
     # the mission yields and never asks for OFFBOARD back (PX4 reports OFFBOARD again only once disarmed)
     assert all(m != "OFFBOARD" for t, m, armed in modes if t > failsafe[0] and armed), modes
     assert drift < 15.0, (at_dark, end)                     # came down near where the cameras went dark
+
+
+def vision_lag_us(st) -> int | None:
+    """How long before PX4 received it the newest vision pose was taken, by PX4's clock
+    (vehicle_visual_odometry: timestamp - timestamp_sample; 0 until PX4's time sync converged)."""
+    out = px4_shell(st, "listener", "vehicle_visual_odometry")
+    lag = re.search(r"timestamp_sample: \d+ \((\d+) us before timestamp\)", out)
+    return int(lag.group(1)) if lag else None
+
+
+def as_odometry(s: VehicleState) -> Odometry:
+    return Odometry(header=s.header, pose=Pose(position=s.position_m, orientation=s.orientation))
+
+
+@pytest.mark.extended    # ~4 min; the default hop above proves the encoding and EKF2's fusion in ~30 s
+def test_px4_gps_denied_village_survey_flies_on_our_vio_fused_by_ekf2(stack, px4_build):
+    with px4_up(stack, px4_build, VIO_SERVICES, ["--gps-denied", "--scenario", "village", "--sensors", "camera"],
+                truth_cls=SihState) as st:
+        wait_px4_ready(st)       # "Ready for takeoff" needs a valid local position: EKF2 on our VIO
+        wait_until(lambda: (f := ekf_flags(st)) and all(f.get(k) for k in EV_FLAGS), 30,
+                   "EKF2 fusing our VIO (position, velocity, height)")
+        pad = st.truth.now()
+        home = state(st).position_m.to_array()
+        rec = Capture(st.session, {"vio": ("state/visual_odometry", Odometry), "px4": ("state/vehicle", VehicleState),
+                                    "truth": ("sim/truth/state", VehicleState)})
+        samples: list[tuple[float, dict[str, bool], int | None]] = []    # in the air: (time, flags, vision lag)
+        try:
+            r, t0, flight_s = fly_sampling(st, VILLAGE, 420, 30, 2.0, lambda s: samples.append(
+                (time.monotonic(), ekf_flags(st), vision_lag_us(st))))
+        finally:
+            rec.close()
+        end, end_est = st.truth.now() - pad, state(st).position_m.to_array() - home
+        fmu = st.diag("fmu").values
+        vio_diag = st.diag("vio").values
+    assert r.returncode == 0, r.stdout + r.stderr
+    truth = [(m.header.stamp_ns, m) for m in rec.get("truth")]
+    stamps, poses = [t for t, _ in truth], [m for _, m in truth]
+    poses_T = [_pose(Pose(position=m.position_m, orientation=m.orientation)) for m in poses]
+    vio = _live_metrics(rec.get("vio"), stamps, poses_T, "yaw", 1.0)
+    px4 = _live_metrics([as_odometry(m) for m in rec.get("px4")], stamps, poses_T, "yaw", 1.0)
+    lags = [lag / 1000 for _, _, lag in samples if lag]
+    off = [round(t - t0) for t, f, _ in samples if not all(f.get(k) for k in EV_FLAGS)]
+    waypoints = len(load_mission_file(VILLAGE).waypoints)
+    landing_m = float(np.linalg.norm(end[:2]))
+    print(f"PX4 GPS-denied village survey on our VIO: {flight_s:.0f} s, {vio['distance_m']:.0f} m flown (truth); "
+          f"{len(samples)} EKF2 flag samples in the air, {len(off)} without vision fusion (at {off} s), GNSS fused in "
+          f"{sum(any(f.get(k) for k in GNSS_FLAGS) for _, f, _ in samples)}; vision pose age at PX4 "
+          f"{np.median(lags) if lags else float('nan'):.0f} ms median, {max(lags) if lags else float('nan'):.0f} ms max; "
+          f"fmu stamp -> ODOMETRY p50 {fmu.get('vio_age_p50_ms')} ms, max {fmu.get('vio_age_max_ms')} ms; "
+          f"VIO: ATE {vio['ate_rmse_m']:.2f} m (yaw-aligned), drift {vio['drift_pct']:.2f} % "
+          f"({vio['final_error_m']:.2f} m), {vio['frames']} poses; PX4's estimate: ATE {px4['ate_rmse_m']:.2f} m, drift "
+          f"{px4['drift_pct']:.2f} % ({px4['final_error_m']:.2f} m); landed {landing_m:.2f} m from home by truth, "
+          f"{float(np.linalg.norm(end_est[:2])):.2f} m by PX4's estimate; vio resets {vio_diag.get('resets')}, "
+          f"propagated {vio_diag.get('propagated')}")
+    assert f"reached waypoint {waypoints}/{waypoints}" in r.stdout and "landed and disarmed" in r.stdout, r.stdout
+    assert len(samples) >= 20, samples
+    assert not any(f.get(k) for _, f, _ in samples for k in GNSS_FLAGS), samples          # never GNSS
+    assert len(off) <= len(samples) // 10, off                 # EKF2 on our vision throughout
+    assert vio["ate_rmse_m"] < 1.5 and px4["ate_rmse_m"] < 1.5, (vio, px4)
+    assert landing_m < 3.0, end
+

@@ -60,6 +60,18 @@ def test_gps_denied_px4_boots_with_the_sih_set_and_a_users_own_value_wins(tmp_pa
     assert "PX4_PARAM_EKF2_EV_CTRL" not in cmd_up.Px4Plan(plan.build, 4).env()
 
 
+def test_px4_profile_runs_vio_with_imu_propagated_poses_its_contract_accepts():
+    """EKF2 fuses vision only < 0.2 s apart and soon after its stamp: with PX4 the VIO also publishes
+    poses between frames (services/vio/propagate.py), at a rate its own parameter check accepts."""
+    from aeroperception.services.vio import contract as vio_contract
+
+    vio_args = cmd_up.load_profiles()["px4"]["args"]["vio"]
+    rates = [float(a.split("=", 2)[2]) for a in vio_args if a.startswith("--param=imu_rate_hz=")]
+    spec = next(p for p in vio_contract.PARAMS if p.name == "imu_rate_hz")
+    assert rates and 5.0 < rates[0] <= spec.max, vio_args       # > 5 Hz: EKF2's 0.2 s
+    assert "vio" not in cmd_up.load_profiles()["sim"]["args"]          # the sim's own FC: one pose per frame
+
+
 def test_gps_denied_sim_still_needs_the_vio_it_runs():
     args = up_args(profile="sim", only="sim,fmu,planner,mission")
     args.gps_denied = True

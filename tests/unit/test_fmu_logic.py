@@ -8,13 +8,14 @@ from __future__ import annotations
 
 import math
 
+import msgpack
 import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
 from aeroperception.schemas import (
-    BatteryState, HomePosition, Imu, LandedState, LocalPosition, NDArray, Odometry, Pose, Quaternion,
-    TrajectorySetpoint, Twist, Vector3, VehicleStatus,
+    BatteryState, HomePosition, Imu, LandedState, LocalPosition, NDArray, Odometry, Pose, Quaternion, SchemaError,
+    TrajectorySetpoint, Twist, Vector3, VehicleStatus, decode, encode,
 )
 from aeroperception.services.fmu.logic import (
     IGNORE_ACC, IGNORE_POS, IGNORE_VEL, IGNORE_YAW, IGNORE_YAW_RATE, CommandWaiter, Telemetry,
@@ -395,8 +396,31 @@ def test_odometry_fields_are_a_local_frd_pose_and_body_frd_velocity_with_vision_
     assert f["estimator_type"] == mavlink.MAV_ESTIMATOR_TYPE_VISION
     assert f["frame_id"] == mavlink.MAV_FRAME_LOCAL_FRD
     assert f["child_frame_id"] == mavlink.MAV_FRAME_BODY_FRD
-    assert f["time_usec"] == 1_000_000 and f["reset_counter"] == 0 and f["quality"] == 100
+    assert f["time_usec"] == 1_000_000 and f["reset_counter"] == 0
+    assert f["quality"] == 0                           # the estimator gave none: MAVLink's "unknown"
     packs(mavlink.MAVLink_odometry_message(**f))
+
+
+def test_odometry_reset_counter_and_quality_are_refused_out_of_range_and_optional_when_missing():
+    plain = msgpack.unpackb(encode(vio_odometry()))
+    for field, bad in (("reset_counter", -1), ("quality_pct", 0), ("quality_pct", 101)):
+        with pytest.raises(SchemaError, match=field):
+            decode(msgpack.packb({**plain, field: bad}), Odometry)
+    for field, good in (("reset_counter", 7), ("quality_pct", 1), ("quality_pct", 100)):
+        assert getattr(decode(msgpack.packb({**plain, field: good}), Odometry), field) == good
+    old = decode(msgpack.packb({k: v for k, v in plain.items() if k not in ("reset_counter", "quality_pct")}), Odometry)
+    assert (old.reset_counter, old.quality_pct) == (0, None)       # from a publisher without them
+
+
+def test_odometry_carries_the_estimators_reset_counter_wrapping_at_a_byte_and_its_quality():
+    """EKF2 re-aligns to the vision pose when reset_counter changes and gates on quality
+    (EKF2_EV_QMIN): both are the estimator's, not constants."""
+    for counter, quality, want in ((3, 87, (3, 87)), (256 + 4, 1, (4, 1)), (0, 100, (0, 100))):
+        odom = vio_odometry()
+        odom.reset_counter, odom.quality_pct = counter, quality
+        f = odometry_fields(odom, time_usec=0)
+        assert (f["reset_counter"], f["quality"]) == want
+        packs(mavlink.MAVLink_odometry_message(**f))
 
 
 def test_global_origin_is_lat_lon_alt_or_nothing_and_refused_naming_the_parameter():

@@ -219,6 +219,37 @@ def test_reinitialisation_after_a_long_imu_gap_keeps_yaw_and_position():
     assert abs(yaw - 0.6) < 0.01, yaw
 
 
+def test_quality_band_is_the_health_state_and_the_inliers_place_it():
+    q = lambda n, state=TRACKING: H.quality_pct(state, n, good_inliers=40, full_inliers=70)
+    assert [q(None), q(0), q(1), q(12), q(39), q(40), q(55), q(70), q(250)] == [1, 1, 2, 15, 49, 50, 75, 100, 100]
+    assert [q(None, DEGRADED), q(12, DEGRADED), q(40, DEGRADED), q(250, DEGRADED)] == [1, 15, 49, 49]
+
+
+def test_outputs_carry_quality_and_a_reset_counter_that_counts_restarts():
+    """What fmu sends PX4 as ODOMETRY quality and reset_counter: a good fix high, a frame without a
+    fix 1 (the IMU's pose); every re-initialisation (smoother restart, warm start) counts one."""
+    cfg = VioConfig(lost_after_frames=5)
+    f = Feeder(create_strategy("klt_stereo", cfg))
+    out = f.until_tracking()
+    assert out.reset_counter == 0 and out.quality_pct >= 50
+    out = f.frame()
+    assert out.reset_counter == 0 and out.quality_pct >= 50
+    with pytest.raises(VioDegradedError) as e:
+        f.frame(left=np.ascontiguousarray(LEFT[:240, :320]))       # no visual fix this frame
+    assert e.value.output.quality_pct == 1 and e.value.output.reset_counter == 0
+    with pytest.raises(VioDegradedError, match="new keyframe"):
+        f.frame()                                                  # a good frame: new keyframe, no fix yet
+    assert f.frame().quality_pct >= 50
+    with pytest.raises(VioDegradedError, match="IMU gap") as e:
+        f.frame(imu_gap_ns=90_000_000, dt_ns=2 * DT_NS)             # a good fix through an IMU gap
+    assert 2 <= e.value.output.quality_pct <= 49
+    with pytest.raises(VioInitializingError, match="IMU gap"):
+        f.frame(dt_ns=1_500_000_000, imu_gap_ns=1_450_000_000)
+    assert f.until_tracking().reset_counter == 1
+    f.s.reset_to_warm_start(WarmStartPose(np.eye(4)))
+    assert f.until_tracking().reset_counter == 2 and f.frame().reset_counter == 2
+
+
 def test_garbage_imu_samples_are_dropped_not_integrated():
     f = Feeder(create_strategy("klt_stereo"))
     f.until_tracking()
