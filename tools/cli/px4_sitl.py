@@ -44,6 +44,11 @@ BOOT_PARAMS: dict[str, tuple[str, str]] = {
                             "keeps following the companion)"),
     "NAV_DLL_ACT": ("0", "no PX4 failsafe on ground-station loss: the stack has no GCS of PX4's own; the "
                          "mission's ground-link policy decides (gcs/link)"),
+    "COM_OBL_RC_ACT": ("3", "offboard loss -> Return (Land, then Descend, when it cannot): the default 0 (Position) "
+                            "is a mode for a pilot's sticks; without a position estimate it falls back to Altitude "
+                            "mode, where nobody holds the sticks (GPS lost on SIH: an unsteered descent, drifting "
+                            "sideways, touching down at up to 1.5 m/s). With a position the failsafe is RTL either "
+                            "way (no RC: PX4 turns Position into its RC-loss action, NAV_RCL_ACT Return)"),
 }
 
 # Where SIH's world is (SIH_LOC_LAT0 / SIH_LOC_LON0 defaults; SIH_LOC_H0 0 in fc_params' SIH set):

@@ -16,7 +16,7 @@ from .rows import build_rows
 from .judging import RowResult
 from .running import format_table, run_row
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 DEFAULT_MISSION = REPO / "examples" / "missions" / "survey_01.json"
 
 

@@ -11,8 +11,22 @@ from aeroperception.services.safety.geofence import Geofence
 from aeroperception.tools.harness import speed
 
 IMPACT_SPEED_MPS = 1.5               # touching the ground faster than this is an impact
-AT_REST_MPS = 0.3
-HOLD_SETTLING_MPS = 1.0              # the FC's own HOLD (PX4 settles into its hold point at up to ~0.5 m/s)
+AT_REST_MPS = 0.3                    # a held vehicle is still below this (the built-in sim holds within ~0.1 m)
+FLYING_ON_MPS = 0.5                  # ... and flies on above this
+# PX4 SIH holds (our OFFBOARD hold as its own HOLD) on EKF2's GNSS-aided estimate, which wanders with
+# SIH's GPS noise: 30 s of OFFBOARD hold measured truth speed p50 0.20, p95 0.45, max 0.52 m/s over a
+# 1.8 m span. Its holds are judged still below this; flying on (the mission's 2 m/s) is above it.
+HOLD_SETTLING_MPS = 1.0
+
+
+def still_mps(fc: str) -> float:
+    """Below this speed (truth) a held vehicle on flight controller `fc` ("sim"/"px4") is still."""
+    return HOLD_SETTLING_MPS if fc == "px4" else AT_REST_MPS
+
+
+def flying_on_mps(fc: str) -> float:
+    """Above this speed (truth) a vehicle that should hold on `fc` flies on."""
+    return HOLD_SETTLING_MPS if fc == "px4" else FLYING_ON_MPS
 
 
 @dataclass
@@ -34,7 +48,7 @@ class RowResult:
 
 
 def judge_safety(track: list[tuple[float, VehicleState]], unsafe_setpoints: list[str], fence: Geofence,
-                 mission_state: str) -> tuple[bool, str]:
+                 mission_state: str, rest_mps: float = AT_REST_MPS) -> tuple[bool, str]:
     """Vehicle safe by the truth: no impact at speed, in the fence, no unsafe setpoint at the FC,
     and at the end holding (at rest in the air), landed and disarmed, or flying the mission."""
     if not track:
@@ -53,7 +67,7 @@ def judge_safety(track: list[tuple[float, VehicleState]], unsafe_setpoints: list
     v_end = speed(end)
     if end.position_m.z < 0.2 and not end.armed:
         ending = "landed+disarmed"
-    elif end.armed and end.position_m.z >= 0.2 and v_end < AT_REST_MPS:
+    elif end.armed and end.position_m.z >= 0.2 and v_end < rest_mps:
         ending = f"holding at {end.position_m.z:.1f} m"
     elif end.armed and end.position_m.z >= 0.2 and end.flight_mode == "HOLD" and v_end < HOLD_SETTLING_MPS:
         ending = f"FC holding at {end.position_m.z:.1f} m ({v_end:.1f} m/s)"

@@ -14,6 +14,8 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from aeroperception.tools.harness import Capture, SimStack, poll_until, speed
 
+from .judging import flying_on_mps
+
 
 @dataclass
 class Ctx:
@@ -90,7 +92,7 @@ def held_after(ctx: Ctx, settle_s: float = 6.0, window_s: float = 2.0) -> tuple[
     time.sleep(window_s)
     status = ctx.rec.last("status")
     truth = ctx.rec.since("truth", t_obs)
-    moving = any(m.flight_mode == "OFFBOARD" and speed(m) > 0.5 for _, m in truth)
+    moving = any(m.flight_mode == "OFFBOARD" and speed(m) > flying_on_mps(ctx.st.profile) for _, m in truth)
     states = mission_states(ctx, ctx.t_inject)
     reacted = any(s in ("HOLDING", "LAND") for s in states)
     ok = status is not None and reacted and not (status.state == "HOLDING" and moving)

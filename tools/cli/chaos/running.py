@@ -7,7 +7,7 @@ import time
 from aeroperception.schemas import DiagnosticStatus, GcsLink, Imu, MissionStatus, TrajectoryStatus, VehicleState
 from aeroperception.tools.harness import FlightStack
 
-from .judging import RowResult, judge_safety
+from .judging import RowResult, judge_safety, still_mps
 from .row import Ctx, Row
 
 RECORDED = dict(truth=("sim/truth/state", VehicleState), status=("mission/status", MissionStatus),
@@ -59,7 +59,7 @@ def run_row(st: FlightStack, row: Row, mission_json: str, inject_after_s: float 
             res.details["safety_from"] = "FC LOCAL_POSITION_NED (no ground truth over Zenoh)"
         status = rec.last("status")
         res.safe, res.safe_why = judge_safety(track, st.tap.unsafe_since(t_unsafe) if st.tap else [], st.fence,
-                                              status.state if status else "?")
+                                              status.state if status else "?", still_mps(st.profile))
         if "safety_from" in res.details:
             res.safe_why += " (by the FC's own position: no Zenoh)"
         rec.close()
