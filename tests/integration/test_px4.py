@@ -11,8 +11,8 @@ LOCAL_POSITION_NED) and SIH's ground truth (HIL_STATE_QUATERNION on its display 
 - a pilot switches PX4 to HOLD mid-mission (`px4-commander mode auto:loiter`): mission HOLDING
   with the reason, the vehicle stays put; START resumes the survey to its landing.
 - fmu kill -9 mid-mission: the vehicle stays in the air near where it was (PX4's offboard-loss
-  failsafe RTL, cleared into OFFBOARD again once the restarted fmu streams, fmu holding), the mission
-  HOLDING until told; LAND lands it.
+  failsafe RTL, cleared into OFFBOARD again once the restarted fmu streams), held where PX4 gave
+  OFFBOARD back (not flown back to where it was), the mission HOLDING until told; LAND lands it.
 - PX4 supervised like a service: restarted after kill -9, stopped by SIGINT with the stack, and
   stopped by the kernel when `aero up` itself is killed -9.
 """
@@ -166,6 +166,11 @@ def test_px4_flies_survey_01_to_landing_reaching_every_waypoint(px4):
     flight_s = time.monotonic() - t0
     assert r.returncode == 0, r.stdout + r.stderr
     assert "landed and disarmed" in r.stdout, r.stdout
+    # Disarmed, PX4 switches to the last mode it can arm in (OFFBOARD; LAND prevents arming) in the
+    # disarm's own heartbeat: a landing to the mission, not a takeover (the sim does the same).
+    wait_until(lambda: state(st, lambda m: m.flight_mode == "OFFBOARD" and not m.armed), 5, "PX4 in OFFBOARD, disarmed")
+    s = mission_status(st)
+    assert s.state == "IDLE" and s.message == "landed and disarmed", s
     waypoints = [np.array([w.x, w.y, w.z]) for w in load_mission_file(SURVEY).waypoints]
     reached = [m.index for m in rec.get("reached")]
     assert reached == list(range(len(waypoints))), f"waypoints reached {reached}"
@@ -240,6 +245,7 @@ def test_px4_fmu_killed_mid_mission_the_vehicle_stays_safe_and_holds(px4):
     wait_until(lambda: st.pids().get("fmu") not in (None, old), 20, "aero up restarted fmu")
     back = wait_until(lambda: state(st, lambda m: m.connected), 20, "fmu back, PX4 connected")
     t_back = time.monotonic()
+    at_back = st.truth.now()
     print(f"fmu back {t_back - t_kill:.1f} s after kill -9; PX4 in {back.flight_mode}")
     time.sleep(5.0)
     track = st.truth.since(t_kill)
@@ -253,5 +259,11 @@ def test_px4_fmu_killed_mid_mission_the_vehicle_stays_safe_and_holds(px4):
     # PX4's offboard-loss failsafe (RTL without RC) clears when the restarted fmu streams again: back
     # in OFFBOARD, which the built-in sim imitates (COM_OBL_ACT 2, SIM_OF_RESUME).
     wait_until(lambda: state(st, lambda m: m.flight_mode == "OFFBOARD"), 10, "PX4 back in OFFBOARD")
-    st.truth.at_rest(10, within_m=0.3)     # holding still, not flying on
+    rest = st.truth.at_rest(10, within_m=0.3)     # holding still, not flying on
+    back_m = float(np.linalg.norm((rest - at_back)[:2]))
+    print(f"held {back_m:.2f} m from where fmu came back (SIH truth)")
+    # Held where PX4 gave OFFBOARD back, not flown back to a hold point from before PX4's RTL (that
+    # was 3 m at 1.6 m/s: PX4 coasts COM_OF_LOSS_T on its last velocity setpoint); RTL may carry it
+    # on up to one heartbeat (1 s) before OFFBOARD is back.
+    assert back_m < 1.5, f"flew {back_m:.2f} m after fmu came back"
     st.ensure_landed()
