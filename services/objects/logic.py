@@ -60,6 +60,14 @@ class StereoFrames:
         return gray(left), gray(right)
 
 
+def _cut(d, dets: Detection2DArray, margin_px: float = 2.0) -> bool:
+    """Whether the box touches the image's edge (part of the object lies outside the image)."""
+    w, h = dets.image_width, dets.image_height
+    return bool(w and h) and (d.center_x_px - d.size_x_px / 2 <= margin_px or d.center_y_px - d.size_y_px / 2 <= margin_px
+                              or d.center_x_px + d.size_x_px / 2 >= w - margin_px
+                              or d.center_y_px + d.size_y_px / 2 >= h - margin_px)
+
+
 def gray(img: Image) -> np.ndarray:
     a = img.to_numpy()
     if a.ndim == 2:
@@ -160,7 +168,9 @@ class ObjectsPipeline:
                 continue
             u, v = d.center_x_px, d.center_y_px
             length, width, height = contract.TYPICAL_SIZE_M.get(d.class_name, contract.DEFAULT_SIZE_M)
-            m_ground = locate_on_ground(cam, view, u, v, ground + height / 2, nz, p.max_range_m)
+            # Objects longer than tall (vehicles, bicycles): their box's centre lies measurably off their centre's.
+            aim = (length, width, height) if (length + width) / 2 >= height else None
+            m_ground = locate_on_ground(cam, view, u, v, ground + height / 2, nz, p.max_range_m, aim)
             m_stereo = None
             if pair is not None:
                 box = (u - d.size_x_px / 2, v - d.size_y_px / 2, u + d.size_x_px / 2, v + d.size_y_px / 2)
@@ -175,7 +185,7 @@ class ObjectsPipeline:
                 continue
             self.placed[m.method] += 1
             scale = box_scale(cam, view[1], m, d.size_y_px, (length, width, height))
-            out.append(Observation(m, d.class_id, d.class_name, d.score, scale))
+            out.append(Observation(m, d.class_id, d.class_name, d.score, scale, cut=_cut(d, dets)))
         return out
 
     # ------------------------------------------------------------ messages

@@ -13,6 +13,7 @@ Frames: camera optical (x right, y down, z forward), body FLU, world ENU.
 from __future__ import annotations
 
 import bisect
+import functools
 import math
 from dataclasses import dataclass
 
@@ -154,9 +155,10 @@ def _measure(points, x: np.ndarray, sigmas: np.ndarray, origin: np.ndarray, nois
 
 
 def locate_on_ground(cam: Camera, view: tuple[np.ndarray, np.ndarray], u_px: float, v_px: float, centre_height_m: float,
-                     noise: Noise, max_range_m: float) -> Measurement | None:
+                     noise: Noise, max_range_m: float, size_m: tuple[float, float, float] | None = None) -> Measurement | None:
     """The box centre's ray meets the horizontal plane z = centre_height_m (ENU). None when the ray
-    does not descend to it within max_range_m (at or above the horizon)."""
+    does not descend to it within max_range_m (at or above the horizon). With the object's typical
+    `size_m`, the ray is aimed at the object's centre instead (box_centre_offset_px)."""
     r_wc, origin = view
 
     def points(x: np.ndarray) -> np.ndarray:
@@ -168,6 +170,12 @@ def locate_on_ground(cam: Camera, view: tuple[np.ndarray, np.ndarray], u_px: flo
         p[bad] = np.nan
         return p
 
+    if size_m is not None:
+        d = r_wc @ np.array([(u_px - 0.5 - cam.cx) / cam.fx, (v_px - 0.5 - cam.cy) / cam.fy, 1.0])
+        if d[2] < -1e-9:                        # the ray descends: where it meets the plane, unaimed
+            off = box_centre_offset_px(cam, view, origin + d * ((centre_height_m - origin[2]) / d[2]), size_m)
+            if off is not None:
+                u_px, v_px = u_px - off[0], v_px - off[1]
     return _measure(points, np.array([u_px, v_px, centre_height_m]),
                     np.array([noise.pixel_px, noise.pixel_px, noise.height_m]), origin, noise, "ground")
 
@@ -198,6 +206,35 @@ def to_centre(m: Measurement, origin: np.ndarray, half_depth_m: float, sigma_m: 
     d /= n
     cov = m.covariance_m2 + sigma_m ** 2 * np.outer(d, d)
     return Measurement(m.position_m + d * half_depth_m, cov, m.range_m + half_depth_m, m.method)
+
+
+@functools.lru_cache(maxsize=64)
+def _headed_corners(size_m: tuple[float, float, float]) -> np.ndarray:
+    """(4 * 8, 3) corners about the centre of a box of `size_m` at headings 0, 45, 90, 135 deg."""
+    length, width, height = size_m
+    corners = np.array([[dx, dy, dz] for dx in (-length / 2, length / 2) for dy in (-width / 2, width / 2)
+                        for dz in (-height / 2, height / 2)])
+    out = []
+    for yaw in np.radians([0.0, 45.0, 90.0, 135.0]):
+        c, s = np.cos(yaw), np.sin(yaw)
+        out.append(corners @ np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]]))
+    return np.concatenate(out)
+
+
+def box_centre_offset_px(cam: Camera, view: tuple[np.ndarray, np.ndarray], centre_m: np.ndarray,
+                         size_m: tuple[float, float, float]) -> np.ndarray | None:
+    """How far a box drawn around an object of typical size (length, width, height) at `centre_m`
+    has its centre from where the object's centre projects (u, v px), over headings 0-135 degrees
+    (unknown): seen from above, a long object's box takes in its near bottom and far top edges, so
+    its centre is not its centre's projection (a car 17 m away end-on: ~ -0.5 m along the line of
+    sight). None when a corner is behind the camera."""
+    r_wc, origin = view
+    pc = (np.vstack([_headed_corners(tuple(size_m)), np.zeros(3)]) + (centre_m - origin)) @ r_wc     # optical frame
+    if (pc[:, 2] <= 0.1).any():
+        return None
+    uv = pc[:, :2] / pc[:, 2:] * (cam.fx, cam.fy)
+    boxes = uv[:-1].reshape(4, 8, 2)
+    return ((boxes.min(1) + boxes.max(1)) / 2).mean(0) - uv[-1]
 
 
 def box_scale(cam: Camera, origin: np.ndarray, m: Measurement, box_height_px: float,

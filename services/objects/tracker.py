@@ -49,6 +49,7 @@ class Observation:
     class_name: str
     score: float
     box_scale: float = 0.0              # the box's height over its class's typical one seen from there (0: unknown)
+    cut: bool = False                   # the box touches the image's edge: part of the object is outside
 
 
 @dataclass
@@ -177,9 +178,9 @@ class Tracker:
         return ev
 
     def _may_start(self, o: Observation) -> bool:
-        """Precise enough, and explained by no known track of its class (live, just started or
-        lost) within the Mahalanobis gate."""
-        if np.sqrt(np.linalg.eigvalsh(o.measurement.covariance_m2[:2, :2])[-1]) > self.config.birth_sigma_m:
+        """Whole (not cut by the image's edge), precise enough, and explained by no known track of
+        its class (live, just started or lost) within the Mahalanobis gate."""
+        if o.cut or np.sqrt(np.linalg.eigvalsh(o.measurement.covariance_m2[:2, :2])[-1]) > self.config.birth_sigma_m:
             return False
         known = [t for t in self.tracks + self.lost if t.class_id == o.class_id]
         return not known or bool((self._differences(known, [o])[1] > CHI2_3DOF_99).all())
@@ -227,8 +228,11 @@ class Tracker:
         last whole boxes (`partial_ratio`; the first three are taken as they come). A much shorter
         box is a partial view (the object half hidden behind something nearer, or cut by the
         image's edge), a much taller one takes in a neighbour: its centre is not the object's, so it
-        keeps the track alive without moving it. Five partial views in a row: the object looks
-        different now (it sat down, turned), its boxes are learnt anew."""
+        keeps the track alive without moving it; so does a box cut by the image's edge. Five partial
+        views in a row: the object looks different now (it sat down, turned), its boxes are learnt
+        anew."""
+        if o.cut:
+            return False
         if o.box_scale <= 0:
             return True
         scales = t.scales

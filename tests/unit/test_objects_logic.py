@@ -68,8 +68,9 @@ def test_a_person_becomes_a_confirmed_track_at_its_position_with_lat_lon_about_h
     o = r.objects.objects[0]
     assert o.confirmed and o.hits == 4 and o.class_name == "person"
     np.testing.assert_allclose(o.position_m.to_array(), truth, atol=0.05)
-    lat, lon = MapProjection(HOME.latitude_deg, HOME.longitude_deg).reproject(truth[1] + 2.0, truth[0] - 1.0)
-    assert (o.latitude_deg, o.longitude_deg) == (pytest.approx(lat, abs=1e-8), pytest.approx(lon, abs=1e-8))
+    p = o.position_m
+    lat, lon = MapProjection(HOME.latitude_deg, HOME.longitude_deg).reproject(p.y + 2.0, p.x - 1.0)     # about home
+    assert (o.latitude_deg, o.longitude_deg) == (pytest.approx(lat, abs=1e-9), pytest.approx(lon, abs=1e-9))
     assert o.altitude_amsl_m == pytest.approx(488.875, abs=0.05)
     assert len(o.position_covariance_m2) == 9 and o.position_covariance_m2[0] > 0
     assert pl.placed == {"ground": 4}
@@ -149,3 +150,12 @@ def test_one_frame_of_ten_boxes_with_stereo_costs_under_5_ms():
     print(f"objects: one frame of 10 boxes (stereo + ground, 10 tracks): CPU p50 {cpu:.2f} ms, "
           f"wall p50 {np.median(ms):.2f} ms")
     assert cpu < 5.0
+
+
+def test_boxes_touching_the_images_edge_are_marked_cut():
+    from aeroperception.services.objects.logic import _cut
+
+    f = frame(T0, [(320, 240, 40, 80), (20, 240, 40, 80), (320, 440, 40, 80), (620, 100, 40, 40)])
+    assert [_cut(d, f) for d in f.detections] == [False, True, True, True]
+    f.image_width = f.image_height = 0                                   # size unknown: nothing is cut
+    assert not any(_cut(d, f) for d in f.detections)

@@ -190,3 +190,29 @@ def test_box_scale_is_one_for_a_whole_view_from_any_height_and_less_for_a_partia
         whole_px = FX * extent / rng
         assert box_scale(cam, origin, m, whole_px, size) == pytest.approx(1.0)
         assert box_scale(cam, origin, m, whole_px / 2, size) == pytest.approx(0.5)
+
+
+def test_a_long_objects_box_centre_is_aimed_back_at_its_centre():
+    """A car 17 m ahead, seen from 7 m up: its box spans its near bottom and far top edges, so the
+    box centre's ray meets the mid-height plane ~0.45 m short (end-on). The offset, over headings,
+    brings the ground placement of the box it would draw back to within 0.35 m of its centre."""
+    from aeroperception.services.objects.projection import box_centre_offset_px
+
+    cam = Camera.from_infos(*infos(0.17))
+    pose = pose_at([0.0, 0.0, 7.0])
+    view = cam.world_pose(pose)
+    size = (4.5, 1.85, 1.5)
+    centre = np.array([17.0, 0.0, 0.75])
+    for yaw in (0.0, np.pi / 4, np.pi / 2):
+        c, s = np.cos(yaw), np.sin(yaw)
+        corners = [centre + np.array([c * dx - s * dy, s * dx + c * dy, dz]) for dx in (-2.25, 2.25)
+                   for dy in (-0.925, 0.925) for dz in (-0.75, 0.75)]
+        uv = np.array([project(p, pose, 0.17)[:2] for p in corners])
+        u, v = (uv.min(0) + uv.max(0)) / 2
+        raw = locate_on_ground(cam, view, u, v, 0.75, NO_NOISE, 100.0)
+        aimed = locate_on_ground(cam, view, u, v, 0.75, NO_NOISE, 100.0, size)
+        assert np.linalg.norm(aimed.position_m[:2] - centre[:2]) < 0.35                 # the heading is unknown
+        if yaw == 0.0:
+            assert raw.position_m[0] < centre[0] - 0.3                       # short without the offset
+    behind = box_centre_offset_px(cam, view, np.array([-5.0, 0.0, 0.75]), size)
+    assert behind is None

@@ -170,3 +170,18 @@ def test_a_lost_object_seen_again_is_reacquired_under_its_id_until_forgotten():
     assert tr.update(40_100 * MS, [obs((10.8, 2.3), CAR)]).reacquired == []   # another class: a new track
     assert tr.update(70_000 * MS, [obs((30.0, 0.0), CAR)]).reacquired == []   # car forgotten after 60 s
     assert 2 not in [t.track_id for t in tr.lost + tr.tracks]
+
+
+def test_a_box_cut_by_the_images_edge_neither_moves_nor_starts_a_track():
+    tr = Tracker(TrackerConfig(confirm_hits=2))
+    for k in range(3):
+        tr.update(k * 100 * MS, [obs((20.0, 2.0))])
+    cut = obs((18.5, 2.0))
+    cut.cut = True
+    tr.update(300 * MS, [cut])
+    t = tr.tracks[0]
+    assert t.hits == 4 and t.x[0] == pytest.approx(20.0, abs=0.01)
+    other = obs((40.0, 2.0))
+    other.cut = True
+    tr.update(400 * MS, [other])
+    assert len(tr.tracks) == 1
