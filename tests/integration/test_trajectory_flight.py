@@ -5,6 +5,8 @@ the goals it refuses; the planner's swappable parts switched over planner/srv/se
 the ground and hovering, refused moving; mission/uav_status along the way."""
 from __future__ import annotations
 
+import os
+import signal
 import time
 
 import numpy as np
@@ -17,8 +19,8 @@ from aeroperception.schemas import (
 )
 from aeroperception.services.runtime import ActionClient, call
 from aeroperception.tools.eval.trajectory import TrajectoryEval
-from aerotest import wait_until
-from test_flight import REPO, SURVEY, flight_stack, wait_at_rest
+from aerotest import is_service_process, wait_until
+from test_flight import REPO, SURVEY, flight_stack, fly_in_background, wait_at_rest
 
 pytestmark = pytest.mark.slow
 
@@ -178,3 +180,29 @@ def test_set_trajectory_action_flies_a_polynomial_and_refuses_what_it_cannot(tst
         takeoff.close()
         fly.close()
         st.ensure_landed()
+
+
+@pytest.mark.extended
+def test_a_planner_killed_mid_trajectory_holds_and_the_restarted_one_flies_the_rest(tstack):
+    """SIGKILL the planner while survey_01 is flown smooth at speed: the mission holds (planner
+    outage), `aero up` restarts the planner, START resumes at the waypoint then current and the
+    new planner makes a new trajectory from where the vehicle is: every waypoint reached, landed.
+    (Parts switched live are the restarted planner's parameters again: its start-up values.)"""
+    st = tstack
+    st.ensure_landed()
+    with st.capture(truth=("sim/truth/state", VehicleState), reached=("mission/waypoint_reached", WaypointReached)) as rec, \
+            fly_in_background(st, SURVEY, "--trajectory", "smooth", "--timeout", "150") as (proc, out):
+        wait_until(lambda: len(rec.get("reached")) >= 2 and rec.last("truth") is not None
+                   and np.linalg.norm(rec.last("truth").velocity_mps.to_array()) > 1.0, 60, "flying the second leg fast")
+        pid = st.pids()["planner"]
+        assert is_service_process(pid, "planner")
+        os.kill(pid, signal.SIGKILL)
+        wait_until(lambda: st.pids().get("planner") not in (None, pid), 20, "aero up restarted the planner")
+        wait_until(lambda: st.mission_state() == "HOLDING", 10, "the mission holding through the planner outage")
+        wait_at_rest(st)
+        assert st.command("START").success
+        assert proc.wait(120) == 0, "".join(out[-20:])
+        reached = sorted({w.index for _, w in rec.since("reached")})
+        truth = rec.last("truth")
+    assert reached == [0, 1, 2, 3], (reached, "".join(out[-20:]))
+    assert truth.position_m.z < 0.2 and not truth.armed
