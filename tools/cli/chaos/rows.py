@@ -43,7 +43,9 @@ def kill_row(name: str) -> Row:
         flying = progressing(ctx) or ctx.rec.last("status").state in ("LAND", "IDLE")
         states = mission_states(ctx, ctx.t_inject)
         ok = flying and "HOLDING" not in states
-        return ok, f"restarted in {back:.1f} s; mission {'->'.join(states)}{'' if flying else ', not progressing'}", back
+        held = next((m.message for _, m in ctx.rec.since("status", ctx.t_inject) if m.state == "HOLDING"), "")
+        return ok, (f"restarted in {back:.1f} s; mission {'->'.join(states)}{f' ({held})' if held else ''}"
+                    f"{'' if flying else ', not progressing'}"), back
 
     expected = {
         "fmu": "FC offboard-loss failsafe meanwhile; fmu restarted; then the vehicle holds until the mission "
