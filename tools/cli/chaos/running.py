@@ -5,7 +5,7 @@ from __future__ import annotations
 import time
 
 from aeroperception.schemas import DiagnosticStatus, GcsLink, Imu, MissionStatus, TrajectoryStatus, VehicleState
-from aeroperception.tools.harness import FlightStack
+from aeroperception.tools.harness import FlightStack, poll_until
 
 from .judging import RowResult, judge_safety, still_mps
 from .row import Ctx, Row
@@ -30,23 +30,22 @@ def run_row(st: FlightStack, row: Row, mission_json: str, inject_after_s: float 
     t_unsafe = time.monotonic()
     try:
         row.prepare(ctx)
-        if row.airborne:
-            why = st.start_mission(mission_json)
-            if why:   # a previous row may have left the stack odd: once more on a fresh one
-                _cleanup(row, ctx)
-                rec.close()
-                st.restart()
-                rec = st.capture(**RECORDED)   # on the new stack's session
-                ctx = Ctx(st, rec)
-                row.prepare(ctx)
-                why = st.start_mission(mission_json)
-            if why:
-                res.observed = f"could not start the mission: {why}"
-                return res
-            time.sleep(inject_after_s)
-        ctx.t_inject = time.monotonic()
-        row.inject(ctx)
-        res.passed, res.observed, res.detect_s = row.observe(ctx)
+        why = _start(st, mission_json) if row.airborne else None
+        if why:   # a previous row may have left the stack odd: once more on a fresh one
+            _cleanup(row, ctx)
+            rec.close()
+            st.restart()
+            rec = st.capture(**RECORDED)   # on the new stack's session
+            ctx = Ctx(st, rec)
+            row.prepare(ctx)
+            why = _start(st, mission_json)
+        if why:
+            res.observed = f"could not start the mission: {why}"
+        else:
+            time.sleep(inject_after_s if row.airborne else 0.0)
+            ctx.t_inject = time.monotonic()
+            row.inject(ctx)
+            res.passed, res.observed, res.detect_s = row.observe(ctx)
     except Exception as e:  # noqa: BLE001 - one broken row must not stop the table
         res.observed = f"harness error: {type(e).__name__}: {e}"
         res.passed = False
@@ -70,6 +69,17 @@ def run_row(st: FlightStack, row: Row, mission_json: str, inject_after_s: float 
         st.restart()
     res.duration_s = time.monotonic() - t_start
     return res
+
+
+def _start(st: FlightStack, mission_json: str) -> str | None:
+    """Fly the mission up to EXECUTING; None, else why not. A take-off the mission held on an fmu
+    outage (a loaded machine starving it of state/vehicle > 0.5 s: no fault of the row's) is resumed
+    with START, as an operator would, before the row's fault is injected."""
+    why = st.start_mission(mission_json)
+    if why and st.mission_state() == "HOLDING" and st.command("START").success:
+        if poll_until(lambda: st.mission_state() == "EXECUTING", 20.0, 0.2):
+            return None
+    return why
 
 
 def _cleanup(row: Row, ctx: Ctx) -> None:
