@@ -1,12 +1,14 @@
 """`aero bench sim`: how fast the simulated sensors render on this machine.
 
 Renders every sensor of a scenario's rig over N poses along an orbit and prints, per sensor, the
-median / p99 wall time, the median CPU time (the cost on an idle core: wall time also counts
-time the OS gave to other processes), the highest rate it could sustain alone and its rated rate.
+median / p99 wall time, the median and p99 CPU time (the cost on an idle core: wall time also counts
+time the OS gave to other processes), a camera's CPU as a ratio to casting every pixel (same run),
+the highest rate it could sustain alone and its rated rate.
 The last line sums rate x CPU cost over the default rig: the share of one core the sensors need.
 """
 from __future__ import annotations
 
+import os
 import time
 from dataclasses import dataclass
 from typing import Callable
@@ -85,23 +87,30 @@ def run(n_frames: int = 50, scenario: str = "village") -> int:
         _Row("truth boxes (left camera)", c.rate_hz, *_time(lambda i: project_targets(cam.left, poses[i]), n_frames)),
     ]
     exact_wall, exact_cpu = _time(lambda i: cam.left.render(poses[i], exact=True), max(5, n_frames // 5))
-    rows.append(_Row("  (reference: left, every pixel cast)", c.rate_hz, exact_wall, exact_cpu, in_rig=False))
+    ref = _Row("  (reference: left, every pixel cast)", c.rate_hz, exact_wall, exact_cpu, in_rig=False)
+    rows.append(ref)
+    ref_cpu = float(np.median(ref.cpu_ms))
 
     print(f"sim sensor benchmark: scenario {scenario}, {n_frames} frames, "
           f"textures {1e3 * (t1 - t0):.0f} ms, scene build {1e3 * (t2 - t1):.0f} ms "
           f"({len(scene.triangles)} triangles, {scene.num_planes} planes)")
-    head = f"{'sensor':44s} {'wall med':>9s} {'wall p99':>9s} {'cpu med':>9s} {'max Hz':>8s} {'rated':>7s}  ok"
+    head = (f"{'sensor':44s} {'wall med':>9s} {'wall p99':>9s} {'cpu med':>9s} {'cpu p99':>9s} {'x ref':>6s} "
+            f"{'max Hz':>8s} {'rated':>7s}  ok")
     print(head)
     print("-" * len(head))
     load = 0.0
     for r in rows:
         cpu = float(np.median(r.cpu_ms))
         ok = "yes" if r.max_hz >= r.rated_hz else "NO"
+        ratio = f"{cpu / ref_cpu:6.2f}" if r.name.startswith(("camera", "  (reference")) else " " * 6
         print(f"{r.name:44s} {np.median(r.wall_ms):8.2f}ms {np.percentile(r.wall_ms, 99):8.2f}ms "
-              f"{cpu:8.2f}ms {r.max_hz:8.1f} {r.rated_hz:6.0f}Hz  {ok}")
+              f"{cpu:8.2f}ms {np.percentile(r.cpu_ms, 99):8.2f}ms {ratio} {r.max_hz:8.1f} {r.rated_hz:6.0f}Hz  {ok}")
         if r.in_rig:
             load += r.rated_hz * cpu / 1000.0
     print(f"default rig at rated rates (stereo + lidar + imu + truth boxes): {100 * load:.0f}% of one core")
+    print("cpu = this process's CPU time per frame (what rendering costs the machine, whatever else runs); "
+          f"x ref = a camera's CPU over casting every pixel, same run; load average {os.getloadavg()[0]:.1f} "
+          f"on {os.cpu_count()} cores")
     return 0
 
 
