@@ -57,7 +57,7 @@ PARAMS = [
           description="a lost track is remembered this long: seen again within gate_distance_m it is reacquired (same id, event)"),
     Param("tentative_timeout_s", 1.0, "s", 0.05, 60.0,
           description="an unconfirmed track unseen this long is deleted (longer than the detection period)"),
-    Param("birth_sigma_m", 1.5, "m", 0.05, 100.0,
+    Param("birth_sigma_m", 2.0, "m", 0.05, 100.0,
           description="a detection placed less precisely than this (horizontal 1 sigma; far ones) only extends tracks, never starts one"),
     Param("partial_ratio", 1.25, "", 1.01, 10.0,
           description="a box this much shorter or taller (at its range) than the track's last boxes is a partial view: it keeps the track alive without moving it"),

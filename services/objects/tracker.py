@@ -37,7 +37,7 @@ class TrackerConfig:
     forget_s: float = 600.0             # a lost track is remembered this long: seen again, it is reacquired
     coast_tau_s: float = 0.5            # an unseen track's velocity decays with this time constant
     partial_ratio: float = 1.25         # a box this much shorter or taller than the track's boxes is a partial view
-    birth_sigma_m: float = 1.5          # a detection less precise than this (horizontal 1 sigma) never starts a track
+    birth_sigma_m: float = 2.0          # a detection less precise than this (horizontal 1 sigma) never starts a track
 
 
 @dataclass

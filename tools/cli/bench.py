@@ -1,4 +1,4 @@
-"""`aero bench pubsub|sim|flight|stack|lidar|vio|detector|record|soak`: benchmarks that print median / p99 and the ratio to the raw
+"""`aero bench pubsub|sim|flight|stack|lidar|vio|detector|objects|record|soak`: benchmarks that print median / p99 and the ratio to the raw
 baseline measured in the same run. Tests check correctness; these report speed."""
 from __future__ import annotations
 
@@ -61,6 +61,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=lambda a: importlib.import_module("aeroperception.tools.bench.detector").run(
         a.n, a.scenario, tuple(int(s) for s in a.sizes.split(",")), tuple(int(t) for t in a.threads.split(",")),
         tuple(a.model), a.provider))
+    p = bsub.add_parser("objects", help="objects service CPU per detection frame, 1-20 boxes, vs a full-frame disparity map")
+    p.add_argument("-n", type=int, default=50, help="frames per box count")
+    p.add_argument("--scenario", default="village", help="the rendered pair's scenario")
+    p.set_defaults(func=lambda a: importlib.import_module("aeroperception.tools.bench.objects").run(a.n, a.scenario))
     p = bsub.add_parser("record", help="recorder cost with images on: messages/s, MB/s, drops, CPU %%")
     p.add_argument("--duration", type=float, default=10.0, help="seconds per compression setting")
     p.add_argument("--compression", default="zstd,lz4,none", help="settings to compare (comma-separated)")
