@@ -74,6 +74,12 @@ class Publisher:
         self._pub.put(encode(msg))
         self.count += 1
 
+    @property
+    def matched(self) -> bool:
+        """Whether any subscriber matches the key now (~2 us, from Zenoh's own routing state):
+        a producer whose message costs milliseconds to make skips it when nobody listens."""
+        return self._pub.matching_status.matching
+
     def undeclare(self) -> None:
         self._pub.undeclare()
 

@@ -267,9 +267,11 @@ class SimService(Service):
             values[f"{w.name}_rate_hz"] = round(hz, 1)
             values[f"{w.name}_skipped"] = w.skipped
             values[f"{w.name}_frames"] = w.rendered
+            values[f"{w.name}_unwatched"] = w.unwatched
+            values[f"{w.name}_watched"] = w.watched     # False: nobody subscribes, nothing rendered
             if w.render_ms:
                 values[f"{w.name}_render_p50_ms"] = round(float(np.median(w.render_ms)), 1)
-            if w.rendered > 5 and hz < 0.9 * rated:
+            if w.watched and w.rendered > 5 and hz < 0.9 * rated:
                 level = DiagnosticStatus.WARN
                 msgs.append(f"{w.name} {hz:.1f}/{rated:.0f} Hz")
             values[f"{w.name}_errors"] = w.errors

@@ -6,6 +6,10 @@ starved the 400 Hz physics loop and the IMU/clock publishers; in a child process
 its own interpreter. The parent sends the exact truth of each frame's stamp over a pipe; the child
 keeps only the newest request (older ones are counted as skipped), renders, publishes on Zenoh with
 its own session, and reports each frame's render time back for the sim's diagnostics.
+
+Only what someone subscribes to is rendered and published (Zenoh's matching status, checked per
+frame): with no viewer the truth boxes and LiDAR labels cost nothing, a right camera nobody reads
+is not rendered, and a frame nobody listens to at all is reported as unwatched, not rendered.
 """
 from __future__ import annotations
 
@@ -33,21 +37,30 @@ class _CameraRenderer:
         self.right = node.publisher(CAMERA_KEYS[1], Image, **qos_for(CAMERA_KEYS[1]))
         self.boxes = node.publisher(CAMERA_KEYS[2], Detection2DArray)
 
-    def __call__(self, truth, stamp_ns: int, blackout: bool = False) -> None:
+    def __call__(self, truth, stamp_ns: int, blackout: bool = False) -> bool:
+        """Render and publish what is subscribed; False when nothing was."""
         from .sensors.truth_boxes import project_targets
 
-        if blackout:  # the SIM_CAM_BLACKOUT fault: frames keep coming, all black
-            info = self.stereo.infos()[0]
-            left = np.zeros((info.height, info.width), np.uint8)
-            right = None if self.stereo.right is None else left
-        else:
-            left, right = self.stereo.render(truth)
-        encoding = "mono8" if left.ndim == 2 else "rgb8"
+        want_left = self.left.matched
+        want_right = self.stereo.right is not None and self.right.matched
+        want_boxes = self.has_targets and self.boxes.matched
+        if not (want_left or want_right or want_boxes):
+            return False
         header = Header(stamp_ns=stamp_ns, frame_id="camera_left_optical")
-        self.left.publish(Image.from_numpy(left, encoding, header))
-        if right is not None:
-            self.right.publish(Image.from_numpy(right, encoding, Header(stamp_ns=stamp_ns, frame_id="camera_right_optical")))
-        if self.has_targets:
+        info = self.stereo.infos()[0]
+        if want_left or want_right:
+            if blackout:  # the SIM_CAM_BLACKOUT fault: frames keep coming, all black
+                black = np.zeros((info.height, info.width), np.uint8)
+                left, right = black, black
+            else:
+                left = self.stereo.left.render(truth) if want_left else None
+                right = self.stereo.right.render(truth) if want_right else None
+            encoding = "mono8" if (left if want_left else right).ndim == 2 else "rgb8"
+            if want_left:
+                self.left.publish(Image.from_numpy(left, encoding, header))
+            if want_right:
+                self.right.publish(Image.from_numpy(right, encoding, Header(stamp_ns=stamp_ns, frame_id="camera_right_optical")))
+        if want_boxes:
             dets = [Detection2D(center_x_px=(b.bbox_xyxy_px[0] + b.bbox_xyxy_px[2]) / 2,
                                 center_y_px=(b.bbox_xyxy_px[1] + b.bbox_xyxy_px[3]) / 2,
                                 size_x_px=b.bbox_xyxy_px[2] - b.bbox_xyxy_px[0],
@@ -55,7 +68,8 @@ class _CameraRenderer:
                                 class_id=b.class_id, class_name=b.class_name, score=b.visible_fraction)
                     for b in project_targets(self.stereo.left, truth)]
             self.boxes.publish(Detection2DArray(header=header, detections=dets,
-                                                image_width=left.shape[1], image_height=left.shape[0]))
+                                                image_width=info.width, image_height=info.height))
+        return True
 
 
 class _LidarRenderer:
@@ -64,12 +78,19 @@ class _LidarRenderer:
         self.points = node.publisher(LIDAR_KEYS[0], PointCloud, **qos_for(LIDAR_KEYS[0]))
         self.labels = node.publisher(LIDAR_KEYS[1], PointCloud, **qos_for(LIDAR_KEYS[1]))
 
-    def __call__(self, truth, stamp_ns: int, blackout: bool = False) -> None:
+    def __call__(self, truth, stamp_ns: int, blackout: bool = False) -> bool:
+        """Render and publish what is subscribed; False when nothing was."""
+        want_points, want_labels = self.points.matched, self.labels.matched
+        if not (want_points or want_labels):
+            return False
         scan = self.lidar.scan(truth, stamp_ns=stamp_ns)
         header = Header(stamp_ns=stamp_ns, frame_id=scan.frame_id)
         points = NDArray.from_numpy(scan.points_m.astype(np.float32, copy=False))
-        self.points.publish(PointCloud(header=header, points=points))
-        self.labels.publish(PointCloud(header=header, points=points, labels=NDArray.from_numpy(scan.labels)))
+        if want_points:
+            self.points.publish(PointCloud(header=header, points=points))
+        if want_labels:
+            self.labels.publish(PointCloud(header=header, points=points, labels=NDArray.from_numpy(scan.labels)))
+        return True
 
 
 RENDERERS = {"camera": _CameraRenderer, "lidar": _LidarRenderer}
@@ -112,10 +133,10 @@ def _child_main(sensor: str, scenario_ref: str, node_kwargs: dict, conn) -> None
             truth, stamp_ns, blackout = request
             t0 = time.perf_counter()
             try:
-                render(truth, stamp_ns, blackout)
-                conn.send(("frame", (time.perf_counter() - t0) * 1e3, skipped, None))
+                watched = render(truth, stamp_ns, blackout)
+                conn.send(("frame", (time.perf_counter() - t0) * 1e3, skipped, None, watched))
             except Exception as e:  # noqa: BLE001 - keep rendering, report
-                conn.send(("frame", (time.perf_counter() - t0) * 1e3, skipped, f"{type(e).__name__}: {e}"))
+                conn.send(("frame", (time.perf_counter() - t0) * 1e3, skipped, f"{type(e).__name__}: {e}", True))
     except (EOFError, BrokenPipeError, KeyboardInterrupt):
         return
     finally:
@@ -128,6 +149,8 @@ class RenderProcess:
     def __init__(self, name: str, scenario_ref: str, node_kwargs: dict[str, Any]):
         self.name = name
         self.requested = self.rendered = self.skipped = self.errors = 0
+        self.unwatched = 0      # frames due while nobody subscribed to anything this renderer makes
+        self.watched = True     # the last frame had a subscriber (achieved_hz counts watched frames only)
         self.error, self.error_wall = "", 0.0
         self.render_ms: deque[float] = deque(maxlen=100)
         self.done_wall: deque[float] = deque(maxlen=50)
@@ -160,14 +183,21 @@ class RenderProcess:
             except (EOFError, OSError):
                 return
             if kind == "frame":
-                ms, skipped, err = rest
+                ms, skipped, err, watched = rest
                 self.skipped += skipped
                 if err:
                     self.errors += 1
                     self.error, self.error_wall = err, time.monotonic()
                     continue
-                self.render_ms.append(ms)
+                if not watched:
+                    self.unwatched += 1
+                    if self.watched:            # the rate restarts with the next watched frame
+                        self.watched = False
+                        self.done_wall.clear()
+                    continue
+                self.watched = True
                 self.done_wall.append(time.monotonic())
+                self.render_ms.append(ms)
                 self.rendered += 1
             elif kind == "error":
                 self.errors += 1
