@@ -50,6 +50,9 @@ _DECLARED = [
           description="1-sigma vertical drift as % of distance flown"),
     Param("imu_gap_warn_s", 0.05, "s", 0.005, 1.0, description="longer IMU gap: DEGRADED for that frame"),
     Param("imu_gap_reset_s", 1.0, "s", 0.05, 10.0, description="longer IMU gap: re-initialise"),
+    Param("imu_wait_s", 0.5, "s", 0.0, 5.0,
+          description="before a frame, wait up to this long for the IMU samples up to its stamp (they can run "
+                      "behind the images under load); then process it with what is in"),
     Param("imu_rate_hz", 0.0, "Hz", 0.0, 400.0,
           description="also publish the newest estimate carried forward with the IMU, stamped at IMU samples, at up "
                       "to this rate (propagate.py): for an FC estimator that needs poses more often and sooner than "

@@ -19,7 +19,7 @@ from aeroperception.services.runtime import CallError, Health, Service, run
 
 from . import contract, messages
 from .calibration import CalibrationError, CameraCalibration
-from .slot import FrameSlot
+from .slot import FrameSlot, ImuWatermark
 from .dto import (
     DEGRADED, INIT, LOST, STATE_NAMES, TRACKING, ImuWindow, NavCameraFrame, VioDegradedError,
     VioError, VioFatalError, VioInitializingError,
@@ -48,6 +48,7 @@ class VioService(Service):
         self.frames = FrameSlot(self.stereo)
         self.imu_lock = threading.Lock()
         self.imu_pending: list = []
+        self.imu_mark = ImuWatermark()
         self.counts = {"processed": 0, "errors": 0}
         self.timings: dict[str, deque] = {}
         self.last_out = None
@@ -104,6 +105,7 @@ class VioService(Service):
         sample = messages.imu_sample(msg)
         with self.imu_lock:
             self.imu_pending.append(sample)
+        self.imu_mark.put(sample.t_ns)
         if self.propagator is not None and (out := self.propagator.on_imu(sample)) is not None:
             self._publish_odometry(out)
 
@@ -145,6 +147,7 @@ class VioService(Service):
             pair = self.frames.take(0.2)
             if pair is None:
                 continue
+            self.imu_mark.wait_for(pair[0].header.stamp_ns, self.params.imu_wait_s)
             with self.imu_lock:
                 imu, self.imu_pending = self.imu_pending, []
             frame_id += 1
@@ -202,6 +205,7 @@ class VioService(Service):
         values.update(getattr(self.strategy, "counters", {}))
         if self.propagator is not None:
             values.update(self.propagator.counters)
+        values.update(imu_waits=self.imu_mark.waits, imu_wait_timeouts=self.imu_mark.timeouts)
         if self.last_out is not None:
             q = self.last_out.feature_quality
             values.update(tracked_features=q.tracked, inliers=q.inliers, consecutive_lost=snap.consecutive_lost,

@@ -48,3 +48,32 @@ class FrameSlot:
     def wake(self) -> None:
         with self._cond:
             self._cond.notify_all()
+
+
+class ImuWatermark:
+    """The newest IMU stamp received, which the worker waits on before a frame: under load the IMU
+    callbacks can run behind the image callbacks (both need the interpreter), and a frame processed
+    before the samples up to its stamp are in gets an IMU gap for the samples still queued (they
+    arrive after and are never integrated). Waiting is bounded: a truly missing IMU stays a gap."""
+
+    def __init__(self):
+        self._cond = threading.Condition()
+        self.newest_ns = 0
+        self.waits = self.timeouts = 0
+
+    def put(self, stamp_ns: int) -> None:
+        with self._cond:
+            if stamp_ns > self.newest_ns:
+                self.newest_ns = stamp_ns
+                self._cond.notify_all()
+
+    def wait_for(self, stamp_ns: int, timeout_s: float) -> bool:
+        """True once a sample at or after `stamp_ns` is in; False after `timeout_s` without one."""
+        with self._cond:
+            if self.newest_ns >= stamp_ns:
+                return True
+            self.waits += 1
+            if self._cond.wait_for(lambda: self.newest_ns >= stamp_ns, timeout_s):
+                return True
+            self.timeouts += 1
+            return False

@@ -276,6 +276,23 @@ def test_warm_start_restarts_from_the_given_pose():
         f.s.reset_to_warm_start(WarmStartPose(np.full((4, 4), np.nan)))
 
 
+def test_imu_watermark_lets_the_worker_wait_for_the_imu_up_to_a_frame_bounded():
+    import threading
+
+    from aeroperception.services.vio.slot import ImuWatermark
+
+    mark = ImuWatermark()
+    mark.put(100)
+    assert mark.wait_for(100, 0.0) and mark.waits == 0           # already in: no wait
+    late = threading.Timer(0.05, mark.put, args=(250,))            # the IMU callback runs behind
+    late.start()
+    assert mark.wait_for(200, 2.0) and mark.waits == 1 and mark.timeouts == 0
+    mark.put(120)                                                   # older: the mark never goes back
+    assert mark.newest_ns == 250
+    assert not mark.wait_for(300, 0.05) and mark.timeouts == 1      # missing IMU: bounded, a gap
+    late.join()
+
+
 def test_frame_slot_pairs_by_stamp_and_newest_wins_while_busy():
     from aeroperception.services.vio.slot import FrameSlot
 
