@@ -4,7 +4,7 @@ from __future__ import annotations
 import time
 
 from aeroperception.schemas import (
-    DiagnosticStatus, Header, MissionGoal, OccupancyGrid, Odometry, SelectPluginReply, SelectPluginRequest, Trajectory,
+    DiagnosticStatus, Header, LandedState, MissionGoal, OccupancyGrid, Odometry, SelectPluginReply, SelectPluginRequest, Trajectory,
     TrajectorySetpoint, TrajectoryStatus, Vector3, VehicleState, WaypointReached,
 )
 from aeroperception.services.runtime import Health, LatestWorker, ParamError, Service, run
@@ -162,8 +162,10 @@ class PlannerService(Service):
             # and the mission re-checks it after an outage. Hold where it is until the mission's goal
             # comes again (it re-sends it at 2 Hz), never on to a goal from before the gap.
             self._forget_goal()
-        elif msg.flight_mode not in ("", "OFFBOARD"):
-            self.planner.retake_hold()   # the FC flies a mode of its own: our hold follows the vehicle
+        elif msg.flight_mode not in ("", "OFFBOARD") and msg.landed_state != LandedState.ON_GROUND:
+            # The FC flies a mode of its own: our hold follows the vehicle (landed, there is nothing to
+            # hold, and PX4's estimate may wander: after a GPS loss it drifted 2 m into the ground)
+            self.planner.retake_hold()
         self.state, self.state_rx_s = msg, time.monotonic()
         self._cycle()  # event-driven: a fresh state goes out as a setpoint at once (hot path)
 

@@ -39,3 +39,19 @@ def test_each_flight_controller_gets_the_rows_it_can_answer():
     assert {"pilot_hold", "failsafe_rtl", "gps_failure"} <= set(px4) and not {"clock_jump", "fc_reboot"} & set(px4)
     assert {"clock_jump", "fc_reboot"} <= set(sim) and not {"pilot_hold", "gps_failure"} & set(sim)
     assert "SIM_GPS_USED 0" in px4["gps_failure"].injected       # SIH has no `failure gps off`
+
+
+def test_a_hold_where_the_fc_says_it_is_moves_nothing_even_with_its_estimate_wandered_off():
+    """PX4 on the ground after losing GPS: its estimate drifted 57 m off and 2 m into the ground; a
+    hold at that estimate commands no motion. The same point anywhere else is outside the fence."""
+    from pymavlink.dialects.v20 import common as mavlink
+
+    from aeroperception.tools.harness import setpoint_problem
+    mask = 0b0000_1100_0000_0000 | 0b0001_1100_0000   # position + velocity; no acceleration, yaw, yaw rate
+    sp = mavlink.MAVLink_set_position_target_local_ned_message(0, 1, 1, mavlink.MAV_FRAME_LOCAL_NED, mask,
+                                                                -54.8, 18.6, 2.0, 0, 0, 0, 0, 0, 0, 0, 0)
+    fence = Geofence()
+    assert "outside the fence" in setpoint_problem(sp, fence, -2.0 + 0.5)
+    assert setpoint_problem(sp, fence, -2.0 + 0.5, here_enu_m=[18.5, -54.6, -2.1]) is None
+    assert "outside the fence" in setpoint_problem(sp, fence, -2.0 + 0.5, here_enu_m=[10.0, 0.0, 5.0])
+    assert setpoint_problem(sp, fence, -2.0 + 0.5, here_enu_m=[10.0, 0.0, 5.0], armed=False) is None

@@ -43,10 +43,16 @@ _IGNORE = {  # type_mask bit -> field
 }
 
 
-def setpoint_problem(m, fence: Geofence, floor_m: float = -1.0) -> str | None:
+HOLD_HERE_M = 1.0    # a position setpoint this close to where the FC says it is commands no motion
+
+
+def setpoint_problem(m, fence: Geofence, floor_m: float = -1.0, here_enu_m: np.ndarray | None = None,
+                     armed: bool = True) -> str | None:
     """Why a SET_POSITION_TARGET_LOCAL_NED the FC received is unsafe, or None: a used field not
-    finite, a speed above SAFE_SETPOINT_SPEED_MPS, a position outside the fence or below `floor_m`
-    (the FC's local frame; NED: z down)."""
+    finite, a speed above SAFE_SETPOINT_SPEED_MPS, or, while the FC is `armed`, a position outside the
+    fence or below `floor_m` (the FC's local frame; NED: z down) that is not where the FC says the
+    vehicle is (`here_enu_m`, its LOCAL_POSITION_NED: a hold there moves nothing). PX4's estimate
+    wanders off after losing GPS (57-100 m on the ground, disarmed): a hold at it flies nothing."""
     used = {f: getattr(m, f) for bit, f in _IGNORE.items() if not m.type_mask & bit}
     bad = [f for f, v in used.items() if not math.isfinite(v)]
     if bad:
@@ -54,9 +60,10 @@ def setpoint_problem(m, fence: Geofence, floor_m: float = -1.0) -> str | None:
     v = [used.get(f, 0.0) for f in ("vx", "vy", "vz")]
     if math.hypot(*v) > SAFE_SETPOINT_SPEED_MPS:
         return f"speed {math.hypot(*v):.1f} m/s"
-    if all(f in used for f in ("x", "y", "z")):
+    if armed and all(f in used for f in ("x", "y", "z")):
         east, north, up = m.y, m.x, -m.z
-        if math.hypot(east, north) > fence.radius_m or up > fence.max_altitude_m or up < floor_m:
+        here = here_enu_m is not None and float(np.linalg.norm(np.asarray(here_enu_m) - [east, north, up])) < HOLD_HERE_M
+        if not here and (math.hypot(east, north) > fence.radius_m or up > fence.max_altitude_m or up < floor_m):
             return f"position ({east:.1f}, {north:.1f}, {up:.1f}) ENU outside the fence"
     return None
 
@@ -172,7 +179,9 @@ class MavlinkTap:
         for m in self._parse(pkt):
             if m.get_type() != "SET_POSITION_TARGET_LOCAL_NED":
                 continue
-            why = setpoint_problem(m, self.fence, self.floor_m)
+            with self.lock:
+                here = self.fc_track[-1][1].position_m.to_array() if self.fc_track else None
+            why = setpoint_problem(m, self.fence, self.floor_m, here, self.fc_armed)
             with self.lock:
                 self.setpoints_total += 1
                 self.setpoints.append((now, m))
