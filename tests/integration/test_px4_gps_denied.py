@@ -139,7 +139,8 @@ class VisionFromTruth:
                             pose=Pose(position=Vector3.from_array(pos), orientation=Quaternion.from_array(q_odom)),
                             twist=Twist(linear=Vector3.from_array(v_body)),
                             pose_covariance=NDArray.from_numpy(np.diag([0.01, 0.01, 0.01, 1e-4, 1e-4, 1e-3])),
-                            twist_covariance=NDArray.from_numpy(np.diag([0.01, 0.01, 0.01, 1e-4, 1e-4, 1e-4])))
+                            twist_covariance=NDArray.from_numpy(np.diag([0.01, 0.01, 0.01, 1e-4, 1e-4, 1e-4])),
+                            quality_pct=100)   # EKF2_EV_QMIN 50: a perfect source says so
             self.pub.put(encode(odom))
             self.sent += 1
             now = time.monotonic()

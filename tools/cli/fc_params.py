@@ -67,6 +67,11 @@ GPS_DENIED: list[FcParam] = [
     FcParam("EKF2_EVP_NOISE", 0.1, "m; 1-sigma vision position noise per sample (PX4's default; the VIO's "
                                    "frame-to-frame jitter is a few cm)"),
     FcParam("EKF2_EVV_NOISE", 0.1, "m/s; 1-sigma vision velocity noise per sample (PX4's default)"),
+    FcParam("EKF2_EV_QMIN", 50, "vision below this quality is not fused: the VIO sends 50-100 while TRACKING, "
+                                "1-49 while DEGRADED (poses carried forward on the IMU keep their frame's); "
+                                "EKF2 stops following a degrading VIO and PX4's no-position failsafe acts, "
+                                "instead of flying on it (at load 20-40 a diverged VIO took the vehicle 84-249 m "
+                                "off with 0)"),
     FcParam("COM_RCL_EXCEPT", 4, "OFFBOARD is exempt from the RC-loss failsafe: the companion keeps flying "
                                  "(its own policy holds or lands) when a pilot's radio drops out"),
     FcParam("NAV_RCL_ACT", 3, "RC loss outside OFFBOARD: Land (1 Hold, 2 Return, 3 Land); Return would fly to "
