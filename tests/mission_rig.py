@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from aeroperception.schemas import LandedState, Mission, VehicleState, Vector3, parse_mission
-from aeroperception.services.mission.fsm import Config, GoalOut, MissionManager, Outcome, State
+from aeroperception.services.mission.fsm import Config, GoalOut, MissionManager, State
+from aeroperception.services.mission.requests import Outcome
 
 ROOT = Path(__file__).resolve().parents[1]
 SURVEY_01 = ROOT / "examples" / "missions" / "survey_01.json"

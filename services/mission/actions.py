@@ -25,7 +25,8 @@ from aeroperception.schemas import (
     TakeoffFeedback, TakeoffResult, TrajectoryStatus, Vector3,
 )
 
-from .fsm import MissionManager, Outcome, State
+from .fsm import MissionManager, State
+from .requests import Outcome
 
 MOVING = (State.TAKEOFF, State.EXECUTING, State.LAND)    # a cancel asks HOLD in these
 RESULTS = {"takeoff": TakeoffResult, "land": LandResult, "goto": GoToPositionResult,

@@ -19,7 +19,8 @@ from aeroperception.services.safety.geofence import GeofenceError
 
 from . import contract
 from .actions import MOVING, ActionRun
-from .fsm import Config, GoalOut, MissionManager, Outcome, State
+from .fsm import Config, GoalOut, MissionManager, State
+from .requests import Outcome
 from .limits import Limits, waypoints_in_obstacles
 from .store import MissionStore, default_state_dir
 from .trajectory import NONE, TRAJECTORY_END_RADIUS_M, TrajectoryHandover, check_given
