@@ -42,7 +42,10 @@ def run_row(st: FlightStack, row: Row, mission_json: str, inject_after_s: float 
         if why:
             res.observed = f"could not start the mission: {why}"
         else:
-            time.sleep(inject_after_s if row.airborne else 0.0)
+            if row.airborne:   # mid-leg: past the first waypoint, above the take-off point (PX4 settles
+                # into it for up to 7 s, where a row's 'progressing' would see a vehicle at rest)
+                poll_until(lambda: getattr(ctx.rec.last("status"), "active_waypoint", 0) >= 1, 20.0, 0.1)
+                time.sleep(inject_after_s)
             ctx.t_inject = time.monotonic()
             row.inject(ctx)
             res.passed, res.observed, res.detect_s = row.observe(ctx)
