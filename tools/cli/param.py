@@ -6,8 +6,8 @@ import sys
 
 from aeroperception.schemas import ParamList, ParamSet, ParamSetReply
 
-from .topic import call_or_fail
-from aeroperception.tools.common import add_session_arguments, full_key, open_client, parse_data
+from .topic import call_once
+from aeroperception.tools.common import add_session_arguments, parse_data
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -31,11 +31,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _list(args) -> ParamList:
-    session = open_client(args)
-    try:
-        return call_or_fail(session, full_key(args, f"config/{args.service}/@params"), None, ParamList)
-    finally:
-        session.close()
+    return call_once(args, f"config/{args.service}/@params", None, ParamList)
 
 
 def param_list(args) -> int:
@@ -60,12 +56,8 @@ def param_get(args) -> int:
 
 
 def param_set(args) -> int:
-    session = open_client(args)
-    try:
-        reply = call_or_fail(session, full_key(args, f"config/{args.service}/@set"),
-                             ParamSet(name=args.name, value=parse_value(args.value)), ParamSetReply)
-    finally:
-        session.close()
+    reply = call_once(args, f"config/{args.service}/@set", ParamSet(name=args.name, value=parse_value(args.value)),
+                      ParamSetReply)
     if not reply.success:
         print(f"aero: rejected: {reply.message}", file=sys.stderr)
         return 1

@@ -11,8 +11,8 @@ import sys
 from aeroperception.schemas import ParamList, SelectPluginReply, SelectPluginRequest
 from aeroperception.schemas.services import PLUGIN_ROLES
 
-from .topic import call_or_fail
-from aeroperception.tools.common import add_session_arguments, full_key, open_client
+from .topic import call_once
+from aeroperception.tools.common import add_session_arguments
 
 SERVICE = "planner"
 
@@ -31,11 +31,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def plugin_list(args) -> int:
-    session = open_client(args)
-    try:
-        plist = call_or_fail(session, full_key(args, f"config/{SERVICE}/@params"), None, ParamList)
-    finally:
-        session.close()
+    plist = call_once(args, f"config/{SERVICE}/@params", None, ParamList)
     slots = {p.name: p for p in plist.params if p.name in PLUGIN_ROLES}
     print(f"{'ROLE':<22} {'ACTIVE':<12} REGISTERED")
     for role in PLUGIN_ROLES:
@@ -46,12 +42,8 @@ def plugin_list(args) -> int:
 
 
 def plugin_set(args) -> int:
-    session = open_client(args)
-    try:
-        reply = call_or_fail(session, full_key(args, f"{SERVICE}/srv/select_plugin"),
-                             SelectPluginRequest(role=args.role, name=args.name), SelectPluginReply)
-    finally:
-        session.close()
+    reply = call_once(args, f"{SERVICE}/srv/select_plugin", SelectPluginRequest(role=args.role, name=args.name),
+                      SelectPluginReply)
     if not reply.success:
         print(f"aero: refused: {reply.message}", file=sys.stderr)
         return 1

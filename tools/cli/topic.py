@@ -436,3 +436,12 @@ def call_or_fail(session, key, request, reply_cls, timeout_s=5.0):
         return rpc_call(session, key, request, reply_cls, timeout_s)
     except CallError as e:
         raise CliError(str(e)) from None
+
+
+def call_once(args, key: str, request, reply_cls, timeout_s: float = 5.0):
+    """One call on a session of its own (the CLI's one-shot queries); `key` without the vehicle prefix."""
+    session = open_client(args)
+    try:
+        return call_or_fail(session, full_key(args, key), request, reply_cls, timeout_s)
+    finally:
+        session.close()
