@@ -165,7 +165,7 @@ def locate_on_ground(cam: Camera, view: tuple[np.ndarray, np.ndarray], u_px: flo
         d = cam.rays(x[:, 0], x[:, 1]) @ r_wc.T
         with np.errstate(divide="ignore", invalid="ignore"):
             t = (x[:, 2] - origin[2]) / d[:, 2]
-        p = origin + d * t[:, None]
+            p = origin + d * t[:, None]
         bad = ~(t > 0) | (np.abs(d[:, 2]) < 1e-9) | (np.linalg.norm(p - origin, axis=1) > max_range_m)
         p[bad] = np.nan
         return p

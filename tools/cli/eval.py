@@ -78,15 +78,34 @@ def _register_trajectory(esub) -> None:
 
 def _register_objects(esub) -> None:
     p = esub.add_parser("objects", help="tracked objects vs the scenario's targets: found / missed / duplicated, "
-                                        "false tracks, position error, ID switches (live)")
-    p.add_argument("--live", action="store_true", required=True, help="a running stack's perception/objects")
-    p.add_argument("--scenario", default="village", help="the running sim's scenario (name or YAML path)")
-    p.add_argument("--duration", type=float, default=60.0, help="seconds to score (at most, with --until-landed)")
+                                        "false tracks, position error, ID switches (live, or a recorded flight replayed)")
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--live", action="store_true", help="a running stack's perception/objects")
+    src.add_argument("--replay", default=None, metavar="MCAP",
+                     help="run the objects logic offline over a recorded flight (aero record --images with "
+                          "perception/detections, state/vehicle, sensors/camera/*/info, fmu/out/home_position)")
+    p.add_argument("--scenario", default=None,
+                   help="the sim's scenario, the truth (name or YAML path; default: --live village, "
+                        "--replay the one the recording names)")
+    p.add_argument("--param", action="append", default=None, metavar="NAME=VALUE",
+                   help="--replay: an objects parameter instead of its default (repeatable)")
+    p.add_argument("--duration", type=float, default=60.0, help="--live: seconds to score (at most, with --until-landed)")
     p.add_argument("--until-landed", action="store_true",
-                   help="stop once the vehicle (sim truth) has flown and is down and disarmed again")
+                   help="--live: stop once the vehicle (sim truth) has flown and is down and disarmed again")
     p.add_argument("--json", default=None, metavar="FILE", help="write the figures as JSON")
     add_session_arguments(p)
-    p.set_defaults(func=lambda a: importlib.import_module("aeroperception.tools.eval.objects").run_live(a))
+    p.set_defaults(func=_objects)
+
+
+def _objects(a) -> int:
+    mod = importlib.import_module("aeroperception.tools.eval.objects")
+    if a.replay is None:
+        if a.param:
+            raise CliError("--param needs --replay (a live service's parameters: aero param set objects NAME VALUE)")
+        return mod.run_live(a)
+    if a.until_landed:
+        raise CliError("--until-landed needs --live (a replay runs over the whole recording)")
+    return mod.run_replay(a)
 
 
 def _detector(a) -> int:

@@ -1,7 +1,11 @@
-"""`aero eval objects --live`: the objects service's tracks against the simulator's truth.
+"""`aero eval objects --live | --replay FILE`: the objects service's tracks against the simulator's truth.
 
 Truth is the scenario's detector targets (their 3D box centres, ENU): the running sim's scenario,
-named with --scenario. Every perception/objects message is scored as it comes:
+named with --scenario. --live scores the running service; --replay runs the service's own pipeline
+(`ObjectsPipeline`, no Zenoh) over a recorded flight (an MCAP with the detections, the stereo pair,
+camera infos, vehicle state and home: `aero record --images`), every detection frame in stamp
+order, so a change to the objects logic is judged on the same flight again. Every
+perception/objects message is scored as it comes:
 - each confirmed track is matched to the nearest target of its class within `match_m`; a target
   with one track is found, each further track on it is a duplicate, a target with none is missed;
 - a confirmed track near no target of its class is a false track (reported with how long it lived);
@@ -9,7 +13,8 @@ named with --scenario. Every perception/objects message is scored as it comes:
   range band (`BANDS_M`);
 - ID switches: a target whose matched track id changes from one message to the next;
 - time to confirmation: a track's first confirmed message minus its first detection;
-- the service's cost per detection frame and its frames dropped while busy (diagnostics/objects).
+- the service's cost per detection frame and its frames dropped while busy (diagnostics/objects;
+  on a replay: this process's CPU per frame, and nothing is dropped).
 """
 from __future__ import annotations
 
@@ -187,15 +192,24 @@ def _fmt(v) -> str:
     return "-" if v is None else f"{v:.2f}"
 
 
+def report(res: dict, json_path: str | None) -> int:
+    """Print the table and the unmet goals; keep the figures as JSON when asked."""
+    print(table(res))
+    unmet = unmet_goals(res)
+    print("goals: met" if not unmet else "goals not met: " + "; ".join(unmet))
+    res["unmet_goals"] = unmet
+    if json_path:
+        with open(json_path, "w") as f:
+            json.dump(res, f, indent=2)
+    return 0
+
+
 def run_live(args) -> int:
     from aeroperception.schemas import DiagnosticStatus, SchemaError, decode
 
     from aeroperception.tools.common import CliError, FlightWatch, open_client
 
-    try:
-        ev = ObjectsEval(scenario_targets(args.scenario))
-    except Exception as e:  # noqa: BLE001 - a bad scenario name or file: one line
-        raise CliError(f"--scenario {args.scenario}: {e}") from None
+    ev = ObjectsEval(_targets(args.scenario or "village"))
     prefix = f"{args.vehicle}/" if args.vehicle else ""
     lock, watch = threading.Lock(), FlightWatch()
 
@@ -233,11 +247,147 @@ def run_live(args) -> int:
         if ev.messages == 0:
             raise CliError("no perception/objects message: is the objects service running (aero up)?")
         res = ev.summary()
-    print(table(res))
-    unmet = unmet_goals(res)
-    print("goals: met" if not unmet else "goals not met: " + "; ".join(unmet))
-    res["unmet_goals"] = unmet
-    if args.json:
-        with open(args.json, "w") as f:
-            json.dump(res, f, indent=2)
-    return 0
+    return report(res, args.json)
+
+
+def _targets(scenario: str) -> list[Target]:
+    from aeroperception.tools.common import CliError
+
+    try:
+        return scenario_targets(scenario)
+    except Exception as e:  # noqa: BLE001 - a bad scenario name or file: one line
+        raise CliError(f"--scenario {scenario}: {e}") from None
+
+
+# ---------------------------------------------------------------- replay
+
+REPLAY_INPUTS = ("perception/detections", "state/vehicle", "fmu/out/home_position", "sensors/camera/left/info",
+                 "sensors/camera/right/info", "sensors/camera/left/image", "sensors/camera/right/image")
+
+
+@dataclass
+class Replay:
+    """The objects pipeline fed a recording's messages in log-time order, scored as it goes."""
+
+    pipeline: object                    # services.objects.logic.ObjectsPipeline
+    eval: ObjectsEval
+    cpu_ms: list[float] = field(default_factory=list)
+    wall_ms: list[float] = field(default_factory=list)
+    frames: int = 0
+    undecodable: int = 0
+
+    def feed(self, key: str, payload: bytes) -> None:
+        from aeroperception.schemas import (
+            CameraInfo, Detection2DArray, HomePosition, Image, SchemaError, VehicleState, decode,
+        )
+
+        topic, pl = key.split("/"), self.pipeline
+        kind = {"state/vehicle": VehicleState, "fmu/out/home_position": HomePosition,
+                "perception/detections": Detection2DArray}.get(key) or (CameraInfo if topic[-1] == "info" else Image)
+        try:
+            msg = decode(payload, kind)
+        except SchemaError:
+            self.undecodable += 1
+            return
+        if kind is VehicleState:
+            pl.on_state(msg)
+        elif kind is HomePosition:
+            pl.on_home(msg)
+        elif kind is CameraInfo:
+            pl.on_info(topic[2], msg)
+        elif kind is Image:
+            pl.on_image(topic[2], msg)
+        else:
+            self.frames += 1
+            r = pl.process(msg)
+            if r is not None:
+                self.cpu_ms.append(r.cpu_ms)
+                self.wall_ms.append(r.elapsed_ms)
+                self.eval.add(r.objects)
+
+    def summary(self) -> dict:
+        cpu, wall = np.asarray(self.cpu_ms, float), np.asarray(self.wall_ms, float)
+        if cpu.size:
+            self.eval.service.update(frames_received=self.frames, frames_processed=cpu.size, frames_dropped_busy=0,
+                                     frame_ms_p50=round(float(np.median(wall)), 2), frame_ms_max=round(float(wall.max()), 2),
+                                     frame_cpu_ms_p50=round(float(np.median(cpu)), 2),
+                                     frame_cpu_ms_p99=round(float(np.percentile(cpu, 99)), 2),
+                                     frame_cpu_ms_max=round(float(cpu.max()), 2))
+        res = self.eval.summary()
+        res["replay"] = {"detection_frames": self.frames, "undecodable": self.undecodable,
+                         "dropped": dict(self.pipeline.dropped), "placed": dict(self.pipeline.placed)}
+        return res
+
+
+def replay(path: str, scenario: str | None = None, overrides: dict[str, str] | None = None,
+           vehicle: str = "") -> dict:
+    """Score the objects logic on a recorded flight (module doc). `scenario`: the truth's, else the
+    one the recording names; `overrides`: objects parameters (NAME -> value) instead of defaults."""
+    from aeroperception.services.objects import contract
+    from aeroperception.services.objects.logic import ObjectsPipeline
+    from aeroperception.services.recorder.files import RecordingError, messages
+    from aeroperception.services.runtime import ParamError, ParamSet
+    from aeroperception.tools.common import CliError
+
+    recorded, metadata = _recorded(path)
+    scenario = scenario or metadata.get("aeroperception", {}).get("scenario")
+    if not scenario:
+        raise CliError(f"{path} does not name its scenario: give --scenario (e.g. village)")
+    prefix = f"{vehicle}/" if vehicle else ""
+    topics = [prefix + k for k in REPLAY_INPUTS]
+    missing = [k for k in ("perception/detections", "state/vehicle", "sensors/camera/left/info")
+               if prefix + k not in recorded]
+    if missing:
+        raise CliError(f"{path} has no {', '.join(missing)}: record them (aero record --images "
+                       f"{' '.join(REPLAY_INPUTS[:5])})")
+    params = ParamSet.from_declarations(contract.PARAMS)
+    try:
+        params.update(overrides or {})
+    except ParamError as e:
+        raise CliError(f"--param: {e}") from None
+    run = Replay(ObjectsPipeline(params), ObjectsEval(_targets(scenario)))
+    try:
+        for ch, m in messages(path, topics):
+            run.feed(ch.topic[len(prefix):], m.data)
+    except RecordingError as e:
+        raise CliError(str(e)) from None
+    if not run.cpu_ms:
+        raise CliError(f"{path}: no detection frame could be placed ({dict(run.pipeline.dropped)})")
+    res = run.summary()
+    res["replay"]["file"], res["replay"]["scenario"] = str(path), scenario
+    return res
+
+
+def _recorded(path: str) -> tuple[set[str], dict[str, dict[str, str]]]:
+    """The topics and metadata of an indexed recording, from its summary (not a pass over its images)."""
+    from mcap.exceptions import McapError
+    from mcap.reader import make_reader
+
+    from aeroperception.tools.common import CliError
+
+    try:
+        with open(path, "rb") as f:
+            reader = make_reader(f)
+            summary = reader.get_summary()
+            if summary is None:
+                raise CliError(f"{path}: has no index (cut short?): run `aero mcap recover {path}` first")
+            return ({c.topic for c in summary.channels.values()},
+                    {m.name: dict(m.metadata) for m in reader.iter_metadata()})
+    except (OSError, McapError) as e:
+        raise CliError(f"{path}: not a readable MCAP recording ({e})") from None
+
+
+def run_replay(args) -> int:
+    from aeroperception.services.runtime import ParamError
+    from aeroperception.services.runtime.params import parse_overrides
+    from aeroperception.tools.common import CliError
+
+    try:
+        overrides = parse_overrides(args.param or ())
+    except ParamError as e:
+        raise CliError(str(e)) from None
+    res = replay(args.replay, args.scenario, overrides, args.vehicle or "")
+    r = res["replay"]
+    print(f"replayed {r['file']} ({r['scenario']}): {r['detection_frames']} detection frames; placed {r['placed']}; "
+          f"not placed {r['dropped']}")
+    return report(res, args.json)
