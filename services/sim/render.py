@@ -97,6 +97,7 @@ RENDERERS = {"camera": _CameraRenderer, "lidar": _LidarRenderer}
 # Rendering must never delay the control hot path: a realtime sim passes its policy to us at
 # spawn, so drop it and run nicer than everything `aero up` starts (tools/profiles.yaml).
 RENDER_NICE = 10
+MAX_QUEUED = 4   # requests the parent lets wait in the pipe before skipping frames itself
 
 
 def _child_main(sensor: str, scenario_ref: str, node_kwargs: dict, conn) -> None:
@@ -154,6 +155,8 @@ class RenderProcess:
         self.error, self.error_wall = "", 0.0
         self.render_ms: deque[float] = deque(maxlen=100)
         self.done_wall: deque[float] = deque(maxlen=50)
+        self.ready = False      # the child said "ready": it reads requests from now on
+        self._queued = 0        # requests sent that the child has not answered (rendered or skipped)
         ctx = mp.get_context("spawn")
         self._conn, child_conn = ctx.Pipe(duplex=True)
         self.proc = ctx.Process(target=_child_main, args=(name, scenario_ref, node_kwargs, child_conn),
@@ -166,9 +169,16 @@ class RenderProcess:
         self._reader.start()
 
     def request(self, truth, stamp_ns: int, blackout: bool = False) -> None:
+        """Queue a frame; skipped (counted) until the child is ready and while it is MAX_QUEUED
+        behind: the pipe then never fills, so send() never blocks the physics thread (a child
+        still starting up at load 20 once filled it in ~8 s and the vehicle's MAVLink stopped)."""
         self.requested += 1
         try:
             with self._send_lock:
+                if not self.ready or self._queued >= MAX_QUEUED:
+                    self.skipped += 1
+                    return
+                self._queued += 1
                 self._conn.send((truth, stamp_ns, blackout))
         except (BrokenPipeError, OSError):
             self.errors += 1
@@ -182,8 +192,12 @@ class RenderProcess:
                 kind, *rest = self._conn.recv()
             except (EOFError, OSError):
                 return
+            if kind == "ready":
+                self.ready = True
             if kind == "frame":
                 ms, skipped, err, watched = rest
+                with self._send_lock:
+                    self._queued = max(0, self._queued - 1 - skipped)
                 self.skipped += skipped
                 if err:
                     self.errors += 1

@@ -13,18 +13,20 @@ import json
 import os
 import select
 import socket
+import struct
 import subprocess
 import sys
 import tempfile
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from aeroperception.schemas import DiagnosticStatus, MissionCommand, Reply, SchemaError, decode
 from aeroperception.services.runtime.node import CallError, call
 from aeroperception.services.runtime.service import SWITCH_INTERVAL_S
+from aeroperception.services.runtime.supervision import Priority, apply_priority
 from aeroperception.services.runtime.session import make_config, open_session
 
 from .pubsub import measure
@@ -33,45 +35,76 @@ from aeroperception.tools.harness import free_port, free_udp_port, msgid
 LOCAL_POSITION_NED, SET_POSITION_TARGET_LOCAL_NED = 32, 84
 
 
-class Tap:
-    """UDP relay sim <-> fmu that timestamps the hot path."""
+SO_TIMESTAMPNS = 35      # Linux: the kernel's receive time of each datagram (not in Python's socket module)
+TAP_PRIORITY = Priority(realtime=20)   # the wire the tap stands in for never waits for a CPU
 
-    def __init__(self, from_sim_port: int, fmu_port: int):
+
+def _kernel_stamp_s(ancillary: list, fallback_s: float) -> float:
+    """The datagram's kernel receive time (CLOCK_REALTIME, s) from recvmsg's ancillary data."""
+    for level, kind, data in ancillary:
+        if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS and len(data) >= 16:
+            sec, ns = struct.unpack("qq", data[:16])
+            return sec + ns * 1e-9
+    return fallback_s
+
+
+class Tap:
+    """UDP relay sim <-> fmu that timestamps the hot path.
+
+    Every stamp is the kernel's receive time of the datagram (SO_TIMESTAMPNS), so the relay's
+    own wake-up delay is not counted as fmu's: the setpoint's stamp is when it reached the
+    wire's end; the state's is when it left the relay for fmu (`forward_ms` is the relay's
+    delay, reported separately). With priorities on, the relay thread runs at the hot path's
+    SCHED_RR priority: at load 25 a nice-0 relay starved the link into a stale FC."""
+
+    def __init__(self, from_sim_port: int, fmu_port: int, priority: bool = True):
         self.a = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.a.bind(("127.0.0.1", from_sim_port))
         self.b = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.b.bind(("127.0.0.1", 0))
+        for s in (self.a, self.b):
+            s.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
         self.fmu = ("127.0.0.1", fmu_port)
         self.sim_addr = None
+        self.priority = priority
+        self.sched = ""
         self.pending: float | None = None
         self.latency_ms: list[float] = []
+        self.forward_ms: list[float] = []   # state: kernel receive -> relayed to fmu
         self.setpoint_t: list[float] = []
-        self.lpn_t: list[float] = []
+        self.lpn_t: list[float] = []        # kernel receive time of each LOCAL_POSITION_NED from the sim
         self.recording = False
         self.stop = threading.Event()
-        threading.Thread(target=self._run, daemon=True).start()
+        threading.Thread(target=self._run, name="tap", daemon=True).start()
 
     def _run(self) -> None:
+        if self.priority:
+            self.sched = apply_priority(0, TAP_PRIORITY)   # pid 0: this thread
         while not self.stop.is_set():
             ready, _, _ = select.select([self.a, self.b], [], [], 0.1)
             for s in ready:
-                pkt, addr = s.recvfrom(65535)
-                now = time.perf_counter()
+                try:
+                    pkt, anc, _flags, addr = s.recvmsg(65535, 64)
+                except OSError:   # ICMP refused from a send before fmu (or the sim) had bound its port
+                    continue
+                now = time.time()
+                rx = _kernel_stamp_s(anc, now)
                 if s is self.a:
                     self.sim_addr = addr
-                    if msgid(pkt) == LOCAL_POSITION_NED:
-                        self.pending = now
-                        if self.recording:
-                            self.lpn_t.append(now)
                     self.b.sendto(pkt, self.fmu)
+                    if msgid(pkt) == LOCAL_POSITION_NED:
+                        self.pending = time.time()
+                        if self.recording:
+                            self.lpn_t.append(rx)
+                            self.forward_ms.append((self.pending - rx) * 1e3)
                 else:
-                    if msgid(pkt) == SET_POSITION_TARGET_LOCAL_NED and self.recording:
-                        self.setpoint_t.append(now)
-                        if self.pending is not None:
-                            self.latency_ms.append((now - self.pending) * 1e3)
-                            self.pending = None
                     if self.sim_addr:
                         self.a.sendto(pkt, self.sim_addr)
+                    if msgid(pkt) == SET_POSITION_TARGET_LOCAL_NED and self.recording:
+                        self.setpoint_t.append(rx)
+                        if self.pending is not None:
+                            self.latency_ms.append((rx - self.pending) * 1e3)
+                            self.pending = None
 
 
 def scheduling_line(log_dir: str) -> str:
@@ -112,7 +145,7 @@ class HoverRun:
 
     def __init__(self, sensors: str = "none", priorities: bool = True, up_args: tuple[str, ...] = ()):
         router_port, (sim_tx, fmu_rx, sim_bind) = free_port(), (free_udp_port() for _ in range(3))
-        self.tap = Tap(sim_tx, fmu_rx)
+        self.tap = Tap(sim_tx, fmu_rx, priorities)
         self.endpoint = f"tcp/127.0.0.1:{router_port}"
         self.log_dir = tempfile.mkdtemp(prefix="aero-bench-flight-")
         self._up_out = open(os.path.join(self.log_dir, "aero-up.out"), "wb")
@@ -153,9 +186,9 @@ class HoverRun:
         self.session.declare_subscriber("diagnostics/*", on_diag)
         tap = self.tap
         self.session.declare_subscriber("state/vehicle",
-                                        lambda _s: tap.recording and self.seen["state"].append(time.perf_counter()))
+                                        lambda _s: tap.recording and self.seen["state"].append(time.time()))
         self.session.declare_subscriber("fmu/in/trajectory_setpoint",
-                                        lambda _s: tap.recording and self.seen["setpoint"].append(time.perf_counter()))
+                                        lambda _s: tap.recording and self.seen["setpoint"].append(time.time()))
         while True:
             try:
                 r = call(self.session, "mission/srv/command", MissionCommand(command="TAKEOFF"), Reply, 5.0)
@@ -169,7 +202,8 @@ class HoverRun:
         time.sleep(settle_s)  # climb, settle into OFFBOARD hover
 
     def begin(self) -> None:
-        self.tap.latency_ms.clear()
+        for samples in (self.tap.latency_ms, self.tap.forward_ms, self.tap.lpn_t, self.tap.setpoint_t):
+            samples.clear()
         self.tap.recording = True
 
     def end(self) -> "HotPath":
@@ -177,6 +211,7 @@ class HoverRun:
         diag = self.last_diag.get("planner", DiagnosticStatus()).values
         return HotPath(lat=np.array(self.tap.latency_ms), stages=breakdown(self.tap, self.seen),
                        gaps=np.diff(np.array(self.tap.setpoint_t)) * 1e3,
+                       state_gaps=np.diff(np.array(self.tap.lpn_t)) * 1e3, forward=np.array(self.tap.forward_ms),
                        period_error=(diag.get("loop[setpoint].ticks", "-"),
                                      float(diag.get("loop[setpoint].period_error_p50_ms", "nan")),
                                      float(diag.get("loop[setpoint].period_error_p99_ms", "nan"))),
@@ -210,12 +245,20 @@ class HotPath:
     gaps: np.ndarray
     period_error: tuple[str, float, float]   # planner loop: ticks, p50, p99
     sched: str
+    state_gaps: np.ndarray = field(default_factory=lambda: np.zeros(0))  # LOCAL_POSITION_NED from the sim
+    forward: np.ndarray = field(default_factory=lambda: np.zeros(0))     # the tap's relay delay (not in lat)
 
     def rows(self) -> list[tuple[str, int | str, float, float]]:
         """(metric, n, median_ms, p99_ms) for the latency, its stages, the gap and the loop error."""
         out = [("hot path latency", len(self.lat), _q(self.lat, 50), _q(self.lat, 99))]
         out += [("  " + name, len(a), _q(a, 50), _q(a, 99)) for name, a in self.stages.items() if len(a)]
         out.append(("setpoint gap on the wire (50 Hz = 20 ms)", len(self.gaps), _q(self.gaps, 50), _q(self.gaps, 99)))
+        if len(self.state_gaps):   # the sim's own jitter: a late state is a late setpoint
+            out.append(("  sim's LOCAL_POSITION_NED gap (50 Hz)", len(self.state_gaps), _q(self.state_gaps, 50),
+                         _q(self.state_gaps, 99)))
+        if len(self.forward):
+            out.append(("  tap relay delay (not in the hot path)", len(self.forward), _q(self.forward, 50),
+                        _q(self.forward, 99)))
         out.append(("planner deadline-loop period error", *self.period_error))
         return out
 
@@ -253,7 +296,7 @@ def run(duration_s: float = 20.0, sensors: str = "none", priorities: bool = True
     base = 2 * float(np.median(raw))
     print(f"hot path LOCAL_POSITION_NED in -> SET_POSITION_TARGET_LOCAL_NED out, whole sim profile "
           f"(sensors={sensors}), {duration_s:.0f} s hover, {os.cpu_count()} cores")
-    print(f"scheduling: {hp.sched}")
+    print(f"scheduling: {hp.sched}, bench tap {hover.tap.sched or 'nice 0'}")
     print(f"{'metric':<44} {'n':>6} {'median_ms':>10} {'p99_ms':>8} {'x_base':>7}")
     rows = hp.rows()
     name, n, med, p99 = rows[0]
