@@ -23,13 +23,15 @@ def default_state_dir(vehicle: str) -> Path:
 
 
 class MissionStore:
-    def __init__(self, directory: str | Path):
-        self.path = Path(directory).expanduser() / FILE_NAME
+    """One JSON snapshot in `directory` (`file_name`: also the planner's selected parts)."""
+
+    def __init__(self, directory: str | Path, file_name: str = FILE_NAME):
+        self.path = Path(directory).expanduser() / file_name
 
     def save(self, snapshot: dict[str, Any]) -> None:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         data = json.dumps({"version": VERSION, **snapshot}).encode()
-        fd, tmp = tempfile.mkstemp(prefix=".mission-", suffix=".tmp", dir=self.path.parent)
+        fd, tmp = tempfile.mkstemp(prefix=f".{self.path.stem}-", suffix=".tmp", dir=self.path.parent)
         try:
             with os.fdopen(fd, "wb") as f:
                 f.write(data)
@@ -57,5 +59,5 @@ class MissionStore:
         except ValueError as e:
             raise ValueError(f"{self.path}: not valid JSON: {e}") from None
         if not isinstance(data, dict) or data.get("version") != VERSION:
-            raise ValueError(f"{self.path}: not a version {VERSION} mission snapshot")
+            raise ValueError(f"{self.path}: not a version {VERSION} snapshot")
         return data

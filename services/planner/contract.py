@@ -63,6 +63,14 @@ PARAMS = [
     Param("z_vel_max_up_mps", 3.0, "m/s", 0.1, 15.0, description="MPC_Z_VEL_MAX_UP: climb rate limit"),
     Param("z_vel_max_dn_mps", 1.5, "m/s", 0.1, 15.0, description="MPC_Z_VEL_MAX_DN: descent rate limit"),
     Param("yaw_rate_max_dps", 45.0, "deg/s", 1.0, 360.0, description="MPC_YAWRAUTO_MAX: heading rate limit"),
+    # the acceleration feed-forward a trajectory streams (trajectory/follow.py FeedForward): what the flight
+    # controller must command now, for its lag and the drag it does not model (0 = the reference's own)
+    Param("ff_lead_s", 0.0, "s", 0.0, 1.0,
+          description="the flight controller's lag from an acceleration setpoint to the vehicle's acceleration: "
+                      "the acceleration is taken this far ahead on the trajectory (PX4's SIH quad: 0.2)"),
+    Param("drag_per_s", 0.0, "1/s", 0.0, 5.0,
+          description="the vehicle's linear drag, acceleration lost per m/s: drag_per_s x velocity is added to the "
+                      "acceleration (PX4's SIH quad: SIH_KDV / SIH_MASS = 1; the built-in sim: SIM_DRAG)"),
     Param("trajectory_lag_m", 1.5, "m", 0.2, 20.0,
           description="the reference slows while the vehicle is more than half this behind it, stops at this"),
     # swappable parts (plugins.py): switched live only on the ground or hovering
@@ -74,6 +82,8 @@ PARAMS = [
                       "the planner closes the position loop (kp)"),
     Param("estimator", "fc", choices=tuple(ESTIMATORS),
           description="fc = the FC's estimate (state/vehicle); vio = VIO's odometry directly (state/visual_odometry)"),
+    Param("state_dir", "", start_only=True,
+          description="where the selected parts persist (plugins.PARTS_FILE); '' = $AERO_STATE_DIR or ~/.aero/state, /<vehicle>/"),
     Param("hover_speed_mps", 0.3, "m/s", 0.05, 2.0, description="in the air below this speed = hovering (a part may be switched)"),
     Param("costmap_timeout_s", 0.5, "s", 0.1, 5.0, description="an older costmap -> hold until fresh (stale_costmap); none ever -> straight lines"),
 ]

@@ -7,6 +7,7 @@ from aeroperception.schemas import (
     DiagnosticStatus, Header, LandedState, MissionGoal, OccupancyGrid, Odometry, SelectPluginReply, SelectPluginRequest, Trajectory,
     TrajectorySetpoint, TrajectoryStatus, Vector3, VehicleState, WaypointReached,
 )
+from aeroperception.services.mission.store import MissionStore, default_state_dir
 from aeroperception.services.runtime import Health, LatestWorker, ParamError, Service, run
 
 from . import contract
@@ -14,8 +15,9 @@ from .avoidance import AvoidanceConfig, LocalPlanner
 from .controllers import CONTROLLERS, Gains
 from .estimators import VioEstimate, fc_offset_m
 from .logic import Goal, GoalWatchdog, WaypointPlanner, tracking_errors
-from .plugins import REGISTRIES, switch_refusal
+from .plugins import PARTS_FILE, REGISTRIES, restore_parts, selected_parts, switch_refusal
 from .tracking import TrackerConfig, TrajectoryTracker
+from .trajectory.follow import FeedForward
 from .trajectory.generators import limits_from
 
 
@@ -27,6 +29,7 @@ class PlannerService(Service):
 
     def start(self) -> None:
         p = self.params
+        self._restore_parts()    # before the switch rule listens: a restart keeps what flew
         self.planner = WaypointPlanner(p.max_velocity_mps, p.kp, p.acceptance_radius_m)
         self.params.on_change(self._on_param)
         self.state: VehicleState | None = None        # the active estimator's, in the map frame
@@ -83,7 +86,8 @@ class PlannerService(Service):
 
     def _tracker_config(self) -> TrackerConfig:
         p = self.params
-        return TrackerConfig(limits_from(p), p.acceptance_radius_m, p.trajectory_lag_m, p.trajectory_generator)
+        return TrackerConfig(limits_from(p), p.acceptance_radius_m, p.trajectory_lag_m, p.trajectory_generator,
+                             FeedForward(p.ff_lead_s, p.drag_per_s))
 
     def _on_trajectory(self, msg: Trajectory) -> None:
         if msg == self.trajectory_msg:
@@ -105,6 +109,22 @@ class PlannerService(Service):
     def _vio_fresh(self) -> bool:
         return self.odom_rx_s is not None and time.monotonic() - self.odom_rx_s < self.params.state_timeout_s
 
+    def _restore_parts(self) -> None:
+        self.parts_store = MissionStore(self.params.state_dir or default_state_dir(self.node.vehicle), PARTS_FILE)
+        try:
+            saved = self.parts_store.load()
+        except ValueError as e:
+            self.log.warn("persisted_parts_ignored", error=str(e))
+            return
+        for note in restore_parts(saved, self.params):
+            self.log.warn("parts_restored", note=note)
+
+    def _save_parts(self) -> None:
+        try:
+            self.parts_store.save(selected_parts(self.params))
+        except OSError as e:
+            self.log.throttled("error", "parts", "parts_persist_failed", path=str(self.parts_store.path), error=str(e))
+
     def _switch(self, role: str, name: str) -> None:
         """A part switched (the rule already passed): what changes with it."""
         if role == "trajectory_generator":
@@ -121,7 +141,8 @@ class PlannerService(Service):
             if why:
                 raise ParamError(f"{name} stays {self.params[name]!r}: {why}")
             self._switch(name, value)
-        if name in ("max_velocity_mps", "acceptance_radius_m", "trajectory_lag_m") or name.startswith(("acc_", "jerk_", "z_vel_", "yaw_rate_")):
+            self._save_parts()
+        if name in ("max_velocity_mps", "acceptance_radius_m", "trajectory_lag_m", "ff_lead_s", "drag_per_s") or name.startswith(("acc_", "jerk_", "z_vel_", "yaw_rate_")):
             self.tracker.cfg = self._tracker_config()   # the next trajectory made uses it
         if name.startswith("avoid_") or name == "costmap_timeout_s":
             self.avoid.cfg = AvoidanceConfig.from_params(self.params)

@@ -10,6 +10,11 @@ A switch is safe on the ground (landed or disarmed) or hovering (in the air, spe
 `hover_speed_mps`); moving, the old part's reference and the new one's would disagree mid-way
 (a trajectory's timing, a feed-forward the other controller drops), so it is refused, saying
 how fast the vehicle moves. `vio` is refused while VIO's odometry is not fresh.
+
+A switch persists (PARTS_FILE in the state directory, like the mission's progress) and a restarted
+planner starts with the parts selected last, so a restart in flight never silently changes what
+flies; restored over a different start-up value, it says so. A restored `vio` without VIO
+odometry gives the planner no state: it sends no setpoints and the flight controller holds.
 """
 from __future__ import annotations
 
@@ -22,6 +27,28 @@ from .estimators import ESTIMATORS
 from .trajectory.generators import GENERATORS
 
 REGISTRIES: dict[str, dict] = {"trajectory_generator": GENERATORS, "controller": CONTROLLERS, "estimator": ESTIMATORS}
+PARTS_FILE = "planner_parts.json"
+
+
+def selected_parts(params) -> dict[str, str]:
+    """What runs in each slot (the snapshot persisted on every switch)."""
+    return {role: params[role] for role in REGISTRIES}
+
+
+def restore_parts(saved: dict | None, params) -> list[str]:
+    """Set each slot to the part persisted last (`saved`: a snapshot, None = none); returns what
+    was restored over a different value and what was not restorable, one line each."""
+    notes = []
+    for role, registry in REGISTRIES.items():
+        name = (saved or {}).get(role)
+        if name is None or name == params[role]:
+            continue
+        if name not in registry:
+            notes.append(f"{role} {name!r} persisted but not registered: {params[role]!r} runs")
+            continue
+        notes.append(f"{role} {name!r} restored (selected before the restart) over {params[role]!r}")
+        params.set(role, name)
+    return notes
 
 
 def speed_mps(state: VehicleState) -> float:

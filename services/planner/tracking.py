@@ -34,7 +34,7 @@ from aeroperception.schemas import Trajectory
 
 from .trajectory.core import Limits
 from .trajectory.evaluate import TrajectoryRefused, evaluate
-from .trajectory.follow import FollowStep, Follower
+from .trajectory.follow import FeedForward, FollowStep, Follower
 from .trajectory.generators import GENERATORS, check_frames, generator_of, limits_of, path_for
 
 ON_PATH_M = 0.01          # a goal this close to a trajectory waypoint is that waypoint
@@ -52,6 +52,7 @@ class TrackerConfig:
     acceptance_radius_m: float
     lag_m: float = 1.5
     generator: str = "smooth"     # the planner's active generator (a message may name its own)
+    feedforward: FeedForward = FeedForward()
 
 
 class TrajectoryTracker:
@@ -171,7 +172,7 @@ class TrajectoryTracker:
             return False
         if path is None:
             return False
-        self.follower = Follower(path, now_s, self.msg.setpoint_type, self.cfg.lag_m)
+        self.follower = Follower(path, now_s, self.msg.setpoint_type, self.cfg.lag_m, self.cfg.feedforward)
         self.first_index = k
         self.built += 1
         return True

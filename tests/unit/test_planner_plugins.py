@@ -15,7 +15,11 @@ from aeroperception.schemas.mission import TRAJECTORY_GENERATORS
 from aeroperception.services.planner import contract
 from aeroperception.services.planner.controllers import CONTROLLERS, Gains
 from aeroperception.services.planner.estimators import ESTIMATORS, VioEstimate, fc_offset_m
-from aeroperception.services.planner.plugins import REGISTRIES, is_hovering, switch_refusal
+from aeroperception.services.mission.store import MissionStore
+from aeroperception.services.planner.plugins import (
+    PARTS_FILE, REGISTRIES, is_hovering, restore_parts, selected_parts, switch_refusal,
+)
+from aeroperception.services.runtime.params import ParamSet
 from aeroperception.services.planner.tracking import TrackerConfig, TrajectoryTracker
 from aeroperception.services.planner.trajectory import Limits
 from aeroperception.services.planner.trajectory.generators import GENERATORS, path_for
@@ -122,3 +126,22 @@ def test_a_trajectory_refused_for_what_it_asks_is_held_at_never_flown_goal_by_go
     slow = path_for(tighter, np.zeros(3) + [0, 0, 5], 0.0, Limits(), 0.5)
     fast = path_for(waypoints("smooth"), np.zeros(3) + [0, 0, 5], 0.0, Limits(), 0.5)
     assert slow.duration_s > 1.6 * fast.duration_s
+
+
+def test_a_restarted_planner_starts_with_the_parts_selected_last(tmp_path):
+    """A switch persists (the mission's store, PARTS_FILE); a restart restores it over the start-up
+    value, saying so, so a restart in flight never silently changes what flies."""
+    before = ParamSet.from_declarations(contract.PARAMS)
+    before.set("controller", "velocity")
+    before.set("estimator", "vio")
+    store = MissionStore(tmp_path, PARTS_FILE)
+    store.save(selected_parts(before))
+    after = ParamSet.from_declarations(contract.PARAMS)         # a new process: the defaults
+    notes = restore_parts(store.load(), after)
+    assert selected_parts(after) == {"trajectory_generator": "waypoint", "controller": "velocity", "estimator": "vio"}
+    assert notes == ["controller 'velocity' restored (selected before the restart) over 'feedforward'",
+                     "estimator 'vio' restored (selected before the restart) over 'fc'"]
+    assert restore_parts(None, after) == [] and restore_parts(store.load(), after) == []   # none / nothing differs
+    odd = ParamSet.from_declarations(contract.PARAMS)
+    assert restore_parts({"controller": "mpc"}, odd) == ["controller 'mpc' persisted but not registered: 'feedforward' runs"]
+    assert odd["controller"] == "feedforward"

@@ -8,7 +8,7 @@ import pytest
 
 from aeroperception.schemas import Header, Pose, PoseStamped, Quaternion, Trajectory, Vector3
 from aeroperception.services.planner.trajectory import Limits, TrajectoryRefused, smooth
-from aeroperception.services.planner.trajectory.follow import Follower, setpoint_of
+from aeroperception.services.planner.trajectory.follow import FeedForward, Follower, setpoint_of
 from aeroperception.services.planner.trajectory.generators import path_for
 
 LINE = np.array([[0, 0, 3], [10, 0, 3]], float)
@@ -90,3 +90,31 @@ def test_messages_the_planner_cannot_fly_as_given_are_refused_naming_why():
     ok = Trajectory(trajectory_type=Trajectory.TRAJECTORY_POLYNOMIAL, total_duration_s=10.0, poly_order=1,
                     poly_coeffs_x=[0, 1.0], poly_coeffs_y=[0, 0], poly_coeffs_z=[3, 0])
     assert path_for(ok, here, 0.0, Limits(), 0.5).duration_s == 10.0
+
+
+def test_the_acceleration_fed_forward_leads_the_reference_and_pays_for_drag():
+    """What the flight controller must command now: the reference's acceleration `lead_s` ahead
+    (its attitude lag) plus drag x the velocity it will then have; never past a waypoint the
+    mission has not counted, and zero while waiting there."""
+    path = smooth(LINE, Limits(), 0.5)
+    ff = FeedForward(lead_s=0.2, drag_per_s=1.0)
+    f = Follower(path, start_s=0.0, feedforward=ff)
+    f.step(LINE[0], 0.0)
+    step = f.step(LINE[0], 0.5)                             # accelerating
+    ahead = path.sample(0.7)
+    assert f.t_s == pytest.approx(0.5)
+    assert np.allclose(step.setpoint.acceleration_mps2.to_array(), ahead.acceleration_mps2 + ahead.velocity_mps)
+    assert np.allclose(step.setpoint.velocity_mps.to_array(), path.sample(0.5).velocity_mps)   # velocity: now
+    cruise = path.sample(path.duration_s / 2)
+    assert np.allclose(ff.acceleration(path, path.duration_s / 2), cruise.velocity_mps, atol=1e-6)  # drag only
+    end = path.duration_s
+    assert np.allclose(ff.acceleration(path, end - 0.05), path.sample(end).acceleration_mps2)   # no lead past the end
+    assert np.allclose(ff.acceleration(path, 1.0, until_s=1.1), path.sample(1.1).acceleration_mps2
+                       + path.sample(1.1).velocity_mps)    # nor past a waypoint waited at
+    waiting = Follower(path, start_s=0.0, feedforward=ff)
+    waiting.step(LINE[0], 0.0)
+    held = waiting.step(LINE[0], 0.5, wait_at=(0.3, LINE[0]))
+    assert np.allclose(held.setpoint.acceleration_mps2.to_array(), 0.0)
+    plain = Follower(path, start_s=0.0)                      # no lead, no drag: the reference's own
+    plain.step(LINE[0], 0.0)
+    assert np.allclose(plain.step(LINE[0], 0.5).setpoint.acceleration_mps2.to_array(), path.sample(0.5).acceleration_mps2)

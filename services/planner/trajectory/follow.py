@@ -4,9 +4,16 @@ The reference runs on its own clock from the moment the path was taken up, but i
 from the vehicle: while the vehicle is within `lag_m / 2` of it, time advances at full rate, then
 slower, and not at all from `lag_m` on. A gust, a slow climb or a vehicle weaker than the limits
 then costs time, not a reference metres ahead that the controller would cut corners to catch.
+
+The acceleration streamed is what the flight controller must command now for the vehicle to
+follow the reference (`FeedForward`), not the reference's own: a flight controller realises an
+acceleration setpoint only after its attitude and thrust have moved (PX4's SIH quad: 0.2 s), and
+its position controller models no drag, so it pays for drag with a velocity error, i.e. by
+trailing the position setpoint (on SIH, drag 1 /s: 0.74 m behind at 1.9 m/s).
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -14,6 +21,23 @@ import numpy as np
 from aeroperception.schemas import Trajectory, TrajectorySetpoint, Vector3
 
 from .core import Path, State
+
+
+@dataclass(frozen=True)
+class FeedForward:
+    """How the acceleration feed-forward leads the reference: `lead_s`, the flight controller's lag
+    from an acceleration setpoint to the vehicle's acceleration (the reference is taken that far
+    ahead); `drag_per_s`, the vehicle's linear drag (acceleration lost per m/s of velocity),
+    added for the velocity it will then have."""
+
+    lead_s: float = 0.0
+    drag_per_s: float = 0.0
+
+    def acceleration(self, path: Path, t_s: float, until_s: float | None = None) -> np.ndarray:
+        """The acceleration to command at path time `t_s`, looking ahead no further than `until_s`."""
+        ahead = min(path.duration_s, t_s + self.lead_s, math.inf if until_s is None else until_s)
+        ref = path.sample(max(t_s, ahead))
+        return ref.acceleration_mps2 + self.drag_per_s * ref.velocity_mps
 
 
 @dataclass
@@ -24,15 +48,17 @@ class FollowStep:
     finished: bool               # the reference is at its end and the vehicle within lag_m / 2 of it
 
 
-def setpoint_of(ref: State, setpoint_type: int) -> TrajectorySetpoint:
+def setpoint_of(ref: State, setpoint_type: int, acceleration_mps2: np.ndarray | None = None) -> TrajectorySetpoint:
     """The setpoint fields a trajectory's `setpoint_type` provides: position only; position and
-    heading; or the full state (velocity, acceleration and yaw rate as feed-forward)."""
+    heading; or the full state (velocity, acceleration and yaw rate as feed-forward;
+    `acceleration_mps2` in place of the reference's own: FeedForward's)."""
     sp = TrajectorySetpoint(position_valid=True, position_m=Vector3.from_array(ref.position_m))
     if setpoint_type != Trajectory.SETPOINT_POSITION_ONLY and ref.yaw_rad is not None:
         sp.yaw_valid, sp.yaw_rad = True, ref.yaw_rad
     if setpoint_type == Trajectory.SETPOINT_FULL_STATE:
         sp.velocity_valid, sp.velocity_mps = True, Vector3.from_array(ref.velocity_mps)
-        sp.acceleration_valid, sp.acceleration_mps2 = True, Vector3.from_array(ref.acceleration_mps2)
+        acc = ref.acceleration_mps2 if acceleration_mps2 is None else acceleration_mps2
+        sp.acceleration_valid, sp.acceleration_mps2 = True, Vector3.from_array(acc)
         if ref.yaw_rad is not None:
             sp.yaw_rate_valid, sp.yaw_rate_radps = True, ref.yaw_rate_radps
     return sp
@@ -43,8 +69,9 @@ class Follower:
     beginning). `step` once per setpoint; `progress` for planner/status."""
 
     def __init__(self, path: Path, start_s: float, setpoint_type: int = Trajectory.SETPOINT_FULL_STATE,
-                 lag_m: float = 1.5):
+                 lag_m: float = 1.5, feedforward: FeedForward = FeedForward()):
         self.path = path
+        self.feedforward = feedforward
         self.setpoint_type = setpoint_type
         self.lag_m = lag_m
         self.started_s = start_s
@@ -64,18 +91,20 @@ class Follower:
             self.t_s = min(self.path.duration_s, self.t_s + rate * (now_s - self.last_s))
         if now_s >= self.started_s:     # a path given a later start waits at its beginning
             self.last_s = now_s
-        if wait_at is not None and self.t_s >= wait_at[0]:
+        waiting = wait_at is not None and self.t_s >= wait_at[0]
+        if waiting:
             self.t_s = wait_at[0]
             ref = self.path.sample(self.t_s)
             ref.position_m = np.asarray(wait_at[1], float).copy()
             ref.velocity_mps, ref.acceleration_mps2, ref.jerk_mps3 = np.zeros(3), np.zeros(3), np.zeros(3)
             ref.yaw_rate_radps = 0.0
+            acc = ref.acceleration_mps2
         else:
             ref = self.path.sample(self.t_s)
-        error = (float(np.linalg.norm(ref.position_m - position_m)) if wait_at is not None and self.t_s >= wait_at[0]
-                 else self._error(position_m, position_age_s))
+            acc = self.feedforward.acceleration(self.path, self.t_s, None if wait_at is None else wait_at[0])
+        error = float(np.linalg.norm(ref.position_m - position_m)) if waiting else self._error(position_m, position_age_s)
         finished = self.t_s >= self.path.duration_s and error < self.lag_m / 2
-        return FollowStep(setpoint_of(ref, self.setpoint_type), ref, error, finished)
+        return FollowStep(setpoint_of(ref, self.setpoint_type, acc), ref, error, finished)
 
     def _error(self, position_m: np.ndarray, age_s: float) -> float:
         then = self.path.sample(max(0.0, self.t_s - max(0.0, age_s)))
