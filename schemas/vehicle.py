@@ -178,7 +178,12 @@ class UAVMode(Message, kw_only=True):
 @schema("UAVStatus", 1)
 class UAVStatus(Message, kw_only=True):
     """Everything about one UAV for monitoring (a GCS dashboard). IF-2's UAVStatus; battery is a
-    0..1 fraction and link latencies are seconds (SI), unlike the source's percent and ms."""
+    0..1 fraction and the latency is seconds (SI), unlike the source's percent and ms.
+
+    px4_latency_s: the flight controller's state, its sample to the mission (None before one).
+    The source's gcs latency is left out: nothing here times the ground link (the ground station
+    times it with TIMESYNC, which gcs only answers); gcs/link's last_heartbeat_age_s says how
+    recently the ground station was heard."""
 
     header: Header = msgspec.field(default_factory=Header)
     uav_id: str = ""
@@ -195,7 +200,6 @@ class UAVStatus(Message, kw_only=True):
     px4_connected: bool = False
     gcs_connected: bool = False
     px4_latency_s: float | None = None
-    gcs_latency_s: float | None = None
     current_mission_id: str = ""
     mission_progress_percent: float = 0.0
 

@@ -1,7 +1,7 @@
 """Contract of the mission service: keys in/out and parameters."""
 from aeroperception.schemas import (
     ArmReply, ArmRequest, Empty, GcsLink, GetMissionReply, LoadMissionReply, LoadMissionRequest,
-    MissionCommand, MissionGoal, MissionStatus, OccupancyGrid, PerceptionHealth, Reply, SafetyStatus,
+    MissionCommand, MissionGoal, MissionStatus, OccupancyGrid, ParamList, PerceptionHealth, Reply, SafetyStatus,
     SetModeReply, SetModeRequest, Trajectory, TrajectoryStatus, UAVStatus, VehicleState, WaypointReached,
 )
 from aeroperception.services.runtime import Param, Queries, Query, Topic, Topics
@@ -38,6 +38,7 @@ ACTIONS = ("mission/action/takeoff", "mission/action/land", "mission/action/goto
 CALLS = Queries(
     Query("fmu/srv/arm", ArmRequest, ArmReply),
     Query("fmu/srv/set_mode", SetModeRequest, SetModeReply),
+    Query("config/planner/@params", None, ParamList, note="every 3 s: the planner's live hover_speed_mps for UAVMode"),
 )
 PARAMS = [
     Param("takeoff_altitude_m", 3.0, "m", 0.5, 120.0, description="default takeoff altitude (MIS-1: 3 m)"),

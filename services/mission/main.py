@@ -9,7 +9,7 @@ import numpy as np
 from aeroperception.schemas import (
     ArmReply, ArmRequest, DiagnosticStatus, Empty, GcsLink, GetMissionReply, GoToPositionGoal,
     GoToPositionResult, LandGoal, LandResult, LoadMissionReply, LoadMissionRequest, MissionCommand, MissionGoal,
-    OccupancyGrid, PerceptionHealth, Pose, Quaternion, Reply, SafetyStatus, SchemaError, SetModeReply,
+    OccupancyGrid, ParamList, PerceptionHealth, Pose, Quaternion, Reply, SafetyStatus, SchemaError, SetModeReply,
     SetModeRequest, SetTrajectoryGoal, SetTrajectoryResult, TakeoffGoal, TakeoffResult, Trajectory,
     TrajectoryStatus, UAVStatus, Vector3, VehicleState, WaypointReached, load_mission_file, parse_mission,
 )
@@ -27,6 +27,7 @@ from .trajectory import NONE, TRAJECTORY_END_RADIUS_M, TrajectoryHandover, check
 from .uav_status import UavStatusBuilder
 
 PLANNER_STATUS_FRESH_S = 1.0   # planner/status comes at 10 Hz: older = the planner's parts unknown
+PLANNER_PARAMS_PERIOD_S = 3.0  # how often UAVStatus asks the planner for its live hover speed
 
 
 class ZenohBridge:
@@ -88,7 +89,7 @@ class MissionService(Service):
         self.pub_reached = node.publisher("mission/waypoint_reached", WaypointReached)
         self.handover = TrajectoryHandover()
         self.pub_trajectory = node.publisher("mission/active_trajectory", Trajectory)
-        node.subscribe("state/vehicle", VehicleState, lambda m: self.mgr.on_vehicle(m, time.monotonic()))
+        node.subscribe("state/vehicle", VehicleState, self._on_vehicle)
         node.subscribe("perception/health", PerceptionHealth,
                        lambda m: self.mgr.on_perception(m.overall_healthy, time.monotonic()))
         node.subscribe("mission/command", MissionCommand, self._on_command, strict=True)
@@ -101,6 +102,7 @@ class MissionService(Service):
         self.safety: SafetyStatus | None = None
         self.uav = UavStatusBuilder(node.vehicle or "default")
         self.pub_uav = node.publisher("mission/uav_status", UAVStatus)
+        node.every(PLANNER_PARAMS_PERIOD_S, self._ask_planner_params, name="planner-params")
         node.on_liveliness("fmu", lambda name, alive: self.mgr.on_fmu_alive(alive, time.monotonic()))
         node.on_liveliness("planner", lambda name, alive: self.mgr.on_planner_alive(alive, time.monotonic()))
         self.gcs_up: bool | None = None
@@ -261,6 +263,17 @@ class MissionService(Service):
             self.pub_goal.publish(self.last_goal)
             self._publish_trajectory()
         self._update_actions()
+
+    def _on_vehicle(self, m: VehicleState) -> None:
+        self.uav.heard_vehicle((self.node.now_ns() - m.header.stamp_ns) * 1e-9)
+        self.mgr.on_vehicle(m, time.monotonic())
+
+    def _ask_planner_params(self) -> None:
+        """UAVMode's hover speed is the planner's live one (a planner not answering: the last heard)."""
+        def answer(res) -> None:
+            if isinstance(res, ParamList):
+                self.uav.heard_planner_params({d.name: d.value for d in res.params})
+        self.node.call_async("config/planner/@params", None, ParamList, answer, timeout_s=1.0)
 
     def _publish_uav_status(self) -> None:
         fresh = time.monotonic() - self.planner_status_rx_s < PLANNER_STATUS_FRESH_S

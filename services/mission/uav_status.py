@@ -6,7 +6,8 @@ UAVMode.state, first rule that holds:
   no vehicle state -> IDLE; safety level EMERGENCY -> EMERGENCY; FSM TAKEOFF -> TAKING_OFF;
   FSM LAND -> LANDING; on the ground (landed or disarmed): armed -> ARMED, else LANDED after a
   flight and IDLE before one; in the air: speed below the hover speed -> HOVERING, else FLYING.
-  "Hovering" is the planner's own rule for when a part may be switched (planner/plugins.py).
+  "Hovering" is the planner's own rule for when a part may be switched (planner/plugins.py), with
+  the planner's live `hover_speed_mps` (main.py asks the planner for it every few seconds).
 UAVMode.control_mode, by the flight controller's mode: OFFBOARD (the planner flies) ->
   VELOCITY with the planner's velocity controller, TRAJECTORY while it flies a trajectory,
   OFFBOARD otherwise; MANUAL / STABILIZED / ACRO / ALTCTL / RATTITUDE -> MANUAL; any other mode
@@ -14,10 +15,17 @@ UAVMode.control_mode, by the flight controller's mode: OFFBOARD (the planner fli
 submode: "rth" while the flight controller returns home, else the FSM state in lower case.
 can_arm / can_takeoff: connected, on the ground, FSM IDLE (and disarmed, to arm); can_land:
 connected, in the air, not already landing.
+px4_latency_s: how old the flight controller's state is when the mission receives it (its stamp,
+the FC's sample time on this host's clock, to arrival), the median of the last LATENCY_SAMPLES;
+None before any. There is no gcs_latency_s: nothing times the ground link (gcs answers the ground
+station's TIMESYNC, the ground station times it); gcs/link's last_heartbeat_age_s says how
+recently the ground was heard.
 """
 from __future__ import annotations
 
 import os
+import statistics
+from collections import deque
 
 from aeroperception.schemas import SafetyStatus, TrajectoryStatus, UAVMode, UAVStatus, VehicleState
 from aeroperception.services.planner.contract import PARAMS as PLANNER_PARAMS
@@ -25,12 +33,13 @@ from aeroperception.services.planner.plugins import is_hovering, on_ground
 
 from .fsm import State
 
-HOVER_SPEED_MPS = next(p.default for p in PLANNER_PARAMS if p.name == "hover_speed_mps")
+HOVER_SPEED_MPS = next(p.default for p in PLANNER_PARAMS if p.name == "hover_speed_mps")   # until the planner says
+LATENCY_SAMPLES = 20
 MANUAL_MODES = ("MANUAL", "STABILIZED", "ACRO", "ALTCTL", "RATTITUDE")
 
 
 def uav_mode(fsm: State, vehicle: VehicleState | None, safety: SafetyStatus | None,
-             planner: TrajectoryStatus | None, flew: bool) -> UAVMode:
+             planner: TrajectoryStatus | None, flew: bool, hover_speed_mps: float = HOVER_SPEED_MPS) -> UAVMode:
     mode = UAVMode(submode=fsm.value.lower())
     if vehicle is None:
         return mode
@@ -45,7 +54,7 @@ def uav_mode(fsm: State, vehicle: VehicleState | None, safety: SafetyStatus | No
     elif grounded:
         mode.state = UAVMode.STATE_ARMED if vehicle.armed else UAVMode.STATE_LANDED if flew else UAVMode.STATE_IDLE
     else:
-        mode.state = UAVMode.STATE_HOVERING if is_hovering(vehicle, HOVER_SPEED_MPS) else UAVMode.STATE_FLYING
+        mode.state = UAVMode.STATE_HOVERING if is_hovering(vehicle, hover_speed_mps) else UAVMode.STATE_FLYING
     fc_mode = vehicle.flight_mode
     if fc_mode == "OFFBOARD":
         mode.control_mode = UAVMode.MODE_OFFBOARD
@@ -84,11 +93,24 @@ def machine_load() -> tuple[float, float]:
 
 
 class UavStatusBuilder:
-    """Remembers whether the vehicle has flown (LANDED vs IDLE) and builds each UAVStatus."""
+    """Remembers whether the vehicle has flown (LANDED vs IDLE), the planner's hover speed and the
+    flight controller's latency, and builds each UAVStatus."""
 
     def __init__(self, uav_id: str):
         self.uav_id = uav_id
         self.flew = False
+        self.hover_speed_mps = HOVER_SPEED_MPS
+        self.fc_ages_s: deque[float] = deque(maxlen=LATENCY_SAMPLES)
+
+    def heard_vehicle(self, age_s: float) -> None:
+        """A state/vehicle sample arrived `age_s` after its stamp."""
+        self.fc_ages_s.append(max(0.0, age_s))
+
+    def heard_planner_params(self, values: dict) -> None:
+        """The planner's parameters (config/planner/@params): its hover speed is the one judged by."""
+        v = values.get("hover_speed_mps")
+        if isinstance(v, (int, float)) and not isinstance(v, bool) and v > 0:
+            self.hover_speed_mps = float(v)
 
     def build(self, fsm: State, vehicle: VehicleState | None, safety: SafetyStatus | None,
               planner: TrajectoryStatus | None, gcs_connected: bool, mission_id: str,
@@ -98,7 +120,7 @@ class UavStatusBuilder:
         cpu, memory = machine_load()
         return UAVStatus(
             uav_id=self.uav_id, uav_name=self.uav_id, current_state=vehicle or VehicleState(),
-            current_mode=uav_mode(fsm, vehicle, safety, planner, self.flew),
+            current_mode=uav_mode(fsm, vehicle, safety, planner, self.flew, self.hover_speed_mps),
             active_estimator=planner.active_estimator if planner else "",
             active_controller=planner.active_controller if planner else "",
             active_trajectory_generator=planner.active_trajectory_generator if planner else "",
@@ -106,4 +128,5 @@ class UavStatusBuilder:
             battery_remaining=vehicle.battery_remaining if vehicle else None,
             cpu_percent=cpu, memory_percent=memory,
             px4_connected=bool(vehicle and vehicle.connected), gcs_connected=gcs_connected,
+            px4_latency_s=statistics.median(self.fc_ages_s) if self.fc_ages_s else None,
             current_mission_id=mission_id, mission_progress_percent=progress_percent)

@@ -1,6 +1,8 @@
 """`aero eval trajectory`'s figures from known motions."""
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -57,3 +59,15 @@ def test_peaks_of_a_constant_acceleration_and_an_incomplete_flight_is_refused():
 def test_distance_to_a_polyline():
     d = distances_to_polyline(np.array([[5, 1, 5], [12, 5, 5], [-1, 0, 5]], float), SQUARE)
     assert d == pytest.approx([1.0, 2.0, 1.0])
+
+
+def test_horizontal_cross_track_leaves_out_a_height_offset():
+    """A flight controller's height estimate 0.5 m off the truth: on the legs horizontally."""
+    pos = np.column_stack([np.linspace(0, 10, 500), np.full(500, 0.1), np.full(500, 5.5)])
+    ev = TrajectoryEval(np.array([[0, 0, 5], [10, 0, 5]], float))
+    flown(ev, pos)
+    ev.add_reached(0, 0.0)
+    ev.add_reached(1, 499 * 0.02)
+    res = ev.summary()
+    assert res["cross_track_rms_m"] == pytest.approx(math.hypot(0.1, 0.5), abs=1e-3)
+    assert res["cross_track_xy_rms_m"] == pytest.approx(0.1, abs=1e-6) and res["cross_track_xy_max_m"] == pytest.approx(0.1, abs=1e-6)

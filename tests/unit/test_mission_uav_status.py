@@ -70,3 +70,17 @@ def test_the_status_carries_the_planners_parts_links_and_progress_and_remembers_
     assert 0.0 <= st.memory_percent <= 100.0 and st.cpu_percent >= 0.0
     landed = b.build(State.IDLE, vehicle(**GROUND), None, None, False, "", 0.0)
     assert landed.current_mode.state == UAVMode.STATE_LANDED and landed.active_controller == ""
+
+
+def test_hovering_is_judged_by_the_planners_live_hover_speed_and_the_fc_latency_is_its_states_age():
+    b = UavStatusBuilder("uav")
+    slow = vehicle(0.4)
+    assert b.build(State.HOLDING, slow, None, None, False, "", 0.0).current_mode.state == UAVMode.STATE_FLYING
+    b.heard_planner_params({"hover_speed_mps": 0.5, "kp": 0.8})     # config/planner/@params
+    assert b.build(State.HOLDING, slow, None, None, False, "", 0.0).current_mode.state == UAVMode.STATE_HOVERING
+    b.heard_planner_params({"hover_speed_mps": "fast"})              # not a speed: the last one stays
+    assert b.hover_speed_mps == 0.5
+    assert b.build(State.IDLE, None, None, None, False, "", 0.0).px4_latency_s is None
+    for age in (0.004, 0.006, 0.5, 0.005, -0.001):                   # a late one does not make the figure
+        b.heard_vehicle(age)
+    assert b.build(State.IDLE, slow, None, None, False, "", 0.0).px4_latency_s == pytest.approx(0.005)

@@ -195,7 +195,7 @@ SAMPLES = {
         header=H, uav_id="uav1", uav_name="alpha", current_state=_state(), current_mode=_mode(),
         active_estimator="vio", active_controller="pid", active_trajectory_generator="minsnap",
         safety_status=_safety(), battery_remaining=0.5, cpu_percent=37.5, memory_percent=51.0,
-        px4_connected=True, gcs_connected=True, px4_latency_s=0.004, gcs_latency_s=0.08,
+        px4_connected=True, gcs_connected=True, px4_latency_s=0.004,
         current_mission_id="survey_01", mission_progress_percent=25.0),
     "VehicleStatus": lambda: VehicleStatus(
         header=H, nav_state="OFFBOARD", custom_mode=6 << 16, px4_main_mode=6, px4_sub_mode=0, armed=True,

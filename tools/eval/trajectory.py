@@ -1,7 +1,8 @@
 """`aero eval trajectory --live`: how a flight followed its mission's legs, by the simulator's truth.
 
 Figures (from the first waypoint reached to the last): flight time; cross-track error RMS / max
-(distance from the straight legs between the waypoints); peak speed, horizontal and vertical
+(distance from the straight legs between the waypoints; also horizontally only, since a flight
+controller's height estimate may sit tenths of a metre off the truth: PX4 SIH's EKF2 0.2-0.8 m); peak speed, horizontal and vertical
 acceleration and jerk (differences of the truth velocity over DIFF_WINDOW_S, so sensor-rate noise
 does not pass for jerk); overshoot at each corner (how far outside the turn the vehicle went within
 CORNER_RADIUS_M of it); and, when the planner flew a trajectory, its tracking error against its
@@ -77,6 +78,8 @@ class TrajectoryEval:
         pos = np.array([r[1] for r in rows])
         vel = np.array([r[2] for r in rows])
         cross = distances_to_polyline(pos, self.waypoints_m)
+        flat = np.array([1.0, 1.0, 0.0])
+        cross_xy = distances_to_polyline(pos * flat, self.waypoints_m * flat)
         ta, acc = _derivative(stamps, vel, DIFF_WINDOW_S)
         _, jerk = _derivative(ta, acc, DIFF_WINDOW_S)
         overshoot = []
@@ -94,6 +97,8 @@ class TrajectoryEval:
             "time_s": round(t1 - t0, 2),
             "cross_track_rms_m": round(float(np.sqrt(np.mean(cross ** 2))), 3),
             "cross_track_max_m": round(float(cross.max()), 3),
+            "cross_track_xy_rms_m": round(float(np.sqrt(np.mean(cross_xy ** 2))), 3),
+            "cross_track_xy_max_m": round(float(cross_xy.max()), 3),
             "peak_speed_mps": round(float(np.linalg.norm(vel, axis=1).max()), 3),
             "peak_xy_speed_mps": round(float(np.hypot(vel[:, 0], vel[:, 1]).max()), 3),
             "peak_xy_acc_mps2": round(float(np.hypot(acc[:, 0], acc[:, 1]).max()) if len(acc) else 0.0, 3),
@@ -112,6 +117,7 @@ def table(res: dict) -> str:
     lines = [
         f"time (first to last waypoint)   {res['time_s']:.2f} s",
         f"cross-track RMS / max           {res['cross_track_rms_m']:.3f} / {res['cross_track_max_m']:.3f} m",
+        f"  horizontal only               {res['cross_track_xy_rms_m']:.3f} / {res['cross_track_xy_max_m']:.3f} m",
         f"peak speed (xy)                 {res['peak_speed_mps']:.2f} ({res['peak_xy_speed_mps']:.2f}) m/s",
         f"peak acceleration xy / z        {res['peak_xy_acc_mps2']:.2f} / {res['peak_z_acc_mps2']:.2f} m/s^2",
         f"peak jerk                       {res['peak_jerk_mps3']:.2f} m/s^3",
