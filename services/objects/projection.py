@@ -250,10 +250,25 @@ def box_scale(cam: Camera, origin: np.ndarray, m: Measurement, box_height_px: fl
     return box_height_px * m.range_m / cam.fy / typical_m
 
 
-def box_disparity(left: np.ndarray, right: np.ndarray, box_xyxy: tuple[float, float, float, float],
+class GrayView:
+    """An image seen as 8-bit gray where it is sliced (`view[y0:y1, x0:x1]`): a colour frame is
+    converted strip by strip, only where boxes are. A plain 2-D uint8 array slices the same way."""
+
+    def __init__(self, a: np.ndarray, to_gray: int | None = None):
+        self.a, self.to_gray, self.shape = a, to_gray, a.shape[:2]
+
+    def __getitem__(self, index) -> np.ndarray:
+        part = self.a[index]
+        if self.to_gray is not None:
+            return cv2.cvtColor(np.ascontiguousarray(part), self.to_gray)
+        return part if part.dtype == np.uint8 else (part >> 8).astype(np.uint8)
+
+
+def box_disparity(left: np.ndarray | GrayView, right: np.ndarray | GrayView, box_xyxy: tuple[float, float, float, float],
                   max_disparity_px: int, inner_fraction: float = 0.5, min_valid: int = 8) -> float | None:
     """Median block-matched disparity (px, 1/16 resolution) over the inner `inner_fraction` of the
-    box, from a rectified grayscale pair; None with fewer than `min_valid` matched pixels.
+    box, from a rectified pair (grayscale arrays or GrayViews); None with fewer than `min_valid`
+    matched pixels.
 
     Only a strip around the box is matched (the box plus the search range to its left), so the cost
     follows the box's size, not the image's."""
@@ -289,10 +304,9 @@ def fuse(a: Measurement | None, b: Measurement | None, gate: float = 3.0) -> Mea
     if a is None or b is None:
         return a or b
     diff = a.position_m - b.position_m
-    s = a.covariance_m2 + b.covariance_m2
-    if float(diff @ np.linalg.solve(s, diff)) > 3 * gate ** 2:
+    x = np.linalg.solve(a.covariance_m2 + b.covariance_m2, np.column_stack([diff, a.covariance_m2]))
+    if float(diff @ x[:, 0]) > 3 * gate ** 2:
         return a if np.trace(a.covariance_m2) <= np.trace(b.covariance_m2) else b
-    ia, ib = np.linalg.inv(a.covariance_m2), np.linalg.inv(b.covariance_m2)
-    cov = np.linalg.inv(ia + ib)
-    p = cov @ (ia @ a.position_m + ib @ b.position_m)
-    return Measurement(p, cov, a.range_m, f"{a.method}+{b.method}")
+    k = x[:, 1:].T                                      # Pa (Pa + Pb)^-1: the information-weighted mean
+    cov = a.covariance_m2 - k @ a.covariance_m2
+    return Measurement(a.position_m - k @ diff, (cov + cov.T) / 2, a.range_m, f"{a.method}+{b.method}")

@@ -37,6 +37,8 @@ class TrackerConfig:
     forget_s: float = 600.0             # a lost track is remembered this long: seen again, it is reacquired
     coast_tau_s: float = 0.5            # an unseen track's velocity decays with this time constant
     partial_ratio: float = 1.25         # a box this much shorter or taller than the track's boxes is a partial view
+    partial_scale: float = 0.7          # a box_scale below this is a partial view whatever the track's boxes
+    crowd_scale: float = 2.0            # a box_scale above this takes in more than the object (a neighbour)
     birth_sigma_m: float = 2.0          # a detection less precise than this (horizontal 1 sigma) never starts a track
 
 
@@ -178,9 +180,9 @@ class Tracker:
         return ev
 
     def _may_start(self, o: Observation) -> bool:
-        """Whole (not cut by the image's edge), precise enough, and explained by no known track of
+        """Plausible (whole, its class's size), precise enough, and explained by no known track of
         its class (live, just started or lost) within the Mahalanobis gate."""
-        if o.cut or np.sqrt(np.linalg.eigvalsh(o.measurement.covariance_m2[:2, :2])[-1]) > self.config.birth_sigma_m:
+        if not self._plausible(o) or self._imprecise(o):
             return False
         known = [t for t in self.tracks + self.lost if t.class_id == o.class_id]
         return not known or bool((self._differences(known, [o])[1] > CHI2_3DOF_99).all())
@@ -211,8 +213,23 @@ class Tracker:
         self._expire(stamp_ns, ev)
         return ev
 
+    def _plausible(self, o: Observation) -> bool:
+        """Not cut by the image's edge, and a box between partial_scale and crowd_scale times what
+        its class's typical size fills from there (0: unknown): shorter is a partial view (a car
+        going under an awning: its boxes shrink frame by frame, their centres with them), taller
+        takes in a neighbour."""
+        return not o.cut and (o.box_scale <= 0 or self.config.partial_scale <= o.box_scale <= self.config.crowd_scale)
+
+    def _imprecise(self, o: Observation) -> bool:
+        """Placed less precisely than birth_sigma_m (horizontal 1 sigma): far, where a placement's
+        error is mostly bias (a few metres at 35-45 m), not noise that averages out."""
+        return bool(np.sqrt(np.linalg.eigvalsh(o.measurement.covariance_m2[:2, :2])[-1]) > self.config.birth_sigma_m)
+
     def _hit(self, t: Track, o: Observation, stamp_ns: int, ev: Events) -> None:
-        if self._whole(t, o):
+        """A detection joins the track: it always keeps it alive; it moves it only when it is
+        precise (a far one would drag a track placed from near metres away, frame by frame, onto a
+        neighbour) and a whole view (_whole)."""
+        if not self._imprecise(o) and self._whole(t, o):
             self._correct(t, o.measurement)
             t.seen_x, t.seen_P, t.seen_ns = t.x[:3].copy(), t.P[:3, :3].copy(), stamp_ns
         t.hits += 1
@@ -230,8 +247,8 @@ class Tracker:
         image's edge), a much taller one takes in a neighbour: its centre is not the object's, so it
         keeps the track alive without moving it; so does a box cut by the image's edge. Five partial
         views in a row: the object looks different now (it sat down, turned), its boxes are learnt
-        anew."""
-        if o.cut:
+        anew -- from plausible boxes only (_plausible: an implausible one is never whole)."""
+        if not self._plausible(o):
             return False
         if o.box_scale <= 0:
             return True

@@ -138,7 +138,7 @@ def test_ten_boxes_a_frame_with_stereo_are_each_placed_and_tracked():
     loaded machine for reasons that are not the code's."""
     pl = pipeline()
     feed_states(pl, T0 + 3_000 * MS, (0.0, 0.0, 3.0))
-    boxes = [(60.0 + 55 * i, 300.0, 24.0, 70.0) for i in range(10)]
+    boxes = [(60.0 + 55 * i, 300.0, 10.0, 24.0) for i in range(10)]      # people 26-34 m away
     ms, cpu_ms = [], []
     for k in range(30):
         stamp = T0 + k * 100 * MS

@@ -3,6 +3,8 @@ after T s unseen, low scores extend but never start tracks, one class per track,
 when two objects of different classes cross."""
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import pytest
 
@@ -16,6 +18,13 @@ PERSON, CAR = (0, "person"), (2, "car")
 def obs(xy, cls=PERSON, score=0.9, sigma_m=0.3) -> Observation:
     m = Measurement(np.array([xy[0], xy[1], 0.9]), np.eye(3) * sigma_m ** 2, 15.0, "ground")
     return Observation(m, cls[0], cls[1], score)
+
+
+def sighted(tr: Tracker, xy, box_scale: float, k: int):
+    """Frame k (10 Hz) with one person at xy whose box is box_scale of a whole view's."""
+    o = obs(xy, sigma_m=0.5)
+    o.box_scale = box_scale
+    return tr.update(k * 100 * MS, [o])
 
 
 def test_a_track_is_confirmed_after_n_hits_and_lost_after_t_unseen():
@@ -84,11 +93,7 @@ def test_a_partial_box_keeps_a_track_alive_without_moving_it():
     """A box much shorter than the track's boxes (the object half hidden behind something nearer)
     has its centre off the object's: the track is seen (not lost) but stays where it was."""
     tr = Tracker(TrackerConfig(confirm_hits=2, lost_timeout_s=1.0, partial_ratio=1.25))
-
-    def seen(xy, box_scale, k):
-        o = obs(xy, sigma_m=0.5)
-        o.box_scale = box_scale
-        return tr.update(k * 100 * MS, [o])
+    seen = functools.partial(sighted, tr)
 
     for k in range(4):
         seen((20.0, 2.0), 1.4, k)
@@ -185,3 +190,33 @@ def test_a_box_cut_by_the_images_edge_neither_moves_nor_starts_a_track():
     other.cut = True
     tr.update(400 * MS, [other])
     assert len(tr.tracks) == 1
+
+
+@pytest.mark.parametrize("box_scale", [0.3, 2.4])
+def test_a_box_implausible_for_its_class_neither_moves_nor_starts_a_track(box_scale):
+    """Shorter than partial_scale of what the class fills from there (a car going under an awning,
+    its boxes shrinking frame after frame), or taller than crowd_scale (a neighbour taken in):
+    however many come in a row, they keep the track alive where its whole boxes put it."""
+    tr = Tracker(TrackerConfig(confirm_hits=2, partial_scale=0.7, crowd_scale=2.0))
+    seen = functools.partial(sighted, tr)
+
+    for k in range(4):
+        seen((20.0, 2.0), 1.2, k)
+    for k in range(4, 14):                                      # ten in a row, 1.5 m short
+        seen((18.5, 2.0), box_scale, k)
+    t = tr.tracks[0]
+    assert t.hits == 14 and t.x[0] == pytest.approx(20.0, abs=0.05)
+    seen((40.0, 2.0), box_scale, 14)                            # nothing known there: starts nothing
+    assert [x.track_id for x in tr.tracks] == [1]
+
+
+def test_a_far_imprecise_placement_keeps_a_track_alive_without_dragging_it():
+    """A track placed from near must not be pulled metres away by far placements (each a few
+    metres biased, each inside the gate of where the last one left the track)."""
+    tr = Tracker(TrackerConfig(confirm_hits=2, birth_sigma_m=2.0, lost_timeout_s=1.0))
+    for k in range(5):
+        tr.update(k * 100 * MS, [obs((20.0, 2.0), sigma_m=0.3)])
+    for k in range(5, 15):                                      # 0.25 m further west each frame, sigma 2.3 m
+        tr.update(k * 100 * MS, [obs((20.0 - 0.25 * (k - 4), 2.0), sigma_m=2.3)])
+    t = tr.tracks[0]
+    assert t.hits == 15 and t.x[0] == pytest.approx(20.0, abs=0.05) and tr.update(1500 * MS, []).lost == []
