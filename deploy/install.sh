@@ -45,7 +45,7 @@ export PIP_BREAK_SYSTEM_PACKAGES=1 PIP_DISABLE_PIP_VERSION_CHECK=1 PIP_NO_INPUT=
 stamp "pip install -e .[$EXTRAS]"
 "$PY" -m pip install -q -e ".[$EXTRAS]"
 CHECK="import aeroperception.tools.cli, zenoh, msgspec, pymavlink"
-case ",$EXTRAS," in *,sim,*) CHECK="$CHECK, open3d, cv2" ;; esac
+case ",$EXTRAS," in *,sim,*) CHECK="$CHECK, open3d, cv2, numba" ;; esac
 case ",$EXTRAS," in *,perception,*) CHECK="$CHECK, onnxruntime, gtsam" ;; esac
 case ",$EXTRAS," in *,bench,*) CHECK="$CHECK, dora, cyclonedds" ;; esac
 "$PY" -c "$CHECK; print('install: imports ok')"

@@ -1,4 +1,4 @@
-"""Pinhole cameras rendered by ray casting the scenario scene.
+"""Pinhole cameras rendered from the scenario scene (rasterised; ray cast as the reference).
 
 Conventions: images are row-major (v down, u right); pixel (u, v) has its centre at integer
 coordinates, so K = [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] with cx = (W - 1) / 2 projects a camera
@@ -6,27 +6,27 @@ point X to u = fx X/Z + cx exactly where the ray of pixel u was cast (the OpenCV
 convention). Camera frames are optical (x right, y down, z forward); extrinsics are given as
 R_body_camera / t_body_camera_m (camera -> FLU body). No distortion.
 
-Speed (a 2-core machine has to run a 20 Hz stereo pair next to the LiDAR): rays are cast for a
-half-resolution grid of 2x2 block centres; pixels whose four surrounding samples hit the same
-plane are filled by bilinear upsampling of (1/z, u_tex/z, v_tex/z) -- quantities that are affine
-in the pixel coordinates on a plane, so the upsampling is exact, not an approximation -- and only
-pixels on silhouettes / plane edges are cast at full resolution. Texturing is one mipmapped
-gather per pixel. `exact=True` casts every pixel (used by tests to check the fast path).
-Surfaces thinner than ~2 px can be missed by the coarse grid.
+Speed (a 2-core machine has to run a 20 Hz stereo pair next to the LiDAR): the scene's triangles
+are rasterised with a z-buffer (camera_kernels.py, numba): coverage and depth are evaluated
+exactly at each pixel centre, so every pixel sees the surface its ray would hit, including thin
+poles and triangles partly behind the camera. One fused pass then textures and shades each pixel
+(one mipmapped texel gather). `exact=True` casts a ray per pixel with Open3D instead (the
+reference the tests and `aero bench sim` compare against) and shades it the same way.
 """
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
 from ..world.scenario import CameraConfig, DownCameraConfig
-from ..world.scene import TEXTURE_LEVELS, TEXTURE_LOG2, TEXTURE_SIZE, Scene
+from ..world.scene import TEXTURE_LEVELS, TEXTURE_LOG2, Scene
 from .frames import R_FLU_OPTICAL_FORWARD, pose_of, rot_y
 
 LOD_BIAS = -0.5   # < 0: pick a slightly sharper mip level (more corners, a little aliasing)
+# Mip level L is chosen where rint(log2(footprint texels) + LOD_BIAS) = L: from this footprint up.
+_LEVEL_MIN_FOOTPRINT = 2.0 ** (np.arange(TEXTURE_LEVELS) - 0.5 - LOD_BIAS)
 
 
 @dataclass(frozen=True)
@@ -72,17 +72,14 @@ class Camera:
         u = (np.arange(width) - self.cx) / self.fx
         v = (np.arange(height) - self.cy) / self.fy
         xn, yn = np.meshgrid(u, v)
-        # Optical ray directions (x, y, 1) per pixel, as 1-D columns; cast with these
-        # unnormalised directions, t_hit is the depth z.
+        # Optical ray directions (x, y, 1) per pixel for the reference ray cast, as 1-D columns;
+        # cast with these unnormalised directions, t_hit is the depth z.
         self._x, self._y = xn.ravel().astype(np.float32), yn.ravel().astype(np.float32)
-        self._coarse = width % 2 == 0 and height % 2 == 0 and width >= 8 and height >= 8
-        if self._coarse:
-            hc, wc = height // 2, width // 2
-            uc = (2 * np.arange(wc) + 0.5 - self.cx) / self.fx   # 2x2 block centres
-            vc = (2 * np.arange(hc) + 0.5 - self.cy) / self.fy
-            xc, yc = np.meshgrid(uc, vc)
-            self._coarse_x, self._coarse_y = xc.ravel().astype(np.float32), yc.ravel().astype(np.float32)
-        self._level_off = scene.tex_level_offset.astype(np.int32)
+        # The rasteriser sees exactly the float32 geometry the ray caster holds.
+        self._vertices = scene.vertices.astype(np.float64)
+        self._triangles = scene.triangles.astype(np.int32)
+        self._level_off = scene.tex_level_offset.astype(np.int64)
+        self._colours = np.ascontiguousarray(scene.plane_gray[:, None] if encoding == "mono8" else scene.plane_rgb)
 
     # ---- calibration ----
 
@@ -114,98 +111,29 @@ class Camera:
         """Image plus depth and entity-id images (for tests, eval and debugging views)."""
         return self._render(truth_or_pose, exact, layers=True)
 
-    def _frame_tables(self, r_wc: np.ndarray, o: np.ndarray) -> dict[str, np.ndarray]:
-        """Per-plane constants for this pose, in camera coordinates and texel units, as 1-D
-        float32 columns (np.take on 1-D tables is several times faster than row gathers)."""
-        sc = self.scene
-        inv = sc.plane_inv_texel
-        n_c = sc.plane_normal @ r_wc
-        e1 = (sc.plane_e1 @ r_wc) * inv[:, None]
-        e2 = (sc.plane_e2 @ r_wc) * inv[:, None]
-        # Texture coordinate of the camera origin, wrapped to one tile (mips wrap consistently)
-        # so float32 keeps sub-texel precision anywhere in the world.
-        s0 = np.mod((sc.plane_e1 @ o + sc.plane_tex_offset_m[:, 0]) * inv, TEXTURE_SIZE)
-        t0 = np.mod((sc.plane_e2 @ o + sc.plane_tex_offset_m[:, 1]) * inv, TEXTURE_SIZE)
-        cols = {"s0": s0, "t0": t0, "lod": inv / self.fx}
-        for k in range(3):
-            cols[f"n{k}"], cols[f"e1{k}"], cols[f"e2{k}"] = n_c[:, k], e1[:, k], e2[:, k]
-        return {k: np.ascontiguousarray(v, dtype=np.float32) for k, v in cols.items()}
-
-    @staticmethod
-    def _surface(tab: dict[str, np.ndarray], plane: np.ndarray, z: np.ndarray, x: np.ndarray,
-                 y: np.ndarray):
-        """Per-sample (1/z, s/z, t/z, mip level) from the hit plane, depth and ray (x, y, 1)."""
-        g = lambda key: np.take(tab[key], plane)
-        w = 1.0 / z
-        a = g("s0") * w + g("e10") * x + g("e11") * y + g("e12")
-        b = g("t0") * w + g("e20") * x + g("e21") * y + g("e22")
-        # Footprint of a pixel on the surface in texels: z/fx/cos(incidence)/texel.
-        nd = np.abs(g("n0") * x + g("n1") * y + g("n2"))
-        cos = nd / np.sqrt(x * x + y * y + 1.0)
-        fp = z * g("lod") / np.maximum(cos, 1e-6)
-        level = np.clip(np.rint(np.log2(np.maximum(fp, 1e-6)) + LOD_BIAS), 0, TEXTURE_LEVELS - 1)
-        return w, a, b, level.astype(np.int32)
-
     def _render(self, truth_or_pose, exact: bool, layers: bool) -> CameraRender:
+        from . import camera_kernels as kernels   # numba: only a process that renders pays its import
         sc = self.scene
         r_wc, o = self.world_pose(truth_or_pose)
-        tables = self._frame_tables(r_wc, o)
-        h, w_ = self.height, self.width
-
-        if exact or not self._coarse:
+        h, w = self.height, self.width
+        if exact:
             z, plane = sc.cast_rays(sc.make_rays(o, r_wc, self._x, self._y))
-            w, a, b, level = self._surface(tables, plane, z, self._x, self._y)
+            plane = plane.reshape(h, w)
+            inv_z = (1.0 / z.astype(np.float64)).reshape(h, w)
         else:
-            hc, wc = h // 2, w_ // 2
-            zc, pc = sc.cast_rays(sc.make_rays(o, r_wc, self._coarse_x, self._coarse_y))
-            wcs, acs, bcs, lcs = self._surface(tables, pc, zc, self._coarse_x, self._coarse_y)
-            # Full-res pixel (2i+a, 2j+b) is bilinearly interpolated from coarse samples
-            # (i-1+a .. i+a, j-1+b .. j+b); where those four hit one plane the result is exact.
-            # Elsewhere (silhouettes, plane edges, image border) the pixel is cast itself.
-            grid = np.pad(pc.reshape(hc, wc), 1, constant_values=-1)
-            one_plane = ((grid[:-1, :-1] == grid[1:, :-1]) & (grid[:-1, :-1] == grid[:-1, 1:])
-                         & (grid[:-1, :-1] == grid[1:, 1:]))          # (hc + 1, wc + 1)
-            exact_px = np.empty((h, w_), bool)
-            for da in (0, 1):
-                for db in (0, 1):
-                    exact_px[da::2, db::2] = one_plane[da:da + hc, db:db + wc]
-            size = (w_, h)
-            up = lambda img: cv2.resize(img.reshape(hc, wc), size, interpolation=cv2.INTER_LINEAR).ravel()
-            rep = lambda img: cv2.resize(img.reshape(hc, wc), size, interpolation=cv2.INTER_NEAREST).ravel()
-            w, a, b = up(wcs), up(acs), up(bcs)
-            plane, level = rep(pc), rep(lcs)
-            edge_px = np.flatnonzero(~exact_px).astype(np.int32)
-            if len(edge_px):
-                x_e, y_e = self._x[edge_px], self._y[edge_px]
-                z_e, p_e = sc.cast_rays(sc.make_rays(o, r_wc, x_e, y_e))
-                w_e, a_e, b_e, l_e = self._surface(tables, p_e, z_e, x_e, y_e)
-                w[edge_px], a[edge_px], b[edge_px] = w_e, a_e, b_e
-                plane[edge_px], level[edge_px] = p_e, l_e
-
-        # Mipmapped texture lookup: texel (s, t) at level L is (floor(s) >> L, floor(t) >> L).
-        z = 1.0 / w
-        si = np.floor(a * z).astype(np.int32)
-        ti = np.floor(b * z).astype(np.int32)
-        si >>= level
-        ti >>= level
-        mask = np.right_shift(np.int32(TEXTURE_SIZE - 1), level)
-        si &= mask
-        ti &= mask
-        ti <<= TEXTURE_LOG2 - level
-        idx = np.take(sc.plane_tex, plane)
-        idx += np.take(self._level_off, level)
-        idx += ti
-        idx += si
-        tex = np.take(sc.texels, idx).astype(np.uint16)
-        shade = lambda lut: ((np.take(lut, plane) * tex + 128) >> 8).astype(np.uint8).reshape(h, w_)
+            inv_z, plane = np.empty((h, w)), np.empty((h, w), np.int32)
+            kernels.rasterize((self._vertices - o) @ r_wc, self._triangles, sc.tri_plane, self.fx, self.fy,
+                              self.cx, self.cy, inv_z, plane, sc.num_planes)
+        image = np.empty((h, w, self._colours.shape[1]), np.uint8)
+        depth = np.empty((h, w) if layers else (0, 0), np.float32)
+        entity = np.empty((h, w) if layers else (0, 0), np.int32)
+        tab = kernels.plane_table(sc, r_wc, o, self.fx)
+        kernels.shade(inv_z, plane, self.fx, self.fy, self.cx, self.cy, tab, sc.plane_tex, self._level_off,
+                      _LEVEL_MIN_FOOTPRINT, sc.texels, TEXTURE_LOG2, self._colours, image, depth, entity,
+                      sc.plane_entity)
         if self.encoding == "mono8":
-            image = shade(sc.plane_gray)
-        else:
-            image = cv2.merge([shade(sc.plane_rgb_cols[c]) for c in range(3)])
-        if not layers:
-            return CameraRender(image, None, None)
-        depth = np.where(plane < sc.num_planes, z, np.inf).astype(np.float32).reshape(h, w_)
-        return CameraRender(image, depth, np.take(sc.plane_entity, plane).reshape(h, w_))
+            image = image.reshape(h, w)
+        return CameraRender(image, depth, entity) if layers else CameraRender(image, None, None)
 
 
 def camera_mount(pitch_down_deg: float) -> np.ndarray:
