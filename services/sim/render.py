@@ -36,6 +36,9 @@ class _CameraRenderer:
         self.left = node.publisher(CAMERA_KEYS[0], Image, **qos_for(CAMERA_KEYS[0]))
         self.right = node.publisher(CAMERA_KEYS[1], Image, **qos_for(CAMERA_KEYS[1]))
         self.boxes = node.publisher(CAMERA_KEYS[2], Detection2DArray)
+        # Compile the camera kernels (or load them from numba's cache, ~0.7 s CPU) before the child
+        # says ready, not while the first frame someone waits for is due.
+        self.stereo.left.render((np.zeros(3), (1.0, 0.0, 0.0, 0.0)))
 
     def __call__(self, truth, stamp_ns: int, blackout: bool = False) -> bool:
         """Render and publish what is subscribed; False when nothing was."""

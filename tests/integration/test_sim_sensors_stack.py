@@ -7,9 +7,9 @@ MAVLink goes to and from ephemeral UDP ports (`--arg sim:--target/--bind`), so a
 PX4 SITL ports and other tests running in parallel are never disturbed. One stack and one
 recording window are shared by the module; every wait is bounded.
 
-Rates are checked with wide margins: the development machines have 2 cores, and the stereo pair
-alone needs more than one core at 20 Hz (`aero bench sim`), so the camera publishes what it can
-and says so in its diagnostics -- which is what these tests hold it to.
+Rates are checked with wide margins: the development machines have 2 cores shared with whatever
+else runs, so a sensor publishes what it can and says so in its diagnostics -- which is what these
+tests hold it to.
 """
 from __future__ import annotations
 
