@@ -20,7 +20,7 @@ def _check(lat: np.ndarray) -> None:
     assert 0.0 < np.median(lat) < 50.0, np.median(lat)
 
 
-@pytest.mark.parametrize("path", ["raw", "typed"])
+@pytest.mark.parametrize("path", ["raw", "read", "typed"])
 @pytest.mark.parametrize("kind", ["state", "image"])
 def test_zenoh_peer_to_peer_without_a_router(path, kind):
     _check(bench.measure(f"tcp/127.0.0.1:{free_port()}", path, kind, N, "peer"))

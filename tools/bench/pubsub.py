@@ -14,6 +14,10 @@ Ping (this process, or dora's ping node) stamps and sends, pong (a child process
 - typed (router / peer-to-peer): the same links; ping encodes a schema message through
   Node.publisher, pong decodes it through Node.subscribe (validation, lock, callback), re-encodes
   and publishes it back, and ping decodes the echo. Raw pong echoes the payload untouched.
+- raw+read via router: raw, but the bytes reach Python at both ends (pong `to_bytes()` and puts
+  those bytes, ping `to_bytes()` the echo): the least any consumer of the payload pays. Raw
+  never reads the payload, so for a 921 KB image it omits the copies zenoh-python makes to hand
+  bytes to Python and back (ZBytes has no buffer protocol in 1.10); typed is judged against both.
 - dora-rs: a two-node dataflow (`dora run`), the bytes as an Arrow uint8 array (extra `bench`).
 - Cyclone DDS: reliable, keep-last 1, the bytes as an IDL sequence<octet>, unicast on loopback in a
   domain of its own (extra `bench`).
@@ -41,6 +45,7 @@ from aeroperception.services.runtime.session import make_config, open_session
 
 PING, PONG = "bench/ping", "bench/pong"
 WARMUP = 20
+READ_PATH = "raw+read via router"
 MAX_LOST = 5          # round trips without an answer (1 s each) before a path is given up
 
 
@@ -109,10 +114,17 @@ def zenoh_side(endpoint: str, link: str, path: str, kind: str, side: str, on_ech
         s.declare_subscriber(in_key, (lambda smp: pub.put(smp.payload)) if side == "pong" else (lambda _s: on_echo()))
         payload = encode(make_payload(kind))
         return (lambda: pub.put(payload)), s.close
+    if path == "read":   # raw, but the bytes reach Python at each end, as any consumer needs them
+        s = open_session(conf, max_wait_s=5)
+        pub = s.declare_publisher(out_key)
+        s.declare_subscriber(in_key, (lambda smp: pub.put(smp.payload.to_bytes())) if side == "pong"
+                             else (lambda smp: on_echo(smp.payload.to_bytes())))
+        payload = encode(make_payload(kind))
+        return (lambda: pub.put(payload)), s.close
     node = Node(f"bench_{side}", log_level="warn", config=conf)
     node.connect(max_wait_s=5)
     pub = node.publisher(out_key, cls)
-    node.subscribe(in_key, cls, pub.publish if side == "pong" else (lambda _m: on_echo()))
+    node.subscribe(in_key, cls, pub.publish if side == "pong" else on_echo)
     msg = make_payload(kind)
     return (lambda: pub.publish(msg)), node.close
 
@@ -122,7 +134,7 @@ def measure(endpoint: str, path: str, kind: str, n: int, link: str = "router") -
     child = _child("zenoh", endpoint, link, path, kind)
     try:
         got = threading.Event()
-        send, close = zenoh_side(endpoint, link, path, kind, "ping", got.set)
+        send, close = zenoh_side(endpoint, link, path, kind, "ping", lambda *_: got.set())
         try:
             time.sleep(0.3)  # let declarations propagate
             return ping_loop(echoed(send, got), n)
@@ -293,6 +305,7 @@ def run(n: int = 1000, port: int = 17480, peers: bool = False, repeats: int = 3)
             peer_ep = lambda: f"tcp/127.0.0.1:{free_port()}"  # noqa: E731
             paths: list[tuple[str, Callable[[], np.ndarray]]] = [
                 ("zenoh via router", lambda: measure(endpoint, "raw", kind, count)),
+                (READ_PATH, lambda: measure(endpoint, "read", kind, count)),
                 ("typed via router", lambda: measure(endpoint, "typed", kind, count)),
             ]
             if peers:
@@ -316,25 +329,28 @@ def run(n: int = 1000, port: int = 17480, peers: bool = False, repeats: int = 3)
                         got[label].append(fn())
                     except (RuntimeError, subprocess.TimeoutExpired) as e:
                         errors[label] = str(e)[:60]
-            base = None
+            meds = {label: float(np.median(np.concatenate(a))) for label, a in got.items() if a}
+            base, read = meds.get(paths[0][0], float("nan")), meds.get(READ_PATH, float("nan"))
             for label, _ in paths:
                 arr = np.concatenate(got[label]) if got[label] else np.array([])
                 if not len(arr):
-                    rows.append((kind, size, label, 0, float("nan"), float("nan"), float("nan"),
+                    rows.append((kind, size, label, 0, float("nan"), float("nan"), float("nan"), float("nan"),
                                  errors.get(label, "no round trip came back")))
                     continue
-                base = base if base is not None else np.median(arr)
-                rows.append((kind, size, label, len(arr), np.median(arr), np.percentile(arr, 99),
-                             np.median(arr) / base, errors.get(label, "")))
+                rows.append((kind, size, label, len(arr), meds[label], np.percentile(arr, 99),
+                             meds[label] / base, meds[label] / read, errors.get(label, "")))
     finally:
         router.close()
     load1 = os.getloadavg()
     print(f"one-way latency on loopback, RTT/2 ({os.cpu_count()} cores; load average {load0[0]:.1f} at start, "
           f"{load1[0]:.1f} at end: ratios within this run are what compare)")
-    print(f"{'payload':<8} {'bytes':>8} {'path':<19} {'n':>5} {'median_ms':>10} {'p99_ms':>8} {'x_router':>8}")
-    for kind, size, label, cnt, med, p99, ratio, note in rows:
-        print(f"{kind:<8} {size:>8} {label:<19} {cnt:>5} {med:>10.3f} {p99:>8.3f} {ratio:>8.2f}"
+    print(f"{'payload':<8} {'bytes':>8} {'path':<19} {'n':>5} {'median_ms':>10} {'p99_ms':>8} {'x_router':>8} "
+          f"{'x_read':>7}")
+    for kind, size, label, cnt, med, p99, ratio, ratio_read, note in rows:
+        print(f"{kind:<8} {size:>8} {label:<19} {cnt:>5} {med:>10.3f} {p99:>8.3f} {ratio:>8.2f} {ratio_read:>7.2f}"
               + (f"  {note}" if note else ""))
+    print(f"x_router: to raw zenoh via the router, which never reads the payload; x_read: to {READ_PATH} "
+          "(the bytes reach Python at both ends)")
     for peer, why in missing.items():
         if why:
             print(f"{peer}: {why}")
