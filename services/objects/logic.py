@@ -30,7 +30,8 @@ def tracker_config(p) -> TrackerConfig:
     return TrackerConfig(confirm_hits=p.confirm_hits, lost_timeout_s=p.lost_timeout_s,
                          tentative_timeout_s=p.tentative_timeout_s, high_score=p.high_score, low_score=p.min_score,
                          gate_distance_m=p.gate_distance_m, accel_noise_mps2=p.accel_sigma_mps2, forget_s=p.forget_s,
-                         birth_sigma_m=p.birth_sigma_m, partial_ratio=p.partial_ratio, partial_scale=p.partial_scale,
+                         birth_sigma_m=p.birth_sigma_m, birth_spacing_m=p.birth_spacing_m,
+                         partial_ratio=p.partial_ratio, partial_scale=p.partial_scale,
                          crowd_scale=p.crowd_scale, coast_tau_s=p.coast_tau_s)
 
 
@@ -182,7 +183,7 @@ class ObjectsPipeline:
                     m_stereo = locate_by_disparity(cam, view, u, v, disp, nz)
                 if m_stereo is not None:
                     m_stereo = to_centre(m_stereo, view[1], (length + width) / 4, abs(length - width) / 4)
-            m = fuse(m_stereo, m_ground)
+            m = fuse(m_stereo, m_ground, view[1])
             if m is None or m.range_m > p.max_range_m:
                 self.dropped["detection_not_placed"] += 1
                 continue

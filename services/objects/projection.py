@@ -298,9 +298,11 @@ def box_disparity(left: np.ndarray | GrayView, right: np.ndarray | GrayView, box
     return float(np.median(valid)) / 16.0
 
 
-def fuse(a: Measurement | None, b: Measurement | None, gate: float = 3.0) -> Measurement | None:
+def fuse(a: Measurement | None, b: Measurement | None, origin: np.ndarray, gate: float = 3.0) -> Measurement | None:
     """Both measurements combined by their information when they agree (squared Mahalanobis
-    distance of the difference under gate**2 per axis); else the tighter one (smaller trace)."""
+    distance of the difference under gate**2 per axis); else the tighter one (smaller trace). The
+    range is the fused point's from the camera at `origin` (a far stereo range, metres uncertain,
+    agrees with a ground one it says little about: the point is the ground's, so is the range)."""
     if a is None or b is None:
         return a or b
     diff = a.position_m - b.position_m
@@ -309,4 +311,5 @@ def fuse(a: Measurement | None, b: Measurement | None, gate: float = 3.0) -> Mea
         return a if np.trace(a.covariance_m2) <= np.trace(b.covariance_m2) else b
     k = x[:, 1:].T                                      # Pa (Pa + Pb)^-1: the information-weighted mean
     cov = a.covariance_m2 - k @ a.covariance_m2
-    return Measurement(a.position_m - k @ diff, (cov + cov.T) / 2, a.range_m, f"{a.method}+{b.method}")
+    p = a.position_m - k @ diff
+    return Measurement(p, (cov + cov.T) / 2, float(np.linalg.norm(p - origin)), f"{a.method}+{b.method}")

@@ -24,6 +24,11 @@ HORIZONTAL = np.diag([1.0, 1.0, 0.0])   # the axes a track's velocity moves alon
 _FAR = 1e9
 
 
+def _horizontal_sigma(cov: np.ndarray) -> float:
+    """1 sigma along the horizontal axis a covariance (3x3 or larger, position first) is widest on."""
+    return float(np.sqrt(np.linalg.eigvalsh(cov[:2, :2])[-1]))
+
+
 @dataclass(frozen=True)
 class TrackerConfig:
     confirm_hits: int = 3
@@ -37,9 +42,10 @@ class TrackerConfig:
     forget_s: float = 600.0             # a lost track is remembered this long: seen again, it is reacquired
     coast_tau_s: float = 0.5            # an unseen track's velocity decays with this time constant
     partial_ratio: float = 1.25         # a box this much shorter or taller than the track's boxes is a partial view
-    partial_scale: float = 0.7          # a box_scale below this is a partial view whatever the track's boxes
+    partial_scale: float = 0.75         # a box_scale below this is a partial view whatever the track's boxes
     crowd_scale: float = 2.0            # a box_scale above this takes in more than the object (a neighbour)
     birth_sigma_m: float = 2.0          # a detection less precise than this (horizontal 1 sigma) never starts a track
+    birth_spacing_m: float = 2.5        # nor one this close to a known track of its class
 
 
 @dataclass
@@ -104,7 +110,13 @@ class Tracker:
         f, q = self._motion(dt)
         t.x, t.P, t.stamp_ns = f @ t.x, f @ t.P @ f.T + q, stamp_ns
         if self.config.coast_tau_s > 0 and stamp_ns - int(dt * 1e9) > t.seen_ns:    # coasting since before this step
-            t.x[3:] *= np.exp(-dt / self.config.coast_tau_s)
+            # The velocity, and what is uncertain about it, decay together: a track kept alive for
+            # seconds by partial views must not come out of it so loose that its next whole view
+            # (biased by a metre near) throws it, with a velocity, past where it is.
+            a = np.exp(-dt / self.config.coast_tau_s)
+            t.x[3:] *= a
+            t.P[3:, :] *= a
+            t.P[:, 3:] *= a
 
     def _motion(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
         """Transition and process noise for a step of dt s (most tracks share a frame's dt)."""
@@ -181,11 +193,17 @@ class Tracker:
 
     def _may_start(self, o: Observation) -> bool:
         """Plausible (whole, its class's size), precise enough, and explained by no known track of
-        its class (live, just started or lost) within the Mahalanobis gate."""
+        its class (live, just started or lost): not within its Mahalanobis gate, nor within
+        birth_spacing_m of it (placements at 10-20 m are biased by 1-2 m beyond their covariance,
+        while a track seen many times is placed to 0.1 m: by Mahalanobis alone such a view of a
+        known object reads as a second one)."""
         if not self._plausible(o) or self._imprecise(o):
             return False
         known = [t for t in self.tracks + self.lost if t.class_id == o.class_id]
-        return not known or bool((self._differences(known, [o])[1] > CHI2_3DOF_99).all())
+        if not known:
+            return True
+        diff, d2 = self._differences(known, [o])
+        return bool((d2 > CHI2_3DOF_99).all() and (np.linalg.norm(diff[..., :2], axis=2) > self.config.birth_spacing_m).all())
 
     def _reacquire(self, obs: list[Observation], stamp_ns: int, ev: Events) -> list[Observation]:
         """Match what would start new tracks against lost ones first: an object the vehicle comes
@@ -220,16 +238,18 @@ class Tracker:
         takes in a neighbour."""
         return not o.cut and (o.box_scale <= 0 or self.config.partial_scale <= o.box_scale <= self.config.crowd_scale)
 
-    def _imprecise(self, o: Observation) -> bool:
-        """Placed less precisely than birth_sigma_m (horizontal 1 sigma): far, where a placement's
-        error is mostly bias (a few metres at 35-45 m), not noise that averages out."""
-        return bool(np.sqrt(np.linalg.eigvalsh(o.measurement.covariance_m2[:2, :2])[-1]) > self.config.birth_sigma_m)
+    def _imprecise(self, o: Observation, t: Track | None = None) -> bool:
+        """Placed less precisely than birth_sigma_m (horizontal 1 sigma) -- and than twice the
+        track `t` is placed: far, where a placement's error is mostly bias (a few metres at 35-45
+        m), not noise that averages out; a track born far still learns from its peers."""
+        sigma = _horizontal_sigma(o.measurement.covariance_m2)
+        return sigma > self.config.birth_sigma_m and (t is None or sigma > 2 * _horizontal_sigma(t.P))
 
     def _hit(self, t: Track, o: Observation, stamp_ns: int, ev: Events) -> None:
         """A detection joins the track: it always keeps it alive; it moves it only when it is
         precise (a far one would drag a track placed from near metres away, frame by frame, onto a
         neighbour) and a whole view (_whole)."""
-        if not self._imprecise(o) and self._whole(t, o):
+        if not self._imprecise(o, t) and self._whole(t, o):
             self._correct(t, o.measurement)
             t.seen_x, t.seen_P, t.seen_ns = t.x[:3].copy(), t.P[:3, :3].copy(), stamp_ns
         t.hits += 1

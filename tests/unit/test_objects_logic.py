@@ -136,9 +136,9 @@ def test_ten_boxes_a_frame_with_stereo_are_each_placed_and_tracked():
     """Ten boxes a frame, 30 frames: every box placed (stereo and ground), ten tracks. The cost (goal < 5 ms
     a frame) is `aero bench objects`' figure, not an assertion here: a timed unit test fails on a
     loaded machine for reasons that are not the code's."""
-    pl = pipeline()
+    pl = pipeline(birth_spacing_m=0.5)                          # ten people side by side, ~1 m apart
     feed_states(pl, T0 + 3_000 * MS, (0.0, 0.0, 3.0))
-    boxes = [(60.0 + 55 * i, 300.0, 10.0, 24.0) for i in range(10)]      # people 26-34 m away
+    boxes = [(60.0 + 55 * i, 300.0, 30.0, 100.0) for i in range(10)]     # 5-6 m ahead
     ms, cpu_ms = [], []
     for k in range(30):
         stamp = T0 + k * 100 * MS

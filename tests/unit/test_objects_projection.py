@@ -107,10 +107,14 @@ def test_covariance_grows_with_range():
 def test_fuse_weights_by_information_and_keeps_the_tighter_one_when_they_disagree():
     a = Measurement(np.array([10.0, 0.0, 1.0]), np.eye(3) * 0.01, 10.0, "stereo")
     b = Measurement(np.array([10.3, 0.0, 1.0]), np.eye(3) * 0.09, 10.0, "ground")
-    f = fuse(a, b)
+    origin = np.array([0.0, 0.0, 1.0])
+    f = fuse(a, b, origin)
     assert f.method == "stereo+ground" and f.position_m[0] == pytest.approx(10.03)
+    assert f.range_m == pytest.approx(10.03)                    # the fused point's, not either's
     far = Measurement(np.array([14.0, 0.0, 1.0]), np.eye(3) * 0.09, 14.0, "ground")
-    assert fuse(a, far) is a and fuse(None, far) is far
+    assert fuse(a, far, origin) is a and fuse(None, far, origin) is far
+    vague = Measurement(np.array([30.0, 0.0, 1.0]), np.eye(3) * 100.0, 30.0, "stereo")     # far stereo: metres uncertain
+    assert fuse(vague, b, origin).range_m == pytest.approx(10.3, abs=0.05)
 
 
 def textured_pair(disparity_px: int, box) -> tuple[np.ndarray, np.ndarray]:
