@@ -21,7 +21,8 @@ from aeroperception.services.mavlink.geo import MapProjection
 
 from . import contract
 from .projection import (
-    Camera, GrayView, Noise, PoseHistory, box_disparity, box_scale, fuse, locate_by_disparity, locate_on_ground, to_centre,
+    Camera, GrayView, Noise, PoseHistory, box_disparity, box_scale, fuse, locate_many_by_disparity, locate_many_on_ground,
+    to_centre,
 )
 from .tracker import Observation, Track, Tracker, TrackerConfig
 
@@ -166,29 +167,33 @@ class ObjectsPipeline:
         max_disp = int(np.ceil(cam.fx * cam.baseline_m / p.stereo_max_range_m)) if pair else 0
         ground = self.ground_z_m()
         view = cam.world_pose(pose)
-        out = []
-        for d in dets.detections:
-            if d.score < p.min_score:
-                continue
-            u, v = d.center_x_px, d.center_y_px
-            length, width, height = contract.TYPICAL_SIZE_M.get(d.class_name, contract.DEFAULT_SIZE_M)
-            # Objects longer than tall (vehicles, bicycles): their box's centre lies measurably off their centre's.
-            aim = (length, width, height) if (length + width) / 2 >= height else None
-            m_ground = locate_on_ground(cam, view, u, v, ground + height / 2, nz, p.max_range_m, aim)
-            m_stereo = None
-            if pair is not None:
-                box = (u - d.size_x_px / 2, v - d.size_y_px / 2, u + d.size_x_px / 2, v + d.size_y_px / 2)
-                disp = box_disparity(pair[0], pair[1], box, max_disp)
+        boxes = [d for d in dets.detections if d.score >= p.min_score]
+        if not boxes:
+            return []
+        sizes = [contract.TYPICAL_SIZE_M.get(d.class_name, contract.DEFAULT_SIZE_M) for d in boxes]
+        # Objects longer than tall (vehicles, bicycles): their box's centre lies measurably off their centre's.
+        grounds = locate_many_on_ground(cam, view, [(d.center_x_px, d.center_y_px, ground + s[2] / 2) for d, s in zip(boxes, sizes)],
+                                        nz, p.max_range_m, [s if (s[0] + s[1]) / 2 >= s[2] else None for s in sizes])
+        stereos: list = [None] * len(boxes)
+        if pair is not None:
+            seen = {}
+            for i, d in enumerate(boxes):
+                u, v, w, h = d.center_x_px, d.center_y_px, d.size_x_px, d.size_y_px
+                disp = box_disparity(pair[0], pair[1], (u - w / 2, v - h / 2, u + w / 2, v + h / 2), max_disp)
                 if disp is not None:
-                    m_stereo = locate_by_disparity(cam, view, u, v, disp, nz)
-                if m_stereo is not None:
-                    m_stereo = to_centre(m_stereo, view[1], (length + width) / 4, abs(length - width) / 4)
+                    seen[i] = (u, v, disp)
+            if seen:
+                for i, m in zip(seen, locate_many_by_disparity(cam, view, list(seen.values()), nz)):
+                    length, width, _ = sizes[i]
+                    stereos[i] = m and to_centre(m, view[1], (length + width) / 4, abs(length - width) / 4)
+        out = []
+        for d, size, m_ground, m_stereo in zip(boxes, sizes, grounds, stereos):
             m = fuse(m_stereo, m_ground, view[1])
             if m is None or m.range_m > p.max_range_m:
                 self.dropped["detection_not_placed"] += 1
                 continue
             self.placed[m.method] += 1
-            scale = box_scale(cam, view[1], m, d.size_y_px, (length, width, height))
+            scale = box_scale(cam, view[1], m, d.size_y_px, size)
             out.append(Observation(m, d.class_id, d.class_name, d.score, scale, cut=_cut(d, dets)))
         return out
 

@@ -129,29 +129,24 @@ class Measurement:
     method: str                         # "stereo" or "ground"
 
 
-def _propagate(fn, x: np.ndarray, sigmas: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-    """fn(x) and its covariance for independent input noise `sigmas` (central differences, step =
-    one sigma: the linearisation is over the noise's own scale). `fn` maps (k, n) inputs to (k, 3)
-    points, NaN where undefined; None when it is undefined anywhere in the neighbourhood."""
-    n = len(x)
-    steps = np.diag(sigmas)
-    pts = fn(np.vstack([x, x + steps, x - steps]))
-    if np.isnan(pts).any():
-        return None
-    jac = (pts[1:n + 1] - pts[n + 1:]).T / 2.0
-    return pts[0], jac @ jac.T
-
-
 def _measure(points, x: np.ndarray, sigmas: np.ndarray, origin: np.ndarray, noise: Noise,
-             method: str) -> Measurement | None:
-    """points(x) as a Measurement: the measurement's propagated covariance plus the pose's (the
-    vehicle's position, and its attitude times the range)."""
-    out = _propagate(points, x, sigmas)
-    if out is None:
-        return None
-    p, cov = out
-    r = float(np.linalg.norm(p - origin))
-    return Measurement(p, cov + np.eye(3) * (noise.position_m ** 2 + (r * noise.attitude_rad) ** 2), r, method)
+             method: str) -> list[Measurement | None]:
+    """points(x) for each row of x (k, n) as a Measurement: the covariance propagated from
+    independent input noise `sigmas` (n,) by central differences (step = one sigma: linearised
+    over the noise's own scale) plus the pose's (the vehicle's position, and its attitude times
+    the range). `points` maps (m, n) inputs to (m, 3) points, NaN where undefined; a row undefined
+    anywhere in its neighbourhood is None. All rows in one call: a frame's boxes cost one numpy
+    pass, not one each."""
+    k, n = x.shape
+    steps = np.diag(sigmas)
+    xs = np.concatenate([x[:, None, :], x[:, None, :] + steps, x[:, None, :] - steps], axis=1)
+    pts = points(xs.reshape(-1, n)).reshape(k, 2 * n + 1, 3)
+    ok = ~np.isnan(pts).any(axis=(1, 2))
+    jac = (pts[:, 1:n + 1] - pts[:, n + 1:]) / 2.0
+    p = pts[:, 0]
+    r = np.linalg.norm(p - origin, axis=1)
+    cov = np.einsum("kni,knj->kij", jac, jac) + np.eye(3) * (noise.position_m ** 2 + (r * noise.attitude_rad) ** 2)[:, None, None]
+    return [Measurement(p[i], cov[i], float(r[i]), method) if ok[i] else None for i in range(k)]
 
 
 def locate_on_ground(cam: Camera, view: tuple[np.ndarray, np.ndarray], u_px: float, v_px: float, centre_height_m: float,
@@ -159,6 +154,12 @@ def locate_on_ground(cam: Camera, view: tuple[np.ndarray, np.ndarray], u_px: flo
     """The box centre's ray meets the horizontal plane z = centre_height_m (ENU). None when the ray
     does not descend to it within max_range_m (at or above the horizon). With the object's typical
     `size_m`, the ray is aimed at the object's centre instead (box_centre_offset_px)."""
+    return locate_many_on_ground(cam, view, np.array([[u_px, v_px, centre_height_m]]), noise, max_range_m, [size_m])[0]
+
+
+def locate_many_on_ground(cam: Camera, view: tuple[np.ndarray, np.ndarray], uvz: np.ndarray, noise: Noise,
+                          max_range_m: float, sizes: list[tuple[float, float, float] | None]) -> list[Measurement | None]:
+    """locate_on_ground for k boxes at once: rows (u px, v px, centre height m), each its size or None."""
     r_wc, origin = view
 
     def points(x: np.ndarray) -> np.ndarray:
@@ -170,19 +171,28 @@ def locate_on_ground(cam: Camera, view: tuple[np.ndarray, np.ndarray], u_px: flo
         p[bad] = np.nan
         return p
 
-    if size_m is not None:
+    x = np.array(uvz, float)
+    for i, size_m in enumerate(sizes):
+        if size_m is None:
+            continue
+        u_px, v_px, centre_height_m = x[i]
         d = r_wc @ np.array([(u_px - 0.5 - cam.cx) / cam.fx, (v_px - 0.5 - cam.cy) / cam.fy, 1.0])
         if d[2] < -1e-9:                        # the ray descends: where it meets the plane, unaimed
             off = box_centre_offset_px(cam, view, origin + d * ((centre_height_m - origin[2]) / d[2]), size_m)
             if off is not None:
-                u_px, v_px = u_px - off[0], v_px - off[1]
-    return _measure(points, np.array([u_px, v_px, centre_height_m]),
-                    np.array([noise.pixel_px, noise.pixel_px, noise.height_m]), origin, noise, "ground")
+                x[i, :2] -= off
+    return _measure(points, x, np.array([noise.pixel_px, noise.pixel_px, noise.height_m]), origin, noise, "ground")
 
 
 def locate_by_disparity(cam: Camera, view: tuple[np.ndarray, np.ndarray], u_px: float, v_px: float, disparity_px: float,
                         noise: Noise) -> Measurement | None:
     """The box centre at depth fx * baseline / disparity along the optical axis."""
+    return locate_many_by_disparity(cam, view, np.array([[u_px, v_px, disparity_px]]), noise)[0]
+
+
+def locate_many_by_disparity(cam: Camera, view: tuple[np.ndarray, np.ndarray], uvd: np.ndarray,
+                             noise: Noise) -> list[Measurement | None]:
+    """locate_by_disparity for k boxes at once: rows (u px, v px, disparity px)."""
     r_wc, origin = view
 
     def points(x: np.ndarray) -> np.ndarray:
@@ -190,8 +200,8 @@ def locate_by_disparity(cam: Camera, view: tuple[np.ndarray, np.ndarray], u_px: 
             depth = np.where(x[:, 2] > 0, cam.fx * cam.baseline_m / x[:, 2], np.nan)
         return origin + (cam.rays(x[:, 0], x[:, 1]) * depth[:, None]) @ r_wc.T
 
-    return _measure(points, np.array([u_px, v_px, disparity_px]),
-                    np.array([noise.pixel_px, noise.pixel_px, noise.disparity_px]), origin, noise, "stereo")
+    return _measure(points, np.asarray(uvd, float), np.array([noise.pixel_px, noise.pixel_px, noise.disparity_px]),
+                    origin, noise, "stereo")
 
 
 def to_centre(m: Measurement, origin: np.ndarray, half_depth_m: float, sigma_m: float) -> Measurement:
