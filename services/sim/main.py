@@ -4,9 +4,9 @@ its own: the sensors and sim/truth/** follow an external FC's ground truth (foll
 
 Timing: the vehicle runner owns sim time. Each physics step reports its truth here; the IMU is
 sampled at its rate in that callback, and camera / LiDAR frames are *requested* there with the
-exact truth of their stamp, then rendered in processes of their own (render.py: Open3D holds
-the GIL while it casts rays). A renderer that cannot keep up skips frames and reports the
-achieved rate (WARN), never delays the physics.
+exact truth of their stamp, then rendered in processes of their own (render.py says why). A
+renderer that cannot keep up skips frames and reports the achieved rate (WARN), never delays the
+physics.
 """
 from __future__ import annotations
 

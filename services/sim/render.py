@@ -1,11 +1,12 @@
 """Camera and LiDAR rendering in processes of their own.
 
-Why processes: Open3D's RaycastingScene.cast_rays holds the GIL for the whole cast (measured: a
-spinning thread got 7 % of its speed while a render ran). In the simulator's process that
-starved the 400 Hz physics loop and the IMU/clock publishers; in a child process the render uses
-its own interpreter. The parent sends the exact truth of each frame's stamp over a pipe; the child
-keeps only the newest request (older ones are counted as skipped), renders, publishes on Zenoh with
-its own session, and reports each frame's render time back for the sim's diagnostics.
+Why processes: the LiDAR's Open3D RaycastingScene.cast_rays holds the GIL for the whole cast
+(measured: a spinning thread got 7 % of its speed while a render ran: in the simulator's process
+that starved the 400 Hz physics loop and the IMU/clock publishers). The cameras' numba kernels
+release it, but a child process can run at a lower priority than the physics (RENDER_NICE).
+The parent sends the exact truth of each frame's stamp over a pipe; the child keeps only the
+newest request (older ones are counted as skipped), renders, publishes on Zenoh with its own
+session, and reports each frame's render time back for the sim's diagnostics.
 
 Only what someone subscribes to is rendered and published (Zenoh's matching status, checked per
 frame): with no viewer the truth boxes and LiDAR labels cost nothing, a right camera nobody reads
