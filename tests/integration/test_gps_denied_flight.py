@@ -26,8 +26,10 @@ import pytest
 
 from aerotest import Capture, aero_argv, clean_env, free_udp_port, wait_until
 from aeroperception.schemas import (
-    DiagnosticStatus, MissionStatus, PerceptionHealth, VehicleState, VioHealth, load_mission_file,
+    DiagnosticStatus, MissionStatus, PerceptionHealth, SelectPluginReply, SelectPluginRequest, TrajectoryStatus,
+    VehicleState, VioHealth, load_mission_file,
 )
+from aeroperception.services.runtime import call
 
 REPO = Path(__file__).resolve().parents[2]
 SURVEY = REPO / "examples" / "missions" / "village_survey_gps_denied.json"
@@ -211,4 +213,37 @@ def test_blackout_15s_returns_home_and_lands(gstack, tmp_path):
     assert hold_s and hold_s[0] - t_black > 9.0, "RTL before perception_recovery_s"
     assert x_black > 3.0 and abs(final.position_m.x) < 1.5 and abs(final.position_m.y) < 1.5, \
         "RTL lands at home"
+    assert final.position_m.z < 0.1 and not final.armed
+
+
+@pytest.mark.slow
+@pytest.mark.extended   # a 12 m line and back on the planner's `vio` estimator; the switch and its refusals run by default (test_trajectory_flight)
+def test_the_planners_vio_estimator_flies_a_line_and_lands(gstack, tmp_path):
+    """SetEstimator `vio`: the planner measures progress and error on VIO's odometry directly
+    (aligned to the map with the FC's estimate when taken up); flown here, judged by truth."""
+    st = gstack
+    wait_until(lambda: st.latest("perception/health", PerceptionHealth, 1.5, lambda m: m.overall_healthy),
+               60, "perception healthy (VIO TRACKING on the ground)")
+    st.ensure_landed()
+    r = call(st.session, "planner/srv/select_plugin", SelectPluginRequest(role="estimator", name="vio"),
+             SelectPluginReply, 10)
+    assert r.success and r.active == "vio", r.message
+    rec = st.capture(truth=("sim/truth/state", VehicleState), planner=("planner/status", TrajectoryStatus))
+    try:
+        code, out = finish(fly(st, line_mission(tmp_path, 12.0)), 220)
+        assert code == 0, f"fly exit {code}\n{out}\n{st.describe()}"
+        wait_until(lambda: st.landed(0.1), 20, "landed and disarmed per truth")
+        track = np.array([m.position_m.to_array() for m in rec.get("truth")])
+        estimators = {s.active_estimator for s in rec.get("planner")}
+        final = rec.last("truth")
+    finally:
+        rec.close()
+        st.ensure_landed()
+        back = call(st.session, "planner/srv/select_plugin", SelectPluginRequest(role="estimator", name="fc"),
+                    SelectPluginReply, 10)
+        assert back.success, back.message
+    closest = [float(np.linalg.norm(track - wp, axis=1).min()) for wp in ([2.0, 0, 4.0], [12.0, 0, 4.0])]
+    print(f"line on the planner's vio estimator: closest true approach {[round(c, 2) for c in closest]} m")
+    assert estimators == {"vio"}, estimators
+    assert max(closest) < 1.0 + 0.2, closest         # acceptance radius + VIO drift over ~25 m (1 %)
     assert final.position_m.z < 0.1 and not final.armed

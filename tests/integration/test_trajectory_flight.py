@@ -187,9 +187,11 @@ def test_a_planner_killed_mid_trajectory_holds_and_the_restarted_one_flies_the_r
     """SIGKILL the planner while survey_01 is flown smooth at speed: the mission holds (planner
     outage), `aero up` restarts the planner, START resumes at the waypoint then current and the
     new planner makes a new trajectory from where the vehicle is: every waypoint reached, landed.
-    (Parts switched live are the restarted planner's parameters again: its start-up values.)"""
+    A part switched live before the flight (generator smooth over the default waypoint) is what the
+    restarted planner runs: restored from the state directory, not its start-up value."""
     st = tstack
     st.ensure_landed()
+    assert select(st, "trajectory_generator", "smooth").success
     with st.capture(truth=("sim/truth/state", VehicleState), reached=("mission/waypoint_reached", WaypointReached)) as rec, \
             fly_in_background(st, SURVEY, "--trajectory", "smooth", "--timeout", "150") as (proc, out):
         wait_until(lambda: len(rec.get("reached")) >= 2 and rec.last("truth") is not None
@@ -198,11 +200,14 @@ def test_a_planner_killed_mid_trajectory_holds_and_the_restarted_one_flies_the_r
         assert is_service_process(pid, "planner")
         os.kill(pid, signal.SIGKILL)
         wait_until(lambda: st.pids().get("planner") not in (None, pid), 20, "aero up restarted the planner")
+        restarted = st.latest("planner/status", TrajectoryStatus, 10.0)
+        assert restarted is not None and restarted.active_trajectory_generator == "smooth", restarted
         wait_until(lambda: st.mission_state() == "HOLDING", 10, "the mission holding through the planner outage")
         wait_at_rest(st)
         assert st.command("START").success
         assert proc.wait(120) == 0, "".join(out[-20:])
         reached = sorted({w.index for _, w in rec.since("reached")})
         truth = rec.last("truth")
+    assert select(st, "trajectory_generator", "waypoint").success    # landed: back to the default
     assert reached == [0, 1, 2, 3], (reached, "".join(out[-20:]))
     assert truth.position_m.z < 0.2 and not truth.armed
