@@ -2,7 +2,8 @@
 estimator). `set ROLE NAME` is SetTrajectoryGenerator / SetController / SetEstimator
 (planner/srv/select_plugin): refused while the vehicle moves (switch on the ground or hovering)
 and for a name that is not registered, saying which are. `list` shows what runs and what exists
-(the planner's parameters of the same names: one value)."""
+(the planner's parameters of the same names: one value). A switch persists across planner restarts
+(planner/plugins.py): `set` the default back to return to it."""
 from __future__ import annotations
 
 import argparse
@@ -23,7 +24,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = psub.add_parser("list", help="what runs in each slot and what is registered")
     add_session_arguments(p)
     p.set_defaults(func=plugin_list)
-    p = psub.add_parser("set", help="switch a slot (on the ground or hovering only)")
+    p = psub.add_parser("set", help="switch a slot (on the ground or hovering only; kept across planner restarts)")
     add_session_arguments(p)
     p.add_argument("role", choices=PLUGIN_ROLES, metavar="ROLE", help=" | ".join(PLUGIN_ROLES))
     p.add_argument("name", help="a registered name (aero plugin list)")
