@@ -111,12 +111,14 @@ class PlannerService(Service):
 
     def _restore_parts(self) -> None:
         self.parts_store = MissionStore(self.params.state_dir or default_state_dir(self.node.vehicle), PARTS_FILE)
+        self.parts_restored: list[str] = []
         try:
             saved = self.parts_store.load()
         except ValueError as e:
             self.log.warn("persisted_parts_ignored", error=str(e))
             return
-        for note in restore_parts(saved, self.params):
+        self.parts_restored = restore_parts(saved, self.params)
+        for note in self.parts_restored:
             self.log.warn("parts_restored", note=note)
 
     def _save_parts(self) -> None:
@@ -317,6 +319,7 @@ class PlannerService(Service):
                   "trajectory": self.tracker.trajectory_id if self.tracking_error_m is not None else "-",
                   "trajectory_generator": self.params.trajectory_generator, "controller": self.params.controller,
                   "estimator": self.params.estimator, "flying_with": self.tracker.generator() or "-",
+                  "parts_restored": "; ".join(self.parts_restored) or "-",
                   "trajectories_made": self.tracker.built,
                   "obstacles": self.obstacle_state, "replans": self.replanner.processed,
                   "stale_states_dropped": self.stale_states}
