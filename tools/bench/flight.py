@@ -5,7 +5,9 @@ process). The tap timestamps each LOCAL_POSITION_NED on its way from the vehicle
 first SET_POSITION_TARGET_LOCAL_NED that fmu sends back: that interval covers MAVLink decode,
 ENU conversion, state/vehicle over Zenoh, the planner, the setpoint over Zenoh and the MAVLink
 encode. Baseline, same run: two raw Zenoh one-way hops (the minimum the process split costs).
-Also reported: the planner's 50 Hz deadline-loop period error and the setpoint gaps on the wire.
+Also reported: the planner's 50 Hz deadline-loop period error, the setpoint gaps on the wire and,
+beside them, the sim's own LOCAL_POSITION_NED gaps (the planner answers each state, so a late
+state is a late setpoint). Stamps are the kernel's receive times at the tap (see Tap).
 """
 from __future__ import annotations
 
