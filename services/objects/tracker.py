@@ -194,16 +194,19 @@ class Tracker:
     def _may_start(self, o: Observation) -> bool:
         """Plausible (whole, its class's size), precise enough, and explained by no known track of
         its class (live, just started or lost): not within its Mahalanobis gate, nor within
-        birth_spacing_m of it (placements at 10-20 m are biased by 1-2 m beyond their covariance,
-        while a track seen many times is placed to 0.1 m: by Mahalanobis alone such a view of a
-        known object reads as a second one)."""
+        birth_spacing_m of it, nor within 3 sigma of the detection's widest horizontal axis
+        (placements at 10-20 m are biased by 1-2 m beyond their covariance, and a far one 2-5 m
+        sideways as well as along its line of sight, while a track seen many times is placed to
+        0.1 m: by Mahalanobis alone such a view of a known object reads as a second one; seen
+        nearer, a real second object is placed precisely enough to start)."""
         if not self._plausible(o) or self._imprecise(o):
             return False
         known = [t for t in self.tracks + self.lost if t.class_id == o.class_id]
         if not known:
             return True
         diff, d2 = self._differences(known, [o])
-        return bool((d2 > CHI2_3DOF_99).all() and (np.linalg.norm(diff[..., :2], axis=2) > self.config.birth_spacing_m).all())
+        spacing = max(self.config.birth_spacing_m, 3.0 * _horizontal_sigma(o.measurement.covariance_m2))
+        return bool((d2 > CHI2_3DOF_99).all() and (np.linalg.norm(diff[..., :2], axis=2) > spacing).all())
 
     def _reacquire(self, obs: list[Observation], stamp_ns: int, ev: Events) -> list[Observation]:
         """Match what would start new tracks against lost ones first: an object the vehicle comes

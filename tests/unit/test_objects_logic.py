@@ -133,10 +133,12 @@ def test_the_stereo_pair_of_the_frames_stamp_gives_the_range():
 
 
 def test_ten_boxes_a_frame_with_stereo_are_each_placed_and_tracked():
-    """Ten boxes a frame, 30 frames: every box placed (stereo and ground), ten tracks. The cost (goal < 5 ms
+    """Ten boxes a frame, 30 frames: every box placed (stereo searched, ground), ten tracks. The cost (goal < 5 ms
     a frame) is `aero bench objects`' figure, not an assertion here: a timed unit test fails on a
     loaded machine for reasons that are not the code's."""
-    pl = pipeline(birth_spacing_m=0.5)                          # ten people side by side, ~1 m apart
+    # Ten people side by side, ~1 m apart, placed to ~0.2 m (a far placement that uncertain could be its neighbour).
+    pl = pipeline(birth_spacing_m=0.5, pixel_sigma_px=0.5, height_sigma_m=0.05, disparity_sigma_px=0.05,
+                  position_sigma_m=0.02, attitude_sigma_rad=0.002)
     feed_states(pl, T0 + 3_000 * MS, (0.0, 0.0, 3.0))
     boxes = [(60.0 + 55 * i, 300.0, 30.0, 100.0) for i in range(10)]     # 5-6 m ahead
     ms, cpu_ms = [], []
@@ -152,7 +154,7 @@ def test_ten_boxes_a_frame_with_stereo_are_each_placed_and_tracked():
     # CPU time, not wall: on the shared 2-core CI the wall clock counts other processes' turns.
     print(f"objects: one frame of 10 boxes (stereo + ground, 10 tracks): CPU p50 {cpu:.2f} ms, "
           f"wall p50 {np.median(ms):.2f} ms")
-    assert pl.placed == {"stereo+ground": 300} and not pl.dropped, (pl.placed, pl.dropped)
+    assert sum(pl.placed.values()) == 300 and not pl.dropped, (pl.placed, pl.dropped)
     assert len(r.objects.objects) == 10
 
 

@@ -236,6 +236,19 @@ def test_a_biased_view_of_a_well_placed_object_is_no_second_object():
     assert len(tr.tracks) == 2
 
 
+def test_a_far_view_within_three_of_its_sigmas_of_a_known_object_is_that_object():
+    """From 35 m a person's box (taking in the car in front) is placed 5 m off its track: within 3
+    sigma (1.9 m) of the placement, so no second person; seen from near, a person there is."""
+    tr = Tracker(TrackerConfig(confirm_hits=2, birth_spacing_m=2.5, birth_sigma_m=2.0))
+    for k in range(10):
+        tr.update(k * 100 * MS, [obs((12.0, -5.0), sigma_m=0.3)])
+    for k in range(10, 15):
+        tr.update(k * 100 * MS, [obs((17.0, -4.3), sigma_m=1.9)])
+    assert [t.track_id for t in tr.tracks] == [1]
+    tr.update(1500 * MS, [obs((17.0, -4.3), sigma_m=0.4)])
+    assert len(tr.tracks) == 2
+
+
 def test_a_coasting_tracks_velocity_uncertainty_decays_with_its_velocity():
     """Kept alive for seconds by views that do not move it, a track must not come out of it so
     loose that its next whole view (biased by a metre near) throws it past where the object is."""
