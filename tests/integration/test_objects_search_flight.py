@@ -1,4 +1,4 @@
-"""The objects service's goals on the village search flight (opt-in, ~10 min): the onboard stack
+"""The objects service's goals on the village search flight (opt-in, ~3.5-5 min): the onboard stack
 with the camera, `aero mission fly examples/missions/village_search.json` and
 `aero eval objects --live --until-landed` over that flight; every person, car, truck and bicycle
 target is found exactly once, no false track lives > 2 s, position error at 5-30 m has median
