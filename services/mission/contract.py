@@ -34,6 +34,7 @@ SERVICES = Queries(
     Query("mission/srv/command", MissionCommand, Reply),
     Query("mission/srv/get", Empty, GetMissionReply, note="the loaded mission (gcs serves it to downloads)"),
 )
+STATE_FILE = "mission.json"   # in state_dir: the loaded mission and its progress, for a restart
 ACTIONS = ("mission/action/takeoff", "mission/action/land", "mission/action/goto", "mission/action/set_trajectory")
 CALLS = Queries(
     Query("fmu/srv/arm", ArmRequest, ArmReply),

@@ -14,6 +14,7 @@ from aeroperception.schemas import (
     TrajectoryStatus, UAVStatus, Vector3, VehicleState, WaypointReached, load_mission_file, parse_mission,
 )
 from aeroperception.services.runtime import ActionServer, CallError, GoalHandle, Health, ParamError, Service, run
+from aeroperception.services.runtime.state_store import StateStore, default_state_dir
 
 from aeroperception.services.safety.geofence import GeofenceError
 
@@ -22,7 +23,6 @@ from .actions import MOVING, ActionRun
 from .fsm import Config, GoalOut, MissionManager, State
 from .requests import Outcome
 from .limits import Limits, waypoints_in_obstacles
-from .store import MissionStore, default_state_dir
 from .trajectory import NONE, TRAJECTORY_END_RADIUS_M, TrajectoryHandover, check_given
 from .uav_status import UavStatusBuilder
 
@@ -66,7 +66,7 @@ class MissionService(Service):
         self.mgr.on_waypoint_reached = self._on_reached
         node = self.node
         # Restart: the persisted mission/progress now, the vehicle's state decides on its first sample.
-        self.store = MissionStore(p.state_dir or default_state_dir(node.vehicle))
+        self.store = StateStore(p.state_dir or default_state_dir(node.vehicle), contract.STATE_FILE)
         try:
             snapshot = self.store.load()
         except ValueError as e:

@@ -7,7 +7,7 @@ from aeroperception.schemas import (
     DiagnosticStatus, Header, LandedState, MissionGoal, OccupancyGrid, Odometry, SelectPluginReply, SelectPluginRequest, Trajectory,
     TrajectorySetpoint, TrajectoryStatus, Vector3, VehicleState, WaypointReached,
 )
-from aeroperception.services.mission.store import MissionStore, default_state_dir
+from aeroperception.services.runtime.state_store import StateStore, default_state_dir
 from aeroperception.services.runtime import Health, LatestWorker, ParamError, Service, run
 
 from . import contract
@@ -87,7 +87,7 @@ class PlannerService(Service):
     def _tracker_config(self) -> TrackerConfig:
         p = self.params
         return TrackerConfig(limits_from(p), p.acceptance_radius_m, p.trajectory_lag_m, p.trajectory_generator,
-                             FeedForward(p.ff_lead_s, p.drag_per_s))
+                             FeedForward(p.ff_lead_s, p.drag_per_s), p.fc_xy_gain_per_s)
 
     def _on_trajectory(self, msg: Trajectory) -> None:
         if msg == self.trajectory_msg:
@@ -110,7 +110,7 @@ class PlannerService(Service):
         return self.odom_rx_s is not None and time.monotonic() - self.odom_rx_s < self.params.state_timeout_s
 
     def _restore_parts(self) -> None:
-        self.parts_store = MissionStore(self.params.state_dir or default_state_dir(self.node.vehicle), PARTS_FILE)
+        self.parts_store = StateStore(self.params.state_dir or default_state_dir(self.node.vehicle), PARTS_FILE)
         self.parts_restored: list[str] = []
         try:
             saved = self.parts_store.load()
@@ -144,7 +144,7 @@ class PlannerService(Service):
                 raise ParamError(f"{name} stays {self.params[name]!r}: {why}")
             self._switch(name, value)
             self._save_parts()
-        if name in ("max_velocity_mps", "acceptance_radius_m", "trajectory_lag_m", "ff_lead_s", "drag_per_s") or name.startswith(("acc_", "jerk_", "z_vel_", "yaw_rate_")):
+        if name in ("max_velocity_mps", "acceptance_radius_m", "trajectory_lag_m", "ff_lead_s", "drag_per_s", "fc_xy_gain_per_s") or name.startswith(("acc_", "jerk_", "z_vel_", "yaw_rate_")):
             self.tracker.cfg = self._tracker_config()   # the next trajectory made uses it
         if name.startswith("avoid_") or name == "costmap_timeout_s":
             self.avoid.cfg = AvoidanceConfig.from_params(self.params)

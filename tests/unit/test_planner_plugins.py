@@ -15,7 +15,7 @@ from aeroperception.schemas.mission import TRAJECTORY_GENERATORS
 from aeroperception.services.planner import contract
 from aeroperception.services.planner.controllers import CONTROLLERS, Gains
 from aeroperception.services.planner.estimators import ESTIMATORS, VioEstimate, fc_offset_m
-from aeroperception.services.mission.store import MissionStore
+from aeroperception.services.runtime.state_store import StateStore
 from aeroperception.services.planner.plugins import (
     PARTS_FILE, REGISTRIES, is_hovering, restore_parts, selected_parts, switch_refusal,
 )
@@ -134,7 +134,7 @@ def test_a_restarted_planner_starts_with_the_parts_selected_last(tmp_path):
     before = ParamSet.from_declarations(contract.PARAMS)
     before.set("controller", "velocity")
     before.set("estimator", "vio")
-    store = MissionStore(tmp_path, PARTS_FILE)
+    store = StateStore(tmp_path, PARTS_FILE)
     store.save(selected_parts(before))
     after = ParamSet.from_declarations(contract.PARAMS)         # a new process: the defaults
     notes = restore_parts(store.load(), after)

@@ -1,7 +1,9 @@
-"""The mission's memory across restarts: the loaded mission and its progress, in one JSON file
-written atomically (temp file in the same directory, fsync, os.replace), so a restarted mission
-service over a flying vehicle knows what it was flying (ARCHITECTURE §8). A reader sees the old
-or the new file, never half of one; an unreadable file is reported and ignored, never fatal.
+"""A service's memory across restarts, one JSON file per concern in the vehicle's state directory,
+written atomically (temp file in the same directory, fsync, os.replace): the mission's loaded
+mission and progress, so a restarted mission service over a flying vehicle knows what it was
+flying (ARCHITECTURE §8); the planner's selected parts, so a restart does not change what flies.
+A reader sees the old or the new file, never half of one; an unreadable file is reported and
+ignored, never fatal.
 """
 from __future__ import annotations
 
@@ -11,7 +13,6 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-FILE_NAME = "mission.json"
 VERSION = 1
 
 
@@ -22,10 +23,10 @@ def default_state_dir(vehicle: str) -> Path:
     return (Path(root) if root else Path.home() / ".aero" / "state") / (vehicle or "default")
 
 
-class MissionStore:
-    """One JSON snapshot in `directory` (`file_name`: also the planner's selected parts)."""
+class StateStore:
+    """One JSON snapshot, `file_name` in `directory`."""
 
-    def __init__(self, directory: str | Path, file_name: str = FILE_NAME):
+    def __init__(self, directory: str | Path, file_name: str):
         self.path = Path(directory).expanduser() / file_name
 
     def save(self, snapshot: dict[str, Any]) -> None:

@@ -1,4 +1,4 @@
-"""The mission store (services/mission/store.py): atomic writes, read back, a corrupt file refused."""
+"""The state store (services/runtime/state_store.py): atomic writes, read back, a corrupt file refused."""
 from __future__ import annotations
 
 import pytest
@@ -7,8 +7,8 @@ from mission_rig import snapshot_mid_survey
 
 
 def test_store_writes_atomically_and_reads_back(tmp_path):
-    from aeroperception.services.mission.store import MissionStore
-    store = MissionStore(tmp_path / "v1")
+    from aeroperception.services.runtime.state_store import StateStore
+    store = StateStore(tmp_path / "v1", "mission.json")
     assert store.load() is None
     store.save(snapshot_mid_survey())
     store.save(snapshot_mid_survey(wp_index=3))
