@@ -90,32 +90,6 @@ class ModelHolder:
         return True
 
 
-class RateGate:
-    """Admits at most `rate_hz` events per second on average (a token bucket of depth 2): a source
-    at exactly the rate passes whole despite jitter, a faster one is thinned evenly (12 Hz -> 10,
-    not 6), and after a pause at most two events pass back to back."""
-
-    DEPTH = 2.0
-
-    def __init__(self, rate_hz: float):
-        self.rate_hz = rate_hz
-        self._tokens = 1.0
-        self._last_s: float | None = None
-        self.admitted = 0
-        self.skipped = 0
-
-    def admit(self, now_s: float) -> bool:
-        if self._last_s is not None:
-            self._tokens = min(self.DEPTH, self._tokens + max(0.0, now_s - self._last_s) * self.rate_hz)
-        self._last_s = now_s
-        if self._tokens >= 1.0:
-            self._tokens -= 1.0
-            self.admitted += 1
-            return True
-        self.skipped += 1
-        return False
-
-
 class StageTimes:
     """Rolling per-stage times (ms) over the last `window` frames: pre, infer, post, total."""
 

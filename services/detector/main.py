@@ -17,10 +17,10 @@ from pathlib import Path
 import numpy as np
 
 from aeroperception.schemas import Detection2DArray, DiagnosticStatus, Header, Image
-from aeroperception.services.runtime import Health, LatestWorker, ParamError, Service, run
+from aeroperception.services.runtime import Health, LatestWorker, ParamError, RateGate, Service, run
 
 from . import contract
-from .logic import LoadRequest, ModelHolder, RateGate, StageTimes, detection_array, detector_health
+from .logic import LoadRequest, ModelHolder, StageTimes, detection_array, detector_health
 
 # Image encodings the detector reads, and the channel order letterbox() is told.
 CHANNELS = {"rgb8": "rgb", "rgba8": "rgb", "bgr8": "bgr", "bgra8": "bgr", "mono8": "rgb", "mono16": "rgb",

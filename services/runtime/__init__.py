@@ -4,7 +4,7 @@ action pattern, rate loops, the clock, structured logs and the process shell (`S
 from .actions import ActionClient, ActionServer, GoalHandle
 from .clock import Clock
 from .keys import Queries, Query, Topic, Topics
-from .latest import LatestWorker
+from .latest import LatestWorker, RateGate
 from .log import Logger
 from .node import CallError, Health, Node, Publisher, call
 from .params import Param, ParamError, ParamSet
@@ -12,7 +12,7 @@ from .rate import LoopStats, RateLoop
 from .service import Service, run
 
 __all__ = [
-    "ActionClient", "ActionServer", "GoalHandle", "Clock", "Queries", "Query", "Topic", "Topics", "LatestWorker",
+    "ActionClient", "ActionServer", "GoalHandle", "Clock", "Queries", "Query", "Topic", "Topics", "LatestWorker", "RateGate",
     "Logger", "CallError", "Health", "Node", "Publisher", "call", "Param", "ParamError", "ParamSet", "LoopStats",
     "RateLoop", "Service", "run",
 ]

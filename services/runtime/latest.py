@@ -1,5 +1,5 @@
 """Newest-wins processing for perception services: a slot that holds at most one pending input
-and one worker thread that processes it.
+and one worker thread that processes it; and RateGate, which thins an input to a rate.
 
 Why: a scan or frame that arrives while the previous one is being processed must never queue
 (queues turn a slow stage into unbounded latency on a 2-core machine). The newer input replaces
@@ -55,3 +55,30 @@ class LatestWorker(Generic[T]):
                 if self.on_error:
                     self.on_error(e)
             self.processed += 1
+
+
+class RateGate:
+    """Admits at most `rate_hz` events per second on average (a token bucket of depth 2): a source
+    at exactly the rate passes whole despite jitter, a faster one is thinned evenly (12 Hz -> 10,
+    not 6), and after a pause at most two events pass back to back."""
+
+    DEPTH = 2.0
+
+    def __init__(self, rate_hz: float):
+        self.rate_hz = rate_hz
+        self._tokens = self.DEPTH   # full: events exactly one period apart keep a token in reserve, so
+                                    # one a little early (jitter, float rounding) still passes
+        self._last_s: float | None = None
+        self.admitted = 0
+        self.skipped = 0
+
+    def admit(self, now_s: float) -> bool:
+        if self._last_s is not None:
+            self._tokens = min(self.DEPTH, self._tokens + max(0.0, now_s - self._last_s) * self.rate_hz)
+        self._last_s = now_s
+        if self._tokens >= 1.0:
+            self._tokens -= 1.0
+            self.admitted += 1
+            return True
+        self.skipped += 1
+        return False

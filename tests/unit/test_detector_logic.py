@@ -1,17 +1,14 @@
 """The detector service's logic without Zenoh: hot swap through the model holder (bad models keep
-the running one and report why), the rate gate (never above the rate on average, jitter-proof),
-the health rule and the published form of detections."""
+the running one and report why), the health rule and the published form of detections."""
 from __future__ import annotations
 
-import numpy as np
-import pytest
 
 from detector_graphs import box_finder_model, classifier_model, paint_blocks
 
 from aeroperception.schemas import DiagnosticStatus, Header
 from aeroperception.services.detector import contract
 from aeroperception.services.detector.logic import (
-    PACKAGE_DIR, LoadRequest, ModelHolder, RateGate, StageTimes, detection_array, detector_health,
+    PACKAGE_DIR, LoadRequest, ModelHolder, StageTimes, detection_array, detector_health,
     resolve_model_path,
 )
 
@@ -56,20 +53,6 @@ def test_relative_model_paths_fall_back_to_the_package(tmp_path, monkeypatch):
     assert resolve_model_path(contract.BUNDLED_MODEL) == PACKAGE_DIR / contract.BUNDLED_MODEL
     (tmp_path / "mine.onnx").write_bytes(b"")
     assert resolve_model_path("mine.onnx") == tmp_path / "mine.onnx"
-
-
-@pytest.mark.parametrize("camera_hz,rate_hz", [(20.0, 10.0), (10.0, 10.0), (12.0, 10.0), (30.0, 7.0), (5.0, 10.0)])
-def test_rate_gate_never_exceeds_the_rate(camera_hz, rate_hz):
-    rng = np.random.default_rng(1)
-    gate = RateGate(rate_hz)
-    t = np.arange(0, 20.0, 1 / camera_hz) + rng.uniform(-0.1, 0.1, int(20.0 * camera_hz)) / camera_hz   # 10 % jitter
-    admitted = np.array([s for s in t if gate.admit(s)])
-    for start in np.arange(0, 19.0, 0.5):                     # every 1 s window
-        n = np.count_nonzero((admitted >= start) & (admitted < start + 1.0))
-        assert n <= rate_hz + 2            # the bucket's depth, after the start
-    expected = min(camera_hz, rate_hz)
-    assert len(admitted) / 20.0 == pytest.approx(expected, rel=0.12)
-    assert gate.admitted + gate.skipped == len(t)
 
 
 def test_health_warns_when_slower_than_the_rate_or_without_images(tmp_path):
