@@ -67,3 +67,16 @@ def test_aero_bench_help_in_a_real_process_has_no_traceback():
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode == 0, proc.stderr
     assert "Traceback" not in proc.stderr and "record" in proc.stdout and "CPU %" in proc.stdout
+
+
+def test_a_bench_that_cannot_run_says_so_in_one_line(monkeypatch, capsys):
+    """A bench whose stack did not come up raised RuntimeError through `aero` as a traceback."""
+    from aeroperception.tools.bench import flight
+
+    def no_stack(*_a, **_k):
+        raise RuntimeError("stack did not come up (logs: /tmp/x)")
+
+    monkeypatch.setattr(flight, "run", no_stack)
+    assert cli.main(["bench", "flight", "--duration", "1"]) == 2
+    err = capsys.readouterr().err
+    assert err == "aero: bench flight: stack did not come up (logs: /tmp/x)\n"

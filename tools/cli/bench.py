@@ -5,6 +5,19 @@ from __future__ import annotations
 import argparse
 import importlib
 
+from aeroperception.tools.common import CliError
+
+
+def _bench(module: str, call):
+    """The sub-command's function, `call(module, args)`: a bench that cannot run (a stack that did
+    not come up, a helper process that failed) says so in one line, not with a traceback."""
+    def func(args):
+        try:
+            return call(importlib.import_module(f"aeroperception.tools.bench.{module}"), args)
+        except RuntimeError as e:
+            raise CliError(f"bench {module}: {e}") from None
+    return func
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     bench = sub.add_parser("bench", help="benchmarks (tables of median, p99, ratio to baseline)")
@@ -18,19 +31,19 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "Cyclone DDS (those installed: "
                         "pip install 'aeroperception[bench]')")
     p.add_argument("--repeat", type=int, default=3, help="interleaved rounds of every path (n split among them)")
-    p.set_defaults(func=lambda a: importlib.import_module("aeroperception.tools.bench.pubsub").run(
-        a.n, a.port, a.peers, max(1, a.repeat)))
+    p.set_defaults(func=_bench("pubsub", lambda m, a: m.run(
+        a.n, a.port, a.peers, max(1, a.repeat))))
     p = bsub.add_parser("sim", help="sensor render times and achieved rates")
     p.add_argument("-n", type=int, default=50, help="frames per sensor")
     p.add_argument("--scenario", default="village")
-    p.set_defaults(func=lambda a: importlib.import_module("aeroperception.tools.bench.sim").run(a.n, a.scenario))
+    p.set_defaults(func=_bench("sim", lambda m, a: m.run(a.n, a.scenario)))
     p = bsub.add_parser("flight", help="hot path state -> planner -> fmu -> MAVLink, with the sim profile running")
     p.add_argument("--duration", type=float, default=20.0, help="seconds of hover to measure")
     p.add_argument("--sensors", default="none", choices=["none", "imu", "all"], help="sim sensor load while measuring")
     p.add_argument("--priorities", default="on", choices=["on", "off"],
                    help="aero up's scheduling priorities (tools/profiles.yaml); off: all at the default")
-    p.set_defaults(func=lambda a: importlib.import_module("aeroperception.tools.bench.flight").run(
-        a.duration, a.sensors, a.priorities == "on"))
+    p.set_defaults(func=_bench("flight", lambda m, a: m.run(
+        a.duration, a.sensors, a.priorities == "on")))
     p = bsub.add_parser("stack", help="is this machine big enough: the whole stack hovering in the village; per "
                                       "process CPU %% and RSS, achieved vs rated rates, the hot path, idle %%, a verdict")
     p.add_argument("--profile", default="sim", help="aero up profile (sim, viz, ...)")
@@ -38,17 +51,17 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="what the sim renders (as aero up --sensors)")
     p.add_argument("--duration", type=float, default=30.0, help="seconds measured (after take-off and settling)")
     p.add_argument("--scenario", default="village")
-    p.set_defaults(func=lambda a: importlib.import_module("aeroperception.tools.bench.stack").run(
-        a.profile, a.sensors, a.duration, a.scenario))
+    p.set_defaults(func=_bench("stack", lambda m, a: m.run(
+        a.profile, a.sensors, a.duration, a.scenario)))
     p = bsub.add_parser("lidar", help="150k-point scan -> obstacles -> costmap per stage vs the Open3D pipeline")
     p.add_argument("-n", type=int, default=20, help="scans per pipeline")
     p.add_argument("--scenario", default="village")
-    p.set_defaults(func=lambda a: importlib.import_module("aeroperception.tools.bench.lidar").run(a.n, a.scenario))
+    p.set_defaults(func=_bench("lidar", lambda m, a: m.run(a.n, a.scenario)))
     p = bsub.add_parser("vio", help="VIO front end / back end / total per 640x480 stereo frame vs bare OpenCV KLT")
     p.add_argument("-n", type=int, default=200, help="frames (rendered by the sim's camera; not timed)")
     p.add_argument("--scenario", default="village")
     p.add_argument("--strategy", default="klt_stereo")
-    p.set_defaults(func=lambda a: importlib.import_module("aeroperception.tools.bench.vio").run(a.n, a.scenario, a.strategy))
+    p.set_defaults(func=_bench("vio", lambda m, a: m.run(a.n, a.scenario, a.strategy)))
     p = bsub.add_parser("detector", help="detector pre / infer / post per frame: bundled model and a YOLOv8n-sized "
                                          "graph, 640/320, 1/2 threads, fp32/int8, vs bare session.run")
     p.add_argument("-n", type=int, default=30, help="frames per configuration")
@@ -58,22 +71,22 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--model", action="append", default=[], metavar="ONNX",
                    help="also bench this YOLOv8 / YOLO11 / YOLO26 export (repeatable)")
     p.add_argument("--provider", default="cpu", help="ONNX Runtime execution provider: cpu, cuda or tensorrt")
-    p.set_defaults(func=lambda a: importlib.import_module("aeroperception.tools.bench.detector").run(
+    p.set_defaults(func=_bench("detector", lambda m, a: m.run(
         a.n, a.scenario, tuple(int(s) for s in a.sizes.split(",")), tuple(int(t) for t in a.threads.split(",")),
-        tuple(a.model), a.provider))
+        tuple(a.model), a.provider)))
     p = bsub.add_parser("objects", help="objects service CPU per detection frame, 1-20 boxes, vs a full-frame disparity map")
     p.add_argument("-n", type=int, default=50, help="frames per box count")
     p.add_argument("--scenario", default="village", help="the rendered pair's scenario")
-    p.set_defaults(func=lambda a: importlib.import_module("aeroperception.tools.bench.objects").run(a.n, a.scenario))
+    p.set_defaults(func=_bench("objects", lambda m, a: m.run(a.n, a.scenario)))
     p = bsub.add_parser("record", help="recorder cost with images on: messages/s, MB/s, drops, CPU %%")
     p.add_argument("--duration", type=float, default=10.0, help="seconds per compression setting")
     p.add_argument("--compression", default="zstd,lz4,none", help="settings to compare (comma-separated)")
-    p.set_defaults(func=lambda a: importlib.import_module("aeroperception.tools.bench.record").run(
-        a.duration, a.compression))
+    p.set_defaults(func=_bench("record", lambda m, a: m.run(
+        a.duration, a.compression)))
     p = bsub.add_parser("soak", help="fly missions in a loop for N minutes; RSS/CPU per service process")
     p.add_argument("--minutes", type=float, default=30.0, help="how long to fly")
     p.add_argument("--sensors", default="all", choices=["none", "imu", "all"], help="sim sensors rendered meanwhile")
     p.add_argument("--period", type=float, default=5.0, help="seconds between /proc samples")
     p.add_argument("--json", default=None, metavar="FILE", help="write the results as JSON too")
-    p.set_defaults(func=lambda a: importlib.import_module("aeroperception.tools.bench.soak").run(
-        a.minutes, a.sensors, a.period, a.json))
+    p.set_defaults(func=_bench("soak", lambda m, a: m.run(
+        a.minutes, a.sensors, a.period, a.json)))
