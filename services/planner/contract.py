@@ -71,6 +71,10 @@ PARAMS = [
     Param("drag_per_s", 0.0, "1/s", 0.0, 5.0,
           description="the vehicle's linear drag, acceleration lost per m/s: drag_per_s x velocity is added to the "
                       "acceleration (PX4's SIH quad: SIH_KDV / SIH_MASS = 1; the built-in sim: SIM_DRAG)"),
+    Param("fc_xy_gain_per_s", 0.0, "1/s", 0.0, 10.0,
+          description="the flight controller's horizontal position gain (PX4: MPC_XY_P, 0.95): a trajectory's clock "
+                      "is held back so that feed-forward + this x the position error stays within max_velocity_mps "
+                      "(+5 %): PX4 caps its catch-up only at its own MPC_XY_VEL_MAX (0 = off)"),
     Param("trajectory_lag_m", 1.5, "m", 0.2, 20.0,
           description="the reference slows while the vehicle is more than half this behind it, stops at this"),
     # swappable parts (plugins.py): switched live only on the ground or hovering

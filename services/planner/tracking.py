@@ -34,7 +34,7 @@ from aeroperception.schemas import Trajectory
 
 from .trajectory.core import Limits
 from .trajectory.evaluate import TrajectoryRefused, evaluate
-from .trajectory.follow import FeedForward, FollowStep, Follower
+from .trajectory.follow import FeedForward, FollowStep, Follower, SpeedGovernor
 from .trajectory.generators import GENERATORS, check_frames, generator_of, limits_of, path_for
 
 ON_PATH_M = 0.01          # a goal this close to a trajectory waypoint is that waypoint
@@ -53,6 +53,7 @@ class TrackerConfig:
     lag_m: float = 1.5
     generator: str = "smooth"     # the planner's active generator (a message may name its own)
     feedforward: FeedForward = FeedForward()
+    fc_xy_gain_per_s: float = 0.0   # the FC's horizontal position gain (PX4's MPC_XY_P): SpeedGovernor; 0 = off
 
 
 class TrajectoryTracker:
@@ -172,7 +173,8 @@ class TrajectoryTracker:
             return False
         if path is None:
             return False
-        self.follower = Follower(path, now_s, self.msg.setpoint_type, self.cfg.lag_m, self.cfg.feedforward)
+        governor = SpeedGovernor(self.cfg.fc_xy_gain_per_s, limits_of(self.msg, self.cfg.limits).xy_vel_max_mps)
+        self.follower = Follower(path, now_s, self.msg.setpoint_type, self.cfg.lag_m, self.cfg.feedforward, governor)
         self.first_index = k
         self.built += 1
         return True

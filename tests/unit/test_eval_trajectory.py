@@ -41,6 +41,11 @@ def test_overshoot_is_the_outside_of_the_turn_and_cross_track_is_by_distance():
     res = ev.summary()
     assert res["corner_overshoot_m"][0] == pytest.approx(0.4, abs=1e-6)
     assert res["cross_track_max_m"] == pytest.approx(0.4, abs=1e-6)
+    high = TrajectoryEval(SQUARE)                  # 0.6 m above the legs throughout (an estimate's height offset)
+    flown(high, pos + [0, 0, 0.6])
+    high.add_reached(0, 0.0)
+    high.add_reached(2, 1000 * 0.02)
+    assert high.summary()["corner_overshoot_m"][0] == pytest.approx(0.4, abs=1e-6)   # a swing is horizontal
 
 
 def test_peaks_of_a_constant_acceleration_and_an_incomplete_flight_is_refused():

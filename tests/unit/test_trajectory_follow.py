@@ -8,7 +8,7 @@ import pytest
 
 from aeroperception.schemas import Header, Pose, PoseStamped, Quaternion, Trajectory, Vector3
 from aeroperception.services.planner.trajectory import Limits, TrajectoryRefused, smooth
-from aeroperception.services.planner.trajectory.follow import FeedForward, Follower, setpoint_of
+from aeroperception.services.planner.trajectory.follow import FeedForward, Follower, SpeedGovernor, setpoint_of
 from aeroperception.services.planner.trajectory.generators import path_for
 
 LINE = np.array([[0, 0, 3], [10, 0, 3]], float)
@@ -118,3 +118,71 @@ def test_the_acceleration_fed_forward_leads_the_reference_and_pays_for_drag():
     plain = Follower(path, start_s=0.0)                      # no lead, no drag: the reference's own
     plain.step(LINE[0], 0.0)
     assert np.allclose(plain.step(LINE[0], 0.5).setpoint.acceleration_mps2.to_array(), path.sample(0.5).acceleration_mps2)
+
+
+def test_the_speed_governor_holds_the_clock_so_the_fcs_catch_up_stays_within_the_limit():
+    """PX4 commands feed-forward + gain x (setpoint - vehicle): a vehicle 0.5 m behind at cruise
+    would be flown at 2 + 0.95 x 0.5 = 2.48 m/s. The governor lets the reference run only as far
+    as keeps that within the limit + 5 %, never backwards, and does nothing when off."""
+    path = smooth(np.array([[0, 0, 3], [40, 0, 3]], float), Limits(xy_vel_max_mps=2.0), 0.5)
+    gov = SpeedGovernor(gain_per_s=0.95, xy_speed_mps=2.0)
+    cruise_s = path.duration_s / 2
+    ref = path.sample(cruise_s)
+    assert gov.command_xy_mps(ref, ref.position_m - [0.5, 0, 0]) == pytest.approx(2.0 + 0.95 * 0.5)
+    f = Follower(path, start_s=0.0, governor=gov)
+    f.t_s, f.last_s = cruise_s, 0.0
+    behind = ref.position_m - [0.5, 0, 0]
+    step = f.step(behind, 0.02)
+    assert f.t_s == pytest.approx(cruise_s)                                # stands: already over the cap
+    closer = ref.position_m - [0.05, 0, 0]          # 0.05 m behind; 0.1 s at full rate would lead by 0.25 m
+    step = f.step(closer, 0.12)
+    assert f.t_s - cruise_s == pytest.approx((2.1 - 2.0) / 0.95 / 2.0 - 0.05 / 2.0, abs=1e-3)  # leads by 0.105 m
+    assert gov.command_xy_mps(step.reference, closer) == pytest.approx(2.1, abs=1e-3)
+    off = Follower(path, start_s=0.0)                                       # gain 0: the clock runs on
+    off.t_s, off.last_s = cruise_s, 0.0
+    off.step(behind, 0.02)
+    assert off.t_s == pytest.approx(cruise_s + 0.02)
+    # a reference faster than the limit (a typed trajectory up to 10 % over) is not stalled by it
+    fast = SpeedGovernor(gain_per_s=0.95, xy_speed_mps=1.8)
+    assert fast.latest_s(path, cruise_s, cruise_s + 0.02, path.sample(cruise_s + 0.02).position_m) == cruise_s + 0.02
+
+
+def test_the_governor_keeps_a_lagging_vehicle_within_the_limit_over_a_whole_path():
+    """A vehicle that realises its commanded velocity 0.3 s late (PX4-like) flown through an
+    L-shaped path with the FC's law ff + gain x error: the commanded speed stays within the
+    limit + 5 % with the governor and exceeds it without."""
+    pts = np.array([[0, 0, 3], [12, 0, 3], [12, 8, 3]], float)
+    path = smooth(pts, Limits(xy_vel_max_mps=2.0), 0.5)
+
+    def fly(gov: SpeedGovernor) -> tuple[float, bool]:
+        f = Follower(path, start_s=0.0, governor=gov)
+        p, v, peak, dt = pts[0].copy(), np.zeros(3), 0.0, 0.02
+        for k in range(3000):
+            step = f.step(p, k * dt)
+            cmd = step.setpoint.velocity_mps.to_array() + 0.95 * (step.reference.position_m - p)
+            cmd[2] = 0.0
+            peak = max(peak, float(np.hypot(*cmd[:2])))
+            v += (cmd - v) * dt / 0.3
+            p = p + v * dt
+            if step.finished:
+                return peak, True
+        return peak, False
+
+    governed, done = fly(SpeedGovernor(0.95, 2.0))
+    ungoverned, _ = fly(SpeedGovernor())
+    assert done and governed <= 2.1 + 1e-6 < ungoverned
+
+
+def test_a_reference_that_waits_streams_no_velocity():
+    """A reference stopped by the lag rule feeds no velocity forward: with it, PX4 flew on past the
+    stopped reference and sat 2.8 m ahead, its position loop balancing the feed-forward (figure8)."""
+    path = smooth(LINE, Limits(), 0.5)
+    f = Follower(path, start_s=0.0, feedforward=FeedForward(lead_s=0.2, drag_per_s=1.0))
+    f.t_s, f.last_s = path.duration_s / 2, 0.0
+    ref = path.sample(f.t_s)
+    ahead = f.step(ref.position_m + [2.0, 0, 0], 0.02)                 # 2 m past it: beyond lag_m
+    assert f.rate == 0.0 and np.allclose(ahead.setpoint.velocity_mps.to_array(), 0.0)
+    assert np.allclose(ahead.setpoint.acceleration_mps2.to_array(), 0.0)
+    half = f.step(ref.position_m + [1.125, 0, 0], 0.04)                 # between lag_m / 2 and lag_m: half rate
+    assert f.rate == pytest.approx(0.5) and np.allclose(half.setpoint.velocity_mps.to_array(),
+                                                         0.5 * path.sample(f.t_s).velocity_mps)

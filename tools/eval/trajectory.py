@@ -5,7 +5,7 @@ Figures (from the first waypoint reached to the last): flight time; cross-track 
 controller's height estimate may sit tenths of a metre off the truth: PX4 SIH's EKF2 0.2-0.8 m); peak speed, horizontal and vertical
 acceleration and jerk (differences of the truth velocity over DIFF_WINDOW_S, so sensor-rate noise
 does not pass for jerk); overshoot at each corner (how far outside the turn the vehicle went within
-CORNER_RADIUS_M of it); and, when the planner flew a trajectory, its tracking error against its
+CORNER_RADIUS_M of it, horizontally: a height estimate's offset is no swing); and, when the planner flew a trajectory, its tracking error against its
 own reference (planner/status position_error_m).
 """
 from __future__ import annotations
@@ -91,7 +91,7 @@ class TrajectoryEval:
             side_in = np.cross(np.broadcast_to(c - a, pos.shape), pos - a)[:, 2]
             side_out = np.cross(np.broadcast_to(b - c, pos.shape), pos - c)[:, 2]
             outside = near & ((turn * side_in < 0) | (turn * side_out < 0))
-            overshoot.append(float(cross[outside].max()) if outside.any() else 0.0)
+            overshoot.append(float(cross_xy[outside].max()) if outside.any() else 0.0)
         ref = np.array(self.reference_errors)
         return {
             "time_s": round(t1 - t0, 2),
