@@ -41,3 +41,12 @@ def test_rates_are_the_producers_contracts_and_idle_is_from_proc_stat_deltas():
     assert rated["sensors/camera/left/image"] == 20.0 and rated["perception/costmap"] == 10.0
     assert rated["state/vehicle"] == 50.0 and rated["fmu/in/trajectory_setpoint"] == 50.0
     assert idle_pct((100.0, 1000.0), (130.0, 1100.0)) == 30.0
+
+
+def test_the_bench_s_own_cpu_is_given_back_to_idle_and_not_counted_as_other_programs():
+    r = report(idle=20.0)
+    r.bench_pct = 10.0                       # this bench's tap, counters and sampler: 10 % of one core
+    assert r.stack_idle_pct() == 25.0        # 20 % idle + 10 % of one core over 2 cores
+    assert r.problems() == []
+    assert r.others_pct() == 70.0            # 160 % busy - the stack's 80 % - the bench's 10 %: other programs
+    assert "machine idle 20.0 % (25.0 % without this bench's own 10 % of a core), other programs 70 %" in r.format()
