@@ -38,6 +38,7 @@ from aerotest import (
 from aeroperception.schemas import (
     MissionStatus, Odometry, PerceptionHealth, VehicleState, VehicleStatus, VioHealth, decode, schema_id,
 )
+from aeroperception.services.detector.contract import PARAMS as DETECTOR_PARAMS
 from aeroperception.services.recorder.contract import ESSENTIALS
 from aeroperception.tools.contracts import declared_schemas, load_contracts
 
@@ -173,19 +174,22 @@ def test_recording_has_every_essentials_key_at_a_plausible_rate(recording):
         got, periodic = rate_hz(data[key]), periodic_rate_hz(key, data[key])
         assert 0.7 * hz <= got and periodic <= 1.3 * hz, \
             f"{key}: {got:.2f} Hz recorded, {periodic:.2f} Hz without changes, contract {hz} Hz; all: {report}"
-    # 20 Hz rated; ~3-4 Hz with the whole stack on 2 cores, ~1 Hz when other work loads them.
+    # 20 Hz rated (held on a quiet 2-core machine); ~1 Hz when other work loads the cores.
     assert camera_hz > 0.5, report
-    # One visual odometry and one detection per camera frame, stamped with it: checked by stamps,
-    # not by rates over each key's own first-to-last span (with ~20 frames in the take-off, one
-    # frame more or less at either end moved a rate by 10 %: detections 2.6 Hz vs camera 2.3 Hz).
+    # One visual odometry per camera frame and one detection per frame up to the detector's rate,
+    # stamped with it: checked by stamps, not by rates over each key's own first-to-last span (with
+    # ~20 frames in the take-off, one frame more or less at either end moved a rate by 10 %).
+    detector_hz = next(p.default for p in DETECTOR_PARAMS if p.name == "inference_frequency_hz")
     frames = stamps(data["sensors/camera/left/image"], schemas.Image)
+    share = {"state/visual_odometry": 1.0, "perception/detections": min(1.0, detector_hz / camera_hz)}
     for key, cls in (("state/visual_odometry", Odometry), ("perception/detections", schemas.Detection2DArray)):
         got = stamps(data[key], cls)
         assert len(set(got)) == len(got), f"{key}: {len(got) - len(set(got))} frames answered twice"
         unknown = set(got) - set(frames)      # frames the recorder itself dropped (DROP QoS under load)
         assert len(unknown) <= 0.25 * len(got), f"{key}: {len(unknown)} of {len(got)} stamps are no recorded frame"
         during = [f for f in frames if min(got) <= f <= max(got)]    # vio starts after the recorder
-        assert len(got) >= 0.6 * len(during), f"{key}: {len(got)} for {len(during)} camera frames"
+        assert len(got) >= 0.6 * share[key] * len(during), \
+            f"{key}: {len(got)} for {len(during)} camera frames at {camera_hz:.1f} Hz"
     # One costmap and one obstacle cloud per LiDAR scan (10 Hz rated).
     costmap, obstacles = rate_hz(data["perception/costmap"]), rate_hz(data["perception/obstacles"])
     assert 0.5 <= costmap <= 10.5 and abs(costmap - obstacles) < 0.05 * costmap, (costmap, obstacles)
