@@ -29,12 +29,18 @@ class Follower:
     The FC's local origin is not on the ground (EKF2 takes its height origin from GPS/baro: the
     SIH vehicle on its pad was 0.34 m above it): the first sample of the vehicle disarmed on the
     ground fixes the height shift that puts it on the scenario's ground, kept from then on (a
-    follower started in the air renders unshifted until the vehicle lands, and says so)."""
+    follower started in the air renders unshifted until the vehicle lands, and says so).
 
-    def __init__(self, ground_height_m: Callable[[float, float], float]):
+    A gap of more than `outage_s` between samples is an outage (the FC or fmu restarted): counted,
+    with the newest one's length and stamp, so a gap shorter than a diagnostics period is still
+    reported after the truth came back."""
+
+    def __init__(self, ground_height_m: Callable[[float, float], float], outage_s: float = 1.0):
         self.ground_height_m = ground_height_m
+        self.outage_ns = int(outage_s * 1e9)
         self.z_shift_m: float | None = None
-        self.samples = self.rejected = self.out_of_order = 0
+        self.samples = self.rejected = self.out_of_order = self.outages = 0
+        self.last_outage: tuple[float, int] | None = None     # (length s, stamp it ended)
         self.last_stamp_ns = 0
         self._prev: tuple[int, np.ndarray] | None = None     # (stamp, velocity) for the acceleration
 
@@ -58,6 +64,9 @@ class Follower:
         if self._prev is not None and 0 < stamp - self._prev[0] < 0.2e9:
             accel = (v - self._prev[1]) / ((stamp - self._prev[0]) * 1e-9)
         self._prev = (stamp, v)
+        if self.last_stamp_ns and stamp - self.last_stamp_ns > self.outage_ns:
+            self.outages += 1
+            self.last_outage = ((stamp - self.last_stamp_ns) / 1e9, stamp)
         self.last_stamp_ns = stamp
         self.samples += 1
         return VehicleTruth(stamp_ns=stamp, position_enu_m=p, velocity_enu_mps=v, accel_enu_mps2=accel,

@@ -45,6 +45,8 @@ def camera_info_msg(info, stamp_ns: int) -> CameraInfo:
 class SimService(Service):
     """Built-in simulator: PX4-like vehicle over MAVLink + scenario sensors + ground truth."""
 
+    OUTAGE_HOLD_S = 5.0         # following: a ground-truth outage stays WARN this long after it ended
+
     NAME = NAME
     PARAMS = PARAMS
 
@@ -244,16 +246,19 @@ class SimService(Service):
         age_s = (self.node.now_ns() - self.truth_stamp_ns) / 1e9 if self.truth_stamp_ns else None
         lag = self.imu_lag.lag_ms()
         values = {"following": "fmu/out/vehicle_ground_truth", "truth_samples": f.samples, "truth_rejected": f.rejected,
-                  "truth_out_of_order": f.out_of_order,
+                  "truth_out_of_order": f.out_of_order, "truth_outages": f.outages,
                   "truth_age_ms": round(age_s * 1e3, 1) if age_s is not None else None,
                   "ground_shift_m": round(f.z_shift_m, 3) if f.z_shift_m is not None else None,
                   "camera_blackout": self.truth_stamp_ns < self.blackout_until_ns}
         if lag is not None:                 # the median of the recent measurements (needs rotation to see)
             values["truth_imu_lag_ms"] = round(lag, 2)
         level, msgs = self._worker_health(values)
-        if age_s is None or age_s > 1.0:
+        if age_s is None or age_s > f.outage_ns / 1e9:
             level = DiagnosticStatus.WARN
             msgs.insert(0, "no ground truth from the FC" if age_s is None else f"ground truth {age_s:.1f} s old")
+        elif f.last_outage and self.node.now_ns() - f.last_outage[1] < self.OUTAGE_HOLD_S * 1e9:
+            level = DiagnosticStatus.WARN       # held a while: a short outage falls between two diagnostics
+            msgs.insert(0, f"no ground truth for {f.last_outage[0]:.1f} s (back; {f.outages} outages)")
         elif f.z_shift_m is None:
             msgs.append("ground not seen yet (the FC never reported landed and disarmed): unshifted")
         return Health(level, f"{self.scenario.name} following the FC" + (f"; {', '.join(msgs)}" if msgs else ""), values)

@@ -74,6 +74,17 @@ def test_samples_not_newer_than_the_last_are_skipped_and_counted(stamp):
     assert (f.rejected, f.out_of_order, f.samples) == (0, 1, 1)
 
 
+def test_a_gap_over_a_second_is_an_outage_counted_with_its_length_and_end():
+    f = Follower(flat)
+    for k in range(10):                                   # 50 Hz: no outage
+        f.truth(gt(int(1e9 + k * 20e6)))
+    assert (f.outages, f.last_outage) == (0, None)
+    f.truth(gt(int(3.48e9)))                              # fmu restarted: 2.3 s without a sample
+    assert f.outages == 1 and f.last_outage == (pytest.approx(2.3), int(3.48e9))
+    f.truth(gt(int(4.4e9)))                               # 0.92 s: late, not an outage
+    assert f.outages == 1
+
+
 # ---------------------------------------------------------------- ImuLag
 
 
