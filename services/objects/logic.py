@@ -33,7 +33,7 @@ def tracker_config(p) -> TrackerConfig:
                          gate_distance_m=p.gate_distance_m, accel_noise_mps2=p.accel_sigma_mps2, forget_s=p.forget_s,
                          birth_sigma_m=p.birth_sigma_m, birth_spacing_m=p.birth_spacing_m,
                          partial_ratio=p.partial_ratio, partial_scale=p.partial_scale,
-                         crowd_scale=p.crowd_scale, coast_tau_s=p.coast_tau_s)
+                         crowd_scale=p.crowd_scale, confirm_scale=p.confirm_scale, coast_tau_s=p.coast_tau_s)
 
 
 def noise(p) -> Noise:

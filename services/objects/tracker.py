@@ -44,6 +44,7 @@ class TrackerConfig:
     partial_ratio: float = 1.25         # a box this much shorter or taller than the track's boxes is a partial view
     partial_scale: float = 0.75         # a box_scale below this is a partial view whatever the track's boxes
     crowd_scale: float = 2.0            # a box_scale above this takes in more than the object (a neighbour)
+    confirm_scale: float = 0.92         # half of a track's whole boxes must reach this box_scale to confirm it
     birth_sigma_m: float = 2.0          # a detection less precise than this (horizontal 1 sigma) never starts a track
     birth_spacing_m: float = 2.5        # nor one this close to a known track of its class
 
@@ -79,6 +80,8 @@ class Track:
     seen_ns: int = 0                    # when a detection last moved it
     scales: list[float] = field(default_factory=list)        # the last whole boxes' box_scale
     partial_run: int = 0                # partial views in a row
+    whole_views: int = 0                # whole boxes (box_scale known) since the track started
+    fitting_views: int = 0              # of which filled confirm_scale of the class's typical size
 
 
 @dataclass
@@ -259,9 +262,25 @@ class Tracker:
         t.last_seen_ns = stamp_ns
         t.best_score = max(t.best_score, o.score)
         t.range_m = o.measurement.range_m
-        if not t.confirmed and t.hits >= self.config.confirm_hits:
+        if not t.confirmed and t.hits >= self.config.confirm_hits and self._fits_class(t):
             t.confirmed = True
             ev.confirmed.append(t)
+
+    def _fits_class(self, t: Track) -> bool:
+        """Whether the track's whole boxes show an object of its class's size: at least half of
+        them (since it started) fill confirm_scale of what its class's typical size fills. The
+        detector boxes a whole object at 1.05-1.45x that (median; each class, every range of the
+        village search); a look-alike of another size that it boxes as the class -- a 1.8 m wall,
+        10 m long, seen obliquely as a 3.4 m truck: 0.71-0.97x -- stays tentative however often it
+        is seen (it still holds its place: no second track starts on it). Boxes cut by the image's
+        edge, partial and crowded views never count (_whole); a track with none yet is not judged.
+        All its boxes, not the last few: a look-alike's run of near-fitting views must not outvote
+        the many before it."""
+        return 2 * t.fitting_views >= t.whole_views
+
+    def _count_whole(self, t: Track, scale: float) -> None:
+        t.whole_views += 1
+        t.fitting_views += scale >= self.config.confirm_scale
 
     def _whole(self, t: Track, o: Observation) -> bool:
         """Whether the box shows the whole object: its box_scale against the median of the track's
@@ -284,6 +303,7 @@ class Tracker:
             scales.clear()
         t.partial_run = 0
         scales.append(o.box_scale)
+        self._count_whole(t, o.box_scale)
         del scales[:-9]
         return True
 
@@ -295,9 +315,11 @@ class Tracker:
                   stamp_ns, stamp_ns, stamp_ns, best_score=o.score, range_m=o.measurement.range_m,
                   seen_ns=stamp_ns, scales=[o.box_scale] if o.box_scale > 0 else [])
         self.next_id += 1
+        if o.box_scale > 0:
+            self._count_whole(t, o.box_scale)
         t.seen_x, t.seen_P = t.x[:3].copy(), t.P[:3, :3].copy()
         self.tracks.append(t)
-        if self.config.confirm_hits <= 1:
+        if self.config.confirm_hits <= 1 and self._fits_class(t):
             t.confirmed = True
             ev.confirmed.append(t)
 
