@@ -67,10 +67,14 @@ PARAMS = [
     # controller must command now, for its lag and the drag it does not model (0 = the reference's own)
     Param("ff_lead_s", 0.0, "s", 0.0, 1.0,
           description="the flight controller's lag from an acceleration setpoint to the vehicle's acceleration: "
-                      "the acceleration is taken this far ahead on the trajectory (PX4's SIH quad: 0.2)"),
+                      "the acceleration is taken this far ahead on the trajectory (PX4's SIH quad: 0.25)"),
     Param("drag_per_s", 0.0, "1/s", 0.0, 5.0,
           description="the vehicle's linear drag, acceleration lost per m/s: drag_per_s x velocity is added to the "
                       "acceleration (PX4's SIH quad: SIH_KDV / SIH_MASS = 1; the built-in sim: SIM_DRAG)"),
+    Param("fc_xy_vel_d", 0.0, "", 0.0, 2.0,
+          description="the flight controller's velocity-loop D gain on the vehicle's measured horizontal acceleration "
+                      "(PX4: MPC_XY_VEL_D_ACC, 0.2): the reference's acceleration x this is added to the feed-forward, "
+                      "so the FC does not subtract it from the turn (0 = off)"),
     Param("fc_xy_gain_per_s", 0.0, "1/s", 0.0, 10.0,
           description="the flight controller's horizontal position gain (PX4: MPC_XY_P, 0.95): a trajectory's clock "
                       "is held back so that feed-forward + this x the position error stays within max_velocity_mps "

@@ -120,6 +120,25 @@ def test_the_acceleration_fed_forward_leads_the_reference_and_pays_for_drag():
     assert np.allclose(plain.step(LINE[0], 0.5).setpoint.acceleration_mps2.to_array(), path.sample(0.5).acceleration_mps2)
 
 
+def test_the_feed_forward_pays_back_the_fcs_d_term_on_its_own_acceleration():
+    """PX4 subtracts MPC_XY_VEL_D_ACC x the vehicle's acceleration from its acceleration setpoint:
+    a vehicle on the reference accelerates as the reference does now (not `lead_s` ahead), so that
+    much of the reference's current horizontal acceleration is added; vertically nothing (PX4's
+    MPC_Z_VEL_D_ACC is 0)."""
+    pts = np.array([[0, 0, 3], [10, 0, 3], [10, 8, 6]], float)
+    path = smooth(pts, Limits(), 0.5)
+    t = 1.0                                                  # accelerating along x
+    now, ahead = path.sample(t), path.sample(t + 0.25)
+    ff = FeedForward(lead_s=0.25, drag_per_s=1.0, xy_vel_d=0.2)
+    want = ahead.acceleration_mps2 + ahead.velocity_mps
+    want[:2] += 0.2 * now.acceleration_mps2[:2]
+    assert abs(now.acceleration_mps2[0]) > 0.5
+    assert np.allclose(ff.acceleration(path, t), want)
+    corner = path.waypoint_times_s[2] - 1.0                 # climbing into the last leg: z untouched
+    got = ff.acceleration(path, corner) - FeedForward(lead_s=0.25, drag_per_s=1.0).acceleration(path, corner)
+    assert np.allclose(got, [*(0.2 * path.sample(corner).acceleration_mps2[:2]), 0.0])
+
+
 def test_the_speed_governor_holds_the_clock_so_the_fcs_catch_up_stays_within_the_limit():
     """PX4 commands feed-forward + gain x (setpoint - vehicle): a vehicle 0.5 m behind at cruise
     would be flown at 2 + 0.95 x 0.5 = 2.48 m/s. The governor lets the reference run only as far

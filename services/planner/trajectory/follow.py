@@ -7,7 +7,7 @@ then costs time, not a reference metres ahead that the controller would cut corn
 
 The acceleration streamed is what the flight controller must command now for the vehicle to
 follow the reference (`FeedForward`), not the reference's own: a flight controller realises an
-acceleration setpoint only after its attitude and thrust have moved (PX4's SIH quad: 0.2 s), and
+acceleration setpoint only after its attitude and thrust have moved (PX4's SIH quad: 0.25 s), and
 its position controller models no drag, so it pays for drag with a velocity error, i.e. by
 trailing the position setpoint (on SIH, drag 1 /s: 0.74 m behind at 1.9 m/s).
 
@@ -32,16 +32,25 @@ class FeedForward:
     """How the acceleration feed-forward leads the reference: `lead_s`, the flight controller's lag
     from an acceleration setpoint to the vehicle's acceleration (the reference is taken that far
     ahead); `drag_per_s`, the vehicle's linear drag (acceleration lost per m/s of velocity),
-    added for the velocity it will then have."""
+    added for the velocity it will then have; `xy_vel_d`, the flight controller's velocity-loop
+    D gain on the vehicle's measured acceleration (PX4: acceleration setpoint = feed-forward +
+    MPC_XY_VEL_P_ACC x velocity error + I - MPC_XY_VEL_D_ACC x the vehicle's acceleration): a
+    vehicle accelerating as the reference does loses that fraction of it, which PX4 then claws
+    back only through a velocity and position error (figure8 at 3 m/s, SIH: 0.23 of 1.8 m/s² in
+    the turns), so the reference's current horizontal acceleration x this gain is added."""
 
     lead_s: float = 0.0
     drag_per_s: float = 0.0
+    xy_vel_d: float = 0.0
 
     def acceleration(self, path: Path, t_s: float, until_s: float | None = None) -> np.ndarray:
         """The acceleration to command at path time `t_s`, looking ahead no further than `until_s`."""
         ahead = min(path.duration_s, t_s + self.lead_s, math.inf if until_s is None else until_s)
         ref = path.sample(max(t_s, ahead))
-        return ref.acceleration_mps2 + self.drag_per_s * ref.velocity_mps
+        acc = ref.acceleration_mps2 + self.drag_per_s * ref.velocity_mps
+        if self.xy_vel_d:
+            acc[:2] += self.xy_vel_d * path.sample(t_s).acceleration_mps2[:2]
+        return acc
 
 
 @dataclass(frozen=True)
