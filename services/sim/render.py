@@ -79,6 +79,7 @@ class _CameraRenderer:
 class _LidarRenderer:
     def __init__(self, node, sensors, scenario):
         self.lidar = sensors.lidar
+        self.lidar.compile()   # as the cameras: the kernel ready before the child says ready
         self.points = node.publisher(LIDAR_KEYS[0], PointCloud, **qos_for(LIDAR_KEYS[0]))
         self.labels = node.publisher(LIDAR_KEYS[1], PointCloud, **qos_for(LIDAR_KEYS[1]))
 

@@ -2,11 +2,12 @@
 
 Renders every sensor of a scenario's rig over N poses along an orbit and prints, per sensor, the
 median / p99 wall time, the median and p99 CPU time (the cost on an idle core: wall time also counts
-time the OS gave to other processes), a camera's CPU as a ratio to casting every pixel (same run),
-the highest rate it could sustain alone and its rated rate. The cameras are rasterised; the
-reference rows cast a ray per pixel with Open3D (`exact=True`), and `x ref` is a camera row's CPU
-over its reference in the same run. The header says what the first render cost (compiling the
-camera kernels, or loading them from numba's cache).
+time the OS gave to other processes), a camera's or the LiDAR's CPU as a ratio to casting every ray
+with Open3D (same run),
+the highest rate it could sustain alone and its rated rate. The cameras are rasterised and the LiDAR's sweep cast per triangle (numba); the
+reference rows cast every ray with Open3D (`exact=True`), and `x ref` is a row's CPU over its
+reference in the same run. The header says what the first render cost (compiling the camera
+kernels, or loading them from numba's cache).
 The last line sums rate x CPU cost over the default rig: the share of one core the sensors need.
 """
 from __future__ import annotations
@@ -26,7 +27,7 @@ class _Row:
     wall_ms: np.ndarray
     cpu_ms: np.ndarray
     in_rig: bool = True
-    ref: "_Row | None" = None    # the same render casting every pixel (cameras)
+    ref: "_Row | None" = None    # the same render casting every ray with Open3D
 
     @property
     def max_hz(self) -> float:
@@ -91,15 +92,17 @@ def run(n_frames: int = 50, scenario: str = "village") -> int:
                          ref=ref_pair))
     else:
         rows[0].in_rig = True
+    ref_lidar = _Row("  (reference: lidar, Open3D every ray)", rig.lidar.rate_hz,
+                     *_time(lambda i: lidar.scan(poses[i], exact=True), n_ref), in_rig=False)
     rows += [
         _Row(f"lidar {rig.lidar.beams}x{rig.lidar.azimuth_steps} ({lidar.num_rays} rays)", rig.lidar.rate_hz,
-             *_time(lambda i: lidar.scan(poses[i]), n_frames)),
+             *_time(lambda i: lidar.scan(poses[i]), n_frames), ref=ref_lidar),
         _Row(f"lidar 150k mode ({dense.num_rays} rays)", rig.lidar.rate_hz,
              *_time(lambda i: dense.scan(poses[i]), n_frames), in_rig=False),
         _Row("imu sample", rig.imu.rate_hz, *_time(lambda i: imu.sample(imu_truths[i]), len(imu_truths))),
         _Row("truth boxes (left camera)", c.rate_hz, *_time(lambda i: project_targets(cam.left, poses[i]), n_frames)),
     ]
-    rows += [r for r in (ref_pair, ref_left) if r is not None]
+    rows += [r for r in (ref_pair, ref_left, ref_lidar) if r is not None]
 
     print(f"sim sensor benchmark: scenario {scenario}, {n_frames} frames, "
           f"textures {1e3 * (t1 - t0):.0f} ms, scene build {1e3 * (t2 - t1):.0f} ms "
@@ -120,7 +123,7 @@ def run(n_frames: int = 50, scenario: str = "village") -> int:
             load += r.rated_hz * cpu / 1000.0
     print(f"default rig at rated rates (stereo + lidar + imu + truth boxes): {100 * load:.0f}% of one core")
     print("cpu = this process's CPU time per frame (what rendering costs the machine, whatever else runs); "
-          f"x ref = a camera's CPU over casting a ray per pixel, same run; load average {os.getloadavg()[0]:.1f} "
+          f"x ref = CPU over casting every ray with Open3D, same run; load average {os.getloadavg()[0]:.1f} "
           f"on {os.cpu_count()} cores")
     return 0
 
