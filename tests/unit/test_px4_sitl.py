@@ -124,6 +124,17 @@ def test_px4_child_boots_sih_with_the_offboard_parameters_and_stops_on_sigint(tm
     assert plan.child(tmp_path, cmd_up.Priority()).argv != c.argv                  # a new one each run
 
 
+def test_sih_boots_with_ekf2s_imu_noise_matched_with_gps_only():
+    """SIH's IMU is noisier than EKF2's defaults (EKF2's velocity then wandered 0.25-0.39 m/s RMS off the
+    truth): matched at boot when flying on GPS; the GPS-denied (vision) set leaves them as measured."""
+    gps = px4_sitl.boot_env({})
+    assert gps["PX4_PARAM_EKF2_ACC_NOISE"] == "1.0" and gps["PX4_PARAM_EKF2_GYR_NOISE"] == "0.06"
+    assert gps["PX4_PARAM_COM_RC_IN_MODE"] == "4"
+    denied = px4_sitl.boot_env({}, gps_denied=True)
+    assert "PX4_PARAM_EKF2_ACC_NOISE" not in denied and denied["PX4_PARAM_EKF2_GPS_CTRL"] == "0"
+    assert px4_sitl.boot_env({"PX4_PARAM_EKF2_ACC_NOISE": "0.35"})["PX4_PARAM_EKF2_ACC_NOISE"] == "0.35"  # a user's wins
+
+
 def test_terminate_asks_with_the_first_signal_then_sigterm_then_sigkill():
     def child(code: str) -> subprocess.Popen:
         p = subprocess.Popen([sys.executable, "-c", "import signal, sys, time\n" + code + "\nprint('ready', flush=True)\n"

@@ -51,6 +51,19 @@ BOOT_PARAMS: dict[str, tuple[str, str]] = {
                             "way (no RC: PX4 turns Position into its RC-loss action, NAV_RCL_ACT Return)"),
 }
 
+# SIH's simulated IMU is far noisier than EKF2's defaults assume: measured in flight, per 4 ms sample,
+# accelerometer 0.34 / 1.16 / 0.95 m/s² and gyro 0.10 / 0.05 / 0.02 rad/s (x / y / z) against EKF2's 0.35
+# and 0.015. EKF2 then trusts its IMU prediction over SIH's GPS velocity (within 0.06 m/s of the truth):
+# its velocity wandered 0.25-0.39 m/s RMS off the truth for seconds at a time (innovations 0.31 m/s RMS),
+# which PX4's velocity loop flies and its position loop trails by velocity error / MPC_XY_P: figure8 at
+# 3 m/s, 0.23-0.48 m cross-track by truth. With the noise matched (within EKF2's ranges): 0.13-0.21 m/s
+# and 0.10-0.26 m. SIH only, with GPS: a real vehicle's EKF2 is tuned to its own IMU, and the GPS-denied
+# set (vision) was measured without it.
+SIH_EKF_PARAMS: dict[str, tuple[str, str]] = {
+    "EKF2_ACC_NOISE": ("1.0", "m/s²; SIH's accelerometer noise (0.34-1.16 per sample; EKF2's maximum)"),
+    "EKF2_GYR_NOISE": ("0.06", "rad/s; SIH's gyro noise (0.02-0.10 per sample)"),
+}
+
 # Where SIH's world is (SIH_LOC_LAT0 / SIH_LOC_LON0 defaults; SIH_LOC_H0 0 in fc_params' SIH set):
 # GPS-denied, fmu gives PX4 this as its local origin (fmu global_origin), so PX4's global position is
 # SIH's own.
@@ -183,10 +196,12 @@ def argv(build: Path, instance: int, workdir: Path | str) -> list[str]:
 
 def boot_env(environ: dict[str, str] | None = None, gps_denied: bool = False) -> dict[str, str]:
     """The airframe and BOOT_PARAMS as environment, plus with `gps_denied` the vision-only navigation
-    set (fc_params.SETS["gps-denied-sih"]: GPS off in SIH, EKF2 on external vision); PX4_PARAM_* the
+    set (fc_params.SETS["gps-denied-sih"]: GPS off in SIH, EKF2 on external vision), else SIH_EKF_PARAMS
+    (EKF2's IMU noise matched to SIH's); PX4_PARAM_* the
     user exported win (their values are what PX4 gets, shown by --dry-run)."""
     environ = os.environ if environ is None else environ
-    wanted = {f"PX4_PARAM_{name}": value for name, (value, _why) in BOOT_PARAMS.items()}
+    wanted = {f"PX4_PARAM_{name}": value
+              for name, (value, _why) in (BOOT_PARAMS | ({} if gps_denied else SIH_EKF_PARAMS)).items()}
     if gps_denied:
         wanted |= fc_params.boot_env(fc_params.SETS["gps-denied-sih"])
     return dict(AIRFRAME_ENV) | {k: environ.get(k, v) for k, v in wanted.items()}
