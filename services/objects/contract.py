@@ -68,7 +68,7 @@ PARAMS = [
     Param("crowd_scale", 2.0, "", 1.0, 10.0,
           description="a box taller than this many times what its class's typical size fills at its range takes in more than the object (a neighbour): it keeps a track alive without moving it and starts none"),
     Param("confirm_scale", 0.92, "", 0.0, 10.0,
-          description="a track is confirmed only when at least half of its whole boxes (since it started) are this tall or taller against what its class's typical size fills from there (box_scale): the detector boxes whole objects at 1.05-1.45x (median), a low wall it takes for a truck at 0.71-0.97x; 0: any size"),
+          description="a track is confirmed only when at least half of its whole boxes (since it started) are this tall or taller against what its class's typical size fills from there (box_scale): the detector boxes whole objects at 1.10-1.31x (each class's median), a low wall it takes for a truck at 0.71-0.96x; 0: any size"),
     Param("coast_tau_s", 0.5, "s", 0.0, 60.0,
           description="an unseen track's velocity decays with this time constant (0: kept); a static object's spurious velocity must not carry it away"),
     Param("gate_distance_m", 3.0, "m", 0.1, 50.0, description="a detection farther than this from a track never joins it"),

@@ -269,9 +269,9 @@ class Tracker:
     def _fits_class(self, t: Track) -> bool:
         """Whether the track's whole boxes show an object of its class's size: at least half of
         them (since it started) fill confirm_scale of what its class's typical size fills. The
-        detector boxes a whole object at 1.05-1.45x that (median; each class, every range of the
+        detector boxes a whole object at 1.10-1.31x that (each class's median, every range of the
         village search); a look-alike of another size that it boxes as the class -- a 1.8 m wall,
-        10 m long, seen obliquely as a 3.4 m truck: 0.71-0.97x -- stays tentative however often it
+        10 m long, seen obliquely as a 3.4 m truck: 0.71-0.96x -- stays tentative however often it
         is seen (it still holds its place: no second track starts on it). Boxes cut by the image's
         edge, partial and crowded views never count (_whole); a track with none yet is not judged.
         All its boxes, not the last few: a look-alike's run of near-fitting views must not outvote

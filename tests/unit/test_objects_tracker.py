@@ -221,7 +221,7 @@ def truck_seen(tr: Tracker, box_scale: float, k: int, cut: bool = False):
 
 
 def test_a_look_alike_smaller_than_its_class_is_held_tentative_however_long_it_is_seen():
-    """A low wall (1.8 m, 10 m long) that the detector boxes as a 3.4 m truck fills 0.71-0.97 of
+    """A low wall (1.8 m, 10 m long) that the detector boxes as a 3.4 m truck fills 0.71-0.96 of
     a truck's box: seen 60 frames -- a late run of near-fitting views among them -- it is never
     confirmed, and it holds its place (no second track starts on it)."""
     tr = Tracker(TrackerConfig(confirm_hits=3, confirm_scale=0.92))
@@ -233,7 +233,7 @@ def test_a_look_alike_smaller_than_its_class_is_held_tentative_however_long_it_i
 
 @pytest.mark.parametrize("scales", [[1.25, 1.2, 1.38], [0.95, 0.88, 1.1], [0.85, 0.8, 1.0, 1.05]])
 def test_an_object_its_classs_size_is_confirmed_once_half_its_boxes_fit(scales):
-    """Boxed at 1.05-1.45x its class's typical size (the detector's margin), a real object is
+    """Boxed at 1.10-1.31x its class's typical size (the detector's margin, median), a real object is
     confirmed at confirm_hits; a few short boxes among the first only wait until half fit."""
     tr = Tracker(TrackerConfig(confirm_hits=3, confirm_scale=0.92))
     confirmed = [k for k, s in enumerate(scales) if truck_seen(tr, s, k).confirmed]
