@@ -69,6 +69,7 @@ class Lidar:
         self._elev_step = float(elev[1] - elev[0]) if config.beams > 1 else 1.0
         self._vertices = scene.vertices.astype(np.float64)   # the float32 geometry the ray caster holds
         self._triangles = scene.triangles.astype(np.int32)
+        self._tri_part, self._part_closed = _convex_parts(scene)
         self.r_body_lidar = rpy_to_rot(*np.radians(config.rpy_deg))
         self.t_body_lidar_m = np.asarray(config.position_body_m, dtype=float)
         self._seed = seed
@@ -121,9 +122,31 @@ class Lidar:
         from .lidar_kernels import cast_sweep   # numba: only a process that renders pays its import
         t, plane = np.empty(self.num_rays), np.empty(self.num_rays, np.int32)
         c = self.config
-        cast_sweep((self._vertices - origin) @ r_ws, self._triangles, sc.tri_plane, self._dx, self._dy, self._dz,
-                   c.beams, c.azimuth_steps, self._elev0, self._elev_step, t, plane, sc.num_planes)
+        cast_sweep((self._vertices - origin) @ r_ws, self._triangles, sc.tri_plane, self._tri_part, self._part_closed,
+                   self._dx, self._dy, self._dz, c.beams, c.azimuth_steps, self._elev0, self._elev_step, t, plane,
+                   sc.num_planes)
         return np.minimum(t, MISS_DEPTH_M).astype(np.float32), plane
+
+
+def _convex_parts(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
+    """(part id per triangle, closed[part]): the scene's parts are its connected triangle sets
+    (a part's vertices are its own); every part but the ground is a closed convex solid with its
+    triangles facing outward (scene.py), so its back faces can be culled from outside."""
+    tris = scene.triangles.astype(np.int64)
+    label = np.arange(len(scene.vertices))
+    while True:   # each vertex takes the smallest label of the triangles it is in, until settled
+        low = label[tris].min(axis=1)
+        new = label.copy()
+        np.minimum.at(new, tris.ravel(), np.repeat(low, 3))
+        if np.array_equal(new, label):
+            break
+        label = new
+    _, tri_part = np.unique(label[tris[:, 0]], return_inverse=True)
+    tri_part = tri_part.ravel().astype(np.int32)
+    ground = np.take(scene.plane_ground, scene.tri_plane[: len(tris)])
+    closed = np.ones(tri_part.max() + 1, bool)
+    closed[tri_part[ground]] = False
+    return tri_part, closed
 
 
 def lidar_vertical_angles_deg(config: LidarConfig) -> np.ndarray:

@@ -9,8 +9,10 @@ its vertices (< 180°); one that does contains the sensor's up or down axis and 
 Elevation is extreme on the triangle's edges or at that axis; along an edge its tangent z / rho has
 one stationary point, found in closed form. Each ray inside those bounds (plus one cell of margin)
 gets the camera rasteriser's exact test: the edge functions E_k(r) = (V_k+1 x V_k+2) . r all have
-the sign of D = det(V0, V1, V2), and the hit is at t = D / (E_0 + E_1 + E_2). No back-face
-culling (a ray cast does none either). Single-threaded on purpose: the stack shares two cores.
+the sign of D = det(V0, V1, V2), and the hit is at t = D / (E_0 + E_1 + E_2). Back faces of a
+closed convex part (triangles facing outward) are skipped while the origin is outside that part:
+a ray reaches them only through one of its front faces. Single-threaded on purpose: the stack
+shares two cores.
 """
 from __future__ import annotations
 
@@ -48,10 +50,19 @@ def _edge_elevations(a, b, lo_hi):
 
 
 @nb.njit(cache=True, nogil=True)
-def cast_sweep(vs, tris, tri_plane, dx, dy, dz, beams, steps, el0, el_step, t_hit, plane, sky):
+def _det(vs, tri):
+    v0, v1, v2 = vs[tri[0]], vs[tri[1]], vs[tri[2]]
+    return (v0[0] * (v1[1] * v2[2] - v1[2] * v2[1]) - v0[1] * (v1[0] * v2[2] - v1[2] * v2[0])
+            + v0[2] * (v1[0] * v2[1] - v1[1] * v2[0]))
+
+
+@nb.njit(cache=True, nogil=True)
+def cast_sweep(vs, tris, tri_plane, tri_part, part_closed, dx, dy, dz, beams, steps, el0, el_step, t_hit, plane,
+               sky):
     """Nearest hit of every ray of the sweep: t_hit (N,) float64 (inf: nothing) and plane (N,)
     int32 (`sky`: nothing). vs: (V, 3) float64 sensor-frame vertices relative to the origin;
-    tris: (T, 3) vertex indices; tri_plane: (T,) plane id per triangle; dx, dy, dz: (N,) unit
+    tris: (T, 3) vertex indices; tri_plane: (T,) plane id per triangle; tri_part: (T,) part id,
+    part_closed[part]: a closed convex part with outward-facing triangles; dx, dy, dz: (N,) unit
     directions, N = beams * steps, row-major (beam, azimuth step); beam b is at elevation
     el0 + b * el_step (rad), step c at azimuth 2 pi c / steps."""
     t_hit[:] = np.inf
@@ -59,12 +70,17 @@ def cast_sweep(vs, tris, tri_plane, dx, dy, dz, beams, steps, el0, el_step, t_hi
     lo_hi = np.empty(2)
     e = np.empty((3, 3))
     az_scale = steps / TWO_PI
+    outside = np.zeros(part_closed.shape[0], np.bool_)   # the origin is in front of one of its faces
+    for t in range(tris.shape[0]):
+        if _det(vs, tris[t]) < 0.0:
+            outside[tri_part[t]] = True
     for t in range(tris.shape[0]):
         v0, v1, v2 = vs[tris[t, 0]], vs[tris[t, 1]], vs[tris[t, 2]]
-        det = (v0[0] * (v1[1] * v2[2] - v1[2] * v2[1]) - v0[1] * (v1[0] * v2[2] - v1[2] * v2[0])
-               + v0[2] * (v1[0] * v2[1] - v1[1] * v2[0]))
+        det = _det(vs, tris[t])
         if det == 0.0:
             continue   # the plane contains the origin: seen edge-on, hit by no ray
+        if det > 0.0 and part_closed[tri_part[t]] and outside[tri_part[t]]:
+            continue   # a back face of a convex part seen from outside: its front face is nearer
         sgn = 1.0 if det > 0.0 else -1.0
         for k in range(3):   # edge functions, scaled so inside is >= 0
             a, b = vs[tris[t, (k + 1) % 3]], vs[tris[t, (k + 2) % 3]]
