@@ -10,7 +10,6 @@ from __future__ import annotations
 import threading
 from collections import deque
 
-import cv2
 import numpy as np
 
 from aeroperception.schemas import (
@@ -41,10 +40,6 @@ class VioService(Service):
 
     def start(self) -> None:
         p = self.params
-        # OpenCV's own thread pool (a worker per core) splits KLT and corner detection but costs more
-        # CPU than it saves on two cores the whole stack shares: one thread, 1.0-1.2 ms less CPU per
-        # frame (7.6 -> 6.5 ms median), the same frame time, identical features and poses.
-        cv2.setNumThreads(1)
         self.strategy = create_strategy(p.strategy, contract.vio_config(p))   # unknown name: fails at start
         self.stereo = getattr(self.strategy, "stereo", True)
         self.infos: dict[str, CameraInfo | None] = {"left": None, "right": None}

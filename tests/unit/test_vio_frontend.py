@@ -47,30 +47,6 @@ def test_front_end_relative_poses_match_the_known_motion(seq):
     assert len(fe.kf_px) >= 60
 
 
-def test_front_end_is_the_same_on_one_opencv_thread(seq):
-    """The service runs OpenCV on one thread (less CPU on two shared cores): the features, tracks
-    and poses must be exactly those of OpenCV's default thread pool."""
-    import cv2
-    calib = CameraCalibration.from_camera_infos(*seq.camera_infos)
-    default = cv2.getNumThreads()
-
-    def run(threads: int) -> list:
-        cv2.setNumThreads(threads)
-        fe, out = FrontEnd(calib, FrontEndConfig()), []
-        for i, t in enumerate(seq.stamps_ns[:30]):
-            res = fe.process(t, seq.left[i], seq.right[i])
-            out.append((res.T_kf_cur, res.cov6, fe.cur_px.copy(), fe.kf_points.copy()))
-        return out
-
-    try:
-        pooled, single = run(max(default, 2)), run(1)
-    finally:
-        cv2.setNumThreads(default)
-    for a, b in zip(pooled, single):
-        for x, y in zip(a, b):
-            assert (x is None and y is None) or np.array_equal(x, y)
-
-
 def test_pnp_covariance_shrinks_with_more_points_and_grows_with_depth():
     rng = np.random.default_rng(0)
     near = np.column_stack([rng.uniform(-2, 2, (50, 2)), rng.uniform(3, 6, 50)])
