@@ -48,6 +48,11 @@ PARAMS = [
     Param("disparity_sigma_px", 0.25, "px", 0.01, 5.0, description="1 sigma of a box's median disparity"),
     Param("height_sigma_m", 0.3, "m", 0.0, 5.0, description="1 sigma of an object's mid-height above the ground"),
     Param("position_sigma_m", 0.1, "m", 0.0, 10.0, description="1 sigma of the vehicle's position"),
+    Param("pose_time_sigma_s", 0.02, "s", 0.0, 0.5,
+          description="1 sigma of when the vehicle's pose (state/vehicle) was true against the image's stamp "
+                      "(estimator lag, interpolation): the turn rate times it widens each placement like pixel noise. "
+                      "Pitching into a leg (3.8 rad/s) the pose's attitude trailed the camera's by ~15 ms (2-3 deg) "
+                      "and a whole frame's ground placements fell 1.5-5 m long at 12-28 m; 0: off"),
     Param("attitude_sigma_rad", 0.01, "rad", 0.0, 0.5, description="1 sigma of the camera's attitude"),
     Param("min_score", 0.1, "", 0.0, 1.0, description="detections below are ignored (ByteTrack's low threshold)"),
     Param("high_score", 0.5, "", 0.0, 1.0, description="only detections at or above start tracks; lower ones extend them"),

@@ -36,9 +36,12 @@ def tracker_config(p) -> TrackerConfig:
                          crowd_scale=p.crowd_scale, confirm_scale=p.confirm_scale, coast_tau_s=p.coast_tau_s)
 
 
-def noise(p) -> Noise:
-    return Noise(pixel_px=p.pixel_sigma_px, disparity_px=p.disparity_sigma_px, height_m=p.height_sigma_m,
-                 position_m=p.position_sigma_m, attitude_rad=p.attitude_sigma_rad)
+def noise(p, turn_px: float = 0.0) -> Noise:
+    """The placement noise; `turn_px` (the pixels the camera turns through in the pose's timing
+    uncertainty) adds to the box centre's: a ray's direction is what an attitude error moves, so
+    the ground path's range takes it amplified at a shallow angle, as it does the pixel noise."""
+    return Noise(pixel_px=float(np.hypot(p.pixel_sigma_px, turn_px)), disparity_px=p.disparity_sigma_px,
+                 height_m=p.height_sigma_m, position_m=p.position_sigma_m, attitude_rad=p.attitude_sigma_rad)
 
 
 class StereoFrames:
@@ -162,7 +165,8 @@ class ObjectsPipeline:
         return [self._event(ObjectEvent.LOST, t, stamp_ns) for t in ev.lost]
 
     def _observations(self, dets: Detection2DArray, pose) -> list[Observation]:
-        p, cam, nz = self.params, self.camera, noise(self.params)
+        p, cam = self.params, self.camera
+        nz = noise(p, cam.fx * pose.rate_radps * p.pose_time_sigma_s)
         pair = self.frames.pair(dets.header.stamp_ns) if p.stereo and cam.baseline_m > 0 else None
         max_disp = int(np.ceil(cam.fx * cam.baseline_m / p.stereo_max_range_m)) if pair else 0
         ground = self.ground_z_m()

@@ -29,6 +29,7 @@ class PoseSample:
     stamp_ns: int
     position_m: np.ndarray          # ENU
     q_enu_flu: np.ndarray           # (w, x, y, z)
+    rate_radps: float = 0.0         # how fast the vehicle turns (its angular velocity's norm)
 
 
 class PoseHistory:
@@ -40,7 +41,8 @@ class PoseHistory:
         self.samples: list[PoseSample] = []
 
     def add(self, state: VehicleState) -> None:
-        s = PoseSample(state.header.stamp_ns, state.position_m.to_array(), state.orientation.to_array())
+        s = PoseSample(state.header.stamp_ns, state.position_m.to_array(), state.orientation.to_array(),
+                       float(np.linalg.norm(state.angular_velocity_radps.to_array())))
         if self.samples and s.stamp_ns <= self.samples[-1].stamp_ns:
             if s.stamp_ns < self.samples[-1].stamp_ns - self.horizon_ns:
                 self.samples.clear()            # the clock went back (sim restart): start over
@@ -52,8 +54,9 @@ class PoseHistory:
             self.samples.pop(0)
 
     def at(self, stamp_ns: int, tolerance_s: float) -> PoseSample | None:
-        """The pose at `stamp_ns`, interpolated between the two samples around it; None when the
-        stamp lies outside the history by more than `tolerance_s` or in a gap wider than twice it."""
+        """The pose at `stamp_ns`, interpolated between the two samples around it (the faster of
+        their turn rates); None when the stamp lies outside the history by more than `tolerance_s`
+        or in a gap wider than twice it."""
         s, tol = self.samples, int(tolerance_s * 1e9)
         if not s:
             return None
@@ -68,7 +71,7 @@ class PoseHistory:
         f = (stamp_ns - a.stamp_ns) / (b.stamp_ns - a.stamp_ns)
         qb = b.q_enu_flu if np.dot(a.q_enu_flu, b.q_enu_flu) >= 0 else -b.q_enu_flu
         return PoseSample(stamp_ns, a.position_m + f * (b.position_m - a.position_m),
-                          quat_normalize(a.q_enu_flu + f * (qb - a.q_enu_flu)))
+                          quat_normalize(a.q_enu_flu + f * (qb - a.q_enu_flu)), max(a.rate_radps, b.rate_radps))
 
 
 @dataclass(frozen=True)
