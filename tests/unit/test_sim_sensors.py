@@ -438,6 +438,31 @@ def test_lidar_sweep_matches_the_ray_cast_reference(name, xyz, rpy_deg):
     _assert_lidar_matches_ray_cast(lidar, (np.array(xyz), quat_from_rotmat(rpy_to_rot(*np.radians(rpy_deg)))))
 
 
+@pytest.mark.parametrize("noise_m", [0.02, 0.0])
+def test_lidar_returns_kernel_is_the_vectorised_computation(noise_m):
+    """Range noise, range gate, points and labels (numba, one pass) bit for bit as numpy computes them."""
+    from aeroperception.services.sim.sensors.frames import pose_of
+    scn = load_scenario("village")
+    lidar = Lidar(get_scene(scn), replace(scn.sensors.lidar, range_noise_std_m=noise_m), seed=2)
+    truth, c = hover_truth([14.0, 3.0, 2.0], yaw_rad=0.8), lidar.config
+    pos, r_wb = pose_of(truth)
+    r_ws, origin = r_wb @ lidar.r_body_lidar, pos + r_wb @ lidar.t_body_lidar_m
+    t, plane = lidar._cast(origin, r_ws, False)
+    rng = np.random.default_rng([2, 0x11DA2])    # the noise stream Lidar(seed=2) draws from
+    r_all = t + rng.standard_normal(t.size, dtype=np.float32) * np.float32(noise_m) if noise_m else t
+    idx = np.flatnonzero((r_all >= c.min_range_m) & (r_all <= c.max_range_m))
+    d = np.stack([lidar._dx, lidar._dy, lidar._dz])[:, idx]
+    up = r_ws[2].astype(np.float32)
+    hit_z = np.float32(origin[2]) + t[idx] * (up[0] * d[0] + up[1] * d[1] + up[2] * d[2])
+    labels = np.where(lidar.scene.plane_ground[plane[idx]], LABEL_GROUND,
+                      np.where(hit_z > pos[2] + c.overhead_margin_m, LABEL_OVERHEAD, LABEL_OBSTACLE))
+    scan = lidar.scan(truth)
+    assert scan.points_m.dtype == np.float32 and scan.labels.dtype == np.uint8
+    np.testing.assert_array_equal(scan.points_m, (d * r_all[idx]).T)
+    np.testing.assert_array_equal(scan.labels, labels)
+    assert {LABEL_GROUND, LABEL_OBSTACLE, LABEL_OVERHEAD} <= set(np.unique(scan.labels))
+
+
 def test_lidar_sweep_odd_grids_match_the_reference():
     """One beam, a dense grid and a mount rolled on its side: the kernel's bounds hold for each."""
     scn = load_scenario("village")

@@ -1,4 +1,5 @@
-"""The LiDAR's ray cast, compiled with numba: per triangle, only the rays of the sweep that can hit it.
+"""The LiDAR's ray cast and returns, compiled with numba: per triangle, only the rays of the sweep
+that can hit it; then, in one pass, the rays in range as points and labels.
 
 The sweep is a grid of rays (beam elevation x azimuth step, lidar.py) from one origin. The rays
 that pass through a triangle V0 V1 V2 (sensor-frame vertices relative to the origin) are those
@@ -20,6 +21,8 @@ import math
 
 import numba as nb
 import numpy as np
+
+from .lidar import LABEL_GROUND, LABEL_OBSTACLE, LABEL_OVERHEAD
 
 TWO_PI = 2.0 * math.pi
 
@@ -137,3 +140,28 @@ def cast_sweep(vs, tris, tri_plane, tri_part, part_closed, dx, dy, dz, beams, st
                 if th < t_hit[i]:
                     t_hit[i] = th
                     plane[i] = pid
+
+
+@nb.njit(cache=True, nogil=True)
+def sweep_returns(t, plane, noise, std, min_r, max_r, dx, dy, dz, up, z0, z_overhead, plane_ground,
+                  points, labels):
+    """The sweep's returns: rays whose range t (+ noise * std when `noise` is not empty) lies in
+    [min_r, max_r], in ray order: points (N, 3) float32 in the sensor frame and labels (ground,
+    obstacle, or overhead when the hit's world z = z0 + t (up . d) is above z_overhead). Float32
+    arithmetic in numpy's order, so the result is the vectorised one's bit for bit. Returns N."""
+    n = 0
+    noisy = noise.size > 0
+    for i in range(t.size):
+        r = t[i] + noise[i] * std if noisy else t[i]
+        if r < min_r or r > max_r:
+            continue
+        points[n, 0] = dx[i] * r
+        points[n, 1] = dy[i] * r
+        points[n, 2] = dz[i] * r
+        if plane_ground[plane[i]]:
+            labels[n] = LABEL_GROUND
+        else:
+            hit_z = z0 + t[i] * (up[0] * dx[i] + up[1] * dy[i] + up[2] * dz[i])
+            labels[n] = LABEL_OVERHEAD if hit_z > z_overhead else LABEL_OBSTACLE
+        n += 1
+    return n
