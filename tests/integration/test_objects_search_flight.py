@@ -3,21 +3,24 @@ with the camera, `aero mission fly examples/missions/village_search.json` and
 `aero eval objects --live --until-landed` over that flight; every person, car, truck and bicycle
 target is found exactly once, no false track lives > 2 s, position error at 5-30 m has median
 < 0.5 m and p95 < 1.5 m, and the service's CPU per detection frame stays < 5 ms (p99).
+The service's inputs are recorded (`aero record`, the stereo pair included) into the test's tmp dir:
+a failure seen only live prints the `aero eval objects --replay` command that plays it again.
 test_objects_stack.py holds a short pass on the default run to the same per-object rules.
 """
 from __future__ import annotations
 
 import json
+import subprocess
 import time
 from pathlib import Path
 
 import pytest
 
-from aerotest import free_udp_port, wait_for_message
+from aerotest import aero_argv, clean_env, free_udp_port, interrupt, wait_for_message, wait_until
 from test_detector_eval_live import _finish, _popen
 
 from aeroperception.schemas import Detection2DArray
-from aeroperception.tools.eval.objects import unmet_goals
+from aeroperception.tools.eval.objects import REPLAY_INPUTS, unmet_goals
 
 pytestmark = [pytest.mark.slow, pytest.mark.extended, pytest.mark.timeout(2400)]
 
@@ -48,6 +51,28 @@ def _fly_resuming(st, timeout_s: float) -> tuple[int, str, int]:
     return fly.returncode, out, resumes
 
 
+def _record(st, base: Path) -> subprocess.Popen:
+    """`aero record` of what `aero eval objects --replay` needs (its inputs; the images by --images)
+    and what it scores against, on the stack's sim time; returns once it is subscribed."""
+    log = base / "record.log"
+    keys = [k for k in REPLAY_INPUTS if not k.endswith("/image")] + ["perception/objects", "sim/truth/state"]
+    with open(log, "wb") as out:
+        rec = subprocess.Popen(aero_argv() + ["record", "--preset", "none", "--images", "--sim-time", "-o",
+                                              str(base / "rec"), *keys], env=clean_env(st.endpoint),
+                               stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
+    wait_until(lambda: "recording " in log.read_text() or rec.poll() is not None, 30, "aero record subscribed")
+    assert rec.poll() is None, log.read_text()
+    return rec
+
+
+def _replay_hint(base: Path, rec_code: int | None) -> str:
+    files = sorted((base / "rec").glob("*.mcap"))
+    if rec_code != 0 or not files:
+        return f"no replayable recording (aero record exit {rec_code}): {(base / 'record.log').read_text()[-2000:]}"
+    return "inputs recorded; replay with: " + " && ".join(
+        f"aero eval objects --replay {f} --scenario village" for f in files)
+
+
 def test_search_flight_finds_every_target_once_where_it_is(stack, tmp_path):
     fcu, sim_bind = free_udp_port(), free_udp_port()
     st = stack(SERVICES, extra_args=[
@@ -55,6 +80,7 @@ def test_search_flight_finds_every_target_once_where_it_is(stack, tmp_path):
         "--arg", f"sim:--target=127.0.0.1:{fcu}", "--arg", f"sim:--bind=127.0.0.1:{sim_bind}"], timeout_s=60)
     st.wait_flight_ready(90)
     wait_for_message(st.session, "perception/detections", Detection2DArray, timeout_s=60)
+    rec = _record(st, tmp_path)
     out = tmp_path / "objects.json"
     ev = _popen(st, "eval", "objects", "--live", "--scenario", "village", "--until-landed", "--duration", "2000",
                "--json", str(out))
@@ -66,9 +92,10 @@ def test_search_flight_finds_every_target_once_where_it_is(stack, tmp_path):
     finally:
         if ev.poll() is None:
             ev.kill()
-    print(f"{fly_out}\nresumed {resumes} holds\n{log}")
-    assert ev.returncode == 0, log
+        hint = _replay_hint(tmp_path, interrupt(rec, 60))
+    print(f"{fly_out}\nresumed {resumes} holds\n{log}\n{hint}")
+    assert ev.returncode == 0, f"{log}\n{hint}"
     res = json.loads(out.read_text())
     assert {c: res["classes"][c]["targets"] for c in ("person", "car", "truck", "bicycle")} == \
         {"person": 6, "car": 3, "truck": 1, "bicycle": 2}
-    assert unmet_goals(res) == [], log
+    assert unmet_goals(res) == [], f"{log}\n{hint}"
