@@ -88,26 +88,34 @@ class Lidar:
     def scan(self, truth_or_pose, stamp_ns: int | None = None, exact: bool = False) -> LidarScan:
         """One sweep at the pose of `truth_or_pose` (a VehicleTruth or (position, q_enu_flu));
         `exact`: cast with Open3D (the reference) instead of the numba kernel."""
-        sc, c = self.scene, self.config
+        c = self.config
         pos, r_wb = pose_of(truth_or_pose)
         r_ws = r_wb @ self.r_body_lidar
         origin = pos + r_wb @ self.t_body_lidar_m
         t, plane = self._cast(origin, r_ws, exact)   # unit directions: t is the true range in m
-        from .lidar_kernels import sweep_returns
-        std = np.float32(c.range_noise_std_m)
-        noise = self._rng.standard_normal(t.size, dtype=np.float32) if std > 0 else np.empty(0, np.float32)
-        points, labels = np.empty((t.size, 3), np.float32), np.empty(t.size, np.uint8)
-        n = sweep_returns(t, plane, noise, std, np.float32(c.min_range_m), np.float32(c.max_range_m), self._dx,
-                          self._dy, self._dz, r_ws[2].astype(np.float32), np.float32(origin[2]),
-                          float(pos[2] + c.overhead_margin_m), sc.plane_ground, points, labels)
-        points, labels = points[:n].copy(), labels[:n].copy()
+        noisy = c.range_noise_std_m > 0
+        noise = self._rng.standard_normal(t.size, dtype=np.float32) if noisy else np.empty(0, np.float32)
+        points, labels = self._returns(t, plane, noise, origin, r_ws, pos[2])
         stamp = stamp_ns if stamp_ns is not None else int(getattr(truth_or_pose, "stamp_ns", 0))
         return LidarScan(stamp, points, labels, self.frame_id)
 
     def compile(self) -> None:
-        """Compile the kernel (or load it from numba's cache) now, not on the first scan someone
+        """Compile the kernels (or load them from numba's cache) now, not on the first scan someone
         waits for; the noise stream is left untouched."""
-        self._cast(np.zeros(3), np.eye(3), exact=False)
+        t, plane = self._cast(np.zeros(3), np.eye(3), exact=False)
+        self._returns(t, plane, np.zeros(t.size, np.float32), np.zeros(3), np.eye(3), 0.0)
+
+    def _returns(self, t: np.ndarray, plane: np.ndarray, noise: np.ndarray, origin: np.ndarray, r_ws: np.ndarray,
+                 vehicle_z_m: float) -> tuple[np.ndarray, np.ndarray]:
+        """(points (N, 3) float32 sensor frame, labels (N,) uint8) of the rays in range."""
+        from .lidar_kernels import sweep_returns
+        c = self.config
+        points, labels = np.empty((t.size, 3), np.float32), np.empty(t.size, np.uint8)
+        n = sweep_returns(t, plane, noise, np.float32(c.range_noise_std_m), np.float32(c.min_range_m),
+                          np.float32(c.max_range_m), self._dx, self._dy, self._dz, r_ws[2].astype(np.float32),
+                          np.float32(origin[2]), float(vehicle_z_m + c.overhead_margin_m), self.scene.plane_ground,
+                          points, labels)
+        return points[:n].copy(), labels[:n].copy()
 
     def _cast(self, origin: np.ndarray, r_ws: np.ndarray, exact: bool) -> tuple[np.ndarray, np.ndarray]:
         """(t float32 m, MISS_DEPTH_M where nothing is hit; plane int32, num_planes there) per ray."""
