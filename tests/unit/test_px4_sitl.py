@@ -128,7 +128,7 @@ def test_sih_boots_with_ekf2s_imu_noise_matched_with_gps_only():
     """SIH's IMU is noisier than EKF2's defaults (EKF2's velocity then wandered 0.25-0.39 m/s RMS off the
     truth): matched at boot when flying on GPS; the GPS-denied (vision) set leaves them as measured."""
     gps = px4_sitl.boot_env({})
-    assert gps["PX4_PARAM_EKF2_ACC_NOISE"] == "1.0" and gps["PX4_PARAM_EKF2_GYR_NOISE"] == "0.06"
+    assert gps["PX4_PARAM_EKF2_ACC_NOISE"] == "1.0" and gps["PX4_PARAM_EKF2_GYR_NOISE"] == "0.1"
     assert gps["PX4_PARAM_COM_RC_IN_MODE"] == "4"
     denied = px4_sitl.boot_env({}, gps_denied=True)
     assert "PX4_PARAM_EKF2_ACC_NOISE" not in denied and denied["PX4_PARAM_EKF2_GPS_CTRL"] == "0"

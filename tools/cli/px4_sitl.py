@@ -56,12 +56,12 @@ BOOT_PARAMS: dict[str, tuple[str, str]] = {
 # and 0.015. EKF2 then trusts its IMU prediction over SIH's GPS velocity (within 0.06 m/s of the truth):
 # its velocity wandered 0.25-0.39 m/s RMS off the truth for seconds at a time (innovations 0.31 m/s RMS),
 # which PX4's velocity loop flies and its position loop trails by velocity error / MPC_XY_P: figure8 at
-# 3 m/s, 0.23-0.48 m cross-track by truth. With the noise matched (within EKF2's ranges): 0.13-0.21 m/s
-# and 0.10-0.26 m. SIH only, with GPS: a real vehicle's EKF2 is tuned to its own IMU, and the GPS-denied
-# set (vision) was measured without it.
+# 3 m/s, 0.23-0.48 m cross-track by truth. With the noise matched (at EKF2's maxima): 0.12-0.14 m/s and
+# 0.10-0.17 m (gyro 0.06: 0.13-0.21 m/s, 0.10-0.26 m). SIH only, with GPS: a real vehicle's EKF2 is tuned
+# to its own IMU, and the GPS-denied set (vision) was measured without it.
 SIH_EKF_PARAMS: dict[str, tuple[str, str]] = {
     "EKF2_ACC_NOISE": ("1.0", "m/s²; SIH's accelerometer noise (0.34-1.16 per sample; EKF2's maximum)"),
-    "EKF2_GYR_NOISE": ("0.06", "rad/s; SIH's gyro noise (0.02-0.10 per sample)"),
+    "EKF2_GYR_NOISE": ("0.1", "rad/s; SIH's gyro noise (0.02-0.10 per sample; EKF2's maximum)"),
 }
 
 # Where SIH's world is (SIH_LOC_LAT0 / SIH_LOC_LON0 defaults; SIH_LOC_H0 0 in fc_params' SIH set):
