@@ -363,7 +363,7 @@ class GcsService(Service):
             values[f"command_ack[{k}]"] = n
         values["command_retransmissions"] = self.cmds.retransmissions
         values["ignored"] = sum(self.ignored.values())
-        for k, n in self.ignored.items():
+        for k, n in list(self.ignored.items()):    # the MAVLink thread adds kinds meanwhile
             values[f"ignored[{k}]"] = n
         values["stalls"] = self.clock.stalls
         level, message = DiagnosticStatus.OK, "ground station connected" if self.presence.connected else "no ground station"

@@ -227,8 +227,10 @@ class LidarService(Service):
         values: dict[str, object] = {"scans": self.scans, "dropped": self.worker.dropped, "no_pose": self.no_pose,
                                      "scans_on_ground": self.scans_on_ground,
                                      "ground_found": self.ground_found, **self.last_counts}
-        for k, d in self.timings.items():
-            if d:
+        # The worker thread adds a stage's series when the stage first runs (some only in the air):
+        # iterate a snapshot, taken atomically under the GIL, never the live dict or deques
+        for k, d in list(self.timings.items()):
+            if d := tuple(d):
                 values[f"{k}_ms_p50"] = round(float(np.percentile(d, 50)), 2)
                 values[f"{k}_ms_p99"] = round(float(np.percentile(d, 99)), 2)
         if self.scans == 0:

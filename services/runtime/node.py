@@ -394,8 +394,11 @@ class Node:
         values: dict[str, str] = {}
         for k, v in (health.values or {}).items():
             values[k] = str(v)
-        values["invalid_msgs"] = str(sum(self.bad_input.values()))
-        for k, n in self.bad_input.most_common(5):
+        # Callback threads add keys meanwhile: read snapshots (list() of a dict view is atomic under
+        # the GIL; most_common iterates in Python and could see the dict change size)
+        bad = list(self.bad_input.items())
+        values["invalid_msgs"] = str(sum(n for _, n in bad))
+        for k, n in sorted(bad, key=lambda kn: -kn[1])[:5]:
             values[f"invalid_msgs[{k}]"] = str(n)
         values["callback_errors"] = str(sum(self.callback_errors.values()))
         values["params_rejected"] = str(self.params_rejected)
