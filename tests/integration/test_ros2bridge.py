@@ -38,13 +38,18 @@ LISTED = {"/aero/odom": "nav_msgs/msg/Odometry", "/aero/camera/left/image_raw": 
 
 # The ROS 2 side: only zenoh-ros2-sdk (and its rosbags) -- nothing of ours is imported.
 ROS_NODE = r'''
-import json, os, sys, time
+import json, os, sys, threading, time
 os.environ["ZENOH_CONFIG_OVERRIDE"] = 'mode="client";scouting/multicast/enabled=false'
 from zenoh_ros2_sdk import ROS2Publisher, ROS2Subscriber, get_message_class, get_registry, get_topic_names_and_types
 port, msgdir, expected = int(sys.argv[1]), sys.argv[2], set(json.loads(sys.argv[3]))
 get_registry(msgdir)
+_out_lock = threading.Lock()
 def out(**kw):
-    print(json.dumps(kw), flush=True)
+    # one write per report under a lock: print() writes the text and its newline separately, so a
+    # subscriber callback's report could land between them and spoil both lines
+    with _out_lock:
+        sys.stdout.write(json.dumps(kw) + "\n")
+        sys.stdout.flush()
 deadline = time.monotonic() + 15
 while True:
     topics = dict(get_topic_names_and_types(router_ip="127.0.0.1", router_port=port, timeout=1.0))
@@ -108,6 +113,7 @@ class RosNode:
                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                                      errors="replace")   # a stray byte must not end the reader
         self.lines: list[dict] = []
+        self.other: collections.deque[str] = collections.deque(maxlen=20)   # stdout lines not a report
         self.err: collections.deque[str] = collections.deque(maxlen=200)
         import threading
         threading.Thread(target=self._read, daemon=True).start()
@@ -121,6 +127,7 @@ class RosNode:
             try:
                 d = json.loads(line)
             except ValueError:          # a library's own print: not one of the node's reports
+                self.other.append(line[:300])
                 continue
             if isinstance(d, dict) and "kind" in d:
                 self.lines.append(d)
@@ -222,7 +229,8 @@ def test_ros2_node_sees_decodes_and_commands_through_the_bridge(zenoh_router, ma
         # and, if it never catches up, the node's state and stderr say why
         if not poll_until(lambda: len(ros.of("published")) == writes[0], 20, 0.05):
             raise AssertionError(f"the ROS node published {len(ros.of('published'))} of {writes[0]} goals asked; "
-                                 f"alive {ros.proc.poll() is None}; its stderr: {ros.close()}")
+                                 f"alive {ros.proc.poll() is None}; stdout lines not reports: {list(ros.other)}; "
+                                 f"its stderr: {ros.close()}")
         time.sleep(0.5)
         n_goals = len(goals)
         stack.session.put(goal_key, b"\x00\x01\x00\x00garbage")
