@@ -258,7 +258,11 @@ def dora_node(role: str, kind: str, n: int = 0, out_file: str = "") -> None:
 
 
 def measure_dora(kind: str, n: int, timeout_s: float = 120.0) -> np.ndarray:
-    work = tempfile.mkdtemp(prefix="aero-bench-dora-")
+    with tempfile.TemporaryDirectory(prefix="aero-bench-dora-") as work:   # dora's logs and out/ too
+        return _run_dora(work, kind, n, timeout_s)
+
+
+def _run_dora(work: str, kind: str, n: int, timeout_s: float) -> np.ndarray:
     out_file = os.path.join(work, "ping.json")
     me = "-m aeroperception.tools.bench.pubsub --dora"
     flow = {"nodes": [
