@@ -104,8 +104,25 @@ def test_a_partial_box_keeps_a_track_alive_without_moving_it():
     seen((20.1, 2.0), 1.3, 9)                                   # whole again: it moves
     assert t.x[0] > 20.0
     for k in range(10, 16):                                     # five partial views in a row, then
-        seen((19.2, 2.0), 0.8, k)                               # the object looks different now: learnt anew
+        seen((19.2, 2.0), 1.0, k)                               # the object looks different now: learnt anew
     assert t.x[0] < 19.9 and t.partial_run == 0
+
+
+def test_a_run_of_boxes_smaller_than_its_class_is_never_learnt_as_its_new_look():
+    """The detector boxing only a truck's cab, near and end-on, for many frames in a row: boxes
+    shorter than its class's whole size (confirm_scale) placed 2.3 m short keep the track alive
+    but never move it, however long the run; a whole view afterwards still does."""
+    tr = Tracker(TrackerConfig(confirm_hits=2, lost_timeout_s=1.0, partial_ratio=1.25, confirm_scale=0.92))
+    seen = functools.partial(sighted, tr)
+    for k in range(6):
+        seen((72.0, 5.0), 1.3, k)
+    t = tr.tracks[0]
+    for k in range(6, 46):                                      # 4 s of cab-only boxes
+        assert seen((69.7, 5.0), 0.8, k).lost == []
+    assert t.last_seen_ns == 45 * 100 * MS and t.partial_run >= 39 and len(tr.tracks) == 1
+    assert t.x[0] == pytest.approx(72.0, abs=0.05)
+    seen((72.2, 5.0), 1.2, 46)
+    assert t.x[0] > 72.0 and t.partial_run == 0
 
 
 def test_ground_objects_do_not_climb_and_an_unseen_tracks_velocity_decays():
