@@ -74,6 +74,10 @@ PARAMS = [
           description="a box taller than this many times what its class's typical size fills at its range takes in more than the object (a neighbour): it keeps a track alive without moving it and starts none"),
     Param("confirm_scale", 0.92, "", 0.0, 10.0,
           description="a track is confirmed only when at least half of its whole boxes (since it started) are this tall or taller against what its class's typical size fills from there (box_scale): the detector boxes whole objects at 1.10-1.31x (each class's median), a low wall it takes for a truck at 0.71-0.96x; 0: any size"),
+    Param("partial_sigma_scale", 1.0, "", 0.0, 10.0,
+          description="a box shorter than the track's whole boxes (a fraction r of their median box_scale) may show part of the object: "
+                      "its placement moves the track with 1 sigma this times (1 - r) times its class's typical length added horizontally "
+                      "(the village's truck nearing end-on, boxed by its cab more and more: 1.0-1.3 m short at 0.85-0.9x, 2.2 m at 0.8x); 0: off"),
     Param("coast_tau_s", 0.5, "s", 0.0, 60.0,
           description="an unseen track's velocity decays with this time constant (0: kept); a static object's spurious velocity must not carry it away"),
     Param("gate_distance_m", 3.0, "m", 0.1, 50.0, description="a detection farther than this from a track never joins it"),

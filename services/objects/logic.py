@@ -33,7 +33,8 @@ def tracker_config(p) -> TrackerConfig:
                          gate_distance_m=p.gate_distance_m, accel_noise_mps2=p.accel_sigma_mps2, forget_s=p.forget_s,
                          birth_sigma_m=p.birth_sigma_m, birth_spacing_m=p.birth_spacing_m,
                          partial_ratio=p.partial_ratio, partial_scale=p.partial_scale,
-                         crowd_scale=p.crowd_scale, confirm_scale=p.confirm_scale, coast_tau_s=p.coast_tau_s)
+                         crowd_scale=p.crowd_scale, confirm_scale=p.confirm_scale, coast_tau_s=p.coast_tau_s,
+                         partial_sigma_scale=p.partial_sigma_scale)
 
 
 def noise(p, turn_px: float = 0.0) -> Noise:
@@ -198,7 +199,7 @@ class ObjectsPipeline:
                 continue
             self.placed[m.method] += 1
             scale = box_scale(cam, view[1], m, d.size_y_px, size)
-            out.append(Observation(m, d.class_id, d.class_name, d.score, scale, cut=_cut(d, dets)))
+            out.append(Observation(m, d.class_id, d.class_name, d.score, scale, cut=_cut(d, dets), length_m=max(size[:2])))
         return out
 
     # ------------------------------------------------------------ messages

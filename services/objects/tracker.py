@@ -45,6 +45,7 @@ class TrackerConfig:
     partial_scale: float = 0.75         # a box_scale below this is a partial view whatever the track's boxes
     crowd_scale: float = 2.0            # a box_scale above this takes in more than the object (a neighbour)
     confirm_scale: float = 0.92         # half of a track's whole boxes must reach this box_scale to confirm it
+    partial_sigma_scale: float = 1.0    # a shorter box's placement widened by this x (1 - r) x its class's length
     birth_sigma_m: float = 2.0          # a detection less precise than this (horizontal 1 sigma) never starts a track
     birth_spacing_m: float = 2.5        # nor one this close to a known track of its class
 
@@ -59,6 +60,7 @@ class Observation:
     score: float
     box_scale: float = 0.0              # the box's height over its class's typical one seen from there (0: unknown)
     cut: bool = False                   # the box touches the image's edge: part of the object is outside
+    length_m: float = 0.0               # its class's typical length (the footprint's longer side; 0: unknown)
 
 
 @dataclass
@@ -255,8 +257,9 @@ class Tracker:
         """A detection joins the track: it always keeps it alive; it moves it only when it is
         precise (a far one would drag a track placed from near metres away, frame by frame, onto a
         neighbour) and a whole view (_whole)."""
+        whole_scale = statistics.median(t.scales) if len(t.scales) >= 3 else 0.0
         if not self._imprecise(o, t) and self._whole(t, o):
-            self._correct(t, o.measurement)
+            self._correct(t, self._widened(o, whole_scale))
             t.seen_x, t.seen_P, t.seen_ns = t.x[:3].copy(), t.P[:3, :3].copy(), stamp_ns
         t.hits += 1
         t.last_seen_ns = stamp_ns
@@ -265,6 +268,19 @@ class Tracker:
         if not t.confirmed and t.hits >= self.config.confirm_hits and self._fits_class(t):
             t.confirmed = True
             ev.confirmed.append(t)
+
+    def _widened(self, o: Observation, whole_scale: float) -> Measurement:
+        """The placement, less certain when its box is shorter than the track's whole boxes (median
+        box_scale `whole_scale`; 0: none yet): a box a fraction r of them may show only part of the
+        object -- the detector boxing a truck's cab as it nears it end-on, the box shrinking frame by
+        frame before partial_ratio calls it partial -- so its centre may lie off the object's by the
+        part it lacks: 1 sigma (1 - r) times the class's length (times partial_sigma_scale),
+        horizontally, either way. A whole view keeps its covariance; so does association (gates)."""
+        m, k = o.measurement, self.config.partial_sigma_scale
+        if k <= 0 or whole_scale <= 0 or not 0 < o.box_scale < whole_scale:
+            return m
+        sigma = k * (1.0 - o.box_scale / whole_scale) * o.length_m
+        return Measurement(m.position_m, m.covariance_m2 + HORIZONTAL * sigma ** 2, m.range_m, m.method)
 
     def _fits_class(self, t: Track) -> bool:
         """Whether the track's whole boxes show an object of its class's size: at least half of

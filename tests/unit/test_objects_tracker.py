@@ -125,6 +125,29 @@ def test_a_run_of_boxes_smaller_than_its_class_is_never_learnt_as_its_new_look()
     assert t.x[0] > 72.0 and t.partial_run == 0
 
 
+def test_a_box_shorter_than_the_tracks_whole_boxes_moves_it_by_less():
+    """A box 0.8 of the track's whole boxes (the detector starting to box a truck's cab alone)
+    may miss a fifth of the truck: its placement moves the track with 1 sigma 0.2 x 8 m = 1.6 m
+    added horizontally; a box as tall as the track's, or with no class length, keeps its own."""
+    def run(length_m: float, scale: float) -> float:
+        tr = Tracker(TrackerConfig(confirm_hits=2, partial_ratio=1.3, partial_sigma_scale=1.0))
+        for k in range(6):
+            sighted(tr, (72.0, 5.0), 1.3, k)
+        o = obs((70.0, 5.0), sigma_m=0.5)
+        o.box_scale, o.length_m = scale, length_m
+        tr.update(600 * MS, [o])
+        return 72.0 - tr.tracks[0].x[0]
+
+    unwidened, shrunk, whole = run(0.0, 1.04), run(8.0, 1.04), run(8.0, 1.3)
+    assert whole == pytest.approx(unwidened) and unwidened > 0.5
+    assert 0.0 < shrunk < 0.3 * unwidened
+    tr = Tracker(TrackerConfig(partial_sigma_scale=1.0))
+    o = obs((70.0, 5.0), sigma_m=0.5)
+    o.box_scale, o.length_m = 1.04, 8.0
+    assert np.allclose(tr._widened(o, 1.3).covariance_m2, np.diag([0.25 + 1.6 ** 2, 0.25 + 1.6 ** 2, 0.25]))
+    assert tr._widened(o, 0.0) is o.measurement and tr._widened(o, 1.0) is o.measurement
+
+
 def test_ground_objects_do_not_climb_and_an_unseen_tracks_velocity_decays():
     """Placements that creep as the vehicle approaches (a range-dependent bias) must not read as a
     climb, and must not carry a static object away while it is unseen."""
