@@ -79,6 +79,11 @@ PARAMS = [
           description="the flight controller's horizontal position gain (PX4: MPC_XY_P, 0.95): a trajectory's clock "
                       "is held back so that feed-forward + this x the position error stays within max_velocity_mps "
                       "(+5 %): PX4 caps its catch-up only at its own MPC_XY_VEL_MAX (0 = off)"),
+    Param("fc_velocity_error_mps", 0.0, "m/s", 0.0, 1.0,
+          description="how far the flight controller's velocity estimate may be off the vehicle's true velocity (it "
+                      "flies its estimate: at the cap, the truth is this much faster): a generated trajectory is "
+                      "timed, and the governor caps, this far below max_velocity_mps and the climb/descent caps "
+                      "(never below half of each); typed trajectories and goal-by-goal flight are not (0 = off)"),
     Param("trajectory_lag_m", 1.5, "m", 0.2, 20.0,
           description="the reference slows while the vehicle is more than half this behind it, stops at this"),
     # swappable parts (plugins.py): switched live only on the ground or hovering

@@ -87,7 +87,8 @@ class PlannerService(Service):
     def _tracker_config(self) -> TrackerConfig:
         p = self.params
         return TrackerConfig(limits_from(p), p.acceptance_radius_m, p.trajectory_lag_m, p.trajectory_generator,
-                             FeedForward(p.ff_lead_s, p.drag_per_s, p.fc_xy_vel_d), p.fc_xy_gain_per_s)
+                             FeedForward(p.ff_lead_s, p.drag_per_s, p.fc_xy_vel_d), p.fc_xy_gain_per_s,
+                             p.fc_velocity_error_mps)
 
     def _on_trajectory(self, msg: Trajectory) -> None:
         if msg == self.trajectory_msg:
@@ -144,7 +145,8 @@ class PlannerService(Service):
                 raise ParamError(f"{name} stays {self.params[name]!r}: {why}")
             self._switch(name, value)
             self._save_parts()
-        if name in ("max_velocity_mps", "acceptance_radius_m", "trajectory_lag_m", "ff_lead_s", "drag_per_s", "fc_xy_vel_d", "fc_xy_gain_per_s") or name.startswith(("acc_", "jerk_", "z_vel_", "yaw_rate_")):
+        if name in ("max_velocity_mps", "acceptance_radius_m", "trajectory_lag_m", "ff_lead_s", "drag_per_s") or \
+                name.startswith(("acc_", "jerk_", "z_vel_", "yaw_rate_", "fc_")):
             self.tracker.cfg = self._tracker_config()   # the next trajectory made uses it
         if name.startswith("avoid_") or name == "costmap_timeout_s":
             self.avoid.cfg = AvoidanceConfig.from_params(self.params)

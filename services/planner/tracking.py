@@ -54,6 +54,7 @@ class TrackerConfig:
     generator: str = "smooth"     # the planner's active generator (a message may name its own)
     feedforward: FeedForward = FeedForward()
     fc_xy_gain_per_s: float = 0.0   # the FC's horizontal position gain (PX4's MPC_XY_P): SpeedGovernor; 0 = off
+    fc_velocity_error_mps: float = 0.0   # generated paths are timed this far below the speed caps; 0 = off
 
 
 class TrajectoryTracker:
@@ -167,13 +168,15 @@ class TrajectoryTracker:
         if self._generated():
             msg = msgspec.structs.replace(self.msg, waypoints=list(self.msg.waypoints[k:]))
         try:
-            path = path_for(msg, position_m, yaw_rad, self.cfg.limits, self.cfg.acceptance_radius_m, self.cfg.generator)
+            path = path_for(msg, position_m, yaw_rad, self.cfg.limits, self.cfg.acceptance_radius_m, self.cfg.generator,
+                            self.cfg.fc_velocity_error_mps)
         except TrajectoryRefused as e:
             self.refused, self.refusal_holds = str(e), not self._generated()
             return False
         if path is None:
             return False
-        governor = SpeedGovernor(self.cfg.fc_xy_gain_per_s, limits_of(self.msg, self.cfg.limits).xy_vel_max_mps)
+        cap = limits_of(self.msg, self.cfg.limits).below_caps(self.cfg.fc_velocity_error_mps).xy_vel_max_mps
+        governor = SpeedGovernor(self.cfg.fc_xy_gain_per_s, cap)
         self.follower = Follower(path, now_s, self.msg.setpoint_type, self.cfg.lag_m, self.cfg.feedforward, governor)
         self.first_index = k
         self.built += 1

@@ -122,3 +122,24 @@ def test_heading_starts_at_the_vehicles_and_ends_at_the_last_waypoints_yaw():
     assert fs.setpoint.yaw_valid and fs.setpoint.yaw_rad == pytest.approx(0.3)
     path = tr.follower.path
     assert path.sample(path.duration_s).yaw_rad == pytest.approx(math.pi / 2)
+
+
+def test_a_flight_controllers_velocity_error_is_planned_below_the_caps():
+    """fc_velocity_error_mps: a generated path is timed that far below each speed cap (never below
+    half of it) and the governor caps the FC's catch-up there too; a typed trajectory is checked
+    against the limits themselves; 0 changes nothing."""
+    limits = Limits(xy_vel_max_mps=2.0, z_vel_max_up_mps=3.0, z_vel_max_dn_mps=1.5)
+    lowered = limits.below_caps(0.15)
+    assert (lowered.xy_vel_max_mps, lowered.z_vel_max_up_mps, lowered.z_vel_max_dn_mps) == pytest.approx((1.85, 2.85, 1.35))
+    assert lowered.acc_hor_mps2 == limits.acc_hor_mps2 and limits.below_caps(0.0) is limits
+    assert limits.below_caps(1.9).xy_vel_max_mps == pytest.approx(1.0)          # half the cap at least
+    peaks = {}
+    for margin in (0.0, 0.15):
+        tr = TrajectoryTracker(TrackerConfig(limits, 0.5, fc_xy_gain_per_s=0.95, fc_velocity_error_mps=margin))
+        tr.offer(smooth_msg())
+        fly(tr, (0, 0, 5), SURVEY)
+        path = tr.follower.path
+        peaks[margin] = max(float(np.hypot(*path.sample(t).velocity_mps[:2])) for t in np.arange(0, path.duration_s, 0.02))
+        assert tr.follower.governor.xy_speed_mps == pytest.approx(2.0 - margin)
+    assert peaks[0.0] == pytest.approx(2.0, abs=1e-3) and peaks[0.15] == pytest.approx(1.85, abs=1e-3)
+

@@ -205,3 +205,13 @@ def test_a_reference_that_waits_streams_no_velocity():
     half = f.step(ref.position_m + [1.125, 0, 0], 0.04)                 # between lag_m / 2 and lag_m: half rate
     assert f.rate == pytest.approx(0.5) and np.allclose(half.setpoint.velocity_mps.to_array(),
                                                          0.5 * path.sample(f.t_s).velocity_mps)
+
+
+def test_a_speed_margin_times_generated_paths_only():
+    here = np.array([0.0, 0.0, 3.0])
+    msg = Trajectory(generator_name="smooth", waypoints=[waypoint(20, 0, 3)])
+    slow = path_for(msg, here, 0.0, Limits(), 0.5, speed_margin_mps=0.2)
+    assert float(np.hypot(*slow.sample(slow.duration_s / 2).velocity_mps[:2])) == pytest.approx(1.8)
+    typed = Trajectory(trajectory_type=Trajectory.TRAJECTORY_POLYNOMIAL, total_duration_s=10.0, poly_order=1,
+                       poly_coeffs_x=[0, 2.0], poly_coeffs_y=[0, 0], poly_coeffs_z=[3, 0])
+    assert path_for(typed, here, 0.0, Limits(), 0.5, speed_margin_mps=0.2).duration_s == 10.0   # flown as given

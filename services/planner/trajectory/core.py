@@ -3,6 +3,7 @@ the kinematic limits it must stay within (PX4's multicopter position-controller 
 trajectory that respects them is one PX4's own controller can follow)."""
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Protocol
@@ -27,6 +28,16 @@ class Limits:
         for name, value in vars(self).items():
             if not (value > 0 and math.isfinite(value)):
                 raise ValueError(f"limit `{name}` must be a positive number, got {value!r}")
+
+    def below_caps(self, margin_mps: float) -> Limits:
+        """These limits with each speed cap lowered by `margin_mps` (never below half of it): what a
+        trajectory is timed with for a flight controller that flies its velocity estimate at the cap
+        while that estimate may be `margin_mps` off the vehicle's true velocity."""
+        if margin_mps <= 0:
+            return self
+        lowered = {name: max(getattr(self, name) - margin_mps, getattr(self, name) / 2)
+                   for name in ("xy_vel_max_mps", "z_vel_max_up_mps", "z_vel_max_dn_mps")}
+        return dataclasses.replace(self, **lowered)
 
     def speed_cap_mps(self, direction: np.ndarray) -> float:
         """The highest speed along unit `direction` within the horizontal and vertical caps."""

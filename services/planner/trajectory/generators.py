@@ -84,10 +84,12 @@ def limits_of(msg: Trajectory, limits: Limits) -> Limits:
 
 
 def path_for(msg: Trajectory, position_m: np.ndarray, yaw_rad: float, limits: Limits,
-             acceptance_radius_m: float, generator: str = "smooth") -> Path | None:
+             acceptance_radius_m: float, generator: str = "smooth", speed_margin_mps: float = 0.0) -> Path | None:
     """The path `msg` asks for, flown from `position_m` (an untimed WAYPOINT message starts at
     rest there and passes its waypoints in order), with `generator` unless the message names its
-    own; None: that generator flies goal by goal. Raises TrajectoryRefused naming the field."""
+    own; None: that generator flies goal by goal. A generated path is timed with the speed caps
+    lowered by `speed_margin_mps` (Limits.below_caps); a typed one is flown as given, checked
+    against the limits themselves. Raises TrajectoryRefused naming the field."""
     check_frames(msg)
     limits = limits_of(msg, limits)
     if msg.trajectory_type == Trajectory.TRAJECTORY_WAYPOINT and not msg.waypoint_times_s:
@@ -107,7 +109,7 @@ def path_for(msg: Trajectory, position_m: np.ndarray, yaw_rad: float, limits: Li
                                                     for w in msg.waypoints]
         yaws = [yaw_rad] + [w.pose.orientation.to_yaw() for w in msg.waypoints]
         try:
-            return gen.make(np.array(points), yaws, limits, acceptance_radius_m)
+            return gen.make(np.array(points), yaws, limits.below_caps(speed_margin_mps), acceptance_radius_m)
         except ValueError as e:
             raise TrajectoryRefused(f"`waypoints`: {e}") from None
     path = evaluate(msg)
