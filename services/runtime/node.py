@@ -97,7 +97,7 @@ class Node:
         self.params = ParamSet.from_declarations(params or [])
         self.lock = threading.RLock()
         self.stop_event = threading.Event()
-        self._conf = config if config is not None else make_config(zenoh_config, connect, mode=mode)
+        self._conf = config if config is not None else make_config(zenoh_config, connect, mode=mode, service=True)
         self._sim_time = sim_time
         self.session: zenoh.Session | None = None
         self.clock: Clock | None = None

@@ -9,6 +9,12 @@ A client opened before its router exists fails at once, so `open_session` retrie
 back-off until connected or told to stop. An open client session reconnects by itself when its
 router restarts (Zenoh re-declares its tokens, subscribers and queryables); RECONNECT makes it
 try every 0.2-1 s instead of Zenoh's 1-4 s, unless the config file sets connect/retry.
+
+$AERO_LINKS=direct (set by `aero up` for the services it starts on one host) makes a service's
+session with no explicit mode a peer that connects to the router and listens on loopback: the
+router introduces co-located peers to each other (gossip) and their samples take the direct link,
+one hop instead of two (`aero bench pubsub --peers`, "peers+router"). The router stays the way in
+for other hosts, the CLI and its ACLs. Unset or `router`: a client of the router.
 """
 from __future__ import annotations
 
@@ -22,6 +28,9 @@ import zenoh
 
 DEFAULT_CONFIG = Path(__file__).resolve().with_name("zenoh.json5")
 RECONNECT = {"period_init_ms": 200, "period_max_ms": 1000, "period_increase_factor": 1.5}
+LINKS_ENV = "AERO_LINKS"
+LINKS = ("router", "direct")
+DIRECT_LISTEN = ["tcp/127.0.0.1:0"]   # loopback only: a direct link never leaves the host
 
 
 class ZenohConfigError(RuntimeError):
@@ -54,14 +63,24 @@ def _split_endpoints(connect: str | list[str]) -> list[str]:
     return out
 
 
+def links_from_env() -> str:
+    links = os.environ.get(LINKS_ENV) or "router"
+    if links not in LINKS:
+        raise ZenohConfigError(f"${LINKS_ENV}={links!r}: expected one of {', '.join(LINKS)}")
+    return links
+
+
 def make_config(zenoh_config: str | None = None, connect: str | list[str] | None = None,
-                mode: str | None = None, listen: list[str] | None = None) -> zenoh.Config:
+                mode: str | None = None, listen: list[str] | None = None, service: bool = False) -> zenoh.Config:
+    """`service`: a service's session, to which $AERO_LINKS applies (a CLI stays a client)."""
     path = find_config_file(zenoh_config)
     try:
         conf = zenoh.Config.from_file(str(path))
     except zenoh.ZError as e:
         raise ZenohConfigError(f"{path}: {e}") from None
     connect = connect or os.environ.get("AERO_CONNECT")
+    if service and mode is None and listen is None and links_from_env() == "direct":
+        mode, listen = "peer", DIRECT_LISTEN
     try:
         if connect:
             conf.insert_json5("connect/endpoints", json.dumps(_split_endpoints(connect)))

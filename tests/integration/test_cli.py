@@ -212,6 +212,7 @@ def test_unknown_schema_name_suggests_close_matches(cmd):
     (["--profile", "vehicel"], "did you mean vehicle"),
     (["--fcu-url", "udpin:127.0.0.1"], "expected udpin:HOST:PORT"),
     (["--arg", "plan:--param=kp=1"], "did you mean planner"),
+    (["--links", "direct", "--listen", "tls/127.0.0.1:7999"], "would bypass its ACL"),
 ])
 def test_up_refuses_bad_arguments_before_starting_anything(tmp_path, flags, expected):
     port = free_port()

@@ -41,7 +41,7 @@ import yaml
 import zenoh
 
 from aeroperception.services.runtime.node import LIVELINESS_ROOT
-from aeroperception.services.runtime.session import make_config, open_session
+from aeroperception.services.runtime.session import LINKS, LINKS_ENV, make_config, open_session
 from aeroperception.services.runtime.signals import ShutdownFlag
 from aeroperception.services.runtime.supervision import (
     EXIT_DUPLICATE, SUPERVISOR_ENV, Priority, apply_priority, terminate,
@@ -92,6 +92,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="router endpoint (use tcp/0.0.0.0:7447 to accept other machines)")
     p.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
                    help="join another host's router, e.g. tcp/10.0.0.2:7447 (several machines; repeatable)")
+    p.add_argument("--links", default=None, choices=LINKS,
+                   help="how the services started here reach each other: direct (peers linked on loopback, "
+                        "introduced by the router: one hop) or router (every sample through the router); "
+                        "default direct, router when the router is secured (TLS or $AERO_ROUTER_CONFIG)")
     p.add_argument("--thin-link", action="append", default=[], metavar="IFACE",
                    help="router: network interface of a slow link to another host (e.g. wlan0); images "
                         "and scans leave through it downsampled (`aero router --help`; repeatable)")
@@ -288,6 +292,16 @@ GPS_DENIED_ARGS = {
     "mission": ["--param", "require_perception=true"],
 }
 ENDPOINT_RE = re.compile(r"^(?:tcp|udp|tls|quic|ws)/[A-Za-z0-9_.\-\[\]:]+:\d{1,5}$")
+
+
+def resolve_links(args) -> str:
+    """direct unless the router is secured: a direct link is plain TCP on loopback, around the
+    router's TLS and ACL, so a secured stack keeps every sample on the router."""
+    secured = not args.listen.startswith("tcp/") or bool(os.environ.get("AERO_ROUTER_CONFIG"))
+    if args.links == "direct" and secured:
+        raise CliError("--links direct: the router is secured (TLS listen or $AERO_ROUTER_CONFIG) and direct links "
+                       "would bypass its ACL; drop --links or use --links router")
+    return args.links or ("router" if secured else "direct")
 
 
 def validate_args(args, names: list[str]) -> None:
@@ -495,12 +509,13 @@ def run(args) -> int:
     for n, why in unfed.items():
         emit(f"aero up: not starting {n}: {why}")
     px4 = plan_px4(args, names)
+    links = resolve_links(args)
     services = [n for n in names if n != px4_sitl.NAME]
     if args.dry_run:
         endpoint = args.listen.replace("0.0.0.0", "127.0.0.1")
         profile_args = load_profiles()[args.profile]["args"]
         joins = f", joining {', '.join(args.connect)}" if args.connect else ""
-        emit(f"aero up: profile {args.profile}, router on {args.listen}{joins}; would start:")
+        emit(f"aero up: profile {args.profile}, router on {args.listen}{joins}, {links} links; would start:")
         if px4:
             env = " ".join(f"{k}={v}" for k, v in px4.env().items())
             emit(f"  {px4_sitl.NAME:<12} {env} " + " ".join(px4_sitl.argv(px4.build, px4.instance, "<log-dir>/px4-XXXX")))
@@ -512,7 +527,8 @@ def run(args) -> int:
     log_dir.mkdir(parents=True, exist_ok=True)
     endpoint = args.listen.replace("0.0.0.0", "127.0.0.1")
     # AERO_SUPERVISOR_PID: every child exits when this process dies (runtime/supervision.py).
-    env = dict(os.environ, AERO_CONNECT=endpoint, PYTHONUNBUFFERED="1", **{SUPERVISOR_ENV: str(os.getpid())})
+    env = dict(os.environ, AERO_CONNECT=endpoint, PYTHONUNBUFFERED="1",
+               **{SUPERVISOR_ENV: str(os.getpid()), LINKS_ENV: links})
     vehicle = os.environ.get("AERO_VEHICLE") or "default"
     priorities = load_priorities()
     profile_args = load_profiles()[args.profile]["args"]
@@ -557,7 +573,7 @@ def run(args) -> int:
             session.declare_subscriber("*/diagnostics/*", on_diag)]
 
     emit(f"aero up: profile {args.profile} ({', '.join(names) or 'no services'}), router on {args.listen}, "
-         f"logs in {log_dir}")
+         f"{links} links, logs in {log_dir}")
     pids_path = log_dir / "pids.json"
     for c in children.values():
         c.start(env)

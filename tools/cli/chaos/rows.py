@@ -92,27 +92,37 @@ def _router_kill(ctx: Ctx) -> None:
     os.kill(pid, signal.SIGKILL)
 
 
-def _router_observe(ctx: Ctx):
-    st = ctx.st
-    others = [s for s in st.services]
+def _router_observe(links: str):
+    """Router links: an outage, the mission must hold. Direct links (`aero up`'s default): the
+    services on the host never lose each other, so the mission flies on, never holding."""
 
-    def reconnected() -> bool:
-        s = open_session(make_config(None, st.endpoint, mode="client"), max_wait_s=0.5)
-        if s is None:
-            return False
-        try:
-            ok = all(token_alive(s, n, timeout_s=0.5) for n in others)
-        finally:
-            s.close()
-        return ok
+    def observe(ctx: Ctx):
+        st = ctx.st
 
-    back = poll_until(reconnected, 25.0, 0.5)
-    react = time.monotonic() - ctx.t_inject if back else None
-    where = "aero up (router inside it)" if ctx.notes["in_supervisor"] else "router process"
-    if not back:
-        return False, f"killed {where}; router/services not back within 25 s", None
-    held, obs = held_after(ctx)   # the mission re-checks after the outage: no flying on to an old goal
-    return held, f"killed {where}; router and every service back in {react:.1f} s; " + obs, react
+        def reconnected() -> bool:
+            s = open_session(make_config(None, st.endpoint, mode="client"), max_wait_s=0.5)
+            if s is None:
+                return False
+            try:
+                return all(token_alive(s, n, timeout_s=0.5) for n in st.services)
+            finally:
+                s.close()
+
+        back = poll_until(reconnected, 25.0, 0.5)
+        react = time.monotonic() - ctx.t_inject if back else None
+        where = "aero up (router inside it)" if ctx.notes["in_supervisor"] else "router process"
+        if not back:
+            return False, f"killed {where}; router/services not back within 25 s", None
+        head = f"killed {where}; router and every service back in {react:.1f} s; "
+        if links == "direct":
+            moving = progressing(ctx, 2.0) or ctx.rec.last("status").state in ("LAND", "IDLE")
+            states = mission_states(ctx, ctx.t_inject)
+            ok = moving and "HOLDING" not in states
+            return ok, head + f"mission {'->'.join(states)}{'' if moving else ', not progressing'}", react
+        held, obs = held_after(ctx)   # the mission re-checks after the outage: no flying on to an old goal
+        return held, head + obs, react
+
+    return observe
 
 
 def _link_cut(ctx: Ctx) -> None:
@@ -367,16 +377,19 @@ def _safety_row_if_present(services: list[str]) -> list[str]:
     return [s for s in ("fmu", "planner", "mission", "gcs", "diagnostics", "safety") if s in services]
 
 
-def build_rows(services: list[str], fc: str = "sim") -> dict[str, Row]:
+def build_rows(services: list[str], fc: str = "sim", links: str = "direct") -> dict[str, Row]:
     """The rows for a stack of `services` whose flight controller is `fc`: the built-in "sim" or
-    "px4" (SITL; rows of the built-in sim's own knobs - clock, reboot, LiDAR - left out)."""
+    "px4" (SITL; rows of the built-in sim's own knobs - clock, reboot, LiDAR - left out), started
+    by `aero up` with `links` (`--links`) between them."""
     rows = [kill_row(s) for s in _safety_row_if_present(services)]
     seen_late = " + PX4's 1 Hz heartbeat" if fc == "px4" else ""
     rows += [
         Row("router_kill", "kill -9 the Zenoh router",
-            "supervisor detects it and restarts the router; every service reconnects; vehicle holds meanwhile "
-            "and after (mission HOLDING: an outage), never flies on to the goal it had before",
-            _router_kill, _router_observe, breaks_stack=True),
+            "supervisor detects it and restarts the router; every service reachable through it again; "
+            + ("the services' direct links never drop: the mission flies on, never HOLDING" if links == "direct" else
+               "every service reconnects; vehicle holds meanwhile and after (mission HOLDING: an outage), never "
+               "flies on to the goal it had before"),
+            _router_kill, _router_observe(links), breaks_stack=True),
         Row("fc_link_loss", "FC MAVLink cut both ways for 3 s",
             "state/vehicle connected=false or diagnostics/fmu ERROR within 0.5 s; FC offboard-loss failsafe; "
             "mission HOLDING after, no resumption by itself",
