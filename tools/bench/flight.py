@@ -317,9 +317,9 @@ def raw_hops_baseline(n: int = 500) -> np.ndarray:
         r.close()
 
 
-def run(duration_s: float = 20.0, sensors: str = "none", priorities: bool = True) -> int:
+def run(duration_s: float = 20.0, sensors: str = "none", priorities: bool = True, links: str = "direct") -> int:
     sys.setswitchinterval(SWITCH_INTERVAL_S)  # the tap must not wait for the GIL either
-    hover = HoverRun(sensors, priorities)
+    hover = HoverRun(sensors, priorities, ("--links", links))
     try:
         hover.take_off()
         hover.begin()
@@ -331,7 +331,7 @@ def run(duration_s: float = 20.0, sensors: str = "none", priorities: bool = True
     raw = raw_hops_baseline()
     base = 2 * float(np.median(raw))
     print(f"hot path LOCAL_POSITION_NED in -> SET_POSITION_TARGET_LOCAL_NED out, whole sim profile "
-          f"(sensors={sensors}), {duration_s:.0f} s hover, {os.cpu_count()} cores")
+          f"(sensors={sensors}, {links} links), {duration_s:.0f} s hover, {os.cpu_count()} cores")
     print(f"scheduling: {hp.sched}, bench tap {hover.tap.sched or 'nice 0'}")
     print(f"{'metric':<44} {'n':>6} {'median_ms':>10} {'p99_ms':>8} {'x_base':>7}")
     rows = hp.rows()

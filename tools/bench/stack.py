@@ -170,10 +170,12 @@ def _diag_row(d: DiagnosticStatus | None) -> dict:
 
 
 def measure(profile: str = "sim", sensors: str = "all", duration_s: float = 30.0, scenario: str = "village",
+            links: str = "direct",
             settle_s: float = 8.0) -> StackReport:
     """Bring the stack up, hover, measure `duration_s`; stop it. RuntimeError if it did not come up."""
     rated = rated_rates()
-    hover = HoverRun(sensors, True, ("--profile", profile, "--scenario", scenario, "--sensors", sensors))
+    hover = HoverRun(sensors, True, ("--profile", profile, "--scenario", scenario, "--sensors", sensors,
+                                     "--links", links))
     try:
         hover.take_off(timeout_s=120.0, settle_s=settle_s)
         services = set(hover.pids())
@@ -219,15 +221,16 @@ def measure(profile: str = "sim", sensors: str = "all", duration_s: float = 30.0
     return StackReport(rows, rates, hot, idle, duration_s, os.cpu_count() or 1, bench_pct)
 
 
-def run(profile: str = "sim", sensors: str = "all", duration_s: float = 30.0, scenario: str = "village") -> int:
+def run(profile: str = "sim", sensors: str = "all", duration_s: float = 30.0, scenario: str = "village",
+        links: str = "direct") -> int:
     sys.setswitchinterval(SWITCH_INTERVAL_S)   # the tap timing the hot path must not wait for the GIL
     if duration_s < 5.0:
         raise CliError(f"--duration {duration_s:g}: measure at least 5 s (rates and p99 need samples)")
     try:
-        report = measure(profile, sensors, duration_s, scenario)
+        report = measure(profile, sensors, duration_s, scenario, links)
     except RuntimeError as e:
         raise CliError(str(e)) from None
-    print(f"aero bench stack: profile {profile}, scenario {scenario}, sensors {sensors}, hovering, "
+    print(f"aero bench stack: profile {profile}, scenario {scenario}, sensors {sensors}, {links} links, hovering, "
           f"{duration_s:g} s measured, {report.cores} cores")
     print(report.format())
     return 0

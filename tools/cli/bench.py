@@ -42,8 +42,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--sensors", default="none", choices=["none", "imu", "all"], help="sim sensor load while measuring")
     p.add_argument("--priorities", default="on", choices=["on", "off"],
                    help="aero up's scheduling priorities (tools/profiles.yaml); off: all at the default")
+    p.add_argument("--links", default="direct", choices=["direct", "router"], help="aero up --links (default direct)")
     p.set_defaults(func=_bench("flight", lambda m, a: m.run(
-        a.duration, a.sensors, a.priorities == "on")))
+        a.duration, a.sensors, a.priorities == "on", a.links)))
     p = bsub.add_parser("stack", help="is this machine big enough: the whole stack hovering in the village; per "
                                       "process CPU %% and RSS, achieved vs rated rates, the hot path, idle %%, a verdict")
     p.add_argument("--profile", default="sim", help="aero up profile (sim, viz, ...)")
@@ -51,8 +52,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="what the sim renders (as aero up --sensors)")
     p.add_argument("--duration", type=float, default=30.0, help="seconds measured (after take-off and settling)")
     p.add_argument("--scenario", default="village")
+    p.add_argument("--links", default="direct", choices=["direct", "router"], help="aero up --links (default direct)")
     p.set_defaults(func=_bench("stack", lambda m, a: m.run(
-        a.profile, a.sensors, a.duration, a.scenario)))
+        a.profile, a.sensors, a.duration, a.scenario, a.links)))
     p = bsub.add_parser("lidar", help="150k-point scan -> obstacles -> costmap per stage vs the Open3D pipeline")
     p.add_argument("-n", type=int, default=20, help="scans per pipeline")
     p.add_argument("--scenario", default="village")
