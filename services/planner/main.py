@@ -94,7 +94,7 @@ class PlannerService(Service):
         if msg == self.trajectory_msg:
             return  # re-sent at 2 Hz for late joiners: already taken
         self.trajectory_msg = msg
-        self.tracker.offer(msg)
+        self.tracker.offer(msg, time.monotonic())
         self.log.info("trajectory", trajectory_id=msg.trajectory_id, generator=msg.generator_name,
                       type=msg.trajectory_type, waypoints=len(msg.waypoints))
 
@@ -322,7 +322,7 @@ class PlannerService(Service):
                   "trajectory_generator": self.params.trajectory_generator, "controller": self.params.controller,
                   "estimator": self.params.estimator, "flying_with": self.tracker.generator() or "-",
                   "parts_restored": "; ".join(self.parts_restored) or "-",
-                  "trajectories_made": self.tracker.built,
+                  "trajectories_made": self.tracker.built, "trajectories_resumed": self.tracker.resumed,
                   "obstacles": self.obstacle_state, "replans": self.replanner.processed,
                   "stale_states_dropped": self.stale_states}
         if self.obstacle_state in ("blocked", "unreachable", "stale_costmap"):

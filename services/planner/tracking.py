@@ -9,6 +9,10 @@ Rules, each for a reason:
 - The reference waits at a waypoint the mission has not counted as reached yet (the mission
   counts by the vehicle's distance), holding the waypoint itself, so the two never disagree
   about where the vehicle is going.
+- A hold of less than RESUME_S (a late vehicle state makes the mission hold and resume, and it
+  hands the same waypoints over again as a new stretch) resumes the path being flown where its
+  reference stood, if the waypoints handed over are that path's: a path made anew starts at rest
+  and braked the vehicle from full speed (figure8 at 3 m/s, load 10: 3.6 m/s², 16 m/s³ by truth).
 - Obstacles keep today's rules: when the costmap blocks the path ahead, the planner leaves the
   path and flies to the current goal with obstacle avoidance; a smooth path is made anew from the
   next goal on (from the vehicle, at rest on its way) — clearance is never traded for smoothness.
@@ -39,6 +43,7 @@ from .trajectory.generators import GENERATORS, check_frames, generator_of, limit
 
 ON_PATH_M = 0.01          # a goal this close to a trajectory waypoint is that waypoint
 AHEAD_S = 3.0             # the stretch of path checked against the costmap
+RESUME_S = 1.0            # a path left for a hold this short is resumed (braking from 3 m/s to rest takes ~1 s)
 
 
 def is_clear(msg: Trajectory) -> bool:
@@ -62,7 +67,7 @@ class TrajectoryTracker:
         self.cfg = cfg
         self.msg: Trajectory | None = None
         self.follower: Follower | None = None
-        self.first_index = 0            # the message's waypoint the follower's path begins with
+        self.first_index = 0            # the message's waypoint the follower's path begins with (< 0: one before it)
         self.refused = ""               # why the message (or its remaining part) cannot be flown
         self.refusal_holds = False      # ... and the planner holds at its goals rather than fly them one by one
         self.blocked = ""               # a typed trajectory blocked by an obstacle: holding, why
@@ -70,13 +75,19 @@ class TrajectoryTracker:
         self.built = 0
         self.last_index = 0              # the message's waypoint the goal matched last
         self.typed_end: np.ndarray | None = None    # where a typed trajectory ends (the mission's goal)
+        self.left: tuple[Follower, Trajectory, int, float] | None = None   # (follower, its message, first_index, when)
+        self.resumed = 0
 
     @property
     def trajectory_id(self) -> str:
         return self.msg.trajectory_id if self.msg is not None else ""
 
-    def offer(self, msg: Trajectory) -> None:
-        """A new message from the mission (the caller skips repeats of the same one)."""
+    def offer(self, msg: Trajectory, now_s: float | None = None) -> None:
+        """A new message from the mission (the caller skips repeats of the same one), at `now_s`
+        (None: the path being flown is not kept to resume)."""
+        if self.follower is not None and now_s is not None:
+            self._leave(now_s)
+        self._carry_over(msg)
         self.follower, self.refused, self.blocked, self.diverted_goal = None, "", "", None
         self.refusal_holds = False
         self.msg = None if is_clear(msg) else msg
@@ -112,6 +123,7 @@ class TrajectoryTracker:
     def set_generator(self, name: str) -> None:
         """The planner's active generator changed: a path of the old one is made anew with it."""
         self.cfg.generator = name
+        self.left = None
         if self.msg is not None and self._generated():
             self.follower = None
 
@@ -142,13 +154,15 @@ class TrajectoryTracker:
             return None                   # the waypoint generator: goal by goal
         k = self._index_of(goal_m)
         if k is None:
-            self.follower = None          # a hold, goto or landing took over
+            if self.follower is not None:
+                self._leave(now_s)        # a hold, goto or landing took over
+            self.follower = None
             return None
         if self.diverted_goal is not None:
             if np.linalg.norm(self.diverted_goal - goal_m) < ON_PATH_M:
                 return None               # still avoiding towards this goal
             self.diverted_goal = None     # the mission moved on: a new path from here
-        if self.follower is None or (self._generated() and k < self.first_index):
+        if self.follower is None and not self._resume(now_s, k) or (self._generated() and k < self.first_index):
             if not self._build(position_m, yaw_rad, now_s, k):
                 return None
         wait = self._wait_at(k)
@@ -162,6 +176,41 @@ class TrajectoryTracker:
                                 "(a typed trajectory is not re-planned)")
             return None
         return fs
+
+    def _leave(self, now_s: float) -> None:
+        """The follower is dropped (a hold, a new message): kept RESUME_S for `_resume`."""
+        if self.msg is not None and self._generated():
+            self.left = (self.follower, self.msg, self.first_index, now_s)
+
+    def _carry_over(self, msg: Trajectory) -> None:
+        """A new message whose waypoints are the tail of the left path's (the same way handed over
+        again from a later waypoint): the left path stays resumable, its indices shifted to it;
+        an empty message (a hold) keeps it; any other drops it."""
+        if self.left is None or is_clear(msg):
+            return
+        follower, old, first, when = self.left
+        n = len(msg.waypoints)
+        same = msgspec.structs.replace(old, header=msg.header, trajectory_id=msg.trajectory_id, waypoints=msg.waypoints)
+        shift = len(old.waypoints) - n
+        tail = msg.trajectory_type == Trajectory.TRAJECTORY_WAYPOINT and not msg.waypoint_times_s and n and shift >= 0
+        if tail and same == msg and old.waypoints[shift:] == msg.waypoints:
+            self.left = (follower, msg, first - shift, when)
+        else:
+            self.left = None
+
+    def _resume(self, now_s: float, k: int) -> bool:
+        """Take the left follower back when it flies this message, goal k is on it and it was left
+        less than RESUME_S ago; its reference goes on from where it stood."""
+        if self.left is None:
+            return False
+        follower, msg, first, when = self.left
+        self.left = None
+        if msg is not self.msg or now_s - when >= RESUME_S or k < first:
+            return False
+        follower.last_s = now_s
+        self.follower, self.first_index = follower, first
+        self.resumed += 1
+        return True
 
     def _build(self, position_m: np.ndarray, yaw_rad: float, now_s: float, k: int) -> bool:
         msg = self.msg

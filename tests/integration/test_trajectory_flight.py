@@ -55,12 +55,20 @@ def fly_and_score(st, path, *fly_args: str) -> tuple[dict, list]:
         if s.status == TrajectoryStatus.STATUS_EXECUTING:
             ev.add_reference_error(s.position_error_m)
     res = ev.summary()
-    print(f"{mission.mission_id} smooth: {res}")
+    stops = reference_stops(setpoints)
+    print(f"{mission.mission_id} smooth: {res}; reference stopped mid-path {len(stops)} time(s) from {stops} m/s")
     assert [w.index for _, w in reached] == list(range(len(mission.waypoints)))
     assert truth[-1][1].position_m.z < 0.2 and not truth[-1][1].armed
     assert flown, "never flown as a trajectory"
     assert any(sp.acceleration_valid and sp.position_valid for sp in setpoints), "no feed-forward sent"
     return res, setpoints
+
+
+def reference_stops(setpoints: list) -> list[float]:
+    """The speeds (m/s) from which the streamed reference stopped dead mid-flight (a full-state
+    setpoint with zero velocity right after a moving one)."""
+    speeds = [float(np.hypot(sp.velocity_mps.x, sp.velocity_mps.y)) for sp in setpoints if sp.velocity_valid]
+    return [round(a, 2) for a, b in zip(speeds, speeds[1:]) if a > 0.5 and b < 1e-6]
 
 
 def test_survey_01_smooth_is_faster_and_on_its_legs(tstack):

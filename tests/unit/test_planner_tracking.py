@@ -143,3 +143,49 @@ def test_a_flight_controllers_velocity_error_is_planned_below_the_caps():
         assert tr.follower.governor.xy_speed_mps == pytest.approx(2.0 - margin)
     assert peaks[0.0] == pytest.approx(2.0, abs=1e-3) and peaks[0.15] == pytest.approx(1.85, abs=1e-3)
 
+
+
+def test_a_short_hold_resumes_the_path_a_long_one_starts_anew_from_rest():
+    """A late vehicle state makes the mission hold and resume within tenths of a second, handing
+    the same waypoints over again as a new stretch from the current one (an empty message while it
+    holds): the path being flown goes on where its reference stood, not anew from rest (which
+    braked the vehicle from full speed); after a hold of RESUME_S or more, or for other waypoints,
+    it is made anew from the vehicle."""
+    from aeroperception.services.planner.tracking import RESUME_S
+    goals = [np.array(p, float) for p in SURVEY]
+    for hold_s, resumes in ((0.3, True), (RESUME_S + 0.5, False)):
+        tr = tracker()
+        t, pos = 0.0, np.array([0.0, 0.0, 5.0])
+        tr.offer(smooth_msg(), t)
+        while t < 3.0:                                  # cruising towards goal 0 (10, 0, 5)
+            fs = tr.step(pos, 0.0, t, goals[0])
+            pos, t = fs.reference.position_m, t + DT
+        speed = float(np.hypot(*fs.setpoint.velocity_mps.to_array()[:2]))
+        assert speed > 1.5
+        assert tr.step(pos, 0.0, t, pos) is None          # a hold goal: off the trajectory
+        tr.offer(Trajectory(), t)                          # ... and no trajectory while holding
+        t += hold_s
+        tr.offer(smooth_msg(tid="survey_01@0b"), t)        # the same way again (here from the same waypoint)
+        fs = tr.step(pos, 0.0, t, goals[0])
+        again = float(np.hypot(*fs.setpoint.velocity_mps.to_array()[:2]))
+        assert (tr.resumed, tr.built) == ((1, 1) if resumes else (0, 2))
+        assert (again > 1.5) if resumes else (again < 0.1), again
+    tr = tracker()                                        # handed over again from the next waypoint on
+    t, pos = 0.0, np.array([0.0, 0.0, 5.0])
+    tr.offer(smooth_msg(), t)
+    while np.linalg.norm(pos - goals[0]) > 0.3:
+        pos, t = tr.step(pos, 0.0, t, goals[0]).reference.position_m, t + DT
+    for _ in range(25):
+        pos, t = tr.step(pos, 0.0, t, goals[1]).reference.position_m, t + DT
+    tr.offer(Trajectory(), t)
+    tr.offer(smooth_msg(SURVEY[1:], tid="survey_01@1"), t + 0.2)
+    fs = tr.step(pos, 0.0, t + 0.2, goals[1])
+    assert tr.resumed == 1 and tr.first_index == -1 and float(np.hypot(*fs.setpoint.velocity_mps.to_array()[:2])) > 1.0
+    t, reached = fly(tr, pos, SURVEY[1:])
+    assert len(reached) == 2 and tr.built == 1             # on to the end on the same path
+    tr = tracker()                                        # other waypoints: never the old path
+    tr.offer(smooth_msg(), 0.0)
+    tr.step(np.array([0.0, 0.0, 5.0]), 0.0, 0.0, goals[0])
+    tr.offer(smooth_msg([(0, 10, 5), (10, 10, 5)], tid="other@0"), 0.1)
+    tr.step(np.array([0.0, 0.0, 5.0]), 0.0, 0.2, np.array([0.0, 10.0, 5.0]))
+    assert (tr.resumed, tr.built) == (0, 2)
