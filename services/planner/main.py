@@ -323,6 +323,7 @@ class PlannerService(Service):
                   "estimator": self.params.estimator, "flying_with": self.tracker.generator() or "-",
                   "parts_restored": "; ".join(self.parts_restored) or "-",
                   "trajectories_made": self.tracker.built, "trajectories_resumed": self.tracker.resumed,
+                  "waypoints_counted_late": self.tracker.late_counts,
                   "obstacles": self.obstacle_state, "replans": self.replanner.processed,
                   "stale_states_dropped": self.stale_states}
         if self.obstacle_state in ("blocked", "unreachable", "stale_costmap"):

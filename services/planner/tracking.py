@@ -8,7 +8,10 @@ Rules, each for a reason:
   trajectory, its end): a hold, a goto or a landing is not on it and takes over at once.
 - The reference waits at a waypoint the mission has not counted as reached yet (the mission
   counts by the vehicle's distance), holding the waypoint itself, so the two never disagree
-  about where the vehicle is going.
+  about where the vehicle is going. Unless the count is only late: once the vehicle has come
+  within `acceptance_radius_m` of the waypoint, the reference runs on past it for up to
+  COUNT_GRACE_S (the next goal comes a message later; on PX4 at load 9 it came 0.5 s after the
+  count, and the reference stopped dead at the waypoint for 0.22 s, braking the vehicle from 1.9 m/s).
 - A hold of less than RESUME_S (a late vehicle state makes the mission hold and resume, and it
   hands the same waypoints over again as a new stretch) resumes the path being flown where its
   reference stood, if the waypoints handed over are that path's: a path made anew starts at rest
@@ -44,6 +47,7 @@ from .trajectory.generators import GENERATORS, check_frames, generator_of, limit
 ON_PATH_M = 0.01          # a goal this close to a trajectory waypoint is that waypoint
 AHEAD_S = 3.0             # the stretch of path checked against the costmap
 RESUME_S = 1.0            # a path left for a hold this short is resumed (braking from 3 m/s to rest takes ~1 s)
+COUNT_GRACE_S = 1.0       # the longest the reference runs on past a waypoint the vehicle reached, not yet counted
 
 
 def is_clear(msg: Trajectory) -> bool:
@@ -77,6 +81,8 @@ class TrajectoryTracker:
         self.typed_end: np.ndarray | None = None    # where a typed trajectory ends (the mission's goal)
         self.left: tuple[Follower, Trajectory, int, float] | None = None   # (follower, its message, first_index, when)
         self.resumed = 0
+        self.count: tuple[int, float, float | None] | None = None   # (goal, vehicle's closest approach, passed at)
+        self.late_counts = 0             # waypoints the reference ran on past before the mission counted them
 
     @property
     def trajectory_id(self) -> str:
@@ -91,7 +97,7 @@ class TrajectoryTracker:
         self.follower, self.refused, self.blocked, self.diverted_goal = None, "", "", None
         self.refusal_holds = False
         self.msg = None if is_clear(msg) else msg
-        self.typed_end, self.last_index = None, 0
+        self.typed_end, self.last_index, self.count = None, 0, None
         if self.msg is None:
             return
         try:
@@ -165,8 +171,12 @@ class TrajectoryTracker:
         if self.follower is None and not self._resume(now_s, k) or (self._generated() and k < self.first_index):
             if not self._build(position_m, yaw_rad, now_s, k):
                 return None
-        wait = self._wait_at(k)
+        at = self._wait_at(k)
+        wait = None if at is not None and self._counted_late(k, at[1], position_m, now_s) else at
         fs = self.follower.step(position_m, now_s, wait, position_age_s)
+        if at is not None and wait is None and self.count[2] is None and self.follower.t_s >= at[0]:
+            self.count = (k, self.count[1], now_s)       # ran on past the waypoint, not counted yet
+            self.late_counts += 1
         if path_blocked is not None and path_blocked(self.follower.ahead_xy(AHEAD_S)):
             self.follower = None
             if self._generated():
@@ -230,6 +240,16 @@ class TrajectoryTracker:
         self.first_index = k
         self.built += 1
         return True
+
+    def _counted_late(self, k: int, waypoint_m: np.ndarray, position_m: np.ndarray, now_s: float) -> bool:
+        """The vehicle has come within acceptance_radius_m of goal k's waypoint and the reference
+        passed it less than COUNT_GRACE_S ago: the mission's count is only late, do not wait."""
+        if self.count is None or self.count[0] != k:
+            self.count = (k, float("inf"), None)
+        closest = min(self.count[1], float(np.linalg.norm(np.asarray(position_m, float) - waypoint_m)))
+        self.count = (k, closest, self.count[2])
+        passed = self.count[2]
+        return closest < self.cfg.acceptance_radius_m and (passed is None or now_s - passed < COUNT_GRACE_S)
 
     def _wait_at(self, k: int) -> tuple[float, np.ndarray] | None:
         """Hold at goal k's waypoint (on the follower's path: index k - first_index + 1, the

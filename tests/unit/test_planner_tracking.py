@@ -189,3 +189,33 @@ def test_a_short_hold_resumes_the_path_a_long_one_starts_anew_from_rest():
     tr.offer(smooth_msg([(0, 10, 5), (10, 10, 5)], tid="other@0"), 0.1)
     tr.step(np.array([0.0, 0.0, 5.0]), 0.0, 0.2, np.array([0.0, 10.0, 5.0]))
     assert (tr.resumed, tr.built) == (0, 2)
+
+
+def test_a_late_count_does_not_stop_the_reference_a_missed_waypoint_does():
+    """The mission counts a waypoint by the vehicle's distance and hands the next goal over a
+    message later (0.5 s after the count on a loaded host): a vehicle that reached the waypoint is
+    not braked to a stop there while the count is late (for up to COUNT_GRACE_S); one that never
+    came within acceptance_radius_m of it is held there, as before."""
+    from aeroperception.services.planner.tracking import COUNT_GRACE_S
+    goals = [np.array(p, float) for p in SURVEY]
+    for reached_it in (True, False):
+        tr = tracker(radius=0.5)
+        tr.offer(smooth_msg())
+        t, pos = 0.0, np.array([0.0, 0.0, 5.0])
+        tr.step(pos, 0.0, t, goals[0])
+        t_corner = tr.follower.path.waypoint_times_s[1]
+        speeds = []
+        while t < t_corner + 0.5:                  # the mission never moves on from goal 0 here
+            t += DT
+            fs = tr.step(pos, 0.0, t, goals[0])
+            # the vehicle on the reference, or 0.8 m to its side (never within 0.5 m of the corner)
+            pos = fs.reference.position_m if reached_it else fs.reference.position_m + np.array([0.0, -0.8, 0.0])
+            speeds.append(float(np.hypot(*fs.setpoint.velocity_mps.to_array()[:2])))
+        if reached_it:
+            assert min(speeds[-30:]) > 0.5 and tr.late_counts == 1          # ran on through the corner
+            while t < t_corner + COUNT_GRACE_S + 0.2:                         # still not counted: back to wait
+                t += DT
+                fs = tr.step(pos, 0.0, t, goals[0])
+            assert np.allclose(fs.reference.position_m, goals[0]) and fs.setpoint.velocity_mps.to_array() == pytest.approx(0)
+        else:
+            assert speeds[-1] == 0.0 and tr.late_counts == 0                  # held at the waypoint
