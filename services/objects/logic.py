@@ -21,8 +21,8 @@ from aeroperception.services.mavlink.geo import MapProjection
 
 from . import contract
 from .projection import (
-    Camera, GrayView, Noise, PoseHistory, box_disparity, box_scale, fuse, locate_many_by_disparity, locate_many_on_ground,
-    to_centre,
+    Camera, GrayView, Noise, PoseHistory, box_disparity, box_scale, centre_aims, fuse, locate_many_by_disparity,
+    locate_many_on_ground, to_centre,
 )
 from .tracker import Observation, Track, Tracker, TrackerConfig
 
@@ -176,9 +176,14 @@ class ObjectsPipeline:
         if not boxes:
             return []
         sizes = [contract.TYPICAL_SIZE_M.get(d.class_name, contract.DEFAULT_SIZE_M) for d in boxes]
-        # Objects longer than tall (vehicles, bicycles): their box's centre lies measurably off their centre's.
-        grounds = locate_many_on_ground(cam, view, [(d.center_x_px, d.center_y_px, ground + s[2] / 2) for d, s in zip(boxes, sizes)],
-                                        nz, p.max_range_m, [s if (s[0] + s[1]) / 2 >= s[2] else None for s in sizes])
+        # Objects longer than tall (vehicles, bicycles): their box's centre lies measurably off their
+        # centre's projection. Both paths aim at the centre's bearing (u); the ground ray at its
+        # mid-height too (v), while stereo takes its range from the disparity. Stereo aimed at the raw
+        # box centre put the village's truck 0.3 m to the side of the ground's, and the two thin
+        # ellipses, at a small angle, fused short.
+        uvz = np.array([(d.center_x_px, d.center_y_px, ground + s[2] / 2) for d, s in zip(boxes, sizes)])
+        aims = centre_aims(cam, view, uvz, [s if (s[0] + s[1]) / 2 >= s[2] else None for s in sizes])
+        grounds = locate_many_on_ground(cam, view, uvz - np.c_[aims, np.zeros(len(boxes))], nz, p.max_range_m)
         stereos: list = [None] * len(boxes)
         if pair is not None:
             seen = {}
@@ -186,7 +191,7 @@ class ObjectsPipeline:
                 u, v, w, h = d.center_x_px, d.center_y_px, d.size_x_px, d.size_y_px
                 disp = box_disparity(pair[0], pair[1], (u - w / 2, v - h / 2, u + w / 2, v + h / 2), max_disp)
                 if disp is not None:
-                    seen[i] = (u, v, disp)
+                    seen[i] = (u - aims[i, 0], v, disp)
             if seen:
                 for i, m in zip(seen, locate_many_by_disparity(cam, view, list(seen.values()), nz)):
                     length, width, _ = sizes[i]

@@ -161,8 +161,11 @@ def locate_on_ground(cam: Camera, view: tuple[np.ndarray, np.ndarray], u_px: flo
 
 
 def locate_many_on_ground(cam: Camera, view: tuple[np.ndarray, np.ndarray], uvz: np.ndarray, noise: Noise,
-                          max_range_m: float, sizes: list[tuple[float, float, float] | None]) -> list[Measurement | None]:
-    """locate_on_ground for k boxes at once: rows (u px, v px, centre height m), each its size or None."""
+                          max_range_m: float, sizes: list[tuple[float, float, float] | None] | None = None
+                          ) -> list[Measurement | None]:
+    """locate_on_ground for k boxes at once: rows (u px, v px, centre height m). With `sizes` (each
+    row's, or None) each row is aimed at its object's centre first (centre_aims); without, the rows
+    are aimed already."""
     r_wc, origin = view
 
     def points(x: np.ndarray) -> np.ndarray:
@@ -175,16 +178,28 @@ def locate_many_on_ground(cam: Camera, view: tuple[np.ndarray, np.ndarray], uvz:
         return p
 
     x = np.array(uvz, float)
+    if sizes is not None:
+        x[:, :2] -= centre_aims(cam, view, x, sizes)
+    return _measure(points, x, np.array([noise.pixel_px, noise.pixel_px, noise.height_m]), origin, noise, "ground")
+
+
+def centre_aims(cam: Camera, view: tuple[np.ndarray, np.ndarray], uvz: np.ndarray,
+                sizes: list[tuple[float, float, float] | None]) -> np.ndarray:
+    """(k, 2) px from each box's centre to where its object's centre projects (box_centre_offset_px
+    at the point the box centre's ray meets the plane z = centre height; rows (u px, v px, centre
+    height m)); 0 where the size is None or the ray does not descend."""
+    r_wc, origin = view
+    out = np.zeros((len(uvz), 2))
     for i, size_m in enumerate(sizes):
         if size_m is None:
             continue
-        u_px, v_px, centre_height_m = x[i]
+        u_px, v_px, centre_height_m = uvz[i]
         d = r_wc @ np.array([(u_px - 0.5 - cam.cx) / cam.fx, (v_px - 0.5 - cam.cy) / cam.fy, 1.0])
         if d[2] < -1e-9:                        # the ray descends: where it meets the plane, unaimed
             off = box_centre_offset_px(cam, view, origin + d * ((centre_height_m - origin[2]) / d[2]), size_m)
             if off is not None:
-                x[i, :2] -= off
-    return _measure(points, x, np.array([noise.pixel_px, noise.pixel_px, noise.height_m]), origin, noise, "ground")
+                out[i] = off
+    return out
 
 
 def locate_by_disparity(cam: Camera, view: tuple[np.ndarray, np.ndarray], u_px: float, v_px: float, disparity_px: float,

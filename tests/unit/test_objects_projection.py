@@ -196,6 +196,18 @@ def test_box_scale_is_one_for_a_whole_view_from_any_height_and_less_for_a_partia
         assert box_scale(cam, origin, m, whole_px / 2, size) == pytest.approx(0.5)
 
 
+def box_centre_drawn(centre, size, yaw, pose: PoseSample, pitch_down_rad: float) -> tuple[float, float]:
+    """(u, v) of the centre of the box drawn around an object of `size` (length, width, height) at
+    `centre` (ENU), heading `yaw`: its eight corners' projections' extent."""
+    c, s = np.cos(yaw), np.sin(yaw)
+    half = np.asarray(size, float) / 2
+    corners = [np.asarray(centre, float) + np.array([c * dx - s * dy, s * dx + c * dy, dz])
+               for dx in (-half[0], half[0]) for dy in (-half[1], half[1]) for dz in (-half[2], half[2])]
+    uv = np.array([project(p, pose, pitch_down_rad)[:2] for p in corners])
+    u, v = (uv.min(0) + uv.max(0)) / 2
+    return float(u), float(v)
+
+
 def test_a_long_objects_box_centre_is_aimed_back_at_its_centre():
     """A car 17 m ahead, seen from 7 m up: its box spans its near bottom and far top edges, so the
     box centre's ray meets the mid-height plane ~0.45 m short (end-on). The offset, over headings,
@@ -208,11 +220,7 @@ def test_a_long_objects_box_centre_is_aimed_back_at_its_centre():
     size = (4.5, 1.85, 1.5)
     centre = np.array([17.0, 0.0, 0.75])
     for yaw in (0.0, np.pi / 4, np.pi / 2):
-        c, s = np.cos(yaw), np.sin(yaw)
-        corners = [centre + np.array([c * dx - s * dy, s * dx + c * dy, dz]) for dx in (-2.25, 2.25)
-                   for dy in (-0.925, 0.925) for dz in (-0.75, 0.75)]
-        uv = np.array([project(p, pose, 0.17)[:2] for p in corners])
-        u, v = (uv.min(0) + uv.max(0)) / 2
+        u, v = box_centre_drawn(centre, size, yaw, pose, 0.17)
         raw = locate_on_ground(cam, view, u, v, 0.75, NO_NOISE, 100.0)
         aimed = locate_on_ground(cam, view, u, v, 0.75, NO_NOISE, 100.0, size)
         assert np.linalg.norm(aimed.position_m[:2] - centre[:2]) < 0.35                 # the heading is unknown
@@ -220,3 +228,33 @@ def test_a_long_objects_box_centre_is_aimed_back_at_its_centre():
             assert raw.position_m[0] < centre[0] - 0.3                       # short without the offset
     behind = box_centre_offset_px(cam, view, np.array([-5.0, 0.0, 0.75]), size)
     assert behind is None
+
+
+def test_a_long_objects_stereo_ray_takes_the_ground_rays_bearing():
+    """A truck 28 m ahead and 7 m to the left, seen from 7 m up: its box centre's bearing is not
+    its centre's (its near end is seen farther out). Aimed by centre_aims' u, as the ground ray is,
+    the stereo point (here at the centre's depth) lies on the ground placement's bearing at every
+    heading, so the two agree on where across the line of sight it is; end-on, the box centre's
+    own bearing put it 0.35 m to the side."""
+    from aeroperception.services.objects.projection import centre_aims
+
+    cam = Camera.from_infos(*infos(0.17))
+    pose = pose_at([0.0, 0.0, 7.0])
+    view = cam.world_pose(pose)
+    size, centre = (8.0, 2.5, 3.4), np.array([28.0, 7.0, 1.7])
+    sight = centre[:2] / np.linalg.norm(centre[:2])
+
+    def across(p: np.ndarray) -> float:          # m to the left of the line of sight to the centre
+        d = p[:2] - view[1][:2]
+        return float(sight[0] * d[1] - sight[1] * d[0])
+
+    for yaw in (0.0, np.pi / 4, np.pi / 2):
+        u, v = box_centre_drawn(centre, size, yaw, pose, 0.17)
+        disparity = FX * BASELINE / project(centre, pose, 0.17)[2]
+        aim_u, _ = centre_aims(cam, view, np.array([[u, v, 1.7]]), [size])[0]
+        stereo = locate_by_disparity(cam, view, u - aim_u, v, disparity, NO_NOISE)
+        ground = locate_on_ground(cam, view, u, v, 1.7, NO_NOISE, 100.0, size)
+        assert across(stereo.position_m) == pytest.approx(across(ground.position_m), abs=0.02)
+        assert abs(across(stereo.position_m)) < 0.4
+        if yaw == 0.0:
+            assert across(locate_by_disparity(cam, view, u, v, disparity, NO_NOISE).position_m) > 0.3
