@@ -77,7 +77,7 @@ PARAMS = [
     Param("partial_sigma_scale", 1.0, "", 0.0, 10.0,
           description="a box shorter than the track's whole boxes (a fraction r of their median box_scale) may show part of the object: "
                       "its placement moves the track with 1 sigma this times (1 - r) times its class's typical length added horizontally "
-                      "(the village's truck nearing end-on, boxed by its cab more and more: 1.0-1.3 m short at 0.85-0.9x, 2.2 m at 0.8x); 0: off"),
+                      "(the village's truck nearing end-on, boxed by its cab more and more: placed 0.8-1.3 m off at r 0.85-0.92, 2.2 m at 0.80); 0: off"),
     Param("coast_tau_s", 0.5, "s", 0.0, 60.0,
           description="an unseen track's velocity decays with this time constant (0: kept); a static object's spurious velocity must not carry it away"),
     Param("gate_distance_m", 3.0, "m", 0.1, 50.0, description="a detection farther than this from a track never joins it"),
