@@ -105,6 +105,8 @@ class WaypointPlanner:
         if not same:
             self._reached_sent = False
             self.leg = None
+            if goal is not None:   # planner/status must not show the last goal's COMPLETED under this one
+                self.status = TrajectoryStatus.STATUS_EXECUTING
         self.goal = goal
         if goal is None:
             self.hold_position_m = None  # captured from the next state
@@ -157,8 +159,9 @@ class WaypointPlanner:
         (by the straight distance left), time since the leg began (until arrival), and the
         time the remaining distance takes at the commanded speed profile. Zeros without a goal."""
         leg, goal = self.leg, self.goal
-        if goal is None or leg is None:
+        if goal is None:
             return Progress()
+        leg = leg or Leg(position_m, now_s)   # a new goal the next step begins its leg for
         if leg.arrived_s is not None:
             return Progress(100.0, leg.arrived_s - leg.started_s, 0.0)
         error = goal.position_m - position_m

@@ -77,7 +77,7 @@ def test_a_new_goal_resets_reached():
     planner.set_goal(Goal(a, 0.0, index=0))
     assert planner.step(a, 0.0).reached
     planner.set_goal(Goal(b, 0.0, index=1))
-    assert planner.status == TrajectoryStatus.STATUS_COMPLETED  # until the next step
+    assert planner.status == TrajectoryStatus.STATUS_EXECUTING  # at once, not at the next step
     res = planner.step(a, 0.0)
     assert not res.reached and planner.status == TrajectoryStatus.STATUS_EXECUTING
     assert planner.step(b + 0.1, 0.0).reached
@@ -257,3 +257,18 @@ def test_a_hold_is_retaken_where_the_vehicle_is_after_the_fc_flew_on_its_own():
     planner.set_goal(Goal(np.array([9.0, 0.0, 5.0]), None))  # a goal is never dropped by it
     planner.retake_hold()
     assert planner.step(np.zeros(3), 0.0).distance_m == pytest.approx(np.hypot(9.0, 5.0))
+
+
+def test_a_new_goal_after_a_completed_one_reads_executing_with_its_time_to_go_before_its_first_step():
+    """planner/status runs on its own 10 Hz timer: between a new goal and the next 50 Hz step it
+    showed the last goal's COMPLETED and a remaining time of 0 under the new goal's id."""
+    planner = WaypointPlanner(max_velocity_mps=2.0, kp=0.8, acceptance_radius_m=0.5)
+    here = np.array([0.0, 0.0, 5.0])
+    planner.set_goal(Goal(here, None, index=1))
+    planner.step(here, 0.0, now_s=1.0)
+    assert planner.status == TrajectoryStatus.STATUS_COMPLETED
+    planner.set_goal(Goal(np.array([-8.0, 0.0, 5.0]), None, index=2))
+    assert planner.status == TrajectoryStatus.STATUS_EXECUTING
+    p = planner.progress(here, 2.0)
+    assert (p.percent, p.elapsed_s) == (0.0, 0.0)
+    assert p.remaining_s == pytest.approx(time_to_go_s(8.0, 2.0, 0.8, 0.5))
