@@ -240,14 +240,15 @@ def test_px4_flies_survey_01_smooth_on_its_reference_and_its_legs(px4):
     assert res["reference_error_rms_m"] < 0.45, res
     assert res["cross_track_xy_rms_m"] < 0.25, res
     assert real["cross_track_xy_rms_m"] < 0.3, real
-    assert res["time_s"] < 26.0, res                  # 20.5-21.4 s
+    assert res["time_s"] < 26.0, res                  # 22.2-22.7 s planned at 1.8 m/s (20.5-21.4 at 2.0)
     # PX4 flies feed-forward + MPC_XY_P x its position error: without the px4 profile's speed governor
     # (fc_xy_gain_per_s) it caught up after speeding up, commanding 2.57-2.70 m/s at the 2 m/s cap (ULog),
-    # 2.20-2.41 by truth; governed it commands <= 2.09 (ULog). What is over the cap is PX4's velocity loop
-    # overshooting its setpoint and EKF2's velocity error (0.11-0.21 m/s RMS with the matched noise, p95
-    # 0.19-0.38; 0.25-0.39 RMS before): peaks 2.09-2.32 m/s by the estimate, 2.06-2.28 by the truth
-    assert res["peak_xy_speed_mps"] < 2.0 * 1.2, res
-    assert real["peak_xy_speed_mps"] < 2.0 * 1.2, real
+    # 2.20-2.41 by truth; governed it commands <= 2.09 (ULog). What was over the cap then is PX4's velocity
+    # loop overshooting its setpoint and EKF2's velocity error (p95 0.20-0.30 m/s): peaks 2.06-2.28 by the
+    # truth. The profile's fc_velocity_error_mps 0.2 plans 1.8: 3 surveys at load 4-9 peaked 1.89-1.93 m/s by
+    # the estimate, 1.94-1.99 by the truth (22.2-22.7 s, cross-track xy 0.10-0.13 m by the truth)
+    assert res["peak_xy_speed_mps"] < 2.0 * 1.1, res
+    assert real["peak_xy_speed_mps"] < 2.0 * 1.1, real
 
 
 # ---------------------------------------------------------------- (b) pilot HOLD -> resume
