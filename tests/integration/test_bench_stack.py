@@ -18,7 +18,7 @@ def test_bench_stack_reports_every_process_rates_hot_path_and_a_verdict():
     report = measure("sim", "lidar", duration_s=10.0, settle_s=4.0)
     started, _ = fed_services(profile_services("sim"), "lidar")
     rows = {r["process"]: r for r in report.processes}
-    assert set(started) | {"aero up (router)"} <= set(rows), sorted(rows)
+    assert set(started) | {"aero up", "router"} <= set(rows), sorted(rows)
     for name in started:
         r = rows[name]
         assert r["cpu_mean_pct"] > 0 and 20 < r["rss_end_mb"] < 4000, r

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import select
 import socket
 import struct
@@ -254,7 +255,8 @@ class HoverRun:
                        sched=scheduling_line(self.log_dir))
 
     def close(self) -> None:
-        """Land (best effort) and stop the stack."""
+        """Land (best effort) and stop the stack; its logs are removed unless an error is on its
+        way out (its message names the folder)."""
         try:
             if self.session is not None:
                 try:
@@ -270,6 +272,8 @@ class HoverRun:
                 self.proc.kill()
             self._up_out.close()
             self.tap.stop.set()
+            if sys.exc_info()[0] is None:
+                shutil.rmtree(self.log_dir, ignore_errors=True)
 
 
 @dataclass

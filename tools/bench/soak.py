@@ -38,6 +38,18 @@ def _children(pid: int) -> list[int]:
     return out
 
 
+SUPERVISOR, ROUTER = "aero up", "router"   # processes of the stack that are not services
+
+
+def router_pid(st) -> int | None:
+    """The router `aero up` runs as its own child (<log dir>/router.pid), if it does."""
+    folder = getattr(st, "run_dir", None) or getattr(st, "log_dir", None)
+    try:
+        return int((Path(folder) / "router.pid").read_text().split()[0])
+    except (OSError, TypeError, ValueError, IndexError):
+        return None
+
+
 class Sampler:
     """Samples {name: (t, rss_bytes, cpu_s)} every period_s in its own thread."""
 
@@ -56,10 +68,13 @@ class Sampler:
         now = time.monotonic()
         procs = dict(self.st.pids())
         if self.st.proc is not None:
-            procs["aero up (router)"] = self.st.proc.pid
+            procs[SUPERVISOR] = self.st.proc.pid
+        router = router_pid(self.st)
+        if router is not None:
+            procs[ROUTER] = router
         for name, pid in procs.items():
             rss, cpu = 0, 0.0
-            for p in [pid, *(_children(pid) if name != "aero up (router)" else [])]:
+            for p in [pid, *(_children(pid) if name not in (SUPERVISOR, ROUTER) else [])]:
                 s = proc_stats(p)
                 if s is not None:
                     rss, cpu = rss + s[0], cpu + s[1]

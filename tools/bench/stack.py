@@ -217,7 +217,7 @@ def measure(profile: str = "sim", sensors: str = "all", duration_s: float = 30.0
     rows = summarize(sampler.samples, sampler.pids)
     for r in rows:
         r.update(_diag_row(diags.get(r["process"])) if r["process"] in services else
-                 dict(diag_cpu_pct="-", budget_pct="-", level="(router, in aero up)"))
+                 dict(diag_cpu_pct="-", budget_pct="-", level="(not a service)"))
     return StackReport(rows, rates, hot, idle, duration_s, os.cpu_count() or 1, bench_pct)
 
 
