@@ -72,6 +72,11 @@ def progressing(ctx: Ctx, window_s: float = 3.0) -> bool:
     return float(np.linalg.norm(truth[-1][1].position_m.to_array() - truth[0][1].position_m.to_array())) > 1.0
 
 
+def flies_on(ctx: Ctx, window_s: float = 3.0) -> bool:
+    """The mission goes on: flying its waypoints (`progressing`), or already landing or landed."""
+    return progressing(ctx, window_s) or ctx.rec.last("status").state in ("LAND", "IDLE")
+
+
 def first_hold(ctx: Ctx, since: float) -> float | None:
     """Seconds from `since` to the first zero-velocity setpoint fmu sent: its brake (velocity
     only) or its position hold — fmu brakes to a stop first, then holds where it stopped."""

@@ -19,7 +19,7 @@ from aeroperception.tools.harness.mavlink_tap import LOCAL_POSITION_NED
 
 from .ground_station import FakeGcs
 from .judging import still_mps
-from .row import Ctx, Row, first_hold, held_after, kill, mission_states, pause, progressing, restarted, resume
+from .row import Ctx, Row, first_hold, flies_on, held_after, kill, mission_states, pause, restarted, resume
 
 OFFBOARD_LOSS_S = 1.0    # COM_OF_LOSS_T: PX4's default (the stack leaves it) and the built-in sim's
 # How late after the last setpoint the judge may see the FC's offboard-loss failsafe. PX4 declares the
@@ -40,7 +40,7 @@ def kill_row(name: str) -> Row:
             return _observe_mission_restart(ctx, back)
         if name in ("fmu", "planner"):
             return _observe_outage(ctx, name, back)
-        flying = progressing(ctx) or ctx.rec.last("status").state in ("LAND", "IDLE")
+        flying = flies_on(ctx)
         states = mission_states(ctx, ctx.t_inject)
         ok = flying and "HOLDING" not in states
         held = next((m.message for _, m in ctx.rec.since("status", ctx.t_inject) if m.state == "HOLDING"), "")
@@ -115,7 +115,7 @@ def _router_observe(links: str):
             return False, f"killed {where}; router/services not back within 25 s", None
         head = f"killed {where}; router and every service back in {react:.1f} s; "
         if links == "direct":
-            moving = progressing(ctx, 2.0) or ctx.rec.last("status").state in ("LAND", "IDLE")
+            moving = flies_on(ctx, 2.0)
             states = mission_states(ctx, ctx.t_inject)
             ok = moving and "HOLDING" not in states
             return ok, head + f"mission {'->'.join(states)}{'' if moving else ', not progressing'}", react
@@ -213,7 +213,7 @@ def _clock_observe(ctx: Ctx):
     holds0 = ctx.notes.get("holds0", 0)
     stamps = [t for t, _ in ctx.rec.since("state", t0)]
     gaps = np.diff(stamps) if len(stamps) > 1 else np.array([math.inf])
-    moving = progressing(ctx, 2.0) or ctx.rec.last("status").state in ("LAND", "IDLE")
+    moving = flies_on(ctx, 2.0)
     holds = int(ctx.st.latest_diag("fmu").values.get("holds_sent", 0)) - holds0
     ok = moving and float(gaps.max()) < 0.2 and holds <= 0
     return ok, (f"state/vehicle max gap {gaps.max() * 1e3:.0f} ms; fmu holds +{holds}; mission "
@@ -270,7 +270,7 @@ def _lidar_observe(ctx: Ctx):
         return False, "lidar not restarted within 30 s", hold
     fresh = poll_until(lambda: any(t > t0 + back and m.obstacle_state != "stale_costmap"
                                    for t, m in ctx.rec.since("planner", t0)), 20.0)
-    flying = progressing(ctx) or ctx.rec.last("status").state in ("LAND", "IDLE")
+    flying = flies_on(ctx)
     states = mission_states(ctx, t0)
     # While lidar was down, the vehicle slowed to a stop or was stopping (not cruising on).
     down = [m for t, m in ctx.rec.since("truth", t0 + (stale - t0 if stale else 0) + 2.0) if t < t0 + back]
