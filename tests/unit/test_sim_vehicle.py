@@ -663,6 +663,19 @@ def run_module(mod, seconds):
     return out
 
 
+def test_a_faster_stream_rate_applies_from_the_next_step(mod):
+    """The streams skip their scan until the earliest is due; a new interval must not wait for
+    the old schedule (local position at 30 Hz, then 250 Hz: next step, and every step on)."""
+    ticks = []
+    while not by_type(ticks, "LOCAL_POSITION_NED"):
+        mod.vehicle.step(DT)
+        ticks = mod.tick()
+    mod.handle(cmd(M.MAV_CMD_SET_MESSAGE_INTERVAL, M.MAVLINK_MSG_ID_LOCAL_POSITION_NED, 1e6 / RATE_HZ))
+    assert [len(by_type(run_module(mod, DT), "LOCAL_POSITION_NED")) for _ in range(5)] == [1] * 5
+    mod.handle(cmd(M.MAV_CMD_SET_MESSAGE_INTERVAL, M.MAVLINK_MSG_ID_LOCAL_POSITION_NED, -1))
+    assert by_type(run_module(mod, 0.5), "LOCAL_POSITION_NED") == []
+
+
 def test_reboot_like_px4_silent_then_boot_time_from_zero_and_default_rates(mod):
     mod.handle(cmd(M.MAV_CMD_SET_MESSAGE_INTERVAL, M.MAVLINK_MSG_ID_LOCAL_POSITION_NED, 20_000))  # 50 Hz
     out = run_module(mod, 5.0)

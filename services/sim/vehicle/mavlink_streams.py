@@ -86,6 +86,7 @@ class TelemetryStreams(OnVehicle):
         self.enc = mavlink.MAVLink(None, srcSystem=system_id, srcComponent=component_id)  # message factory
         self.intervals_ns: dict[int, int] = {}
         self._next_due_ns: dict[int, int] = {}
+        self._earliest_due_ns = 0   # no stream is due before this (0: look at them all)
         self._failsafes_seen = 0
         self.builders: dict[int, Callable[[], Message]] = {
             M.MAVLINK_MSG_ID_HEARTBEAT: self.heartbeat,
@@ -108,6 +109,7 @@ class TelemetryStreams(OnVehicle):
         """Boot defaults: every stream at its default rate, nothing sent yet."""
         self.intervals_ns = {mid: int(1e9 / hz) for mid, hz in DEFAULT_RATES_HZ.items()}
         self._next_due_ns.clear()
+        self._earliest_due_ns = 0
         self._failsafes_seen = 0
 
     @property
@@ -122,14 +124,18 @@ class TelemetryStreams(OnVehicle):
         """Telemetry due now (sim time), plus a STATUSTEXT when a failsafe fired."""
         now = self.vehicle.time_ns
         out = []
-        for mid, interval in self.intervals_ns.items():
-            if interval <= 0:
-                continue
-            due = self._next_due_ns.get(mid, now)
-            if now >= due:
-                out.append(self.builders[mid]())
-                due += interval
-                self._next_due_ns[mid] = due if due > now else now + interval
+        if now >= self._earliest_due_ns:   # most physics steps (400 Hz) have nothing due: skip the scan
+            earliest = None
+            for mid, interval in self.intervals_ns.items():
+                if interval <= 0:
+                    continue
+                due = self._next_due_ns.get(mid, now)
+                if now >= due:
+                    out.append(self.builders[mid]())
+                    due += interval
+                    due = self._next_due_ns[mid] = due if due > now else now + interval
+                earliest = due if earliest is None or due < earliest else earliest
+            self._earliest_due_ns = earliest if earliest is not None else now + 1
         if self.commander.counters["failsafes"] != self._failsafes_seen:
             self._failsafes_seen = self.commander.counters["failsafes"]
             out.append(self.statustext(M.MAV_SEVERITY_CRITICAL, f"Failsafe: {self.commander.failsafe_reason}"))
@@ -147,6 +153,7 @@ class TelemetryStreams(OnVehicle):
         else:
             self.intervals_ns[mid] = int(interval_us * 1000)
             self._next_due_ns.pop(mid, None)
+        self._earliest_due_ns = 0
         return True
 
     def interval_us(self, mid: int) -> int | None:
