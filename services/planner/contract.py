@@ -84,6 +84,11 @@ PARAMS = [
                       "flies its estimate: at the cap, the truth is this much faster): a generated trajectory is "
                       "timed, and the governor caps, this far below max_velocity_mps and the climb/descent caps "
                       "(never below half of each); typed trajectories and goal-by-goal flight are not (0 = off)"),
+    Param("fc_jerk_error_mps3", 0.0, "m/s^3", 0.0, 50.0,
+          description="how much jerk the flight controller's tracking adds to the reference's (its loops correcting "
+                      "its estimate's error, its height hold): a generated trajectory is planned this far below "
+                      "jerk_mps3 (never below half of it), so that the vehicle's jerk stays within it; typed "
+                      "trajectories and goal-by-goal flight are not (0 = off)"),
     Param("trajectory_lag_m", 1.5, "m", 0.2, 20.0,
           description="the reference slows while the vehicle is more than half this behind it, stops at this"),
     # swappable parts (plugins.py): switched live only on the ground or hovering

@@ -88,7 +88,7 @@ class PlannerService(Service):
         p = self.params
         return TrackerConfig(limits_from(p), p.acceptance_radius_m, p.trajectory_lag_m, p.trajectory_generator,
                              FeedForward(p.ff_lead_s, p.drag_per_s, p.fc_xy_vel_d), p.fc_xy_gain_per_s,
-                             p.fc_velocity_error_mps)
+                             p.fc_velocity_error_mps, p.fc_jerk_error_mps3)
 
     def _on_trajectory(self, msg: Trajectory) -> None:
         if msg == self.trajectory_msg:

@@ -39,7 +39,7 @@ import numpy as np
 
 from aeroperception.schemas import Trajectory
 
-from .trajectory.core import Limits
+from .trajectory.core import Limits, PlanningMargin
 from .trajectory.evaluate import TrajectoryRefused, evaluate
 from .trajectory.follow import FeedForward, FollowStep, Follower, SpeedGovernor
 from .trajectory.generators import GENERATORS, check_frames, generator_of, limits_of, path_for
@@ -64,6 +64,12 @@ class TrackerConfig:
     feedforward: FeedForward = FeedForward()
     fc_xy_gain_per_s: float = 0.0   # the FC's horizontal position gain (PX4's MPC_XY_P): SpeedGovernor; 0 = off
     fc_velocity_error_mps: float = 0.0   # generated paths are timed this far below the speed caps; 0 = off
+    fc_jerk_error_mps3: float = 0.0      # ... and planned this far below the jerk limit; 0 = off
+
+    @property
+    def margin(self) -> PlanningMargin:
+        """What the flight controller adds to a generated path: it is planned inside the limits by this."""
+        return PlanningMargin(self.fc_velocity_error_mps, self.fc_jerk_error_mps3)
 
 
 class TrajectoryTracker:
@@ -228,13 +234,13 @@ class TrajectoryTracker:
             msg = msgspec.structs.replace(self.msg, waypoints=list(self.msg.waypoints[k:]))
         try:
             path = path_for(msg, position_m, yaw_rad, self.cfg.limits, self.cfg.acceptance_radius_m, self.cfg.generator,
-                            self.cfg.fc_velocity_error_mps)
+                            self.cfg.margin)
         except TrajectoryRefused as e:
             self.refused, self.refusal_holds = str(e), not self._generated()
             return False
         if path is None:
             return False
-        cap = limits_of(self.msg, self.cfg.limits).below_caps(self.cfg.fc_velocity_error_mps).xy_vel_max_mps
+        cap = limits_of(self.msg, self.cfg.limits).inside(self.cfg.margin).xy_vel_max_mps
         governor = SpeedGovernor(self.cfg.fc_xy_gain_per_s, cap)
         self.follower = Follower(path, now_s, self.msg.setpoint_type, self.cfg.lag_m, self.cfg.feedforward, governor)
         self.first_index = k

@@ -76,3 +76,17 @@ def test_horizontal_cross_track_leaves_out_a_height_offset():
     res = ev.summary()
     assert res["cross_track_rms_m"] == pytest.approx(math.hypot(0.1, 0.5), abs=1e-3)
     assert res["cross_track_xy_rms_m"] == pytest.approx(0.1, abs=1e-6) and res["cross_track_xy_max_m"] == pytest.approx(0.1, abs=1e-6)
+
+
+def test_jerk_is_scored_in_3d_and_horizontally_apart():
+    """A height hold's bob (no vertical motion asked) counts in the 3-D jerk, not in the horizontal
+    one: 0.05 m at 1 Hz has a jerk of 0.05 (2 pi)^3 = 12.4 m/s^3."""
+    t = np.arange(0, 10.0, 0.01)
+    pos = np.column_stack([t, np.zeros_like(t), 5.0 + 0.05 * np.sin(2 * math.pi * t)])   # 1 m/s along x
+    ev = TrajectoryEval(np.array([[0, 0, 5], [10, 0, 5]], float))
+    flown(ev, pos, dt=0.01)
+    ev.add_reached(0, 0.0)
+    ev.add_reached(1, t[-1])
+    res = ev.summary()
+    assert res["peak_xy_jerk_mps3"] < 0.1
+    assert 9.0 < res["peak_jerk_mps3"] < 12.5          # the eval's 0.2 s differences round the peak off a little

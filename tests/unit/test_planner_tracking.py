@@ -9,6 +9,7 @@ import pytest
 from aeroperception.schemas import Header, Pose, PoseStamped, Quaternion, Trajectory, Vector3
 from aeroperception.services.planner.tracking import TrackerConfig, TrajectoryTracker
 from aeroperception.services.planner.trajectory import Limits
+from aeroperception.services.planner.trajectory.core import PlanningMargin, peaks
 
 SURVEY = [(10, 0, 5), (10, 10, 5), (0, 0, 5)]
 DT = 0.02
@@ -129,10 +130,11 @@ def test_a_flight_controllers_velocity_error_is_planned_below_the_caps():
     half of it) and the governor caps the FC's catch-up there too; a typed trajectory is checked
     against the limits themselves; 0 changes nothing."""
     limits = Limits(xy_vel_max_mps=2.0, z_vel_max_up_mps=3.0, z_vel_max_dn_mps=1.5)
-    lowered = limits.below_caps(0.15)
+    lowered = limits.inside(PlanningMargin(speed_mps=0.15))
     assert (lowered.xy_vel_max_mps, lowered.z_vel_max_up_mps, lowered.z_vel_max_dn_mps) == pytest.approx((1.85, 2.85, 1.35))
-    assert lowered.acc_hor_mps2 == limits.acc_hor_mps2 and limits.below_caps(0.0) is limits
-    assert limits.below_caps(1.9).xy_vel_max_mps == pytest.approx(1.0)          # half the cap at least
+    assert (lowered.acc_hor_mps2, lowered.jerk_mps3) == (limits.acc_hor_mps2, limits.jerk_mps3)
+    assert limits.inside(PlanningMargin()) is limits
+    assert limits.inside(PlanningMargin(speed_mps=1.9)).xy_vel_max_mps == pytest.approx(1.0)   # half the cap at least
     peaks = {}
     for margin in (0.0, 0.15):
         tr = TrajectoryTracker(TrackerConfig(limits, 0.5, fc_xy_gain_per_s=0.95, fc_velocity_error_mps=margin))
@@ -142,6 +144,28 @@ def test_a_flight_controllers_velocity_error_is_planned_below_the_caps():
         peaks[margin] = max(float(np.hypot(*path.sample(t).velocity_mps[:2])) for t in np.arange(0, path.duration_s, 0.02))
         assert tr.follower.governor.xy_speed_mps == pytest.approx(2.0 - margin)
     assert peaks[0.0] == pytest.approx(2.0, abs=1e-3) and peaks[0.15] == pytest.approx(1.85, abs=1e-3)
+
+
+def test_a_flight_controllers_added_jerk_is_planned_below_the_jerk_limit():
+    """fc_jerk_error_mps3: a generated path is planned that far below jerk_mps3 (never below half of
+    it), so that the reference's jerk plus what the FC adds stays within the limit; speed and
+    acceleration limits are untouched by it; 0 changes nothing."""
+    limits = Limits(xy_vel_max_mps=3.0, acc_hor_mps2=3.0, jerk_mps3=4.0)
+    lowered = limits.inside(PlanningMargin(jerk_mps3=1.0))
+    assert lowered.jerk_mps3 == pytest.approx(3.0)
+    assert (lowered.xy_vel_max_mps, lowered.acc_hor_mps2, lowered.z_vel_max_up_mps) == \
+        (limits.xy_vel_max_mps, limits.acc_hor_mps2, limits.z_vel_max_up_mps)
+    assert limits.inside(PlanningMargin(jerk_mps3=3.5)).jerk_mps3 == pytest.approx(2.0)   # half the limit at least
+    both = limits.inside(PlanningMargin(0.2, 1.0))
+    assert (both.xy_vel_max_mps, both.jerk_mps3) == pytest.approx((2.8, 3.0))
+    jerks = {}
+    for margin in (0.0, 1.0):
+        tr = TrajectoryTracker(TrackerConfig(limits, 0.5, fc_jerk_error_mps3=margin))
+        tr.offer(smooth_msg())
+        fly(tr, (0, 0, 5), SURVEY)
+        jerks[margin] = peaks(tr.follower.path, 0.005).jerk_mps3
+    # the blends are jerk-limited at the corners: the peak is the planning limit itself
+    assert jerks[0.0] == pytest.approx(4.0, abs=0.02) and jerks[1.0] == pytest.approx(3.0, abs=0.02)
 
 
 

@@ -8,6 +8,7 @@ import pytest
 
 from aeroperception.schemas import Header, Pose, PoseStamped, Quaternion, Trajectory, Vector3
 from aeroperception.services.planner.trajectory import Limits, TrajectoryRefused, smooth
+from aeroperception.services.planner.trajectory.core import PlanningMargin, peaks
 from aeroperception.services.planner.trajectory.follow import FeedForward, Follower, SpeedGovernor, setpoint_of
 from aeroperception.services.planner.trajectory.generators import path_for
 
@@ -207,11 +208,12 @@ def test_a_reference_that_waits_streams_no_velocity():
                                                          0.5 * path.sample(f.t_s).velocity_mps)
 
 
-def test_a_speed_margin_times_generated_paths_only():
+def test_a_planning_margin_shapes_generated_paths_only():
     here = np.array([0.0, 0.0, 3.0])
     msg = Trajectory(generator_name="smooth", waypoints=[waypoint(20, 0, 3)])
-    slow = path_for(msg, here, 0.0, Limits(), 0.5, speed_margin_mps=0.2)
+    slow = path_for(msg, here, 0.0, Limits(), 0.5, margin=PlanningMargin(0.2, 1.0))
     assert float(np.hypot(*slow.sample(slow.duration_s / 2).velocity_mps[:2])) == pytest.approx(1.8)
+    assert peaks(slow, 0.005).jerk_mps3 == pytest.approx(3.0, abs=0.02)
     typed = Trajectory(trajectory_type=Trajectory.TRAJECTORY_POLYNOMIAL, total_duration_s=10.0, poly_order=1,
                        poly_coeffs_x=[0, 2.0], poly_coeffs_y=[0, 0], poly_coeffs_z=[3, 0])
-    assert path_for(typed, here, 0.0, Limits(), 0.5, speed_margin_mps=0.2).duration_s == 10.0   # flown as given
+    assert path_for(typed, here, 0.0, Limits(), 0.5, margin=PlanningMargin(0.2, 1.0)).duration_s == 10.0   # flown as given

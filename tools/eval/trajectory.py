@@ -104,6 +104,7 @@ class TrajectoryEval:
             "peak_xy_acc_mps2": round(float(np.hypot(acc[:, 0], acc[:, 1]).max()) if len(acc) else 0.0, 3),
             "peak_z_acc_mps2": round(float(np.abs(acc[:, 2]).max()) if len(acc) else 0.0, 3),
             "peak_jerk_mps3": round(float(np.linalg.norm(jerk, axis=1).max()) if len(jerk) else 0.0, 3),
+            "peak_xy_jerk_mps3": round(float(np.hypot(jerk[:, 0], jerk[:, 1]).max()) if len(jerk) else 0.0, 3),
             "corner_overshoot_m": [round(o, 3) for o in overshoot],
             "reference_error_rms_m": round(float(np.sqrt(np.mean(ref ** 2))), 3) if len(ref) else None,
             "reference_error_max_m": round(float(ref.max()), 3) if len(ref) else None,
@@ -120,7 +121,7 @@ def table(res: dict) -> str:
         f"  horizontal only               {res['cross_track_xy_rms_m']:.3f} / {res['cross_track_xy_max_m']:.3f} m",
         f"peak speed (xy)                 {res['peak_speed_mps']:.2f} ({res['peak_xy_speed_mps']:.2f}) m/s",
         f"peak acceleration xy / z        {res['peak_xy_acc_mps2']:.2f} / {res['peak_z_acc_mps2']:.2f} m/s^2",
-        f"peak jerk                       {res['peak_jerk_mps3']:.2f} m/s^3",
+        f"peak jerk (xy)                  {res['peak_jerk_mps3']:.2f} ({res['peak_xy_jerk_mps3']:.2f}) m/s^3",
         f"corner overshoot                {', '.join(f'{o:.2f}' for o in res['corner_overshoot_m']) or '-'} m",
         f"tracking vs reference RMS / max {ref}",
     ]

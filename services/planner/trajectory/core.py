@@ -12,6 +12,19 @@ import numpy as np
 
 
 @dataclass(frozen=True)
+class PlanningMargin:
+    """What a flight controller adds to the trajectory it tracks, planned inside the limits
+    (Limits.inside). `speed_mps`: its velocity estimate's error (it flies its estimate: at the cap
+    by the estimate, the vehicle is this much faster). `jerk_mps3`: the jerk its tracking adds to
+    the reference's (its loops correcting the estimate's error and trailing the reference, and its
+    height hold; PX4 SIH, figure8 at 3 m/s: the vehicle's jerk 0.5-1.1 m/s^3 above the reference's
+    horizontally, 1-3 m/s^3 vertically with none planned)."""
+
+    speed_mps: float = 0.0
+    jerk_mps3: float = 0.0
+
+
+@dataclass(frozen=True)
 class Limits:
     """Kinematic limits, each named after the PX4 parameter it mirrors."""
 
@@ -29,14 +42,15 @@ class Limits:
             if not (value > 0 and math.isfinite(value)):
                 raise ValueError(f"limit `{name}` must be a positive number, got {value!r}")
 
-    def below_caps(self, margin_mps: float) -> Limits:
-        """These limits with each speed cap lowered by `margin_mps` (never below half of it): what a
-        trajectory is timed with for a flight controller that flies its velocity estimate at the cap
-        while that estimate may be `margin_mps` off the vehicle's true velocity."""
-        if margin_mps <= 0:
+    def inside(self, margin: PlanningMargin) -> Limits:
+        """These limits lowered by `margin` (each never below half of itself): what a trajectory is
+        planned with for a flight controller that adds `margin` to it, so that what the vehicle
+        flies stays within these limits."""
+        if margin.speed_mps <= 0 and margin.jerk_mps3 <= 0:
             return self
-        lowered = {name: max(getattr(self, name) - margin_mps, getattr(self, name) / 2)
-                   for name in ("xy_vel_max_mps", "z_vel_max_up_mps", "z_vel_max_dn_mps")}
+        lowered = {name: max(getattr(self, name) - max(0.0, by), getattr(self, name) / 2)
+                   for name, by in (("xy_vel_max_mps", margin.speed_mps), ("z_vel_max_up_mps", margin.speed_mps),
+                                    ("z_vel_max_dn_mps", margin.speed_mps), ("jerk_mps3", margin.jerk_mps3))}
         return dataclasses.replace(self, **lowered)
 
     def speed_cap_mps(self, direction: np.ndarray) -> float:

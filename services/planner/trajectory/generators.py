@@ -19,7 +19,7 @@ from aeroperception.schemas import Trajectory
 from aeroperception.schemas.mission import TRAJECTORY_GENERATORS
 
 from .blend import smooth
-from .core import Limits, Path, peaks
+from .core import Limits, Path, PlanningMargin, peaks
 from .evaluate import TrajectoryRefused, evaluate
 
 LIMIT_TOLERANCE = 0.10
@@ -84,11 +84,11 @@ def limits_of(msg: Trajectory, limits: Limits) -> Limits:
 
 
 def path_for(msg: Trajectory, position_m: np.ndarray, yaw_rad: float, limits: Limits,
-             acceptance_radius_m: float, generator: str = "smooth", speed_margin_mps: float = 0.0) -> Path | None:
+             acceptance_radius_m: float, generator: str = "smooth", margin: PlanningMargin = PlanningMargin()) -> Path | None:
     """The path `msg` asks for, flown from `position_m` (an untimed WAYPOINT message starts at
     rest there and passes its waypoints in order), with `generator` unless the message names its
-    own; None: that generator flies goal by goal. A generated path is timed with the speed caps
-    lowered by `speed_margin_mps` (Limits.below_caps); a typed one is flown as given, checked
+    own; None: that generator flies goal by goal. A generated path is planned inside the limits by
+    the flight controller's `margin` (Limits.inside); a typed one is flown as given, checked
     against the limits themselves. Raises TrajectoryRefused naming the field."""
     check_frames(msg)
     limits = limits_of(msg, limits)
@@ -109,7 +109,7 @@ def path_for(msg: Trajectory, position_m: np.ndarray, yaw_rad: float, limits: Li
                                                     for w in msg.waypoints]
         yaws = [yaw_rad] + [w.pose.orientation.to_yaw() for w in msg.waypoints]
         try:
-            return gen.make(np.array(points), yaws, limits.below_caps(speed_margin_mps), acceptance_radius_m)
+            return gen.make(np.array(points), yaws, limits.inside(margin), acceptance_radius_m)
         except ValueError as e:
             raise TrajectoryRefused(f"`waypoints`: {e}") from None
     path = evaluate(msg)
