@@ -10,6 +10,9 @@ The ground is a height field z = terrain(x, y) (ENU m; flat z = 0 by default, th
 ground plane in the simulator), so touchdown, resting and take-off happen on a slope where the
 rendered sensors see it. A vehicle resting on a slope keeps a level frame (its legs take the
 slope), as it did on flat ground.
+
+Parameters are read as p["NAME"], ~7x faster than p.NAME (a failed attribute lookup, then
+ParamSet.__getattr__): a physics step at 400 Hz reads a dozen.
 """
 from __future__ import annotations
 
@@ -75,19 +78,19 @@ class Battery:
     @property
     def remaining(self) -> float:
         """Fraction 0..1."""
-        return max(0.0, 1.0 - self.used_mah / self.p.SIM_BAT_CAP)
+        return max(0.0, 1.0 - self.used_mah / self.p["SIM_BAT_CAP"])
 
     @property
     def voltage_v(self) -> float:
         p = self.p
-        cell = p.BAT_V_EMPTY + (p.BAT_V_CHARGED - p.BAT_V_EMPTY) * self.remaining
-        return max(0.0, p.SIM_BAT_CELLS * cell - self.current_a * p.SIM_BAT_R)
+        cell = p["BAT_V_EMPTY"] + (p["BAT_V_CHARGED"] - p["BAT_V_EMPTY"]) * self.remaining
+        return max(0.0, p["SIM_BAT_CELLS"] * cell - self.current_a * p["SIM_BAT_R"])
 
     def step(self, dt_s: float, thrust_fraction: float, armed: bool) -> None:
         p = self.p
-        self.current_a = (p.SIM_BAT_IDLE_A if armed else 0.1 * p.SIM_BAT_IDLE_A) \
-            + p.SIM_BAT_MAX_A * max(thrust_fraction, 0.0) ** 1.5
-        self.used_mah += self.current_a * dt_s / 3.6 * p.SIM_BAT_DRAIN
+        self.current_a = (p["SIM_BAT_IDLE_A"] if armed else 0.1 * p["SIM_BAT_IDLE_A"]) \
+            + p["SIM_BAT_MAX_A"] * max(thrust_fraction, 0.0) ** 1.5
+        self.used_mah += self.current_a * dt_s / 3.6 * p["SIM_BAT_DRAIN"]
 
 
 class Multirotor:
@@ -107,24 +110,24 @@ class Multirotor:
 
     @property
     def max_thrust_n(self) -> float:
-        return self.p.SIM_TWR * self.p.SIM_MASS * GRAVITY_MPS2
+        return self.p["SIM_TWR"] * self.p["SIM_MASS"] * GRAVITY_MPS2
 
     def wind_enu_mps(self) -> np.ndarray:
-        return np.array([self.p.SIM_WIND_E, self.p.SIM_WIND_N, 0.0]) + self.gust_enu_mps
+        return np.array([self.p["SIM_WIND_E"], self.p["SIM_WIND_N"], 0.0]) + self.gust_enu_mps
 
     def _step_gust(self, dt_s: float) -> None:
         # Ornstein-Uhlenbeck: stationary std-dev SIM_WIND_GUST (vertical at a third), correlation
         # time SIM_GUST_TAU. Always draws, so the RNG stream does not depend on the wind settings.
-        sigma = self.p.SIM_WIND_GUST * _GUST_AXES
-        tau = self.p.SIM_GUST_TAU
+        sigma = self.p["SIM_WIND_GUST"] * _GUST_AXES
+        tau = self.p["SIM_GUST_TAU"]
         noise = self.rng.standard_normal(3)
         self.gust_enu_mps += -self.gust_enu_mps * (dt_s / tau) + sigma * math.sqrt(2.0 * dt_s / tau) * noise
 
     def _step_attitude(self, dt_s: float, q_sp: np.ndarray) -> None:
         s, p = self.state, self.p
         err = quat_to_rotvec(quat_multiply(quat_conjugate(s.q_enu_flu), q_sp))  # body frame
-        rates = err / p.SIM_ATT_TAU
-        max_rp, max_y = math.radians(p.MC_ROLLRATE_MAX), math.radians(p.MC_YAWRATE_MAX)
+        rates = err / p["SIM_ATT_TAU"]
+        max_rp, max_y = math.radians(p["MC_ROLLRATE_MAX"]), math.radians(p["MC_YAWRATE_MAX"])
         rates = np.clip(rates, [-max_rp, -max_rp, -max_y], [max_rp, max_rp, max_y])
         s.rates_flu_radps = rates
         s.q_enu_flu = quat_normalize(quat_multiply(s.q_enu_flu, quat_from_axis_angle(rates * dt_s)))
@@ -143,16 +146,16 @@ class Multirotor:
         self._step_gust(dt_s)
 
         thrust_cmd = 0.0 if command is None else min(max(command.thrust_n, 0.0), self.max_thrust_n)
-        s.thrust_n += (thrust_cmd - s.thrust_n) * (1.0 - math.exp(-dt_s / p.SIM_THR_TAU))
+        s.thrust_n += (thrust_cmd - s.thrust_n) * (1.0 - math.exp(-dt_s / p["SIM_THR_TAU"]))
         if command is not None:
             self._step_attitude(dt_s, command.q_enu_flu)
         else:
-            s.rates_flu_radps = s.rates_flu_radps * math.exp(-dt_s / p.SIM_ATT_TAU)  # tumbling decays
+            s.rates_flu_radps = s.rates_flu_radps * math.exp(-dt_s / p["SIM_ATT_TAU"])  # tumbling decays
             s.q_enu_flu = quat_normalize(quat_multiply(s.q_enu_flu, quat_from_axis_angle(s.rates_flu_radps * dt_s)))
 
         body_z = quat_to_rotmat(s.q_enu_flu)[:, 2]
         air_mps = s.velocity_enu_mps - self.wind_enu_mps()
-        accel = body_z * (s.thrust_n / p.SIM_MASS) + _GRAVITY_ENU - p.SIM_DRAG * air_mps
+        accel = body_z * (s.thrust_n / p["SIM_MASS"]) + _GRAVITY_ENU - p["SIM_DRAG"] * air_mps
 
         # Ground: it pushes back when we press into it, and holds us (friction, level frame)
         # until thrust exceeds weight.
