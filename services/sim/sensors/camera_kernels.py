@@ -48,7 +48,7 @@ def plane_table(scene, r_wc: np.ndarray, o: np.ndarray, fx: float) -> np.ndarray
 @nb.njit(cache=True, nogil=True)
 def rasterize(vc, tris, tri_plane, fx, fy, cx, cy, inv_z, plane, sky):
     """Fill inv_z (H, W) float64 with 1/z of the nearest surface (0: nothing) and plane (H, W)
-    int32 with its plane id (`sky` where nothing). vc: (V, 3) float64 camera-frame vertices;
+    int16 or int32 with its plane id (`sky` where nothing). vc: (V, 3) float64 camera-frame vertices;
     tris: (T, 3) vertex indices; tri_plane: (T,) plane id per triangle."""
     h, w = plane.shape
     inv_z[:] = 0.0
