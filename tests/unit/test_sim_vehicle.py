@@ -152,6 +152,43 @@ def test_acceleration_feed_forward_is_added_to_the_velocity_controllers_output()
     assert abs(east_speed_after(hold)) < 0.05
 
 
+def test_level_flight_with_jerk_limited_horizontal_acceleration_stays_level():
+    """A level reference that accelerates to 3 m/s^2 at 4 m/s^3 (a planned trajectory's limits),
+    east then north: the thrust follows the tilt (|thrust vector| along the commanded attitude, as
+    PX4's), so the vehicle barely moves vertically. Measured as `aero eval trajectory` does, by truth:
+    vertical jerk 0.27 m/s^3, height within 1.3 cm (thrust not raised with the tilt: 0.69, 7.4 cm)."""
+    from aeroperception.tools.eval.trajectory import DIFF_WINDOW_S, _derivative
+
+    ramp = round(0.75 * RATE_HZ)                    # 3 m/s^2 at 4 m/s^3
+    pulse = [4.0] * ramp + [0.0] * round(0.5 * RATE_HZ) + [-4.0] * ramp   # up to 3 m/s^2 and back to 0
+    leg = pulse + [0.0] * round(0.5 * RATE_HZ) + [-j for j in pulse]      # to 3.75 m/s and back to rest
+    jerk = np.zeros((len(leg) * 2 + round(2.0 * RATE_HZ), 3))
+    jerk[:len(leg), 0] = leg                        # east, then north
+    jerk[len(leg):2 * len(leg), 1] = leg
+    acc = np.cumsum(jerk, axis=0) * DT
+    vel = np.cumsum(acc, axis=0) * DT
+    pos = np.cumsum(vel, axis=0) * DT + [0.0, 0.0, 5.0]
+
+    v = SimVehicle(seed=0)
+    start_offboard(v, [0.0, 0.0, 5.0])
+    fly(v, 8.0, Setpoint.hold([0.0, 0.0, 5.0], 0.0))
+    every = round(RATE_HZ / 50)
+    stamps, velocity, height = [], [], []
+    for i in range(len(jerk)):
+        if i % every == 0:
+            v.commander.on_offboard_setpoint(v.time_s, Setpoint(position_enu_m=pos[i], velocity_enu_mps=vel[i],
+                                                                 accel_enu_mps2=acc[i], yaw_rad=0.0))
+        v.step(DT)
+        stamps.append(v.time_s)
+        velocity.append(v.state.velocity_enu_mps.copy())
+        height.append(v.state.position_enu_m[2])
+    t_acc, accel = _derivative(np.array(stamps), np.array(velocity), DIFF_WINDOW_S)
+    _, truth_jerk = _derivative(t_acc, accel, DIFF_WINDOW_S)
+    assert np.hypot(accel[:, 0], accel[:, 1]).max() > 2.8          # it did accelerate as asked
+    assert np.linalg.norm(v.state.position_enu_m[:2] - pos[-1, :2]) < 0.2
+    assert np.abs(truth_jerk[:, 2]).max() < 0.5, f"vertical jerk {np.abs(truth_jerk[:, 2]).max():.2f} m/s^3"
+    assert np.abs(np.array(height) - 5.0).max() < 0.03
+
 def test_yaw_setpoint_is_followed_at_limited_rate():
     v = SimVehicle(seed=0)
     sp = start_offboard(v, [0.0, 0.0, 3.0], yaw_rad=0.0)
