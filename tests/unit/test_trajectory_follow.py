@@ -217,3 +217,19 @@ def test_a_planning_margin_shapes_generated_paths_only():
     typed = Trajectory(trajectory_type=Trajectory.TRAJECTORY_POLYNOMIAL, total_duration_s=10.0, poly_order=1,
                        poly_coeffs_x=[0, 2.0], poly_coeffs_y=[0, 0], poly_coeffs_z=[3, 0])
     assert path_for(typed, here, 0.0, Limits(), 0.5, margin=PlanningMargin(0.2, 1.0)).duration_s == 10.0   # flown as given
+
+
+@pytest.mark.parametrize("off_m", [0.001, 0.02, 0.05])
+def test_a_vehicle_already_at_the_first_waypoint_flies_on_from_it(off_m):
+    """A vehicle a few centimetres from the first waypoint (hovering there, a mission resumed)
+    gives a first leg too short for any blend: the path starts at that waypoint instead of being
+    refused (which made the planner fly goal by goal)."""
+    msg = Trajectory(generator_name="smooth", waypoints=[waypoint(0, 0, 5), waypoint(8, 0, 5), waypoint(8, 8, 5)])
+    here = np.array([0.0, off_m, 5.0])
+    path = path_for(msg, here, 0.3, Limits(), 0.5)
+    start = path.sample(0)
+    assert np.linalg.norm(start.position_m - [0, 0, 5]) <= off_m + 1e-9 and start.yaw_rad == pytest.approx(0.3)
+    assert np.allclose(path.sample(path.duration_s).position_m, [8, 8, 5])
+    far = Trajectory(generator_name="smooth", waypoints=[waypoint(0, 0, 5), waypoint(0.03, 0, 5)])
+    with pytest.raises(TrajectoryRefused, match="waypoints"):   # two waypoints too close stay refused
+        path_for(far, np.array([-5.0, 0, 5]), 0.0, Limits(), 0.5)

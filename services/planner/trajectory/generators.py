@@ -18,7 +18,7 @@ import numpy as np
 from aeroperception.schemas import Trajectory
 from aeroperception.schemas.mission import TRAJECTORY_GENERATORS
 
-from .blend import smooth
+from .blend import CORNER_SHARE, smooth
 from .core import Limits, Path, PlanningMargin, peaks
 from .evaluate import TrajectoryRefused, evaluate
 
@@ -110,6 +110,13 @@ def path_for(msg: Trajectory, position_m: np.ndarray, yaw_rad: float, limits: Li
         yaws = [yaw_rad] + [w.pose.orientation.to_yaw() for w in msg.waypoints]
         try:
             return gen.make(np.array(points), yaws, limits.inside(margin), acceptance_radius_m)
+        except ValueError as e:
+            if np.linalg.norm(points[1] - points[0]) > CORNER_SHARE * acceptance_radius_m:
+                raise TrajectoryRefused(f"`waypoints`: {e}") from None
+        # Already at the first waypoint (hovering there, a mission resumed): a leg of centimetres
+        # holds no blend; start at the waypoint, a step within the corner's own tolerance.
+        try:
+            return gen.make(np.array(points[1:]), [yaw_rad] + yaws[2:], limits.inside(margin), acceptance_radius_m)
         except ValueError as e:
             raise TrajectoryRefused(f"`waypoints`: {e}") from None
     path = evaluate(msg)
