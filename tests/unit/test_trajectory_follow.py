@@ -230,6 +230,7 @@ def test_a_vehicle_already_at_the_first_waypoint_flies_on_from_it(off_m):
     start = path.sample(0)
     assert np.linalg.norm(start.position_m - [0, 0, 5]) <= off_m + 1e-9 and start.yaw_rad == pytest.approx(0.3)
     assert np.allclose(path.sample(path.duration_s).position_m, [8, 8, 5])
+    assert len(path.waypoint_times_s) == 4   # the vehicle's point, then each waypoint (the planner waits by index)
     far = Trajectory(generator_name="smooth", waypoints=[waypoint(0, 0, 5), waypoint(0.03, 0, 5)])
     with pytest.raises(TrajectoryRefused, match="waypoints"):   # two waypoints too close stay refused
         path_for(far, np.array([-5.0, 0, 5]), 0.0, Limits(), 0.5)

@@ -108,17 +108,22 @@ def path_for(msg: Trajectory, position_m: np.ndarray, yaw_rad: float, limits: Li
         points = [np.asarray(position_m, float)] + [np.array([w.pose.position.x, w.pose.position.y, w.pose.position.z])
                                                     for w in msg.waypoints]
         yaws = [yaw_rad] + [w.pose.orientation.to_yaw() for w in msg.waypoints]
+        planned = limits.inside(margin)
         try:
-            return gen.make(np.array(points), yaws, limits.inside(margin), acceptance_radius_m)
+            return gen.make(np.array(points), yaws, planned, acceptance_radius_m)
         except ValueError as e:
-            if np.linalg.norm(points[1] - points[0]) > CORNER_SHARE * acceptance_radius_m:
-                raise TrajectoryRefused(f"`waypoints`: {e}") from None
-        # Already at the first waypoint (hovering there, a mission resumed): a leg of centimetres
-        # holds no blend; start at the waypoint, a step within the corner's own tolerance.
-        try:
-            return gen.make(np.array(points[1:]), [yaw_rad] + yaws[2:], limits.inside(margin), acceptance_radius_m)
-        except ValueError as e:
-            raise TrajectoryRefused(f"`waypoints`: {e}") from None
+            error = e
+        if np.linalg.norm(points[1] - points[0]) <= CORNER_SHARE * acceptance_radius_m:
+            # Already at the first waypoint (hovering there, a mission resumed): a leg of centimetres
+            # holds no blend; start at the waypoint, a step within the corner's own tolerance. The
+            # vehicle's point keeps its place in waypoint_times_s (at 0 s, with waypoint 0).
+            try:
+                path = gen.make(np.array(points[1:]), [yaw_rad] + yaws[2:], planned, acceptance_radius_m)
+                path.waypoint_times_s = [0.0] + list(path.waypoint_times_s)
+                return path
+            except ValueError as e:
+                error = e
+        raise TrajectoryRefused(f"`waypoints`: {error}") from None
     path = evaluate(msg)
     gap = float(np.linalg.norm(path.sample(0.0).position_m - np.asarray(position_m, float)))
     if gap > max(1.0, acceptance_radius_m):
