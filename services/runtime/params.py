@@ -82,12 +82,29 @@ class Param:
 
 @dataclass
 class ParamSet:
-    """Current values of a service's declared parameters; thread-safe; notifies on change."""
+    """Current values of a service's declared parameters; thread-safe; notifies on change.
+
+    Read a value as `ps.NAME` or `ps["NAME"]`. Each value is also kept as a plain instance
+    attribute, rewritten by every set, apply and rollback (`_store`), so `ps.NAME` is an ordinary
+    attribute read (~40 ns) rather than a failed lookup plus __getattr__ (~430 ns): services read
+    parameters in their hot loops (the sim's physics a dozen a step at 400 Hz). A name that is
+    also one of ParamSet's own attributes (`values`, `set`, ...) is only reachable as ps["NAME"]."""
 
     declared: dict[str, Param]
     values: dict[str, Any] = field(default_factory=dict)
     _listeners: list[Callable[[str, Any], None]] = field(default_factory=list)
     _lock: threading.Lock = field(default_factory=threading.Lock)
+
+    def __post_init__(self) -> None:
+        for name, v in self.values.items():
+            self._store(name, v)
+
+    def _store(self, name: str, v: Any) -> None:
+        """The one place a value is written: the dict and its attribute mirror (callers hold the lock
+        once the set is shared)."""
+        self.values[name] = v
+        if name not in _OWN_NAMES:
+            self.__dict__[name] = v
 
     @classmethod
     def from_declarations(cls, params: Iterable[Param]) -> "ParamSet":
@@ -97,10 +114,7 @@ class ParamSet:
     def __getitem__(self, name: str) -> Any:
         return self.values[name]
 
-    def __getattr__(self, name: str) -> Any:
-        values = self.__dict__.get("values")
-        if values is not None and name in values:
-            return values[name]
+    def __getattr__(self, name: str) -> Any:   # only names that are no parameter get here
         raise AttributeError(name)
 
     def _declared(self, name: str) -> Param:
@@ -114,7 +128,7 @@ class ParamSet:
         (old value kept) when invalid or unknown. Listeners are told; none may refuse here."""
         v = self._declared(name).validate(value)
         with self._lock:
-            self.values[name] = v
+            self._store(name, v)
         for cb in list(self._listeners):
             cb(name, v)
         return v
@@ -129,7 +143,8 @@ class ParamSet:
                              f"still {self.values[name]!r}")
         v = p.validate(value)
         with self._lock:
-            old, self.values[name] = self.values[name], v
+            old = self.values[name]
+            self._store(name, v)
         done: list[Callable[[str, Any], None]] = []
         try:
             for cb in list(self._listeners):
@@ -137,7 +152,7 @@ class ParamSet:
                 done.append(cb)
         except Exception:   # a refusal (ParamError) or a callback that failed: either way not applied
             with self._lock:
-                self.values[name] = old
+                self._store(name, old)
             for cb in done:
                 cb(name, old)
             raise
@@ -175,6 +190,9 @@ class ParamSet:
             self.update(data)
         except ParamError as e:
             raise ParamError(f"{p}: {e}") from None
+
+
+_OWN_NAMES = frozenset(dir(ParamSet)) | {f.name for f in dataclasses.fields(ParamSet)}
 
 
 def start_only_but(params: Iterable[Param], live: Iterable[str] = ()) -> list[Param]:

@@ -111,6 +111,23 @@ def test_params_live_set_refused_by_apply_callback_keeps_what_runs():
     assert ps["max_velocity_mps"] == 4.0
 
 
+def test_params_attribute_reads_follow_every_set_apply_and_rollback():
+    """ps.NAME is a plain attribute kept in step with the values (a fast read for hot loops): it
+    shows start-up sets, live applies, a refused apply's rollback and what callbacks see."""
+    ps = params()
+    ps.update({"retries": 5})
+    assert ps.retries == 5 == ps["retries"]
+    seen_in_callback = []
+    ps.on_change(lambda n, v: seen_in_callback.append(ps.max_velocity_mps))
+    ps.on_change(lambda n, v: (_ for _ in ()).throw(ParamError("no")) if v > 5 else None)
+    assert ps.apply("max_velocity_mps", 4) == 4.0 and ps.max_velocity_mps == 4.0
+    with pytest.raises(ParamError):
+        ps.apply("max_velocity_mps", 9)
+    assert ps.max_velocity_mps == 4.0 and seen_in_callback == [4.0, 9.0, 4.0]
+    clash = ParamSet.from_declarations([Param("values", 1), Param("gain", 1.0)])   # a name ParamSet uses itself
+    assert clash["values"] == 1 and clash.values == {"values": 1, "gain": 1.0} and clash.gain == 1.0
+
+
 def test_params_start_only_refused_live_naming_that():
     ps = ParamSet.from_declarations([Param("strategy", "a", start_only=True), Param("gain", 1.0)])
     ps.update({"strategy": "b"})                   # start-up values (file, --param) are taken
