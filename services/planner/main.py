@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import time
 
+import numpy as np
+
 from aeroperception.schemas import (
     DiagnosticStatus, Header, LandedState, MissionGoal, OccupancyGrid, Odometry, SelectPluginReply, SelectPluginRequest, Trajectory,
     TrajectorySetpoint, TrajectoryStatus, Vector3, VehicleState, WaypointReached,
@@ -239,7 +241,8 @@ class PlannerService(Service):
         if self.planner.goal is not None:
             age_s = self._state_age_s(st)
             follow = self.tracker.step(st.position_m.to_array(), st.yaw_rad, time.monotonic(), self.planner.goal.position_m,
-                                       self._path_blocked if self.params.obstacle_avoidance else None, age_s)
+                                       self._path_blocked if self.params.obstacle_avoidance else None, age_s,
+                                       self._start_velocity_mps(st))
         self.tracking_error_m = follow.tracking_error_m if follow is not None else None
         if follow is not None:
             res.setpoint = follow.setpoint       # the trajectory is clear of obstacles ahead (checked in step)
@@ -263,6 +266,15 @@ class PlannerService(Service):
             self.pub_reached.publish(WaypointReached(header=self.node.header("map"), index=g.index,
                                                      position_m=st.position_m))
             self.log.info("waypoint_reached", index=g.index, distance_m=round(res.distance_m, 3))
+
+    def _start_velocity_mps(self, st: VehicleState) -> np.ndarray:
+        """The velocity a path made now starts at: the velocity last sent, while the stream is
+        unbroken (the reference goes on without a step: a take-off still climbing is not braked
+        first); else the vehicle's own."""
+        sp = self.last_setpoint
+        if sp is not None and sp.velocity_valid and time.monotonic() - self.last_pub_s < 3 * self.loop.period_s:
+            return sp.velocity_mps.to_array()
+        return st.velocity_mps.to_array()
 
     def _to_fc(self, sp: TrajectorySetpoint, st: VehicleState) -> TrajectorySetpoint:
         """The reference as the active controller gives it to the flight controller, its position

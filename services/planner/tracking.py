@@ -3,7 +3,8 @@ mission's goal is on it; without one, or off it, the planner flies goal by goal 
 
 Rules, each for a reason:
 - The path is made when it is first flown, from where the vehicle is then (a smooth path starts
-  at rest at the vehicle; a typed one must start there), never from where it was when sent.
+  at the vehicle, at the velocity the planner last sent: a take-off still climbing is not braked
+  first; a typed one must start there), never from where it was when sent.
 - Only while the mission's current goal is one of the trajectory's waypoints (or, for a typed
   trajectory, its end): a hold, a goto or a landing is not on it and takes over at once.
 - The reference waits at a waypoint the mission has not counted as reached yet (the mission
@@ -18,7 +19,7 @@ Rules, each for a reason:
   and braked the vehicle from full speed (figure8 at 3 m/s, load 10: 3.6 m/s², 16 m/s³ by truth).
 - Obstacles keep today's rules: when the costmap blocks the path ahead, the planner leaves the
   path and flies to the current goal with obstacle avoidance; a smooth path is made anew from the
-  next goal on (from the vehicle, at rest on its way) — clearance is never traded for smoothness.
+  next goal on (from the vehicle, at its velocity then) — clearance is never traded for smoothness.
   A typed trajectory is not re-planned: the planner leaves it for good and flies to its end goal by
   goal with obstacle avoidance, saying why.
 - Waypoints are timed by the message's own `generator_name`, else the planner's active generator
@@ -157,9 +158,11 @@ class TrajectoryTracker:
         return 0 if self.typed_end is not None and np.linalg.norm(goal_m - self.typed_end) < ON_PATH_M else None
 
     def step(self, position_m: np.ndarray, yaw_rad: float, now_s: float, goal_m: np.ndarray | None,
-             path_blocked: Callable[[np.ndarray], bool] | None = None, position_age_s: float = 0.0) -> FollowStep | None:
+             path_blocked: Callable[[np.ndarray], bool] | None = None, position_age_s: float = 0.0,
+             velocity_mps: np.ndarray | None = None) -> FollowStep | None:
         """The setpoint from the trajectory, or None: fly goal by goal (no trajectory, a hold, a
-        goal off the trajectory, refused, or avoiding an obstacle towards the current goal)."""
+        goal off the trajectory, refused, or avoiding an obstacle towards the current goal).
+        `velocity_mps`: the velocity a path made now starts at (None: at rest)."""
         if self.msg is None or goal_m is None or self.refused or self.blocked:
             return None
         if self._generated() and GENERATORS[self.generator()].make is None:
@@ -175,7 +178,7 @@ class TrajectoryTracker:
                 return None               # still avoiding towards this goal
             self.diverted_goal = None     # the mission moved on: a new path from here
         if self.follower is None and not self._resume(now_s, k) or (self._generated() and k < self.first_index):
-            if not self._build(position_m, yaw_rad, now_s, k):
+            if not self._build(position_m, yaw_rad, now_s, k, velocity_mps):
                 return None
         at = self._wait_at(k)
         wait = None if at is not None and self._counted_late(k, at[1], position_m, now_s) else at
@@ -228,13 +231,14 @@ class TrajectoryTracker:
         self.resumed += 1
         return True
 
-    def _build(self, position_m: np.ndarray, yaw_rad: float, now_s: float, k: int) -> bool:
+    def _build(self, position_m: np.ndarray, yaw_rad: float, now_s: float, k: int,
+               velocity_mps: np.ndarray | None) -> bool:
         msg = self.msg
         if self._generated():
             msg = msgspec.structs.replace(self.msg, waypoints=list(self.msg.waypoints[k:]))
         try:
             path = path_for(msg, position_m, yaw_rad, self.cfg.limits, self.cfg.acceptance_radius_m, self.cfg.generator,
-                            self.cfg.margin)
+                            self.cfg.margin, velocity_mps)
         except TrajectoryRefused as e:
             self.refused, self.refusal_holds = str(e), not self._generated()
             return False

@@ -169,6 +169,17 @@ def test_a_flight_controllers_added_jerk_is_planned_below_the_jerk_limit():
 
 
 
+def test_a_path_made_while_the_vehicle_moves_starts_at_the_velocity_given():
+    """The take-off hands over while the vehicle still climbs: the reference goes on at that
+    velocity (no step), and the path still flies every waypoint."""
+    tr = tracker()
+    tr.offer(smooth_msg())
+    fs = tr.step(np.array([0.0, 0, 4.7]), 0.0, 0.0, np.array([10.0, 0, 5]), velocity_mps=np.array([0, 0, 0.27]))
+    assert np.allclose(fs.setpoint.velocity_mps.to_array(), [0, 0, 0.27]) and tr.built == 1
+    _, reached = fly(tr, (0, 0, 4.7), SURVEY)
+    assert len(reached) == 3 and tr.built == 1
+
+
 def test_a_short_hold_resumes_the_path_a_long_one_starts_anew_from_rest():
     """A late vehicle state makes the mission hold and resume within tenths of a second, handing
     the same waypoints over again as a new stretch from the current one (an empty message while it

@@ -102,6 +102,41 @@ def test_smooth_random_polylines_stay_within_limits_and_on_their_legs(seed):
     assert np.allclose(path.sample(path.duration_s).position_m, pts[-1])
 
 
+@pytest.mark.parametrize("v0", [(0, 0, 0.27), (1.5, 0.5, 0.0), (-1.0, 1.0, -0.3)],
+                         ids=["climbing", "flying_on", "flying_away"])
+def test_smooth_starts_at_the_velocity_given_and_still_passes_every_waypoint(v0):
+    """A path handed to a moving vehicle starts at its velocity (no step in the reference) and
+    still passes each waypoint within the corner bound and ends at rest at the last one."""
+    limits, radius = Limits(xy_vel_max_mps=3.0), 0.5
+    v0 = np.array(v0, float)
+    pts = np.array([[0, 0, 4.7], [8, 0, 5], [8, 8, 5], [0, 8, 5]], float)
+    path = smooth(pts, limits, radius, start_velocity_mps=v0)
+    start = path.sample(0.0)
+    assert np.allclose(start.position_m, pts[0]) and np.allclose(start.velocity_mps, v0)
+    assert np.allclose(start.acceleration_mps2, 0)
+    assert_consistent(path)
+    assert peaks(path, 0.005).excess(limits, tolerance=1e-3) == []
+    for k, t in enumerate(path.waypoint_times_s[1:], 1):
+        assert np.linalg.norm(path.sample(t).position_m - pts[k]) <= CORNER_SHARE * radius + 1e-6, k
+    end = path.sample(path.duration_s)
+    assert np.allclose(end.position_m, pts[-1]) and np.allclose(end.velocity_mps, 0, atol=1e-9)
+
+
+def test_take_off_hand_over_climbing_into_the_path_has_no_velocity_step():
+    """The mission counts a take-off done 0.3 m under its altitude while the vehicle still climbs at
+    ~0.27 m/s: a path from rest there stepped the velocity setpoint 0.27 -> 0 m/s, and the flight
+    controller's answer to the step was the flight's peak jerk (built-in sim: 4.0-4.9 m/s^3
+    vertical by truth, over MPC_JERK_AUTO 4). Carried on, the climb fades within the first blend."""
+    limits = Limits(xy_vel_max_mps=3.0)
+    pts = np.array([[0, 0, 4.7], [8, 0, 5], [8, 8, 5]], float)
+    climbing = np.array([0, 0, 0.27])
+    assert np.linalg.norm(smooth(pts, limits, 0.5).sample(0).velocity_mps - climbing) == pytest.approx(0.27)
+    path = smooth(pts, limits, 0.5, start_velocity_mps=climbing)
+    assert np.allclose(path.sample(0).velocity_mps, climbing)
+    _, s = dense(path, 8001)
+    assert np.abs(s["jerk_mps3"][:, 2]).max() < 0.5 and s["velocity_mps"][:, 2].min() > -0.05   # never sinks back
+
+
 def test_smooth_turns_to_each_waypoints_heading_within_the_yaw_rate_limit():
     limits = Limits(yaw_rate_max_radps=math.radians(30))
     pts = np.array([[0, 0, 3], [2, 0, 3], [4, 0, 3]], float)

@@ -36,6 +36,7 @@ SLOWER = (0.85, 0.97)             # a leg too short to hold its blends is slowed
                                   # take grows with speed^1.5 to speed^2): fast when far off, fine when close
                                   # (in fixed 15 % steps figure8's 4 m legs lost 15 % where 3-6 % was enough)
 MAX_PASSES = 60
+REBASE_PASSES = 20                # the first leg's start (which moves its direction, speed and blend): a fixed point
 
 
 def smoothstep(u: np.ndarray | float):
@@ -151,9 +152,13 @@ class _YawProfile:
 
 
 def smooth(points_m: np.ndarray, limits: Limits, acceptance_radius_m: float,
-           speed_caps_mps: list[float] | None = None, yaws_rad: list[float | None] | None = None) -> BlendedPath:
-    """A path from rest at points_m[0] through every point to rest at the last one.
+           speed_caps_mps: list[float] | None = None, yaws_rad: list[float | None] | None = None,
+           start_velocity_mps: np.ndarray | None = None) -> BlendedPath:
+    """A path from points_m[0] through every point to rest at the last one.
 
+    It starts at `start_velocity_mps` (None: at rest): a vehicle handed a path while it moves (the
+    take-off still climbing, a re-plan) is not braked first; that velocity is blended into the
+    first leg's, which then starts where the blend's middle leaves it, so the waypoints stay exact.
     `speed_caps_mps[k]` caps leg k (0 or None: the limits only); `yaws_rad[k]` is the heading at
     point k (None: keep the previous one). Repeated points are merged.
     """
@@ -175,19 +180,30 @@ def smooth(points_m: np.ndarray, limits: Limits, acceptance_radius_m: float,
     if len(pts) == 1:
         return BlendedPath(pts[0], [Piece(np.zeros(3), 0.0)], limits, [0], merged_yaws)
 
-    legs = np.diff(pts, axis=0)
-    lengths = np.linalg.norm(legs, axis=1)
-    dirs = legs / lengths[:, None]
-    speed = np.array([min(limits.speed_cap_mps(d), c if c and c > 0 else math.inf) for d, c in zip(dirs, caps)])
+    v0 = np.zeros(3) if start_velocity_mps is None else np.asarray(start_velocity_mps, float).reshape(3)
+    slowed = np.ones(len(pts) - 1)       # each leg's share of its speed cap, lowered while a leg is too short
     max_cut = CORNER_SHARE * acceptance_radius_m
+    first_leg_from = pts[0]              # where the first leg starts: the start, moved on by v0 for half a blend
     for _ in range(MAX_PASSES):
+        for _rebase in range(REBASE_PASSES):
+            legs = np.diff(np.vstack([first_leg_from, pts[1:]]), axis=0)
+            lengths = np.linalg.norm(legs, axis=1)
+            if lengths[0] < 1e-6:
+                raise ValueError("the start velocity carries the vehicle onto the first waypoint")
+            dirs = legs / lengths[:, None]
+            speed = slowed * [min(limits.speed_cap_mps(d), c if c and c > 0 else math.inf) for d, c in zip(dirs, caps)]
+            moved = pts[0] + v0 * blend_time_s(speed[0] * dirs[0] - v0, limits) / 2
+            done = np.linalg.norm(moved - first_leg_from) < 1e-9
+            first_leg_from = moved
+            if done:
+                break
         alphas = [_corner_scale(speed[j - 1] * dirs[j - 1], speed[j] * dirs[j], max_cut, limits)
                   for j in range(1, len(pts) - 1)]
-        pieces, corner_piece, short = _timeline(dirs, lengths, speed, alphas, limits)
+        pieces, corner_piece, short = _timeline(dirs, lengths, speed, alphas, limits, v0)
         if not short:
             return BlendedPath(pts[0], pieces, limits, corner_piece, merged_yaws)
         for k, share in short.items():
-            speed[k] *= min(max(math.sqrt(max(share, 0.0)), SLOWER[0]), SLOWER[1])
+            slowed[k] *= min(max(math.sqrt(max(share, 0.0)), SLOWER[0]), SLOWER[1])
         if speed.min() < MIN_SPEED_MPS:
             break
     raise ValueError("waypoints too close together for the limits (a leg cannot hold its blends)")
@@ -205,14 +221,15 @@ def _corner_scale(v_in: np.ndarray, v_out: np.ndarray, max_cut_m: float, limits:
     return lo
 
 
-def _timeline(dirs, lengths, speed, alphas, limits: Limits):
-    """Pieces rest, [head, cruise, tail] per leg, rest, with each piece long enough for half of
-    the blends at both its ends. Returns (pieces, the piece index each waypoint's time starts,
-    legs too short at their speed: {leg: the share of the length it needs that it has})."""
+def _timeline(dirs, lengths, speed, alphas, limits: Limits, start_velocity_mps: np.ndarray):
+    """Pieces start (the start velocity), [head, cruise, tail] per leg, rest, with each piece long
+    enough for half of the blends at both its ends. Returns (pieces, the piece index each
+    waypoint's time starts, legs too short at their speed: {leg: the share of the length it needs
+    that it has})."""
     n_legs = len(lengths)
     scale_in = [1.0] + list(alphas)      # leg k starts at scale_in[k] * its speed
     scale_out = list(alphas) + [1.0]     # ... and ends at scale_out[k] * its speed
-    velocities: list[np.ndarray] = [np.zeros(3)]
+    velocities: list[np.ndarray] = [start_velocity_mps]
     legs_of: list[int] = [-1]
     for k in range(n_legs):
         v = speed[k] * dirs[k]
@@ -221,7 +238,7 @@ def _timeline(dirs, lengths, speed, alphas, limits: Limits):
     velocities.append(np.zeros(3))
     legs_of.append(-1)
     blends = [blend_time_s(velocities[i + 1] - velocities[i], limits) for i in range(len(velocities) - 1)]
-    durations = [blends[0] / 2]          # rest before: the first blend starts at t = 0
+    durations = [blends[0] / 2]          # the start velocity before: the first blend starts at t = 0
     short: dict[int, float] = {}
     for k in range(n_legs):
         head, cruise, tail = 1 + 3 * k, 2 + 3 * k, 3 + 3 * k

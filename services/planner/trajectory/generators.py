@@ -26,15 +26,17 @@ LIMIT_TOLERANCE = 0.10
 FRAME = "map"             # the one frame trajectories are given in (ENU)
 
 
-def _smooth(points_m: np.ndarray, yaws_rad: list[float | None], limits: Limits, acceptance_radius_m: float) -> Path:
-    return smooth(points_m, limits, acceptance_radius_m, yaws_rad=yaws_rad)
+def _smooth(points_m: np.ndarray, yaws_rad: list[float | None], limits: Limits, acceptance_radius_m: float,
+            start_velocity_mps: np.ndarray | None) -> Path:
+    return smooth(points_m, limits, acceptance_radius_m, yaws_rad=yaws_rad, start_velocity_mps=start_velocity_mps)
 
 
 @dataclass(frozen=True)
 class Generator:
     description: str
-    # (points from the vehicle on, yaws, limits, acceptance radius) -> path; None: flies goal by goal
-    make: Callable[[np.ndarray, list, Limits, float], Path] | None
+    # (points from the vehicle on, yaws, limits, acceptance radius, the velocity to start at or None for
+    # rest) -> path; None: flies goal by goal
+    make: Callable[[np.ndarray, list, Limits, float, np.ndarray | None], Path] | None
 
 
 GENERATORS: dict[str, Generator] = {
@@ -84,9 +86,11 @@ def limits_of(msg: Trajectory, limits: Limits) -> Limits:
 
 
 def path_for(msg: Trajectory, position_m: np.ndarray, yaw_rad: float, limits: Limits,
-             acceptance_radius_m: float, generator: str = "smooth", margin: PlanningMargin = PlanningMargin()) -> Path | None:
-    """The path `msg` asks for, flown from `position_m` (an untimed WAYPOINT message starts at
-    rest there and passes its waypoints in order), with `generator` unless the message names its
+             acceptance_radius_m: float, generator: str = "smooth", margin: PlanningMargin = PlanningMargin(),
+             velocity_mps: np.ndarray | None = None) -> Path | None:
+    """The path `msg` asks for, flown from `position_m` (an untimed WAYPOINT message starts there
+    at `velocity_mps`, or at rest where a path cannot start so or none is given, and passes its
+    waypoints in order), with `generator` unless the message names its
     own; None: that generator flies goal by goal. A generated path is planned inside the limits by
     the flight controller's `margin` (Limits.inside); a typed one is flown as given, checked
     against the limits themselves. Raises TrajectoryRefused naming the field."""
@@ -109,8 +113,18 @@ def path_for(msg: Trajectory, position_m: np.ndarray, yaw_rad: float, limits: Li
                                                     for w in msg.waypoints]
         yaws = [yaw_rad] + [w.pose.orientation.to_yaw() for w in msg.waypoints]
         planned = limits.inside(margin)
+
+        def make(pts: list, yws: list) -> Path:
+            """At the velocity given, else (the first leg cannot hold the blend from it) at rest."""
+            if velocity_mps is not None and np.any(velocity_mps):
+                try:
+                    return gen.make(np.array(pts), yws, planned, acceptance_radius_m, velocity_mps)
+                except ValueError:
+                    pass
+            return gen.make(np.array(pts), yws, planned, acceptance_radius_m, None)
+
         try:
-            return gen.make(np.array(points), yaws, planned, acceptance_radius_m)
+            return make(points, yaws)
         except ValueError as e:
             error = e
         if np.linalg.norm(points[1] - points[0]) <= CORNER_SHARE * acceptance_radius_m:
@@ -118,7 +132,7 @@ def path_for(msg: Trajectory, position_m: np.ndarray, yaw_rad: float, limits: Li
             # holds no blend; start at the waypoint, a step within the corner's own tolerance. The
             # vehicle's point keeps its place in waypoint_times_s (at 0 s, with waypoint 0).
             try:
-                path = gen.make(np.array(points[1:]), [yaw_rad] + yaws[2:], planned, acceptance_radius_m)
+                path = make(points[1:], [yaw_rad] + yaws[2:])
                 path.waypoint_times_s = [0.0] + list(path.waypoint_times_s)
                 return path
             except ValueError as e:
