@@ -13,7 +13,8 @@ obstacle pipeline's height filter removes as "overhead structure").
 The rays are cast by lidar_kernels.cast_sweep (numba: per triangle only the rays of the sweep that
 can hit it, ~5x less CPU than casting all 131k rays of a sweep with Open3D); `exact=True` casts
 them with the scene's Open3D ray caster instead, the reference it is tested against. Noise, range
-gate, points and labels are one numba pass too (sweep_returns, bit for bit numpy's float32 maths).
+gate, points and labels are one numba pass too (sweep_returns, bit for bit numpy's float32 maths); range
+noise is drawn only for the rays whose true range is near the range limits (_noise_gate).
 """
 from __future__ import annotations
 
@@ -29,6 +30,7 @@ LABEL_GROUND = 0
 LABEL_OBSTACLE = 1
 LABEL_OVERHEAD = 2
 LABEL_NAMES = ("ground", "obstacle", "overhead")
+NOISE_GATE_SIGMA = 6.0    # rays this many noise std-devs outside the range limits draw no noise
 
 
 @dataclass
@@ -93,11 +95,22 @@ class Lidar:
         r_ws = r_wb @ self.r_body_lidar
         origin = pos + r_wb @ self.t_body_lidar_m
         t, plane = self._cast(origin, r_ws, exact)   # unit directions: t is the true range in m
+        lo, hi = self._noise_gate()
         noisy = c.range_noise_std_m > 0
-        noise = self._rng.standard_normal(t.size, dtype=np.float32) if noisy else np.empty(0, np.float32)
+        # Noise only for the rays that can land in range (the gate): misses and far ground draw none
+        # (10 % of the rays at 3 m in village, 42 % in open_field; a draw costs ~9 ns, 1.1 ms for all).
+        noise = (self._rng.standard_normal(np.count_nonzero((t >= lo) & (t <= hi)), dtype=np.float32) if noisy
+                 else np.empty(0, np.float32))
         points, labels = self._returns(t, plane, noise, origin, r_ws, pos[2])
         stamp = stamp_ns if stamp_ns is not None else int(getattr(truth_or_pose, "stamp_ns", 0))
         return LidarScan(stamp, points, labels, self.frame_id)
+
+    def _noise_gate(self) -> tuple[float, float]:
+        """True ranges (m) whose rays draw range noise: [min, max] range widened by NOISE_GATE_SIGMA
+        std-devs; a ray farther out stays out of range with probability 1 - 1e-9."""
+        c = self.config
+        margin = NOISE_GATE_SIGMA * c.range_noise_std_m
+        return c.min_range_m - margin, c.max_range_m + margin
 
     def compile(self) -> None:
         """Compile the kernels (or load them from numba's cache) now, not on the first scan someone
@@ -111,8 +124,9 @@ class Lidar:
         from .lidar_kernels import sweep_returns
         c = self.config
         points, labels = np.empty((t.size, 3), np.float32), np.empty(t.size, np.uint8)
+        lo, hi = self._noise_gate()
         n = sweep_returns(t, plane, noise, np.float32(c.range_noise_std_m), np.float32(c.min_range_m),
-                          np.float32(c.max_range_m), self._dx, self._dy, self._dz, r_ws[2].astype(np.float32),
+                          np.float32(c.max_range_m), np.float32(lo), np.float32(hi), self._dx, self._dy, self._dz, r_ws[2].astype(np.float32),
                           np.float32(origin[2]), float(vehicle_z_m + c.overhead_margin_m), self.scene.plane_ground,
                           points, labels)
         return points[:n].copy(), labels[:n].copy()
@@ -159,4 +173,4 @@ def lidar_vertical_angles_deg(config: LidarConfig) -> np.ndarray:
 
 
 __all__ = ["Lidar", "LidarScan", "LidarInfo", "LABEL_GROUND", "LABEL_OBSTACLE", "LABEL_OVERHEAD",
-           "LABEL_NAMES", "lidar_vertical_angles_deg"]
+           "LABEL_NAMES", "NOISE_GATE_SIGMA", "lidar_vertical_angles_deg"]

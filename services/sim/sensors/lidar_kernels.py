@@ -143,16 +143,24 @@ def cast_sweep(vs, tris, tri_plane, tri_part, part_closed, dx, dy, dz, beams, st
 
 
 @nb.njit(cache=True, nogil=True)
-def sweep_returns(t, plane, noise, std, min_r, max_r, dx, dy, dz, up, z0, z_overhead, plane_ground,
-                  points, labels):
+def sweep_returns(t, plane, noise, std, min_r, max_r, gate_lo, gate_hi, dx, dy, dz, up, z0, z_overhead,
+                  plane_ground, points, labels):
     """The sweep's returns: rays whose range t (+ noise * std when `noise` is not empty) lies in
     [min_r, max_r], in ray order: points (N, 3) float32 in the sensor frame and labels (ground,
-    obstacle, or overhead when the hit's world z = z0 + t (up . d) is above z_overhead). Float32
-    arithmetic in numpy's order, so the result is the vectorised one's bit for bit. Returns N."""
+    obstacle, or overhead when the hit's world z = z0 + t (up . d) is above z_overhead). Only rays
+    with t in [gate_lo, gate_hi] can return; they take the noise samples in ray order (noise holds
+    one per such ray). Float32 arithmetic in numpy's order, so the result is the vectorised one's
+    bit for bit. Returns N."""
     n = 0
+    j = 0
     noisy = noise.size > 0
     for i in range(t.size):
-        r = t[i] + noise[i] * std if noisy else t[i]
+        if t[i] < gate_lo or t[i] > gate_hi:
+            continue
+        r = t[i]
+        if noisy:
+            r = t[i] + noise[j] * std
+            j += 1
         if r < min_r or r > max_r:
             continue
         points[n, 0] = dx[i] * r
