@@ -4,6 +4,7 @@ Cascade: position P -> velocity PID -> acceleration -> thrust vector (tilt-limit
 attitude setpoint and collective thrust. Everything is ENU world / FLU body; NED exists only
 on the MAVLink side. Setpoints follow PX4's TrajectorySetpoint convention: NaN means "not
 controlled", per axis, so one type carries position, velocity and mixed setpoints.
+The cascade computes on plain floats (floats.py): it runs every physics step.
 """
 from __future__ import annotations
 
@@ -15,17 +16,14 @@ import numpy as np
 from aeroperception.services.mavlink.frames import quat_from_rotmat
 from aeroperception.services.runtime.params import ParamSet
 
+from .floats import clip, floats, or_zero
+
 GRAVITY_MPS2 = 9.80665
 _NAN3 = (math.nan, math.nan, math.nan)
 
 
 def _nan3() -> np.ndarray:
     return np.array(_NAN3)
-
-
-def _or_zero(a: np.ndarray) -> np.ndarray:
-    """NaN ("not controlled") -> 0. Cheaper than np.nan_to_num, which also handles infinities."""
-    return np.where(np.isfinite(a), a, 0.0)
 
 
 @dataclass
@@ -64,9 +62,8 @@ class AttitudeThrust:
 
 
 def attitude_from_thrust_dir(f_enu, yaw_rad: float) -> np.ndarray:
-    """Attitude whose body z is along f and whose heading is yaw (PX4 bodyzToAttitude).
-    Plain floats: this runs every physics step and numpy's overhead dominates at size 3."""
-    fx, fy, fz = (float(v) for v in f_enu)
+    """Attitude whose body z is along f (three floats) and whose heading is yaw (PX4 bodyzToAttitude)."""
+    fx, fy, fz = f_enu
     n = math.sqrt(fx * fx + fy * fy + fz * fz)
     zx, zy, zz = fx / n, fy / n, fz / n
     cx, cy = math.cos(yaw_rad), math.sin(yaw_rad)
@@ -87,24 +84,24 @@ class PositionController:
 
     def __init__(self, params: ParamSet):
         self.p = params
-        self._vel_int = np.zeros(3)
+        self._vel_int = (0.0, 0.0, 0.0)   # velocity integrator (ENU m/s^2)
         self._yaw_sp: float | None = None
 
     def reset(self) -> None:
-        self._vel_int[:] = 0.0
+        self._vel_int = (0.0, 0.0, 0.0)
         self._yaw_sp = None
 
     def update(self, dt_s: float, sp: Setpoint, position_enu_m: np.ndarray, velocity_enu_mps: np.ndarray,
                accel_enu_mps2: np.ndarray, yaw_rad: float, landed: bool) -> AttitudeThrust:
-        p = self.p   # p["NAME"]: ~7x faster than p.NAME (a failed attribute lookup, then __getattr__) at 400 Hz
-        mass = p["SIM_MASS"]
-        f_max = p["SIM_TWR"] * GRAVITY_MPS2  # specific thrust at full throttle
+        p = self.p
+        mass = p.SIM_MASS
+        f_max = p.SIM_TWR * GRAVITY_MPS2  # specific thrust at full throttle
 
         if landed and not sp.wants_climb(position_enu_m):
             # On the ground and not asked to climb: motors at idle, integrators held at zero,
             # as PX4's takeoff handling does (this is also what lets the land detector trigger).
             self.reset()
-            return AttitudeThrust(attitude_from_thrust_dir(np.array([0.0, 0.0, 1.0]), yaw_rad), 0.0)
+            return AttitudeThrust(attitude_from_thrust_dir((0.0, 0.0, 1.0), yaw_rad), 0.0)
 
         # --- yaw ---
         if math.isfinite(sp.yaw_rad):
@@ -115,38 +112,46 @@ class PositionController:
             self._yaw_sp += sp.yaw_rate_radps * dt_s
 
         # --- position P -> velocity setpoint (with feed-forward), limited ---
-        pos_err = sp.position_enu_m - position_enu_m
-        gains = np.array([p["MPC_XY_P"], p["MPC_XY_P"], p["MPC_Z_P"]])
-        vel_sp = gains * _or_zero(pos_err)
-        vel_sp += _or_zero(sp.velocity_enu_mps)
-        max_xy = min(p["MPC_XY_VEL_MAX"], sp.max_xy_mps)
-        speed_xy = math.hypot(vel_sp[0], vel_sp[1])
+        x, y, z = floats(position_enu_m)
+        x_sp, y_sp, z_sp = floats(sp.position_enu_m)
+        vx_ff, vy_ff, vz_ff = floats(sp.velocity_enu_mps)
+        vx_sp = p.MPC_XY_P * or_zero(x_sp - x) + or_zero(vx_ff)
+        vy_sp = p.MPC_XY_P * or_zero(y_sp - y) + or_zero(vy_ff)
+        vz_sp = p.MPC_Z_P * or_zero(z_sp - z) + or_zero(vz_ff)
+        max_xy = min(p.MPC_XY_VEL_MAX, sp.max_xy_mps)
+        speed_xy = math.hypot(vx_sp, vy_sp)
         if speed_xy > max_xy:
-            vel_sp[:2] *= max_xy / speed_xy
-        vel_sp[2] = min(max(vel_sp[2], -min(p["MPC_Z_VEL_MAX_DN"], sp.max_down_mps)),
-                        min(p["MPC_Z_VEL_MAX_UP"], sp.max_up_mps))
+            k = max_xy / speed_xy
+            vx_sp, vy_sp = vx_sp * k, vy_sp * k
+        vz_sp = clip(vz_sp, -min(p.MPC_Z_VEL_MAX_DN, sp.max_down_mps), min(p.MPC_Z_VEL_MAX_UP, sp.max_up_mps))
 
         # --- velocity PID -> acceleration setpoint ---
-        vel_err = vel_sp - velocity_enu_mps
-        kp = np.array([p["MPC_XY_VEL_P_ACC"], p["MPC_XY_VEL_P_ACC"], p["MPC_Z_VEL_P_ACC"]])
-        ki = np.array([p["MPC_XY_VEL_I_ACC"], p["MPC_XY_VEL_I_ACC"], p["MPC_Z_VEL_I_ACC"]])
-        kd = np.array([p["MPC_XY_VEL_D_ACC"], p["MPC_XY_VEL_D_ACC"], p["MPC_Z_VEL_D_ACC"]])
-        acc_sp = kp * vel_err + self._vel_int - kd * accel_enu_mps2 + _or_zero(sp.accel_enu_mps2)
+        vx, vy, vz = floats(velocity_enu_mps)
+        ex, ey, ez = vx_sp - vx, vy_sp - vy, vz_sp - vz
+        ax, ay, az = floats(accel_enu_mps2)
+        ax_ff, ay_ff, az_ff = floats(sp.accel_enu_mps2)
+        ix, iy, iz = self._vel_int
+        kp_xy, kd_xy = p.MPC_XY_VEL_P_ACC, p.MPC_XY_VEL_D_ACC
+        ax_sp = kp_xy * ex + ix - kd_xy * ax + or_zero(ax_ff)
+        ay_sp = kp_xy * ey + iy - kd_xy * ay + or_zero(ay_ff)
+        az_sp = p.MPC_Z_VEL_P_ACC * ez + iz - p.MPC_Z_VEL_D_ACC * az + or_zero(az_ff)
 
         # --- acceleration -> thrust vector, vertical first, then tilt and thrust limits ---
-        f = acc_sp + np.array([0.0, 0.0, GRAVITY_MPS2])
-        f_z = min(max(f[2], p["MPC_THR_MIN"] * f_max), f_max)
-        f_xy_max = min(f_z * math.tan(math.radians(p["MPC_TILTMAX_AIR"])), math.sqrt(max(f_max**2 - f_z**2, 0.0)))
-        f_xy = f[:2]
-        n_xy = math.hypot(f_xy[0], f_xy[1])
+        f_x, f_y, f_z_wanted = ax_sp, ay_sp, az_sp + GRAVITY_MPS2
+        f_z = clip(f_z_wanted, p.MPC_THR_MIN * f_max, f_max)
+        f_xy_max = min(f_z * math.tan(math.radians(p.MPC_TILTMAX_AIR)), math.sqrt(max(f_max**2 - f_z**2, 0.0)))
+        n_xy = math.hypot(f_x, f_y)
         saturated_xy = n_xy > f_xy_max
         if saturated_xy:
-            f_xy = f_xy * (f_xy_max / n_xy)
-        f_lim = np.array([f_xy[0], f_xy[1], f_z])
+            f_x, f_y = f_x * (f_xy_max / n_xy), f_y * (f_xy_max / n_xy)
 
         # Integrate only where the output is not saturated (anti-windup), and bound it.
-        grow = np.array([not saturated_xy, not saturated_xy, f_z == f[2]])
-        self._vel_int += np.where(grow, ki * vel_err * dt_s, 0.0)
-        np.clip(self._vel_int, -GRAVITY_MPS2 / 2, GRAVITY_MPS2 / 2, out=self._vel_int)
+        if not saturated_xy:
+            ix, iy = ix + p.MPC_XY_VEL_I_ACC * ex * dt_s, iy + p.MPC_XY_VEL_I_ACC * ey * dt_s
+        if f_z == f_z_wanted:
+            iz += p.MPC_Z_VEL_I_ACC * ez * dt_s
+        bound = GRAVITY_MPS2 / 2
+        self._vel_int = (clip(ix, -bound, bound), clip(iy, -bound, bound), clip(iz, -bound, bound))
 
-        return AttitudeThrust(attitude_from_thrust_dir(f_lim, self._yaw_sp), mass * float(np.linalg.norm(f_lim)))
+        thrust_n = mass * math.sqrt(f_x * f_x + f_y * f_y + f_z * f_z)
+        return AttitudeThrust(attitude_from_thrust_dir((f_x, f_y, f_z), self._yaw_sp), thrust_n)
