@@ -234,13 +234,16 @@ class FrontEnd:
 
     def _make_keyframe(self, t_ns: int, gray: np.ndarray, right: np.ndarray | None,
                        keep_px: np.ndarray, timer: StageTimer) -> None:
+        """`right`: the right image as it came (converted to gray here: only keyframes use it)."""
         cfg = self.cfg
         new = detect_corners(gray, cfg.max_features - len(keep_px), cfg.min_distance_px,
                              cfg.corner_quality, keep_px)
         timer.lap("detect")
         px = np.vstack([np.asarray(keep_px, np.float32).reshape(-1, 2), new])
         if self.stereo:
-            pts3, ok = stereo_points(gray, right, px, self.calib, cfg)
+            gray_r = to_gray(right)
+            timer.lap("gray")
+            pts3, ok = stereo_points(gray, gray_r, px, self.calib, cfg)
             timer.lap("stereo")
             self.kf_points, px = pts3[ok], px[ok]
         else:
@@ -251,12 +254,12 @@ class FrontEnd:
     def process(self, t_ns: int, left: np.ndarray, right: np.ndarray | None = None) -> FrontEndResult:
         cfg, timer = self.cfg, StageTimer()
         gray = to_gray(left)
-        gray_r = to_gray(right) if (self.stereo and right is not None) else None
         timer.lap("gray")
-        if self.stereo and gray_r is None:
+        if self.stereo and right is None:
             raise ValueError("stereo front end needs a right image")
+        right_img = right if self.stereo else None   # made gray only for a keyframe (_make_keyframe)
         if self.kf_t_ns is None or self.prev_gray is None:
-            self._make_keyframe(t_ns, gray, gray_r, np.zeros((0, 2)), timer)
+            self._make_keyframe(t_ns, gray, right_img, np.zeros((0, 2)), timer)
             self.prev_gray = gray
             return FrontEndResult("first", None, None, None, True, FeatureQuality(tracked=len(self.cur_px)),
                                   len(self.kf_px), timer.ms, "new keyframe, no reference yet")
@@ -275,7 +278,7 @@ class FrontEnd:
         timer.lap("pose")
         if sol is None:
             # No fix: start over from this image so tracking can re-acquire on the next frame.
-            self._make_keyframe(t_ns, gray, gray_r, np.zeros((0, 2)), timer)
+            self._make_keyframe(t_ns, gray, right_img, np.zeros((0, 2)), timer)
             self.prev_gray = gray
             return FrontEndResult("lost", ref_t, None, None, True, quality, len(self.kf_px), timer.ms,
                                   f"no visual fix ({tracked} features tracked)")
@@ -289,7 +292,7 @@ class FrontEnd:
                   or (t_ns - ref_t) * 1e-9 >= cfg.keyframe_max_age_s
                   or quality.mean_parallax_px >= cfg.keyframe_parallax_px)
         if new_kf:
-            self._make_keyframe(t_ns, gray, gray_r, self.cur_px, timer)
+            self._make_keyframe(t_ns, gray, right_img, self.cur_px, timer)
         self.prev_gray = gray
         return FrontEndResult(status, ref_t, np.linalg.inv(T_cur_kf), cov, new_kf, quality,
                               len(self.kf_px), timer.ms)
