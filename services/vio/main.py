@@ -10,6 +10,7 @@ from __future__ import annotations
 import threading
 from collections import deque
 
+import cv2
 import numpy as np
 
 from aeroperception.schemas import (
@@ -40,6 +41,8 @@ class VioService(Service):
 
     def start(self) -> None:
         p = self.params
+        if p.opencv_threads > 0:
+            cv2.setNumThreads(p.opencv_threads)
         self.strategy = create_strategy(p.strategy, contract.vio_config(p))   # unknown name: fails at start
         self.stereo = getattr(self.strategy, "stereo", True)
         self.infos: dict[str, CameraInfo | None] = {"left": None, "right": None}
