@@ -66,7 +66,7 @@ def load_vio(pkg_dir: str | None):
     return pkg
 
 
-def replay(data: dict, pkg_dir: str | None = None, profile: str | None = None) -> dict:
+def replay(data: dict, pkg_dir: str | None = None, profile: str | None = None, pace_hz: float = 0.0) -> dict:
     """Per-frame CPU ms of the service's work on the recorded inputs, and the estimates."""
     from aeroperception.schemas import CameraInfo, Image, Imu, decode
 
@@ -88,7 +88,10 @@ def replay(data: dict, pkg_dir: str | None = None, profile: str | None = None) -
         prof = cProfile.Profile()
     cpu_ms, poses, covs, states = [], [], [], []
     prev = -1
+    w0 = time.monotonic()
     for k, (t, left_b, right_b) in enumerate(data["frames"]):
+        if pace_hz > 0:   # as the camera comes: caches go cold between frames, as in the service
+            time.sleep(max(0.0, w0 + k / pace_hz - time.monotonic()))
         lo, hi = int(np.searchsorted(imu_t, prev, side="right")), int(np.searchsorted(imu_t, t, side="right"))
         prev = t
         if prof:
@@ -137,6 +140,10 @@ def ate_m(poses, truth) -> float:
 def _cpu_s(pid: int) -> float:
     f = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
     return (int(f[11]) + int(f[12])) / 100.0   # utime + stime, clock ticks (USER_HZ 100)
+
+
+def _minflt(pid: int) -> int:
+    return int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[7])
 
 
 def _threads_cpu_s(pid: int) -> dict[str, float]:
@@ -233,7 +240,7 @@ def service_run(data: dict, pkg_dir: str | None, frames: int | None = None, rate
         todo = [(t, decode(lb, Image), decode(rb, Image)) for t, lb, rb in data["frames"][:frames]]
         time.sleep(0.5)
         k = 0
-        c0, w0, th0 = _cpu_s(vio.pid), time.monotonic(), _threads_cpu_s(vio.pid)
+        c0, w0, th0, f0 = _cpu_s(vio.pid), time.monotonic(), _threads_cpu_s(vio.pid), _minflt(vio.pid)
         for n, (t, left, right) in enumerate(todo):
             while k < len(imu) and imu[k][0] <= t:
                 imu_pub.publish(imu[k][1])
@@ -245,11 +252,11 @@ def service_run(data: dict, pkg_dir: str | None, frames: int | None = None, rate
                     p.publish(i)
             time.sleep(max(0.0, w0 + (n + 1) / rate_hz - time.monotonic()))
         time.sleep(0.3)
-        c1, w1, th1 = _cpu_s(vio.pid), time.monotonic(), _threads_cpu_s(vio.pid)
+        c1, w1, th1, f1 = _cpu_s(vio.pid), time.monotonic(), _threads_cpu_s(vio.pid), _minflt(vio.pid)
         node.close()
         threads = {k: round((v - th0.get(k, 0.0)) * 1e3 / len(todo), 2) for k, v in th1.items()}
         return {"cpu_ms_per_frame": (c1 - c0) * 1e3 / len(todo), "core_pct": 100 * (c1 - c0) / (w1 - w0),
-                "frames": len(todo), "outputs": len(outs),
+                "frames": len(todo), "outputs": len(outs), "page_faults_per_frame": (f1 - f0) / len(todo),
                 "threads_ms_per_frame": {k: v for k, v in sorted(threads.items(), key=lambda kv: -kv[1]) if v > 0}}
     finally:
         for p in reversed(procs):
@@ -261,6 +268,9 @@ def service_run(data: dict, pkg_dir: str | None, frames: int | None = None, rate
 
 
 def _service_cli(a) -> int:
+    import os
+
+    os.environ["AERO_LINKS"] = a.links   # the service inherits it
     data = pickle.load(open(a.data, "rb"))
     rows: dict[str, list] = {d: [] for d in a.vio}
     for r in range(a.rounds):
@@ -269,7 +279,7 @@ def _service_cli(a) -> int:
             s = service_run(data, d, a.frames)
             rows[d].append(s)
             print(f"round {r} {d}: {s['cpu_ms_per_frame']:.2f} ms CPU per frame, {s['core_pct']:.1f} % of a core, "
-                  f"{s['outputs']}/{s['frames']} poses (load {load}); by thread {s['threads_ms_per_frame']}", flush=True)
+                  f"{s['outputs']}/{s['frames']} poses, {s['page_faults_per_frame']:.0f} page faults (load {load}); by thread {s['threads_ms_per_frame']}", flush=True)
     for d, rs in rows.items():
         v = [s["cpu_ms_per_frame"] for s in rs]
         print(f"{d}: median {np.median(v):.2f} ms per frame [{min(v):.2f}-{max(v):.2f}] over {len(v)} runs")
@@ -281,7 +291,7 @@ def _run_cli(a) -> int:
     if a.threads is not None:
         cv2.setNumThreads(a.threads)
     data = pickle.load(open(a.data, "rb"))
-    res = replay(data, a.vio, a.profile)
+    res = replay(data, a.vio, a.profile, a.pace_hz)
     s = summary(res["cpu_ms"])
     s.update(ate_m=ate_m(res["poses"], data["truth"]), keyframes=res["keyframes"],
              tracking=sum(1 for x in res["states"] if x == 1))
@@ -325,6 +335,7 @@ def main(argv=None) -> int:
     p.add_argument("--vio", default=None, help="folder holding a copy of services/vio (default: the installed one)")
     p.add_argument("--threads", type=int, default=None, help="cv2.setNumThreads before the run")
     p.add_argument("--profile", default=None, help="write cProfile stats here")
+    p.add_argument("--pace-hz", type=float, default=0.0, help="feed frames at this rate (0: back to back)")
     p.add_argument("--poses", default=None, help="write the estimates here (JSON) to compare versions")
     p = sub.add_parser("ab")
     p.add_argument("data")
@@ -338,6 +349,8 @@ def main(argv=None) -> int:
     p.add_argument("vio", nargs="+", help="folders holding a copy of services/vio, run alternately")
     p.add_argument("--rounds", type=int, default=2)
     p.add_argument("--frames", type=int, default=None)
+    p.add_argument("--links", choices=("router", "direct"), default="direct",
+                   help="$AERO_LINKS for the service and the feeder (aero up: direct)")
     a = ap.parse_args(argv)
     if a.cmd == "record":
         record(a.frames, a.out, a.scenario)
