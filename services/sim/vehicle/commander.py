@@ -96,6 +96,7 @@ class Commander:
         # behaviour targets (ENU)
         self._hold_pos = np.zeros(3)
         self._hold_yaw = state.yaw_rad
+        self._hold_sp: Setpoint | None = None     # HOLD's setpoint for (_hold_pos, _hold_yaw), see _hold
         self._takeoff_alt_m = 0.0
         self._rtl_phase = "LAND"
         self._rtl_alt_m = 0.0
@@ -315,7 +316,16 @@ class Commander:
             return self._land_setpoint(self._hold_pos)
         if mode == "RTL":
             return self._rtl(now_s)
-        return Setpoint.hold(self._hold_pos, self._hold_yaw)  # HOLD, POSCTL (sticks centred)
+        return self._hold()  # HOLD, POSCTL (sticks centred)
+
+    def _hold(self) -> Setpoint:
+        """Hold _hold_pos at _hold_yaw. Asked every physics step while holding: built again only when
+        either changes (both are replaced, never changed in place), not once a step."""
+        sp = self._hold_sp
+        if sp is None or self._hold_sp_of is not self._hold_pos or sp.yaw_rad != self._hold_yaw:
+            sp = self._hold_sp = Setpoint.hold(self._hold_pos, self._hold_yaw)
+            self._hold_sp_of = self._hold_pos
+        return sp
 
     def _rtl(self, now_s: float) -> Setpoint:
         s, p = self.state, self.p
