@@ -39,6 +39,9 @@ _DECLARED = [
     Param("keyframe_max_age_s", 0.5, "s", 0.05, 5.0, description="new keyframe at least this often (< 0.9 lag_s)"),
     Param("ransac_threshold_px", 1.5, "px", 0.3, 10.0, description="PnP RANSAC inlier threshold"),
     Param("lag_s", 1.5, "s", 0.3, 10.0, description="fixed-lag smoother window"),
+    Param("covariance_every_frames", BackendConfig.covariance_every_frames, "", 1, 10,
+          description="recompute the window's marginal covariance every this many frames with a visual fix "
+                      "(always after a frame without one); in between the last is kept. 1 = every frame"),
     Param("lost_after_frames", 10, "", 1, 1000, description="frames without a visual fix before LOST"),
     Param("gyro_noise_density", ImuNoise.gyro_noise_density, "rad/s/sqrt(Hz)", 1e-6, 1.0),
     Param("accel_noise_density", ImuNoise.accel_noise_density, "m/s^2/sqrt(Hz)", 1e-6, 10.0),
@@ -76,6 +79,6 @@ def vio_config(p) -> VioConfig:
     imu = ImuNoise(gyro_noise_density=p.gyro_noise_density, accel_noise_density=p.accel_noise_density,
                    gyro_random_walk=p.gyro_random_walk, accel_random_walk=p.accel_random_walk)
     drift = DriftConfig(drift_xy_frac=p.drift_xy_pct / 100, drift_z_frac=p.drift_z_pct / 100)
-    return VioConfig(frontend=fe, backend=BackendConfig(lag_s=p.lag_s), imu=imu, drift=drift,
+    return VioConfig(frontend=fe, backend=BackendConfig(lag_s=p.lag_s, covariance_every_frames=p.covariance_every_frames), imu=imu, drift=drift,
                      lost_after_frames=p.lost_after_frames, imu_gap_warn_s=p.imu_gap_warn_s,
                      imu_gap_reset_s=p.imu_gap_reset_s)

@@ -103,3 +103,31 @@ def test_fixed_lag_window_stays_bounded_over_a_long_flight():
     assert sizes[-1] == sizes[300]
     est = be.last
     assert np.linalg.norm(est.world_T_body[:3, 3] - truth(t).position_enu_m) < 0.05
+
+
+def test_window_covariance_is_recomputed_every_nth_visual_frame_and_on_every_frame_without_a_fix():
+    """The marginal (ISAM2 walks the Bayes tree after each update: the back end's dearest step after the
+    update itself) is kept for covariance_every_frames - 1 frames while visual fixes go on; a frame
+    without one grows the covariance, so it is always recomputed, and so is the next one. Estimates
+    are the same as with every frame's marginal; the kept covariances equal a fresh one within 15 %."""
+    samples, truth = imu_stream(4.0, noiseless=True)
+    t0 = int(0.4e9)
+    runs = {}
+    for n in (1, 2):
+        be = Backend(ImuNoise(), BackendConfig(lag_s=1.0, covariance_every_frames=n))
+        be.initialize(t0, pose(truth(t0)), np.zeros(3), ImuBias())
+        out = []
+        for k in range(1, 41):
+            t = t0 + k * 50_000_000
+            T_rel = np.linalg.inv(pose(truth(t0 + (k // 8) * 400_000_000))) @ pose(truth(t))
+            visual = None if k in (20, 21) else (t0 + (k // 8) * 400_000_000, T_rel, np.diag([1e-5] * 6))
+            out.append((be.add_frame(t, samples, visual), be.covariance_age))
+        runs[n] = out
+    every, alternate = runs[1], runs[2]
+    assert all(np.array_equal(a.world_T_body, b.world_T_body) for (a, _), (b, _) in zip(every, alternate))
+    ages = [age for _, age in alternate]
+    assert ages[19] == 0 and ages[20] == 0 and ages[21] == 0      # frames 20, 21 without a fix, 22 after them
+    assert ages.count(1) >= 12 and max(ages) == 1
+    for (a, _), (b, age) in zip(every, alternate):
+        sa, sb = np.sqrt(np.diag(a.pose_cov_tangent)), np.sqrt(np.diag(b.pose_cov_tangent))
+        assert np.allclose(sa, sb, rtol=1e-9) if age == 0 else np.allclose(sa, sb, rtol=0.15)
