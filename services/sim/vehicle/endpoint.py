@@ -12,6 +12,7 @@ truncation) is counted and dropped; nothing here raises on input.
 from __future__ import annotations
 
 import errno
+import select
 import socket
 from typing import Iterator
 
@@ -49,6 +50,8 @@ class MavlinkEndpoint:
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind(bind)
         self.sock.setblocking(False)
+        self._readable = select.poll()
+        self._readable.register(self.sock, select.POLLIN)
         self.encoder = mavlink.MAVLink(_DatagramWriter(self), srcSystem=system_id, srcComponent=component_id)
         self._parser = mavlink.MAVLink(None)
         self._parser.robust_parsing = True
@@ -71,8 +74,12 @@ class MavlinkEndpoint:
             self.counters["tx_errors"] += 1
 
     def receive(self, max_datagrams: int = 256) -> list[mavlink.MAVLink_message]:
-        """Everything that arrived since the last call (non-blocking), decoded."""
+        """Everything that arrived since the last call (non-blocking), decoded. Called every physics
+        step, mostly with nothing there: a poll (0.3 us) says so cheaper than a recvfrom that raises
+        BlockingIOError (1.6 us)."""
         out: list[mavlink.MAVLink_message] = []
+        if not self._readable.poll(0):
+            return out
         for _ in range(max_datagrams):
             try:
                 data, peer = self.sock.recvfrom(_MAX_DATAGRAM)
