@@ -70,7 +70,22 @@ def load_vio(pkg_dir: str | None):
     return pkg
 
 
-def replay(data: dict, pkg_dir: str | None = None, profile: str | None = None, pace_hz: float = 0.0) -> dict:
+def _service_process_settings(base: str) -> None:
+    """What this version's service sets for its process at start (OpenCV's threads, malloc), so a
+    replay costs what the service would: main.start does it there, which a replay does not run."""
+    import cv2
+
+    contract = importlib.import_module(f"{base}.contract")
+    main = importlib.import_module(f"{base}.main")
+    params = {p.name: p for p in contract.PARAMS}
+    if "opencv_threads" in params and params["opencv_threads"].default > 0:
+        cv2.setNumThreads(params["opencv_threads"].default)
+    if hasattr(main, "keep_freed_memory"):
+        main.keep_freed_memory()
+
+
+def replay(data: dict, pkg_dir: str | None = None, profile: str | None = None, pace_hz: float = 0.0,
+           threads: int | None = None) -> dict:
     """Per-frame CPU ms of the service's work on the recorded inputs, and the estimates."""
     from aeroperception.schemas import CameraInfo, Image, Imu, decode
 
@@ -81,6 +96,10 @@ def replay(data: dict, pkg_dir: str | None = None, profile: str | None = None, p
     strategy = importlib.import_module(f"{base}.strategy")
     calibration = importlib.import_module(f"{base}.calibration")
 
+    _service_process_settings(base)
+    if threads is not None:
+        import cv2
+        cv2.setNumThreads(threads)
     infos = [decode(b, CameraInfo) for b in data["infos"]]
     calib = calibration.CameraCalibration.from_camera_infos(*infos)
     vio = strategy.create_strategy("klt_stereo", strategy.VioConfig())
@@ -291,11 +310,8 @@ def _service_cli(a) -> int:
 
 
 def _run_cli(a) -> int:
-    import cv2
-    if a.threads is not None:
-        cv2.setNumThreads(a.threads)
     data = pickle.load(open(a.data, "rb"))
-    res = replay(data, a.vio, a.profile, a.pace_hz)
+    res = replay(data, a.vio, a.profile, a.pace_hz, a.threads)
     s = summary(res["cpu_ms"])
     s.update(ate_m=ate_m(res["poses"], data["truth"]), keyframes=res["keyframes"],
              tracking=sum(1 for x in res["states"] if x == 1))
@@ -339,7 +355,8 @@ def main(argv=None) -> int:
     p = sub.add_parser("run")
     p.add_argument("data")
     p.add_argument("--vio", default=None, help="folder holding a copy of services/vio (default: the installed one)")
-    p.add_argument("--threads", type=int, default=None, help="cv2.setNumThreads before the run")
+    p.add_argument("--threads", type=int, default=None,
+                   help="cv2.setNumThreads (default: what this version's service sets at start)")
     p.add_argument("--profile", default=None, help="write cProfile stats here")
     p.add_argument("--pace-hz", type=float, default=0.0, help="feed frames at this rate (0: back to back)")
     p.add_argument("--poses", default=None, help="write the estimates here (JSON) to compare versions")
