@@ -237,7 +237,10 @@ def test_mono_single_and_down_cameras_match_the_reference():
     assert len(mono.infos()) == 1
     _assert_matches_ray_cast(mono.left, truth)
     down = make_down_camera(scene, DownCameraConfig(enabled=True, width=161, height=121))   # odd sizes
-    _assert_matches_ray_cast(down, hover_truth([30.0, 12.0, 4.0], yaw_rad=0.3))
+    # beside building1's wall (y 10-18), ground and wall in view; not inside it at y = 12, where its floor
+    # and the ground are the same plane and which one a renderer shows is a tie (Open3D 0.20 and the
+    # rasteriser break it differently: 19 % of pixels alike)
+    _assert_matches_ray_cast(down, hover_truth([30.0, 8.5, 4.0], yaw_rad=0.3))
 
 
 @pytest.mark.parametrize("name", ["village", "open_field", "slope_forest"])
