@@ -66,11 +66,43 @@ def _rotmat(w, x, y, z):
             (2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)))
 
 
+# Single values as tuples of floats: the fast paths below, and what the simulated vehicle's step
+# (400 Hz, services/sim/vehicle/floats.py) calls directly.
+
+def mul_floats(a, b) -> tuple[float, float, float, float]:
+    """Hamilton product a * b of two (w, x, y, z) tuples."""
+    return _mul(*a, *b)
+
+
+def normalize_floats(q) -> tuple[float, float, float, float]:
+    """Unit norm with w >= 0, of a (w, x, y, z) tuple."""
+    w, x, y, z = q
+    n = math.sqrt(w * w + x * x + y * y + z * z)
+    n = -n if w < 0.0 else n
+    return (w / n, x / n, y / n, z / n)
+
+
+def rotvec_floats(q) -> tuple[float, float, float]:
+    """Rotation vector of a (w, x, y, z) tuple, normalised first."""
+    w, x, y, z = normalize_floats(q)
+    s = math.sqrt(x * x + y * y + z * z)
+    k = 2.0 if s < 1e-9 else 2.0 * math.atan2(s, w) / s
+    return (x * k, y * k, z * k)
+
+
+def axis_angle_floats(v) -> tuple[float, float, float, float]:
+    """Quaternion of a rotation vector (x, y, z) tuple; sin(a/2)/a by its series near 0."""
+    x, y, z = v
+    angle = math.sqrt(x * x + y * y + z * z)
+    k = 0.5 - angle * angle / 48.0 if angle < 1e-6 else math.sin(0.5 * angle) / angle
+    return (math.cos(0.5 * angle), x * k, y * k, z * k)
+
+
 def quat_multiply(q1, q2) -> np.ndarray:
     """Hamilton product q1 * q2 (apply q2 first, then q1)."""
     a, b = _quat(q1), _quat(q2)
     if a.ndim == 1 and b.ndim == 1:
-        return np.array(_mul(*a.tolist(), *b.tolist()))
+        return np.array(mul_floats(a.tolist(), b.tolist()))
     return _assemble(_mul(*_components(a), *_components(b)), np.broadcast_shapes(a.shape[:-1], b.shape[:-1]))
 
 
@@ -87,10 +119,7 @@ def quat_normalize(q) -> np.ndarray:
     comparable and messages stable)."""
     a = _quat(q)
     if a.ndim == 1:
-        w, x, y, z = a.tolist()
-        n = math.sqrt(w * w + x * x + y * y + z * z)
-        n = -n if w < 0.0 else n
-        return np.array((w / n, x / n, y / n, z / n))
+        return np.array(normalize_floats(a.tolist()))
     n = np.sqrt(np.sum(a * a, axis=-1, keepdims=True))
     return a / np.where(a[..., :1] < 0.0, -n, n)
 
@@ -158,10 +187,7 @@ def quat_from_axis_angle(rotvec) -> np.ndarray:
     """Quaternion of a rotation vector (axis * angle, radians)."""
     v = _vec(rotvec)
     if v.ndim == 1:
-        x, y, z = v.tolist()
-        angle = math.sqrt(x * x + y * y + z * z)
-        k = 0.5 - angle * angle / 48.0 if angle < 1e-6 else math.sin(0.5 * angle) / angle
-        return np.array((math.cos(0.5 * angle), x * k, y * k, z * k))
+        return np.array(axis_angle_floats(v.tolist()))
     angle = np.sqrt(np.sum(v * v, axis=-1, keepdims=True))
     half = 0.5 * angle
     # sin(a/2)/a -> 1/2 as a -> 0; the series keeps small rotations exact.
@@ -172,12 +198,9 @@ def quat_from_axis_angle(rotvec) -> np.ndarray:
 
 def quat_to_rotvec(q) -> np.ndarray:
     """Rotation vector (axis * angle, angle in [0, pi]) of a quaternion."""
+    if _quat(q).ndim == 1:
+        return np.array(rotvec_floats(_quat(q).tolist()))
     a = quat_normalize(q)
-    if a.ndim == 1:
-        w, x, y, z = a.tolist()
-        s = math.sqrt(x * x + y * y + z * z)
-        k = 2.0 if s < 1e-9 else 2.0 * math.atan2(s, w) / s
-        return np.array((x * k, y * k, z * k))
     w, xyz = a[..., :1], a[..., 1:]
     s = np.sqrt(np.sum(xyz * xyz, axis=-1, keepdims=True))
     angle = 2.0 * np.arctan2(s, w)

@@ -5,9 +5,9 @@ Why: numpy costs ~0.5-1 us per call on a 3-element array, and a hovering step ma
 (RigidBodyState, Setpoint, AttitudeThrust, VehicleTruth): a step converts in with `floats` and out
 with `array`, here and nowhere else, and works on tuples in between.
 
-3-vectors are (x, y, z), quaternions (w, x, y, z) Hamilton, as in runtime/rotations; the quaternion
-functions are its single-value formulas (its `_mul`, and the same operations in the same order as
-its float paths), so a step gives the same floats it gave through numpy.
+3-vectors are (x, y, z), quaternions (w, x, y, z) Hamilton, as in runtime/rotations, whose float
+paths (its *_floats functions) are the quaternion maths here: a step gives the same floats it gave
+through numpy.
 """
 from __future__ import annotations
 
@@ -15,7 +15,10 @@ import math
 
 import numpy as np
 
-from aeroperception.services.runtime.rotations import _mul
+from aeroperception.services.runtime.rotations import (  # noqa: F401 - the step's quaternion maths, one home
+    axis_angle_floats as quat_from_axis_angle, mul_floats as quat_mul, normalize_floats as quat_normalize,
+    rotvec_floats as quat_to_rotvec,
+)
 
 Vec3 = tuple[float, float, float]
 Quat = tuple[float, float, float, float]
@@ -40,37 +43,8 @@ def clip(v: float, lo: float, hi: float) -> float:
     return min(max(v, lo), hi)
 
 
-def quat_mul(a: Quat, b: Quat) -> Quat:
-    """Hamilton product a * b (apply b first)."""
-    return _mul(*a, *b)
-
-
 def quat_conj(q: Quat) -> Quat:
     return (q[0], -q[1], -q[2], -q[3])
-
-
-def quat_normalize(q: Quat) -> Quat:
-    """Unit norm with w >= 0, as rotations.quat_normalize."""
-    w, x, y, z = q
-    n = math.sqrt(w * w + x * x + y * y + z * z)
-    n = -n if w < 0.0 else n
-    return (w / n, x / n, y / n, z / n)
-
-
-def quat_to_rotvec(q: Quat) -> Vec3:
-    """Rotation vector (axis * angle) of q, normalised first, as rotations.quat_to_rotvec."""
-    w, x, y, z = quat_normalize(q)
-    s = math.sqrt(x * x + y * y + z * z)
-    k = 2.0 if s < 1e-9 else 2.0 * math.atan2(s, w) / s
-    return (x * k, y * k, z * k)
-
-
-def quat_from_axis_angle(v: Vec3) -> Quat:
-    """Quaternion of a rotation vector, as rotations.quat_from_axis_angle."""
-    x, y, z = v
-    angle = math.sqrt(x * x + y * y + z * z)
-    k = 0.5 - angle * angle / 48.0 if angle < 1e-6 else math.sin(0.5 * angle) / angle
-    return (math.cos(0.5 * angle), x * k, y * k, z * k)
 
 
 def body_z(q: Quat) -> Vec3:
