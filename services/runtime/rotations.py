@@ -198,9 +198,10 @@ def quat_from_axis_angle(rotvec) -> np.ndarray:
 
 def quat_to_rotvec(q) -> np.ndarray:
     """Rotation vector (axis * angle, angle in [0, pi]) of a quaternion."""
-    if _quat(q).ndim == 1:
-        return np.array(rotvec_floats(_quat(q).tolist()))
-    a = quat_normalize(q)
+    a = _quat(q)
+    if a.ndim == 1:
+        return np.array(rotvec_floats(a.tolist()))
+    a = quat_normalize(a)
     w, xyz = a[..., :1], a[..., 1:]
     s = np.sqrt(np.sum(xyz * xyz, axis=-1, keepdims=True))
     angle = 2.0 * np.arctan2(s, w)

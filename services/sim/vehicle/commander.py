@@ -96,7 +96,8 @@ class Commander:
         # behaviour targets (ENU)
         self._hold_pos = np.zeros(3)
         self._hold_yaw = state.yaw_rad
-        self._hold_sp: Setpoint | None = None     # HOLD's setpoint for (_hold_pos, _hold_yaw), see _hold
+        self._hold_sp: Setpoint | None = None     # HOLD's setpoint, built for the _hold_pos object _hold_sp_of (_hold)
+        self._hold_sp_of: np.ndarray | None = None
         self._takeoff_alt_m = 0.0
         self._rtl_phase = "LAND"
         self._rtl_alt_m = 0.0
