@@ -18,7 +18,7 @@ from .controllers import CONTROLLERS, Gains
 from .estimators import VioEstimate, fc_offset_m
 from .logic import Goal, GoalWatchdog, WaypointPlanner, tracking_errors
 from .plugins import PARTS_FILE, REGISTRIES, restore_parts, selected_parts, switch_refusal
-from .tracking import TrackerConfig, TrajectoryTracker
+from .tracking import TrackerConfig, TrajectoryTracker, start_velocity_mps
 from .trajectory.follow import FeedForward
 from .trajectory.generators import limits_from
 
@@ -268,13 +268,9 @@ class PlannerService(Service):
             self.log.info("waypoint_reached", index=g.index, distance_m=round(res.distance_m, 3))
 
     def _start_velocity_mps(self, st: VehicleState) -> np.ndarray:
-        """The velocity a path made now starts at: the velocity last sent, while the stream is
-        unbroken (the reference goes on without a step: a take-off still climbing is not braked
-        first); else the vehicle's own."""
         sp = self.last_setpoint
-        if sp is not None and sp.velocity_valid and time.monotonic() - self.last_pub_s < 3 * self.loop.period_s:
-            return sp.velocity_mps.to_array()
-        return st.velocity_mps.to_array()
+        return start_velocity_mps(sp.velocity_mps.to_array() if sp is not None and sp.velocity_valid else None,
+                                  time.monotonic() - self.last_pub_s, self.loop.period_s, st.velocity_mps.to_array())
 
     def _to_fc(self, sp: TrajectorySetpoint, st: VehicleState) -> TrajectorySetpoint:
         """The reference as the active controller gives it to the flight controller, its position

@@ -49,6 +49,18 @@ ON_PATH_M = 0.01          # a goal this close to a trajectory waypoint is that w
 AHEAD_S = 3.0             # the stretch of path checked against the costmap
 RESUME_S = 1.0            # a path left for a hold this short is resumed (braking from 3 m/s to rest takes ~1 s)
 COUNT_GRACE_S = 1.0       # the longest the reference runs on past a waypoint the vehicle reached, not yet counted
+STREAM_BROKEN_PERIODS = 3  # setpoints missed for this many loop periods: the vehicle no longer follows the last one
+
+
+def start_velocity_mps(last_sent_mps: np.ndarray | None, sent_age_s: float, period_s: float,
+                       vehicle_mps: np.ndarray) -> np.ndarray:
+    """The velocity a path made now starts at: the velocity last sent (None: none, or it had no
+    velocity) while the setpoint stream is unbroken -- the reference goes on without a step, so a
+    take-off still climbing is not braked first; else the vehicle's own, which is what it flies
+    after a broken stream (a stall, a restart, the flight controller's own hold)."""
+    if last_sent_mps is not None and sent_age_s < STREAM_BROKEN_PERIODS * period_s:
+        return np.asarray(last_sent_mps, float)
+    return np.asarray(vehicle_mps, float)
 
 
 def is_clear(msg: Trajectory) -> bool:

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from aeroperception.schemas import Header, Pose, PoseStamped, Quaternion, Trajectory, Vector3
-from aeroperception.services.planner.tracking import TrackerConfig, TrajectoryTracker
+from aeroperception.services.planner.tracking import TrackerConfig, TrajectoryTracker, start_velocity_mps
 from aeroperception.services.planner.trajectory import Limits
 from aeroperception.services.planner.trajectory.core import PlanningMargin, peaks
 
@@ -254,3 +254,15 @@ def test_a_late_count_does_not_stop_the_reference_a_missed_waypoint_does():
             assert np.allclose(fs.reference.position_m, goals[0]) and fs.setpoint.velocity_mps.to_array() == pytest.approx(0)
         else:
             assert speeds[-1] == 0.0 and tr.late_counts == 0                  # held at the waypoint
+
+
+def test_a_path_starts_at_the_velocity_last_sent_unless_the_stream_broke():
+    sent, own, period = np.array([0.0, 0.0, 0.27]), np.array([0.1, -0.05, 0.2]), 0.02
+    # unbroken: the reference goes on from what was sent (a climbing take-off is not braked first)
+    assert np.array_equal(start_velocity_mps(sent, 0.02, period, own), sent)
+    assert np.array_equal(start_velocity_mps(sent, 0.059, period, own), sent)
+    # broken for 3 periods or more (a stall, a planner restart): the vehicle's own velocity
+    assert np.array_equal(start_velocity_mps(sent, 0.06, period, own), own)
+    assert np.array_equal(start_velocity_mps(sent, 5.0, period, own), own)
+    # nothing sent yet, or the last setpoint had no velocity: the vehicle's own
+    assert np.array_equal(start_velocity_mps(None, 0.0, period, own), own)
