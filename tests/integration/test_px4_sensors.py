@@ -85,7 +85,11 @@ def test_px4_camera_frames_at_rate_stamped_on_the_fc_imu_clock(px4s):
     # other stacks gave.
     assert rate_hz >= min(1.0, 0.5 * rendered_hz) and rate_hz >= 0.5 * rendered_hz, f"{rate_hz:.1f} Hz ({d.message})"
     assert len(gaps_ms) >= 5 and max(gaps_ms) < 15.0, gaps_ms  # PX4's IMU is 100 Hz (8-12 ms apart)
-    assert sum(m.header.stamp_ns in right for m in imgs) >= len(imgs) - 2   # stereo pairs share the stamp
+    # Stereo pairs share the stamp. Images go with congestion control DROP (services/sim/qos.py: a frame
+    # never blocks the vehicle's loop), so on a loaded machine one eye's frame can be dropped alone:
+    # 83 of 86 paired was measured with two cores busy beside the stack
+    paired = sum(m.header.stamp_ns in right for m in imgs[:-1])    # the newest one's pair may be in flight
+    assert paired >= 0.9 * (len(imgs) - 1), (paired, len(imgs))
     assert d.values.get("ground_shift_m") is not None, d.values               # the pad seen on the ground
 
 
@@ -126,13 +130,13 @@ def test_px4_vio_tracks_sih_truth_on_a_short_hop(px4s, tmp_path):
     mission = tmp_path / "hop.json"
     mission.write_text(json.dumps(HOP))
     with st.capture(odom=("state/visual_odometry", Odometry), truth=("fmu/out/vehicle_ground_truth", VehicleState),
-                    costmap=("perception/costmap", OccupancyGrid)) as rec:
+                    costmap=("perception/costmap", OccupancyGrid), health=("state/vio_health", VioHealth)) as rec:
         r = subprocess.run(aero_argv() + ["mission", "fly", str(mission), "--quiet", "--timeout", "60"],
                            env=clean_env(st.endpoint), capture_output=True, text=True, timeout=80,
                            stdin=subprocess.DEVNULL)
         lag = st.diag("sim").values.get("truth_imu_lag_ms")
         wait_until(st.landed, 20, "on the ground, disarmed (PX4's land detector)")
-        odom, truth, costmaps = rec.get("odom"), rec.get("truth"), rec.get("costmap")
+        odom, truth, costmaps, health = rec.get("odom"), rec.get("truth"), rec.get("costmap"), rec.get("health")
     assert r.returncode == 0, r.stdout + r.stderr
     pole_cost = max(lethal_near(c, POLE) for c in costmaps)
     ts = np.array([m.header.stamp_ns for m in truth], float)
@@ -144,9 +148,16 @@ def test_px4_vio_tracks_sih_truth_on_a_short_hop(px4s, tmp_path):
     err = np.linalg.norm(est @ R.T + t - gt, axis=1)
     path_m = float(np.sum(np.linalg.norm(np.diff(tp, axis=0), axis=1)))
     ate = float(np.sqrt(np.mean(err ** 2)))
+    # what explains a miss: the error along the flight, VIO's states and counters
+    t_s = (np.array([m.header.stamp_ns for m in inside], float) - ts[0]) / 1e9
+    err_by_2s = [round(float(err[(t_s >= a) & (t_s < a + 2)].max()), 2) for a in range(0, int(t_s[-1]) + 1, 2)
+                 if ((t_s >= a) & (t_s < a + 2)).any()]
+    states = [h.state for h in health]
+    transitions = [s for k, s in enumerate(states) if k == 0 or s != states[k - 1]]
     print(f"VIO on PX4 SIH: {len(inside)} poses over {path_m:.1f} m of truth; ATE RMSE {ate:.3f} m, max "
-          f"{err.max():.3f} m (yaw + translation aligned); truth_imu_lag_ms {lag}; costmap in flight: "
-          f"street light {pole_cost} (of {len(costmaps)})")
+          f"{err.max():.3f} m (yaw + translation aligned); max error per 2 s {err_by_2s}; reset counters "
+          f"{sorted({m.reset_counter for m in inside})}; health states {transitions}; truth_imu_lag_ms {lag}; "
+          f"costmap in flight: street light {pole_cost} (of {len(costmaps)}); vio {st.diag('vio').values}")
     assert path_m > 8.0 and len(inside) >= 10, (path_m, len(inside))
     # 0.39 m measured with the camera at 4 Hz on a machine shared with six other stacks; VIO not tracking
     # (a frozen or lost estimate) is metres off on this path even after the alignment
