@@ -18,6 +18,8 @@ from typing import ClassVar
 
 import numpy as np
 
+from aeroperception.services.runtime.rotations import quat_from_axis_angle, quat_to_rotmat
+
 from . import health as H
 from .backend import Backend, BackendConfig, BackendError, adjoint, tangent_to_world_cov
 from .calibration import CameraCalibration
@@ -44,6 +46,10 @@ class VioConfig:
     imu_gap_warn_s: float = 0.05
     imu_gap_reset_s: float = 1.0
     time_jump_reset_s: float = 1.0
+    # A restart that continues the odom frame carries the last estimate over the time it missed at
+    # its velocity and turn rate, up to this long (beyond it the vehicle's motion is anybody's guess:
+    # the last pose stands)
+    continue_carry_max_s: float = 2.0
     imu_buffer_s: float = 5.0
 
 
@@ -81,6 +87,7 @@ class KltVio(VioStrategy):
         self.kf_world_T_body = np.eye(4)
         self.last_gyro = np.zeros(3)
         self.continuing = False   # the next initialisation continues the current odom frame
+        self.continue_from: tuple[int, np.ndarray] | None = None   # (stamp, body rate) of the pose it continues
         self.initialisations = 0  # successful starts; each after the first is a reset of the odom pose
         self.counters = {"frames": 0, "outputs": 0, "bad_frames": 0, "time_backwards": 0,
                          "imu_gaps": 0, "imu_dropped": 0, "resets": 0, "visual_fixes": 0}
@@ -113,6 +120,7 @@ class KltVio(VioStrategy):
         self.continuing = keep_pose and last is not None
         if self.continuing:
             self.warm = WarmStartPose(last.world_T_body, last.velocity_world_mps, last.bias)
+            self.continue_from = (last.t_ns, self.last_gyro - last.bias.gyro_radps)
         self.backend.reset()
         if self.frontend:
             self.frontend.reset()
@@ -176,6 +184,7 @@ class KltVio(VioStrategy):
             w, self.warm = self.warm, None
             T, vel, bias = np.asarray(w.world_T_body, float), np.asarray(w.velocity_world_mps, float), w.bias
             if self.continuing:
+                T = self._carried_over(T, vel, t)
                 vel_sigma = self.cfg.moving_init_velocity_sigma_mps   # the last velocity is stale
         else:
             acc = np.array([s.accel_mps2 for s in win])
@@ -200,6 +209,19 @@ class KltVio(VioStrategy):
         self.last_t_ns = t
         self.initialisations += 1
         return self._output(frame, est, res.quality, True, res.timings_ms, inliers=len(self.frontend.kf_px))
+
+    def _carried_over(self, T: np.ndarray, vel: np.ndarray, t_ns: int) -> np.ndarray:
+        """The pose a continuing restart starts from: the last estimate moved on to `t_ns` at its
+        velocity and the body rate its IMU gives now. Without it a vehicle in motion jumped back by all it flew in the gap
+        (1.3 s without IMU at 2.5 m/s: 3.3 m, and its yaw rate's worth of heading for good)."""
+        t0, rate = self.continue_from or (t_ns, np.zeros(3))
+        dt = (t_ns - t0) * 1e-9
+        if not 0.0 < dt <= self.cfg.continue_carry_max_s:
+            return T
+        out = T.copy()
+        out[:3, 3] += vel * dt
+        out[:3, :3] = T[:3, :3] @ quat_to_rotmat(quat_from_axis_angle(rate * dt))
+        return out
 
     def _output(self, frame, est, quality: FeatureQuality, keyframe: bool, timings, inliers: int | None) -> VioOutput:
         """`inliers`: the visual fix's (stereo features at initialisation; None: no fix, IMU only)."""
