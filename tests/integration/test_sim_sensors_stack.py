@@ -201,8 +201,13 @@ def test_image_stamps_on_sim_clock(rec):
             assert np.min(np.abs(clock - s)) <= period_ns, s
     lags = [(clk - s) * 1e-9 for s, clk in rec.clock_at_image if clk]
     assert lags, "no sim/clock before an image"
-    # Render latency is ~one render time; allow the clock's own resolution ahead of it.
-    assert min(lags) > -period_ns * 1e-9, lags
+    # Render latency is ~one render time; allow the clock's own resolution ahead of it. The sim publishes
+    # each step's clock before that step's render request, but the order the two streams arrive in is
+    # Zenoh's (clock DATA_HIGH express, images DATA_LOW, both DROP): once in a loaded run a 0.22 s run of
+    # clock samples came in after an image. So: typically after, and never by more than a stall's worth
+    ahead = [x for x in lags if x <= -period_ns * 1e-9]
+    assert np.median(lags) > -period_ns * 1e-9 and len(ahead) <= 0.1 * len(lags), (len(ahead), len(lags), lags)
+    assert min(lags) > -0.5, lags
     assert max(lags) < 2.0, f"images arrive {max(lags):.2f} s of sim time after their stamp"
 
 
