@@ -30,6 +30,10 @@ class Follower:
     SIH vehicle on its pad was 0.34 m above it): the first sample of the vehicle disarmed on the
     ground fixes the height shift that puts it on the scenario's ground, kept from then on (a
     follower started in the air renders unshifted until the vehicle lands, and says so).
+    The FC's height on the ground is not the same at every landing (PX4 SIH: 0.12 m on its pad,
+    0.06 m after a 5 m hop), so a pose below the scenario's ground is raised onto it (counted in
+    `below_ground`, the deepest in `below_ground_max_m`): the cameras sit 3 cm above the body
+    origin, and a vehicle rendered 6 cm under the ground sees only the sky colour (VIO lost).
 
     A gap of more than `outage_s` between samples is an outage (the FC or fmu restarted): counted,
     with the newest one's length and stamp, so a gap shorter than a diagnostics period is still
@@ -39,7 +43,8 @@ class Follower:
         self.ground_height_m = ground_height_m
         self.outage_ns = int(outage_s * 1e9)
         self.z_shift_m: float | None = None
-        self.samples = self.rejected = self.out_of_order = self.outages = 0
+        self.samples = self.rejected = self.out_of_order = self.outages = self.below_ground = 0
+        self.below_ground_max_m = 0.0
         self.last_outage: tuple[float, int] | None = None     # (length s, stamp it ended)
         self.last_stamp_ns = 0
         self._prev: tuple[int, np.ndarray] | None = None     # (stamp, velocity) for the acceleration
@@ -60,6 +65,11 @@ class Follower:
         if self.z_shift_m is None and not m.armed and m.landed_state == LandedState.ON_GROUND:
             self.z_shift_m = self.ground_height_m(p[0], p[1]) - p[2]
         p = p + np.array([0.0, 0.0, self.z_shift_m or 0.0])
+        depth_m = self.ground_height_m(p[0], p[1]) - p[2]
+        if depth_m > 0.0:
+            p[2] += depth_m
+            self.below_ground += 1
+            self.below_ground_max_m = max(self.below_ground_max_m, depth_m)
         accel = np.zeros(3)
         if self._prev is not None and 0 < stamp - self._prev[0] < 0.2e9:
             accel = (v - self._prev[1]) / ((stamp - self._prev[0]) * 1e-9)

@@ -249,6 +249,7 @@ class SimService(Service):
                   "truth_out_of_order": f.out_of_order, "truth_outages": f.outages,
                   "truth_age_ms": round(age_s * 1e3, 1) if age_s is not None else None,
                   "ground_shift_m": round(f.z_shift_m, 3) if f.z_shift_m is not None else None,
+                  "below_ground": f.below_ground, "below_ground_max_m": round(f.below_ground_max_m, 3),
                   "camera_blackout": self.truth_stamp_ns < self.blackout_until_ns}
         if lag is not None:                 # the median of the recent measurements (needs rotation to see)
             values["truth_imu_lag_ms"] = round(lag, 2)
