@@ -281,9 +281,10 @@ def decode(data: bytes | bytearray | memoryview, cls: type[M], strict: bool = Fa
     an unknown field anywhere in the message is refused, naming it.
     """
     codec = _codec(cls)
-    # msgspec raises UnicodeDecodeError (not DecodeError) for a string that is not UTF-8, and
-    # its typed decoder skips unknown keys unread, so such a key surfaces only in the strict
-    # check's plain decode (both found by tests/unit/test_fuzz_schemas.py).
+    # A string that is not UTF-8 is a UnicodeDecodeError in some msgspec releases and a
+    # DecodeError in others: both are caught. The typed decoder skips unknown keys unread, so
+    # a plain decode that fails after the typed one succeeded can only have failed inside an
+    # unknown field: strict decoding says so in its own words, not the library's.
     try:
         msg = codec.decoder.decode(data)
     except (msgspec.DecodeError, msgspec.ValidationError, UnicodeDecodeError) as e:
@@ -292,7 +293,7 @@ def decode(data: bytes | bytearray | memoryview, cls: type[M], strict: bool = Fa
         try:
             plain = _plain.decode(data)
         except (msgspec.DecodeError, UnicodeDecodeError) as e:
-            raise SchemaError(f"{_name(cls)}: {e}") from None
+            raise SchemaError(f"{_name(cls)}: unknown field that does not decode ({e})") from None
         check_known_fields(plain, cls)
     return msg
 

@@ -42,6 +42,7 @@ class FrontEndConfig:
     pixel_sigma_px: float = 0.5    # floor of the measured reprojection noise
     covariance_inflation: float = 2.0   # sigma factor: 3D points are treated as exact in the Jacobian
     translation_sigma_fraction: float = 0.03    # + this fraction of |t| (stereo depth / scale error)
+    essential_min_parallax_px: float = 1.0      # mono: below this median parallax, rotation only
 
 
 @dataclass
@@ -198,12 +199,22 @@ def solve_essential(rect_kf: np.ndarray, rect_cur: np.ndarray, calib: CameraCali
     the IMU carries the scale."""
     if len(rect_kf) < max(cfg.min_inliers, 8):
         return None
-    E, inl = cv2.findEssentialMat(rect_kf, rect_cur, focal=calib.f, pp=(calib.cx, calib.cy),
-                                  method=cv2.RANSAC, prob=0.999, threshold=cfg.ransac_threshold_px)
-    if E is None or E.shape != (3, 3) or inl is None:
-        return None
-    n, R, t, inl2 = cv2.recoverPose(E, rect_kf, rect_cur, focal=calib.f, pp=(calib.cx, calib.cy), mask=inl.copy())
-    mask = inl.ravel() > 0
+    # Without parallax (a still or purely rotating camera) the essential matrix is undefined and
+    # the five-point solver's polynomial degenerates (OpenCV 5 asserts in solvePoly); the rotation
+    # alone is still well defined from the bearings.
+    if np.median(np.linalg.norm(rect_cur - rect_kf, axis=1)) < cfg.essential_min_parallax_px:
+        R, mask = solve_rotation(rect_kf, rect_cur, calib, cfg)
+    else:
+        try:
+            E, inl = cv2.findEssentialMat(rect_kf, rect_cur, focal=calib.f, pp=(calib.cx, calib.cy),
+                                          method=cv2.RANSAC, prob=0.999, threshold=cfg.ransac_threshold_px)
+            if E is None or E.shape != (3, 3) or inl is None:
+                return None
+            _n, R, _t, _inl = cv2.recoverPose(E, rect_kf, rect_cur, focal=calib.f, pp=(calib.cx, calib.cy),
+                                              mask=inl.copy())
+        except cv2.error:
+            R, inl = solve_rotation(rect_kf, rect_cur, calib, cfg)   # a degenerate configuration
+        mask = np.asarray(inl).ravel() > 0
     if mask.sum() < cfg.min_inliers:
         return None
     # Rotation-only residual as the noise estimate (small-baseline between keyframes).
@@ -211,8 +222,30 @@ def solve_essential(rect_kf: np.ndarray, rect_cur: np.ndarray, calib: CameraCali
     rot_var = (sigma / calib.f) ** 2 / mask.sum() * 4.0
     cov = np.diag([rot_var] * 3 + [100.0] * 3)
     T = np.eye(4)
-    T[:3, :3], T[:3, 3] = R, t.ravel() * 0.0
+    T[:3, :3] = R
     return T, mask, cov, sigma
+
+
+def solve_rotation(rect_kf: np.ndarray, rect_cur: np.ndarray, calib: CameraCalibration,
+                   cfg: FrontEndConfig) -> tuple[np.ndarray, np.ndarray]:
+    """The rotation R (cur <- kf) that best maps the keyframe's bearings onto the current ones
+    (Kabsch on unit rays), refined once on the bearings within the RANSAC threshold; the mask of
+    those. Exact for a camera that did not translate."""
+    def rays(px: np.ndarray) -> np.ndarray:
+        b = np.column_stack([(px[:, 0] - calib.cx) / calib.f, (px[:, 1] - calib.cy) / calib.f, np.ones(len(px))])
+        return b / np.linalg.norm(b, axis=1, keepdims=True)
+
+    a, b = rays(np.asarray(rect_kf, float)), rays(np.asarray(rect_cur, float))
+    mask = np.ones(len(a), bool)
+    for _ in range(2):
+        U, _s, Vt = np.linalg.svd(a[mask].T @ b[mask])
+        d = np.sign(np.linalg.det(Vt.T @ U.T))
+        R = Vt.T @ np.diag([1.0, 1.0, d]) @ U.T
+        err_px = calib.f * np.linalg.norm(b - a @ R.T, axis=1)
+        mask = err_px < cfg.ransac_threshold_px
+        if mask.sum() < 3:
+            break
+    return R, mask
 
 
 # ---------------------------------------------------------------- stateful front end

@@ -39,8 +39,8 @@ def check_both(data: bytes, cls: type) -> None:
     elif not isinstance(strict, SchemaError):
         assert strict == lenient or _has_nan(data), "strict and lenient decoded differently"
     else:
-        # The payload had a field the schema does not declare (or a key that is not even UTF-8).
-        assert "unknown field" in str(strict) or "utf-8" in str(strict), \
+        # The payload had a field the schema does not declare (its key or value may not even decode).
+        assert "unknown field" in str(strict), \
             f"strict refused a lenient-valid payload for another reason: {strict}"
 
 

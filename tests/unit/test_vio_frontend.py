@@ -128,3 +128,30 @@ def test_a_restart_after_an_imu_gap_in_flight_carries_the_pose_over_the_gap(seq)
     assert flown > 2.0
     assert max(errors) < 0.35 * flown, errors
     assert max(yaw_errors) < 3.0, yaw_errors
+
+
+def _mono_calib() -> CameraCalibration:
+    from test_vio_strategy import info
+    return CameraCalibration.from_camera_infos(info(0.04))
+
+
+@pytest.mark.parametrize("yaw_deg", [0.0, 3.0])
+def test_mono_essential_without_parallax_gives_the_rotation_not_a_solver_error(yaw_deg):
+    """A still or purely rotating mono camera: no translation, so no essential matrix (OpenCV 5's
+    five-point solver asserts on it); the rotation comes from the bearings instead."""
+    from aeroperception.services.vio.frontend import solve_essential
+    calib, cfg = _mono_calib(), FrontEndConfig()
+    rng = np.random.default_rng(3)
+    pts_c = np.column_stack([rng.uniform(-4, 4, 80), rng.uniform(-3, 3, 80), rng.uniform(4, 20, 80)])
+    a = np.radians(yaw_deg)
+    R = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])   # about the camera's y
+
+    def project(p):
+        return np.column_stack([calib.f * p[:, 0] / p[:, 2] + calib.cx, calib.f * p[:, 1] / p[:, 2] + calib.cy])
+
+    sol = solve_essential(project(pts_c), project(pts_c @ R.T), calib, cfg)
+    assert sol is not None
+    T, mask, cov, _sigma = sol
+    assert mask.sum() == 80
+    assert np.allclose(T[:3, :3], R, atol=1e-6) and np.allclose(T[:3, 3], 0)
+    assert cov[3, 3] == 100.0   # translation left to the IMU
