@@ -79,9 +79,9 @@ free_gb=$(df -P --block-size=1G "$(docker info -f '{{.DockerRootDir}}')" | awk '
 [ "$free_gb" -ge 8 ] || unavailable "${free_gb} GB free under $(docker info -f '{{.DockerRootDir}}') (8 GB needed)"
 
 # ---- 5. wheelhouse (same Python minor as the base: bookworm's python3 is 3.11), in the background
-# (made again when pyproject.toml changed since: a new dependency is then in it too)
+# (made again when pyproject.toml or the pins changed since: a new dependency or version is then in it too)
 wheels_pid=
-wheels_for=$(sha256sum pyproject.toml | cut -c1-16)
+wheels_for=$(cat pyproject.toml deploy/constraints.txt | sha256sum | cut -c1-16)
 if ! ls deploy/wheels/*.whl >/dev/null 2>&1 || [ "$(cat deploy/wheels/.pyproject 2>/dev/null)" != "$wheels_for" ]; then
     "$PY" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))' \
         || die "the wheelhouse must be made with Python 3.11 (bookworm's); set PYTHON=python3.11"
@@ -89,7 +89,7 @@ if ! ls deploy/wheels/*.whl >/dev/null 2>&1 || [ "$(cat deploy/wheels/.pyproject
     # into a side folder, moved in only when complete: an interrupted download is not a wheelhouse
     rm -rf deploy/wheels.part
     (set -o pipefail
-     PIP_DISABLE_PIP_VERSION_CHECK=1 timeout 900 "$PY" -m pip download -q -d deploy/wheels.part ".[sim]" setuptools wheel 2>&1 \
+     PIP_DISABLE_PIP_VERSION_CHECK=1 timeout 900 "$PY" -m pip download -q -d deploy/wheels.part -c deploy/constraints.txt ".[sim]" setuptools wheel 2>&1 \
         | { grep -v "is ignored" || true; } \
      && mkdir -p deploy/wheels && mv deploy/wheels.part/*.whl deploy/wheels/ && rm -rf deploy/wheels.part \
      && echo "$wheels_for" > deploy/wheels/.pyproject) &

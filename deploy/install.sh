@@ -40,13 +40,33 @@ else
 fi
 [ "$APT_ONLY" = 1 ] && exit 0
 
-# ---- Python packages (Debian's own python3 refuses pip without this; harmless elsewhere)
+# ---- Python packages (Debian's own python3 refuses pip without this; harmless elsewhere), at the
+# versions CI tested: deploy/constraints.txt (refreshed by deploy/lock.sh). AERO_DEPS=newest installs
+# today's newest releases instead, to find what they break on purpose (`AERO_DEPS=newest .ci/run`).
 export PIP_BREAK_SYSTEM_PACKAGES=1 PIP_DISABLE_PIP_VERSION_CHECK=1 PIP_NO_INPUT=1
-stamp "pip install -e .[$EXTRAS]"
-"$PY" -m pip install -q -e ".[$EXTRAS]"
+case ${AERO_DEPS:-locked} in
+    locked) PINS=(-c deploy/constraints.txt) ;;
+    newest) PINS=(--upgrade --upgrade-strategy eager) ;;
+    *) echo "install.sh: AERO_DEPS must be locked or newest, not '${AERO_DEPS}'" >&2; exit 2 ;;
+esac
+stamp "pip install ${PINS[*]} -e .[$EXTRAS]"
+"$PY" -m pip install -q "${PINS[@]}" -e ".[$EXTRAS]"
 CHECK="import aeroperception.tools.cli, zenoh, msgspec, pymavlink"
 case ",$EXTRAS," in *,sim,*) CHECK="$CHECK, open3d, cv2, numba" ;; esac
 case ",$EXTRAS," in *,perception,*) CHECK="$CHECK, onnxruntime, gtsam" ;; esac
 case ",$EXTRAS," in *,bench,*) CHECK="$CHECK, dora, cyclonedds" ;; esac
 "$PY" -c "$CHECK; print('install: imports ok')"
+# The versions that matter most to a bug report, in one line (all of them: pip freeze).
+"$PY" - <<'VERSIONS'
+from importlib.metadata import PackageNotFoundError, version
+names = ("eclipse-zenoh", "msgspec", "numpy", "pymavlink", "opencv-python-headless", "open3d", "gtsam",
+         "onnxruntime", "rerun-sdk", "mcap", "pytest")
+found = []
+for n in names:
+    try:
+        found.append(f"{n}=={version(n)}")
+    except PackageNotFoundError:
+        pass
+print("[install] " + " ".join(found))
+VERSIONS
 
