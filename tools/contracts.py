@@ -3,7 +3,7 @@ vocabulary of services/runtime/contract.py (Topics of Topic, Queries of Query, A
 ACTION_CALLS, LIVELINESS).
 
 One home for "who publishes what": `aero topic echo` suggests keys from it, `aero topic pub`
-checks a type against it, and `aero docs keys` generates docs/ARCHITECTURE.md's key table from
+checks a type against it, and `aero docs reference` generates docs/reference/keys.md from
 it. The files are parsed (ast), never imported: importing a contract imports its package (vio's
 pulls in GTSAM, the detector's ONNX Runtime), and a new service folder is picked up with no
 registration.

@@ -6,8 +6,8 @@ msgpack messages. It is registered through zenoh-cli's entry-point groups
 `decoder(key, payload: bytes) -> str` and `encoder(key, value: str) -> bytes`.
 
 zenoh-cli hands a codec the key and the payload only, never the sample's encoding, so the
-schema comes from what the services' contracts declare for the key (the table `aero docs keys`
-prints; a `<vehicle>/` prefix is recognised). A key no contract declares is shown as schema-less
+schema comes from what the services' contracts declare for the key (the table of
+docs/reference/keys.md; a `<vehicle>/` prefix is recognised). A key no contract declares is shown as schema-less
 msgpack. Service keys work with `zenoh get` (reply decoded, `-v` encoded as the request).
 What a user types for `put` is a command: it is decoded strictly (unknown fields and
 wrong types refused, with the error on stderr), exactly like `aero topic pub`.

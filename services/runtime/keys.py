@@ -12,7 +12,7 @@ A contract declares, once, every key the service's code touches:
   "*" = every service.
 
 tools/contracts.py reads these by parsing the file (never importing it) for `aero topic`,
-`aero docs keys` and the key table in docs/ARCHITECTURE.md; tests/unit/test_contracts.py walks
+`aero docs reference` and the key table in docs/reference/keys.md; tests/unit/test_contracts.py walks
 each service's code and fails on a key used but not declared here, or declared but never used.
 """
 from __future__ import annotations

@@ -77,13 +77,15 @@ def cmd_list(args: argparse.Namespace) -> int:
 _QUALIFIED = re.compile(r"\b(?:[A-Za-z_]\w*\.)+([A-Za-z_]\w*)")
 
 
-def _type_name(t: Any) -> str:
+def type_name(t: Any) -> str:
+    """A field type as written in the schema ("Vector3 | None"), module paths stripped."""
     if isinstance(t, type) and not getattr(t, "__args__", None):
         return t.__name__
     return _QUALIFIED.sub(r"\1", str(t)).replace("NoneType", "None")
 
 
-def _default(f: msgspec.structs.FieldInfo) -> str:
+def default_text(f: msgspec.structs.FieldInfo) -> str:
+    """A field's default as a reader wants it: "(required)", a value, or "zeros (6, 6) float64"."""
     if f.required:
         return "(required)"
     if f.default is not msgspec.NODEFAULT:
@@ -96,7 +98,8 @@ def _default(f: msgspec.structs.FieldInfo) -> str:
     return repr(value)
 
 
-def _constants(cls: type) -> list[tuple[str, Any]]:
+def constants(cls: type) -> list[tuple[str, Any]]:
+    """The UPPER_CASE class constants (enum values), the base classes' first."""
     seen: dict[str, Any] = {}
     for klass in reversed(cls.__mro__):
         for name, value in vars(klass).items():
@@ -130,7 +133,7 @@ def cmd_show(args: argparse.Namespace) -> int:
             print(f"  {line.strip()}")
     fields = msgspec.structs.fields(cls)
     try:
-        rows = [(f.encode_name, _type_name(f.type), _default(f)) for f in fields]
+        rows = [(f.encode_name, type_name(f.type), default_text(f)) for f in fields]
     except Exception as e:  # a broken default factory is a bug, but `show` should still explain
         return _fail(f"cannot describe {cls.__name__}: {e}")
     w0 = max(len("FIELD"), *(len(r[0]) for r in rows))
@@ -143,7 +146,7 @@ def cmd_show(args: argparse.Namespace) -> int:
         print("\nARRAY SHAPES (-1 = any)")
         for name, shape in shapes.items():
             print(f"  {name}: {list(shape)}")
-    consts = _constants(cls)
+    consts = constants(cls)
     if consts:
         print("\nCONSTANTS")
         for name, value in consts:
