@@ -89,12 +89,17 @@ def load_priorities() -> dict[str, Priority]:
         raise CliError(f"tools/profiles.yaml: {e}") from None
 
 
+DEFAULT_PROFILE = "sim"                  # README command 1: `aero up`
+DEFAULT_LISTEN = "tcp/127.0.0.1:7447"    # the router's endpoint (`aero doctor` checks its port is free)
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("up", help="start the router and a profile's services, supervise them")
-    p.add_argument("--profile", default="sim", help="profile from tools/profiles.yaml (default sim)")
+    p.add_argument("--profile", default=DEFAULT_PROFILE,
+                   help=f"profile from tools/profiles.yaml (default {DEFAULT_PROFILE})")
     p.add_argument("--only", default="", help="comma-separated services to run from the profile")
     p.add_argument("--except", dest="exclude", default="", help="comma-separated services to skip")
-    p.add_argument("--listen", default="tcp/127.0.0.1:7447",
+    p.add_argument("--listen", default=DEFAULT_LISTEN,
                    help="router endpoint (use tcp/0.0.0.0:7447 to accept other machines)")
     p.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
                    help="join another host's router, e.g. tcp/10.0.0.2:7447 (several machines; repeatable)")
