@@ -27,9 +27,18 @@ ROOT_PACKAGE = "aeroperception"
 # The source folder of each aeroperception.<top> package (setup.py maps the repo's top-level folders).
 TOP_PACKAGES = ("schemas", "services", "tools")
 
-# Imports a service works without (a faster path, a diagnostic), with why: not required of any
-# install, not checked by `aero up`. Keep it short: everything else a service imports is required.
-OPTIONAL_IMPORTS: dict[str, str] = {}
+# Imports a service works without, {(service, module): why}: not required of any install, not
+# checked by `aero up` (`aero doctor` warns when one is missing). Keep it short: everything else a
+# service imports is required.
+OPTIONAL_IMPORTS: dict[tuple[str, str], str] = {
+    ("viz", "cv2"): "only to JPEG-compress camera images for the viewer (adapters.py, inside "
+                    "try/except ImportError); without OpenCV viz logs raw pixels",
+}
+
+
+def optional_modules(service: str) -> dict[str, str]:
+    """{module: why} of the imports `service` works without (OPTIONAL_IMPORTS)."""
+    return {m: why for (s, m), why in OPTIONAL_IMPORTS.items() if s == service}
 
 
 @lru_cache(maxsize=None)
@@ -48,6 +57,7 @@ def package_dirs() -> dict[str, Path]:
     return out
 
 
+@lru_cache(maxsize=None)
 def module_file(name: str) -> Path | None:
     """The source file of aeroperception module `name` (a package's __init__.py), None if there is none."""
     for pkg, folder in package_dirs().items():
@@ -87,6 +97,17 @@ def _dynamic_import(node: ast.Call) -> str | None:
     return None
 
 
+def _statements(nodes):
+    """Every statement, nested ones too (function, class, if/try/with/loop/match bodies): where an
+    import statement can be; far fewer nodes than ast.walk (`aero up` runs this on every start)."""
+    for node in nodes:
+        yield node
+        for field in ("body", "orelse", "finalbody", "handlers", "cases"):
+            sub = getattr(node, field, None)
+            if isinstance(sub, list):
+                yield from _statements(sub)
+
+
 @lru_cache(maxsize=None)
 def imports_of(path: Path) -> tuple[str, ...]:
     """Every module name `path` imports, absolute (relative imports resolved), including the
@@ -94,7 +115,11 @@ def imports_of(path: Path) -> tuple[str, ...]:
     module = _module_name(path)
     package = module if path.name == "__init__.py" else module.rpartition(".")[0]
     names: list[str] = []
-    for node in ast.walk(ast.parse(path.read_bytes(), str(path))):
+    source = path.read_bytes()
+    tree = ast.parse(source, str(path))
+    # import_module(...) is an expression, anywhere: the whole tree only where the source has one
+    dynamic = b"import_module(" in source or b"__import__(" in source
+    for node in ast.walk(tree) if dynamic else _statements(tree.body):
         if isinstance(node, ast.Import):
             names += [a.name for a in node.names]
         elif isinstance(node, ast.ImportFrom):
@@ -151,11 +176,16 @@ def service_modules(service: str) -> frozenset[str]:
     """Third-party top-level modules service `service` imports (every file of its folder, and what
     they import of aeroperception), the optional ones (OPTIONAL_IMPORTS) left out. Empty for a
     name that is not a service folder (px4: PX4 itself, no Python of ours)."""
+    return frozenset(all_service_modules(service) - set(optional_modules(service)))
+
+
+@lru_cache(maxsize=None)
+def all_service_modules(service: str) -> frozenset[str]:
+    """service_modules with the optional ones."""
     folder = service_dir(service)
     if folder is None:
         return frozenset()
-    _files, third = walk(sorted(folder.rglob("*.py")))
-    return frozenset(third - set(OPTIONAL_IMPORTS))
+    return frozenset(walk(sorted(folder.rglob("*.py")))[1])
 
 
 def missing_modules(modules) -> list[str]:

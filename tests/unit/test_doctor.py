@@ -143,3 +143,10 @@ def test_every_line_has_a_status_and_a_px4_profile_without_px4_fails(monkeypatch
     px4 = [c for c in found if c.what.startswith("PX4:")]
     assert len(px4) == 1 and px4[0].status == doctor.FAIL
     assert not any(c.what.startswith("px4:") for c in found)     # PX4 itself has no Python imports to check
+
+
+def test_a_missing_optional_import_is_a_warning(monkeypatch):
+    monkeypatch.setitem(sys.modules, "cv2", None)
+    c = doctor.check_service("viz", "deploy/install.sh x")
+    assert c.status == doctor.WARN and "optional cv2" in c.what and "raw pixels" in c.what, c
+    assert doctor.check_service("vio", "deploy/install.sh x").status == doctor.FAIL    # required there

@@ -70,6 +70,11 @@ def check_service(service: str, install: str) -> Check:
     missing = service_imports.missing_modules(needed)
     if missing:
         return Check(FAIL, f"{service}: not installed: {', '.join(missing)}", install)
+    optional = service_imports.optional_modules(service)
+    lacking = service_imports.missing_modules(optional)
+    if lacking:
+        return Check(WARN, f"{service}: imports found ({', '.join(needed)}) but not the optional "
+                           f"{', '.join(lacking)}: {'; '.join(optional[m] for m in lacking)}", install)
     return Check(OK, f"{service}: imports found ({', '.join(needed) or 'none'})")
 
 
