@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Install AeroPerception on a fresh Debian/Ubuntu machine: the system libraries the wheels load
 # at import time (apt, when root or with sudo), then the package itself in editable mode.
-#   deploy/install.sh              -> extras sim,tools   (what `aero up` needs)
+#   deploy/install.sh              -> extras sim,perception,tools: what the default profile starts
+#                                     (tools/profiles.yaml sim `install:`; a unit test keeps them equal)
 #   deploy/install.sh sim,perception,tools,test          (what .ci/run uses)
 #   deploy/install.sh sim,tools,bench                    (+ dora-rs and Cyclone DDS for `aero bench pubsub --peers`)
 #   deploy/install.sh --apt-only                         (system libraries only: deploy/Dockerfile's first layer)
@@ -10,7 +11,7 @@ set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 APT_ONLY=0
 if [ "${1:-}" = "--apt-only" ]; then APT_ONLY=1; shift; fi
-EXTRAS=${1:-sim,tools}
+EXTRAS=${1:-sim,perception,tools}
 PY=${PYTHON:-python3}
 stamp() { echo "[install] $*"; }
 

@@ -71,9 +71,10 @@ def test_optional_service_without_its_extra_is_one_line(monkeypatch):
 
     real = importlib.util.find_spec
     monkeypatch.setattr(importlib.util, "find_spec", lambda m, *a: None if m == "rosbags" else real(m, *a))
-    with pytest.raises(CliError, match=r"ros2bridge needs the optional extra 'ros2' \(rosbags\): pip install"):
-        cmd_up.check_extras(["sim", "ros2bridge"])
-    cmd_up.check_extras(["sim", "fmu"])
+    with pytest.raises(CliError, match=r"profile ros2: not installed: rosbags \(ros2bridge\)\. Install with: "
+                                       r"\S*install\.sh sim,perception,tools,ros2"):
+        cmd_up.check_installed("ros2", ["sim", "ros2bridge"])
+    cmd_up.check_installed("ros2", ["sim", "fmu"])
     # The service itself, started without rosbags: one line on stderr, exit 2, no traceback.
     block = ("import sys, runpy; sys.modules['rosbags'] = None; "
              "runpy.run_module('aeroperception.services.ros2bridge', run_name='__main__')")

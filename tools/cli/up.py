@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import argparse
 import difflib
-import importlib.util
 import json
 import math
 import os
@@ -51,19 +50,26 @@ from . import px4_sitl
 from .router import THIN_LINK_HZ, thin_link_downsampling
 from .topic import LEVEL_NAMES as LEVELS
 from .topic import decode_sample
+from aeroperception.tools import service_imports
 from aeroperception.tools.common import CliError, emit
 
 
+def _union(base: list, more) -> list:
+    return [*base, *(x for x in more or () if x not in base)]
+
+
 def load_profiles() -> dict[str, dict]:
-    """{profile: {"services": [...], "args": {service: [flags]}}}; a bare list means services only.
-    `extends: OTHER` starts from an earlier profile's services and args and adds its own."""
+    """{profile: {"services": [...], "args": {service: [flags]}, "install": [pip extras]}}; a bare
+    list means services only. `extends: OTHER` starts from an earlier profile's services, args and
+    extras and adds its own."""
     text = resources.files("aeroperception.tools").joinpath("profiles.yaml").read_text()
     out = {}
     for name, spec in yaml.safe_load(text)["profiles"].items():
         spec = {"services": spec} if isinstance(spec, list) else dict(spec)
-        base = out[spec["extends"]] if spec.get("extends") else {"services": [], "args": {}}
-        out[name] = {"services": [*base["services"], *(s for s in spec["services"] if s not in base["services"])],
-                     "args": {**base["args"], **dict(spec.get("args") or {})}}
+        base = out[spec["extends"]] if spec.get("extends") else {"services": [], "args": {}, "install": []}
+        out[name] = {"services": _union(base["services"], spec["services"]),
+                     "args": {**base["args"], **dict(spec.get("args") or {})},
+                     "install": _union(base["install"], spec.get("install"))}
     return out
 
 
@@ -83,12 +89,17 @@ def load_priorities() -> dict[str, Priority]:
         raise CliError(f"tools/profiles.yaml: {e}") from None
 
 
+DEFAULT_PROFILE = "sim"                  # README command 1: `aero up`
+DEFAULT_LISTEN = "tcp/127.0.0.1:7447"    # the router's endpoint (`aero doctor` checks its port is free)
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("up", help="start the router and a profile's services, supervise them")
-    p.add_argument("--profile", default="sim", help="profile from tools/profiles.yaml (default sim)")
+    p.add_argument("--profile", default=DEFAULT_PROFILE,
+                   help=f"profile from tools/profiles.yaml (default {DEFAULT_PROFILE})")
     p.add_argument("--only", default="", help="comma-separated services to run from the profile")
     p.add_argument("--except", dest="exclude", default="", help="comma-separated services to skip")
-    p.add_argument("--listen", default="tcp/127.0.0.1:7447",
+    p.add_argument("--listen", default=DEFAULT_LISTEN,
                    help="router endpoint (use tcp/0.0.0.0:7447 to accept other machines)")
     p.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
                    help="join another host's router, e.g. tcp/10.0.0.2:7447 (several machines; repeatable)")
@@ -214,17 +225,18 @@ def _did_you_mean(word: str, choices) -> str:
     return f" (did you mean {', '.join(near)}?)" if near else ""
 
 
-# Optional services and the extra each needs: {service: (module it imports, pyproject extra)}.
-OPTIONAL_EXTRAS = {"ros2bridge": ("rosbags", "ros2")}
-
-
-def check_extras(names: list[str]) -> None:
-    """A profile with an optional service whose extra is not installed fails before anything starts."""
-    for name in names:
-        module, extra = OPTIONAL_EXTRAS.get(name, (None, None))
-        if module and importlib.util.find_spec(module) is None:
-            raise CliError(f"{name} needs the optional extra '{extra}' ({module}): pip install "
-                           f"'aeroperception[{extra}]', or leave it out with --except {name}")
+def check_installed(profile: str, names: list[str]) -> None:
+    """Refuse, in one line and before anything starts, services whose modules are not installed
+    (they would only crash-loop): the modules, who needs them, and the one command that installs
+    the profile's extras (profiles.yaml `install:`). Found by reading the services' source and
+    find_spec: nothing is imported."""
+    short = service_imports.shortfall(names)
+    if short.modules:
+        who = "; ".join(f"{m} ({', '.join(short.needed_by[m])})" for m in short.modules)
+        extras = load_profiles()[profile]["install"]
+        raise CliError(f"profile {profile}: not installed: {who}. Install with: "
+                       f"{service_imports.install_command(extras)}"
+                       f" (or leave them out with --except {','.join(sorted({s for v in short.needed_by.values() for s in v}))})")
 
 
 def select_services(args) -> list[str]:
@@ -501,7 +513,7 @@ class RouterChild:
 
 def run(args) -> int:
     names = select_services(args)
-    check_extras(names)
+    check_installed(args.profile, names)
     if args.thin_link:  # the router would refuse them: say so before anything starts
         thin_link_downsampling(args.thin_link, THIN_LINK_HZ if args.thin_link_hz is None else args.thin_link_hz)
     validate_args(args, names)
