@@ -5,7 +5,7 @@ name, which the router's access_control matches as `cert_common_names`), a user/
 dictionary for Zenoh's usrpwd authentication, and ready-to-use Zenoh configs made from the
 templates in tools/secure/ (deploy/secure/ in a checkout) with absolute paths and the generated
 passwords filled in. For development and tests: a production CA keeps its key offline and
-issues certificates per host (README, "Security").
+issues certificates per host (docs/deploy.md, "Secured links").
 """
 from __future__ import annotations
 

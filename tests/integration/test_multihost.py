@@ -19,7 +19,7 @@ kernel has no sch_netem); loss is nftables on the vehicle's eth0, the bandwidth 
   raw 640x480 frames (147 Mbit/s) the ground follows: the vehicle's 50 Hz setpoint stream never
   gaps, frames arrive sampled; on the camera key (--thin-link: 1 Hz) state/vehicle stays fresh on
   the ground.
-Figures are printed (pytest -s) for the README and the issue.
+Figures are printed (pytest -s) for docs/results/benchmarks.md and the issue.
 """
 from __future__ import annotations
 

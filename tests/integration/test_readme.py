@@ -1,14 +1,21 @@
-"""The README's commands, run: every command line of every ```bash block is listed in HOW below,
-and a README line that is not is a test failure, so an example cannot change (or rot) unseen.
+"""The commands of the README and of every docs page, run: every command line of every ```bash
+block in README.md and docs/**/*.md is listed in HOW below, and a line that is not is a test
+failure (so is a HOW entry no page has any more), so an example cannot change (or rot) unseen.
 
 - "stack": run against a real `aero up --except planner` stack (sim, fmu, mission, gcs,
   diagnostics on free ports, no sensor rendering) with `aero run planner --param kp=1.0` in the
-  foreground beside it — the README's own "run one service yourself" pattern — in README order.
-  Commands that would run forever get a bound (`--duration`, `--timeout`); the rest run as written.
+  foreground beside it — the docs' own "run one service yourself" pattern — in page order, each
+  line once. Commands that would run forever get a bound (`--duration`, `--timeout`); the rest run
+  as written.
 - "dry": `aero up` lines run with `--dry-run`: the arguments are validated and the command line
   of every service printed, nothing starts (they need a real FC, QGC, or the fixed ports).
 - "skip": what cannot run here (installing with apt, the whole CI, an interactive MAVProxy),
   with the test that covers it instead, and a syntax or `--help` check where there is one.
+
+Quick start and first examples: every command line of the README (the quick start and the tour)
+and the first command line of every docs page must be "stack", "dry", or "skip" with a check argv
+that is executed (`test_quick_start_and_first_examples_are_executed` enforces it), so the commands
+a reader tries first are run or validated, not only listed.
 """
 from __future__ import annotations
 
@@ -178,13 +185,44 @@ HOW: dict[str, tuple] = {
     "deploy/docker-local.sh": (SKIP, ["bash", "-n", "deploy/docker-local.sh"], "installs the engine as root: syntax checked"),
     "BASE_IMAGE=aero-base:bookworm docker compose -f deploy/compose.yaml --profile sim up -d --build": (
         SKIP, None, "what test_compose runs"),
+    # docs/simulate.md
+    "aero up --scenario village --sensors camera": (DRY, None, "--scenario village --sensors camera"),
+    "aero up --speed 4 --sensors none": (DRY, None, "--speed 4.0 --sensors none"),
+    # docs/perception.md
+    "aero topic echo perception/objects/events": (
+        SKIP, ["aero", "topic", "echo", "--help"], "needs objects on rendered cameras: test_objects_stack reads the events"),
+    "aero param set objects confirm_hits 5": (
+        SKIP, ["aero", "param", "set", "--help"], "needs the objects service: test_objects_replay runs it with --param"),
+    "aero eval objects --live --scenario village --until-landed --duration 480": (
+        SKIP, ["aero", "eval", "objects", "--help"], "test_objects_search_flight scores this flight (opt-in extended)"),
+    "aero mission fly examples/missions/village_search.json": (
+        STACK, ["aero", "mission", "load", "examples/missions/village_search.json"],
+        "loaded"),   # flown by test_objects_search_flight (extended): here validated and loaded
+    # docs/benchmarks.md
+    "aero bench stack": (SKIP, ["aero", "bench", "stack", "--help"],
+                         "starts a whole stack for 30 s: test_bench_stack_logic pins its verdict"),
+    "aero bench flight --sensors all": (SKIP, ["aero", "bench", "flight", "--help"], "a benchmark: needs the sim profile up"),
+    "aero bench pubsub --peers": (SKIP, ["aero", "bench", "pubsub", "--help"],
+                                  "dora-rs and Cyclone DDS come with the bench extra; `aero bench pubsub` runs on the stack"),
+    "aero bench sim": (SKIP, ["aero", "bench", "sim", "--help"], "a benchmark: renders frames for minutes"),
+    "aero bench objects": (SKIP, ["aero", "bench", "objects", "--help"], "a benchmark: test_objects_* time the pipeline"),
+    "aero bench record": (SKIP, ["aero", "bench", "record", "--help"], "a benchmark: records images for seconds"),
+    "aero bench soak --minutes 30": (SKIP, ["aero", "bench", "soak", "--help"], "flies missions for 30 minutes"),
+    # docs/testing.md
+    "python -m pytest -q tests/unit": (SKIP, None, "this suite's unit half"),
+    "python -m pytest -m chaos_full tests/faults": (SKIP, None, "the opt-in fault rows of this suite"),
 }
 
 
-def readme_commands() -> list[str]:
-    """Every command line of the README's ```bash blocks, trailing comments removed, in order."""
+def doc_pages() -> list[Path]:
+    """README.md, then every page of the docs site, in a stable order."""
+    return [REPO / "README.md", *sorted((REPO / "docs").rglob("*.md"))]
+
+
+def page_commands(page: Path) -> list[str]:
+    """Every command line of a page's ```bash blocks, trailing comments removed, in order."""
     out = []
-    for block in re.findall(r"```bash\n(.*?)```", (REPO / "README.md").read_text(), re.S):
+    for block in re.findall(r"```bash\n(.*?)```", page.read_text(), re.S):
         for line in block.splitlines():
             line = line.strip()
             if line and not line.startswith("#"):
@@ -192,18 +230,48 @@ def readme_commands() -> list[str]:
     return out
 
 
+def readme_commands() -> list[str]:
+    """Every command line of the README and the docs pages, in page order, each once."""
+    return list(dict.fromkeys(c for page in doc_pages() for c in page_commands(page)))
+
+
 def test_every_readme_command_is_run_or_explained():
     cmds = readme_commands()
     missing = [c for c in cmds if c not in HOW]
-    assert not missing, f"README commands this test does not know (add them to HOW): {missing}"
+    assert not missing, f"README / docs commands this test does not know (add them to HOW): {missing}"
     stale = [c for c in HOW if c not in cmds]
-    assert not stale, f"HOW lists commands the README no longer has: {stale}"
+    assert not stale, f"HOW lists commands no README or docs page has any more: {stale}"
+
+
+def _executed(line: str) -> bool:
+    how, argv = HOW[line][0], HOW[line][1]
+    return how in (STACK, DRY) or (how == SKIP and bool(argv))
+
+
+def test_quick_start_and_first_examples_are_executed():
+    """The README's every command and each docs page's first command are run, dry-run, or checked."""
+    firsts = {"README.md": page_commands(REPO / "README.md")}
+    for page in doc_pages()[1:]:
+        cmds = page_commands(page)
+        if cmds:
+            firsts[str(page.relative_to(REPO))] = cmds[:1]
+    assert len(firsts) > 10, firsts
+    unchecked = [f"{page}: {c}" for page, cmds in firsts.items() for c in cmds if c in HOW and not _executed(c)]
+    assert not unchecked, f"quick-start / first-example lines that nothing runs: {unchecked}"
 
 
 def test_readme_links_the_architecture_doc():
     text = (REPO / "README.md").read_text()
     assert "docs/ARCHITECTURE.md" in text and (REPO / "docs/ARCHITECTURE.md").is_file()
     assert "ARCHITECTURE §" not in text
+
+
+def test_readme_links_every_task_page():
+    text = (REPO / "README.md").read_text()
+    pages = sorted(p.name for p in (REPO / "docs").glob("*.md"))
+    unlinked = [p for p in pages if f"(docs/{p}" not in text]
+    assert not unlinked, f"docs pages the README does not link: {unlinked}"
+    assert "(docs/results/index.md)" in text
 
 
 def _argv(line: str) -> list[str]:
@@ -267,7 +335,7 @@ def readme_stack(stack_module):
 def test_readme_commands_against_a_running_stack(readme_stack, tmp_path):
     st = readme_stack
     assert st.aero("param", "get", "planner", "kp").stdout.strip() == "1.0"  # `aero run planner --param kp=1.0`
-    (tmp_path / "examples").symlink_to(REPO / "examples")  # README paths are relative to the checkout
+    (tmp_path / "examples").symlink_to(REPO / "examples")  # the pages' paths are relative to the checkout
     failures = []
     for line in readme_commands():
         how, extra, expected = HOW[line]

@@ -1,12 +1,13 @@
-"""The services table lives in one place, README § Services: every service folder (one with a
-__main__.py) has exactly one row there, and docs/ARCHITECTURE.md links to it instead of keeping a
-second copy that drifts."""
+"""The services table lives in one place, the docs home page (docs/index.md § Services): every
+service folder (one with a __main__.py) has exactly one row there, and neither the README nor
+docs/ARCHITECTURE.md keeps a second copy that drifts: they link to it."""
 from __future__ import annotations
 
 import re
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
+PAGE = ROOT / "docs" / "index.md"
 
 
 def table_services(text: str) -> list[str]:
@@ -22,13 +23,18 @@ def table_services(text: str) -> list[str]:
     return names
 
 
-def test_readme_lists_every_service_folder_once():
+def test_docs_home_lists_every_service_folder_once():
     folders = sorted(p.parent.name for p in (ROOT / "services").glob("*/__main__.py"))
-    rows = table_services((ROOT / "README.md").read_text())
-    assert sorted(rows) == folders, f"README § Services rows {sorted(rows)} != service folders {folders}"
+    rows = table_services(PAGE.read_text())
+    assert sorted(rows) == folders, f"docs/index.md § Services rows {sorted(rows)} != service folders {folders}"
 
 
-def test_architecture_links_to_the_readme_table_instead_of_copying_it():
-    doc = (ROOT / "docs" / "ARCHITECTURE.md").read_text()
-    assert "| service | does |" not in doc, "docs/ARCHITECTURE.md holds a second services table: link README"
-    assert "../README.md#services" in doc
+def test_no_second_copy_of_the_services_table():
+    copies = [str(p.relative_to(ROOT)) for p in [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
+              if p != PAGE and "| service | does |" in p.read_text()]
+    assert not copies, f"a second services table (link docs/index.md#services instead): {copies}"
+
+
+def test_architecture_and_readme_link_to_the_table():
+    assert "index.md#services" in (ROOT / "docs" / "ARCHITECTURE.md").read_text()
+    assert "docs/index.md#services" in (ROOT / "README.md").read_text()

@@ -1,4 +1,4 @@
-"""tools/bench/vio_replay (the README's VIO CPU figure): it records the sim's stereo frames and IMU
+"""tools/bench/vio_replay (the VIO CPU figure of docs/results/perception.md): it records the sim's stereo frames and IMU
 as the sim encodes them, replays them through the service's decoding and strategy with a CPU time
 per frame, and its estimates track the recorded truth."""
 from __future__ import annotations

@@ -3,7 +3,7 @@ applied to a PX4 over MAVLink and read back.
 
 One home for them: `aero up --profile px4 --gps-denied` boots PX4 SITL with SETS["gps-denied-sih"]
 (tools/cli/px4_sitl.py), `aero fc params apply gps-denied --fcu-url ...` sets SETS["gps-denied"] on a
-connected flight controller (a real vehicle) and reads each back, and the README's "GPS-denied on
+connected flight controller (a real vehicle) and reads each back, and docs/px4.md's "GPS-denied on
 PX4's EKF2" table lists the same values.
 
 Values are PX4's (v1.14+ numbering: EKF2_EV_CTRL bits, NAV_RCL_ACT 3 = Land). Integer parameters go

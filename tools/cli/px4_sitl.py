@@ -36,7 +36,7 @@ MAX_INSTANCE = 9                # above 9 PX4 sends every instance's onboard lin
 BOOTED = "Startup script returned successfully"    # PX4's log line once its MAVLink links are up
 BOOT_FAILED = "Startup script returned with return value"
 
-# {parameter: (value, why)}: set at every boot. The README's "Connect a real PX4" lists the same.
+# {parameter: (value, why)}: set at every boot. docs/px4.md's boot table lists the same.
 BOOT_PARAMS: dict[str, tuple[str, str]] = {
     "COM_RC_IN_MODE": ("4", "stick input disabled: there is no RC or joystick, so PX4 neither waits for "
                             "manual control nor fails safe on its absence (the stack flies it)"),

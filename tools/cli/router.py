@@ -5,7 +5,7 @@ that way it also exits when `aero up` dies, like every service.
 Its config: --zenoh-config FILE, else $AERO_ROUTER_CONFIG, else the clients' ($AERO_ZENOH_CONFIG,
 zenoh.json5). AERO_ROUTER_CONFIG lets one environment hold both sides of a secured stack:
 `AERO_ROUTER_CONFIG=certs/router.json5 AERO_ZENOH_CONFIG=certs/vehicle.json5 aero up --listen tls/0.0.0.0:7447`
-(README, "Secured links").
+(docs/deploy.md, "Secured links").
 
 Several machines: each host runs its own router; `--connect tcp/OTHER_HOST:7447` makes this one
 join another host's router (router to router), so every client on either host sees every key.
