@@ -39,6 +39,14 @@ HOW: dict[str, tuple] = {
     "deploy/install.sh && aero up": (SKIP, ["bash", "-n", "deploy/install.sh"],
                                      "installs apt packages and pip: checked for syntax; `aero up` as a dry run below"),
     ".ci/run": (SKIP, ["bash", "-n", ".ci/run"], "it is this test suite (plus the install): checked for syntax"),
+    "AERO_DEPS=newest .ci/run": (SKIP, ["bash", "-n", ".ci/run"],
+                                 "the suite on today's releases (install.sh's AERO_DEPS): checked for syntax"),
+    "deploy/lock.sh": (SKIP, ["bash", "-n", "deploy/lock.sh"],
+                       "re-resolves the pins and runs the whole CI: test_lock checks the lock it writes"),
+    "aero doctor": (SKIP, ["aero", "doctor", "--help"],
+                    "exits 1 on a busy default port: test_doctor_cli runs it on free ports and on a held one"),
+    "aero doctor --profile px4 --px4 DIR": (SKIP, ["aero", "doctor", "--help"],
+                                            "DIR is a placeholder: test_doctor checks PX4 dirs with and without bin/px4"),
     "aero mission fly examples/missions/survey_01.json": (
         STACK, ["aero", "mission", "load", "examples/missions/survey_01.json"],
         "loaded"),   # flying it takes minutes: test_flight flies missions (slow); here it is validated and loaded
