@@ -1,4 +1,5 @@
-"""The stack's services, each started as `python -m aeroperception.services.<name>`.
+"""The stack's services, each started as `python -m aeroperception.services.<name>`, and the
+libraries they are built on (LIBRARIES: no contract, no process; tests/unit/test_import_rules.py).
 
 This module runs before anything a service imports, so it is where process-wide native
 settings go. OpenBLAS (numpy's BLAS) starts one worker per core and its workers busy-wait
@@ -10,3 +11,7 @@ who wants more threads sets the variable before starting the stack.
 import os
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+# The packages here that are libraries, not services: the algorithms services share, the runtime,
+# the MAVLink (NED/FRD) boundary.
+LIBRARIES = ("lib", "runtime", "mavlink")

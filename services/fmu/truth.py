@@ -20,8 +20,8 @@ from collections import deque
 import numpy as np
 
 from aeroperception.schemas import Header, Quaternion, Vector3, VehicleState
+from aeroperception.services.lib.geo import MapProjection
 from aeroperception.services.mavlink import frames
-from aeroperception.services.mavlink.geo import MapProjection
 
 
 class FcClock:

@@ -16,8 +16,8 @@ from functools import cached_property
 from typing import Callable
 
 from aeroperception.schemas import HomePosition
+from aeroperception.services.lib.geo import MapProjection
 from aeroperception.services.mavlink import frames
-from aeroperception.services.mavlink.geo import MapProjection
 
 @dataclass(frozen=True)
 class Home:

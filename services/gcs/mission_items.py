@@ -1,6 +1,6 @@
 """MAVLink mission items <-> the stack's Mission (ENU about home), without Zenoh.
 
-Geodetic <-> local ENU goes through home.Home (PX4's projection, services/mavlink/geo.py), and
+Geodetic <-> local ENU goes through home.Home (PX4's projection, services/lib/geo.py), and
 every NED<->ENU step through services/mavlink/frames.py.
 Accepted items: NAV_WAYPOINT, NAV_TAKEOFF, NAV_LAND, NAV_RETURN_TO_LAUNCH, DO_CHANGE_SPEED in
 frames GLOBAL[_INT] (AMSL), GLOBAL_RELATIVE_ALT[_INT], LOCAL_NED, LOCAL_ENU. A takeoff item sets

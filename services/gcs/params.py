@@ -12,7 +12,7 @@ PX4 names. Ground stations and scripts use PX4's well-known names, so where the
 stack has the setting it is also served under PX4's name (`ALIASES`), mapped to the owning
 services' live parameters: a read shows the service's value, a PARAM_SET goes to every owning
 service's config/<svc>/@set (GF_MAX_HOR_DIST / GF_MAX_VER_DIST to both mission and safety, which
-share services/safety/geofence.py's GEOFENCE_PARAMS) and the reply is the value in force. An
+share services/lib/geofence.py's GEOFENCE_PARAMS) and the reply is the value in force. An
 alias exists only while one of its services has answered @params (safety or the simulator not
 running -> the name is absent, as on a PX4 without that module). A few settings ground stations
 read on connect have no parameter in the stack but a fixed, true answer (`Alias.constant`, read

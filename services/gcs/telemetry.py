@@ -2,7 +2,7 @@
 per-message interval scheduler (SET_MESSAGE_INTERVAL / REQUEST_MESSAGE).
 
 Everything arrives ENU/FLU (state/vehicle) and leaves NED/FRD through services/mavlink/frames.py;
-geodetic positions are the local position projected about home (services/mavlink/geo.py): the
+geodetic positions are the local position projected about home (services/lib/geo.py): the
 flight controller's home once fmu reports it, else gcs's home parameters (see home.py).
 """
 from __future__ import annotations

@@ -18,7 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-UNKNOWN, FREE, LETHAL, INSCRIBED = -1, 0, 100, 99
+from aeroperception.services.lib.costmap import FREE, INSCRIBED, LETHAL, UNKNOWN
+
 AZIMUTH_BINS = 2048      # ~0.18 deg: a 0.1 m cell at 15 m spans ~2 bins
 
 

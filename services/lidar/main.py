@@ -17,6 +17,7 @@ import numpy as np
 from aeroperception.schemas import (
     DiagnosticStatus, Header, Imu, LandedState, NDArray, OccupancyGrid, PointCloud, Pose, Quaternion, SchemaError, Vector3, VehicleState,
 )
+from aeroperception.services.lib.pose_history import PoseHistory
 from aeroperception.services.runtime import Health, LatestWorker, RateGate, Service, run
 from aeroperception.services.runtime.rotations import quat_from_euler, quat_to_rotmat
 
@@ -47,27 +48,6 @@ def gravity_levelling(f_body: np.ndarray) -> np.ndarray:
     return quat_to_rotmat(quat_from_euler(roll, pitch, 0.0))
 
 
-class PoseHistory:
-    """The last ~2 s of vehicle poses, to place a scan with the pose at its stamp."""
-
-    def __init__(self, horizon_s: float = 2.0):
-        self._buf: deque[tuple[int, np.ndarray, np.ndarray]] = deque(maxlen=int(horizon_s * 200))
-        self._lock = threading.Lock()
-
-    def add(self, stamp_ns: int, position: np.ndarray, r_world_body: np.ndarray) -> None:
-        with self._lock:
-            self._buf.append((stamp_ns, position, r_world_body))
-
-    def at(self, stamp_ns: int, max_age_s: float) -> tuple[np.ndarray, np.ndarray] | None:
-        with self._lock:
-            if not self._buf:
-                return None
-            best = min(self._buf, key=lambda e: abs(e[0] - stamp_ns))
-        if abs(best[0] - stamp_ns) > max_age_s * 1e9:
-            return None
-        return best[1], best[2]
-
-
 class LidarService(Service):
     """LiDAR obstacle pipeline and rolling costmap (requirements LID-1 - LID-4)."""
 
@@ -78,7 +58,7 @@ class LidarService(Service):
         p = self.params
         self.pipeline = ObstaclePipeline(pipeline_config(p))
         self.costmap = RollingCostmap(costmap_config(p))
-        self.poses = PoseHistory()
+        self.poses = PoseHistory(horizon_s=2.0)
         self.gravity: np.ndarray | None = None
         self.refused = 0
         self.scans = 0
@@ -124,7 +104,7 @@ class LidarService(Service):
         if not msg.connected:
             return
         self.on_ground = msg.landed_state == LandedState.ON_GROUND
-        self.poses.add(msg.header.stamp_ns, msg.position_m.to_array(), quat_to_rotmat(msg.orientation.to_array()))
+        self.poses.add(msg)
 
     def _on_imu(self, msg: Imu) -> None:
         f = msg.linear_acceleration_mps2.to_array()
@@ -169,9 +149,9 @@ class LidarService(Service):
         """Pipeline, costmap and publication of one scan (the worker thread's CPU per scan is
         reported as cpu_ms_p50 / p99: what the CPU budget is spent on)."""
         r_bs, t_bs = self._mount()
-        pose = self.poses.at(stamp_ns, self.params.pose_max_age_s)
+        pose = self.poses.nearest(stamp_ns, self.params.pose_max_age_s)
         if pose is not None:
-            pos, r_wb = pose
+            pos, r_wb = pose.position_m, pose.r_world_body
             r_level_sensor = r_wb @ r_bs
             sensor_offset = r_wb @ t_bs            # sensor relative to the vehicle, levelled axes
         else:

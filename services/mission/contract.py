@@ -4,8 +4,8 @@ from aeroperception.schemas import (
     MissionCommand, MissionGoal, MissionStatus, OccupancyGrid, ParamList, PerceptionHealth, Reply, SafetyStatus,
     SetModeReply, SetModeRequest, Trajectory, TrajectoryStatus, UAVStatus, VehicleState, WaypointReached,
 )
+from aeroperception.services.lib.geofence import GEOFENCE_PARAMS
 from aeroperception.services.runtime import Param, Queries, Query, Topic, Topics
-from aeroperception.services.safety.geofence import GEOFENCE_PARAMS
 
 NAME = "mission"
 INPUTS = Topics(

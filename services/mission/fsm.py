@@ -45,7 +45,7 @@ import numpy as np
 
 from aeroperception.schemas import LandedState, Mission, MissionStatus, SafetyStatus, VehicleState, parse_mission
 
-from aeroperception.services.safety.rules import ACTION_NAMES
+from aeroperception.services.lib.safety_names import ACTION_NAMES
 
 from . import contract
 from .requests import Bridge, FcRequest, Outcome

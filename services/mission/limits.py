@@ -1,5 +1,5 @@
 """What the mission service accepts to fly: every mission, goto goal and takeoff altitude is
-checked here against the shared geofence (services/safety/geofence.py) and the mission's own
+checked here against the shared geofence (services/lib/geofence.py) and the mission's own
 limits before it is accepted, so nothing unsafe ever reaches the planner.
 
 Never a second geofence: the fence comes from the GEOFENCE_PARAMS the contract declares.
@@ -13,8 +13,8 @@ from dataclasses import dataclass, field
 from typing import Any, Mapping
 
 from aeroperception.schemas import Mission, OccupancyGrid
-from aeroperception.services.planner.avoidance import BLOCKED
-from aeroperception.services.safety.geofence import Geofence
+from aeroperception.services.lib.costmap import BLOCKED
+from aeroperception.services.lib.geofence import Geofence
 
 from . import contract
 

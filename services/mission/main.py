@@ -16,7 +16,7 @@ from aeroperception.schemas import (
 from aeroperception.services.runtime import ActionServer, CallError, GoalHandle, Health, ParamError, Service, run
 from aeroperception.services.runtime.state_store import StateStore, default_state_dir
 
-from aeroperception.services.safety.geofence import GeofenceError
+from aeroperception.services.lib.geofence import GeofenceError
 
 from . import contract
 from .actions import MOVING, ActionRun

@@ -21,8 +21,8 @@ import numpy as np
 from aeroperception.schemas import (
     Header, Pose, PoseStamped, Quaternion, SetTrajectoryGoal, Trajectory, TrajectoryLimits, Vector3,
 )
-from aeroperception.services.planner.trajectory import Limits, TrajectoryRefused
-from aeroperception.services.planner.trajectory.generators import path_for
+from aeroperception.services.lib.trajectory import Limits, TrajectoryRefused
+from aeroperception.services.lib.trajectory.generators import path_for
 
 NONE = Trajectory()
 TRAJECTORY_END_RADIUS_M = 0.3    # a given trajectory is done within this of its end (it ends at rest there)

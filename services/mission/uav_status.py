@@ -6,7 +6,7 @@ UAVMode.state, first rule that holds:
   no vehicle state -> IDLE; safety level EMERGENCY -> EMERGENCY; FSM TAKEOFF -> TAKING_OFF;
   FSM LAND -> LANDING; on the ground (landed or disarmed): armed -> ARMED, else LANDED after a
   flight and IDLE before one; in the air: speed below the hover speed -> HOVERING, else FLYING.
-  "Hovering" is the planner's own rule for when a part may be switched (planner/plugins.py), with
+  "Hovering" is the planner's own rule for when a part may be switched (lib/flight_state.py), with
   the planner's live `hover_speed_mps` (main.py asks the planner for it every few seconds).
 UAVMode.control_mode, by the flight controller's mode: OFFBOARD (the planner flies) ->
   VELOCITY with the planner's velocity controller, TRAJECTORY while it flies a trajectory,
@@ -28,12 +28,11 @@ import statistics
 from collections import deque
 
 from aeroperception.schemas import SafetyStatus, TrajectoryStatus, UAVMode, UAVStatus, VehicleState
-from aeroperception.services.planner.contract import PARAMS as PLANNER_PARAMS
-from aeroperception.services.planner.plugins import is_hovering, on_ground
+from aeroperception.services.lib.flight_state import HOVER_SPEED_PARAM, is_hovering, on_ground
 
 from .fsm import State
 
-HOVER_SPEED_MPS = next(p.default for p in PLANNER_PARAMS if p.name == "hover_speed_mps")   # until the planner says
+HOVER_SPEED_MPS = HOVER_SPEED_PARAM.default   # until the planner says
 LATENCY_SAMPLES = 20
 MANUAL_MODES = ("MANUAL", "STABILIZED", "ACRO", "ALTCTL", "RATTITUDE")
 

@@ -17,11 +17,12 @@ from aeroperception.schemas import (
     CameraInfo, Detection2DArray, Header, HomePosition, Image, ObjectEvent, TrackedObject, TrackedObjectArray,
     Vector3, VehicleState,
 )
-from aeroperception.services.mavlink.geo import MapProjection
+from aeroperception.services.lib.geo import MapProjection
+from aeroperception.services.lib.pose_history import PoseHistory
 
 from . import contract
 from .projection import (
-    Camera, GrayView, Noise, PoseHistory, box_disparity, box_scale, centre_aims, fuse, locate_many_by_disparity,
+    Camera, GrayView, Noise, box_disparity, box_scale, centre_aims, fuse, locate_many_by_disparity,
     locate_many_on_ground, to_centre,
 )
 from .tracker import Observation, Track, Tracker, TrackerConfig

@@ -12,7 +12,6 @@ Frames: camera optical (x right, y down, z forward), body FLU, world ENU.
 """
 from __future__ import annotations
 
-import bisect
 import functools
 import math
 from dataclasses import dataclass
@@ -20,58 +19,9 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from aeroperception.schemas import CameraInfo, VehicleState
-from aeroperception.services.runtime.rotations import quat_normalize, quat_to_rotmat
-
-
-@dataclass(frozen=True)
-class PoseSample:
-    stamp_ns: int
-    position_m: np.ndarray          # ENU
-    q_enu_flu: np.ndarray           # (w, x, y, z)
-    rate_radps: float = 0.0         # how fast the vehicle turns (its angular velocity's norm)
-
-
-class PoseHistory:
-    """The vehicle's recent poses (state/vehicle), so a detection is placed where the camera was
-    when the image was taken, not where the vehicle is now that the detector is done."""
-
-    def __init__(self, horizon_s: float = 3.0):
-        self.horizon_ns = int(horizon_s * 1e9)
-        self.samples: list[PoseSample] = []
-
-    def add(self, state: VehicleState) -> None:
-        s = PoseSample(state.header.stamp_ns, state.position_m.to_array(), state.orientation.to_array(),
-                       float(np.linalg.norm(state.angular_velocity_radps.to_array())))
-        if self.samples and s.stamp_ns <= self.samples[-1].stamp_ns:
-            if s.stamp_ns < self.samples[-1].stamp_ns - self.horizon_ns:
-                self.samples.clear()            # the clock went back (sim restart): start over
-            else:
-                return                          # duplicate or out of order: the history stays sorted
-        self.samples.append(s)
-        cut = s.stamp_ns - self.horizon_ns
-        while self.samples and self.samples[0].stamp_ns < cut:
-            self.samples.pop(0)
-
-    def at(self, stamp_ns: int, tolerance_s: float) -> PoseSample | None:
-        """The pose at `stamp_ns`, interpolated between the two samples around it (the faster of
-        their turn rates); None when the stamp lies outside the history by more than `tolerance_s`
-        or in a gap wider than twice it."""
-        s, tol = self.samples, int(tolerance_s * 1e9)
-        if not s:
-            return None
-        i = bisect.bisect_left([p.stamp_ns for p in s], stamp_ns)
-        if i == 0:
-            return s[0] if s[0].stamp_ns - stamp_ns <= tol else None
-        if i == len(s):
-            return s[-1] if stamp_ns - s[-1].stamp_ns <= tol else None
-        a, b = s[i - 1], s[i]
-        if b.stamp_ns - a.stamp_ns > 2 * tol:
-            return None
-        f = (stamp_ns - a.stamp_ns) / (b.stamp_ns - a.stamp_ns)
-        qb = b.q_enu_flu if np.dot(a.q_enu_flu, b.q_enu_flu) >= 0 else -b.q_enu_flu
-        return PoseSample(stamp_ns, a.position_m + f * (b.position_m - a.position_m),
-                          quat_normalize(a.q_enu_flu + f * (qb - a.q_enu_flu)), max(a.rate_radps, b.rate_radps))
+from aeroperception.schemas import CameraInfo
+from aeroperception.services.lib.pose_history import PoseSample
+from aeroperception.services.runtime.rotations import quat_to_rotmat
 
 
 @dataclass(frozen=True)

@@ -30,9 +30,10 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from aeroperception.services.lib.costmap import BLOCKED
+
 from . import contract
 
-BLOCKED = 99          # inscribed and lethal cells (OccupancyGrid 0..100)
 _EPS_M = 1e-3        # float32 distances: 1.0 m is sometimes 0.99999994
 GO_WEIGHT = 10.0      # goal outside the window: score = path cost + GO_WEIGHT * straight distance left
 

@@ -11,11 +11,12 @@ from aeroperception.schemas import (
     MissionGoal, OccupancyGrid, Odometry, SelectPluginReply, SelectPluginRequest, Trajectory, TrajectorySetpoint,
     TrajectoryStatus, VehicleState, WaypointReached,
 )
+from aeroperception.services.lib.flight_state import HOVER_SPEED_PARAM
+from aeroperception.services.lib.trajectory.generators import GENERATORS
 from aeroperception.services.runtime import Param, Queries, Query, Topic, Topics
 
 from .controllers import CONTROLLERS
 from .estimators import ESTIMATORS
-from .trajectory.generators import GENERATORS
 
 NAME = "planner"
 INPUTS = Topics(
@@ -63,7 +64,7 @@ PARAMS = [
     Param("z_vel_max_up_mps", 3.0, "m/s", 0.1, 15.0, description="MPC_Z_VEL_MAX_UP: climb rate limit"),
     Param("z_vel_max_dn_mps", 1.5, "m/s", 0.1, 15.0, description="MPC_Z_VEL_MAX_DN: descent rate limit"),
     Param("yaw_rate_max_dps", 45.0, "deg/s", 1.0, 360.0, description="MPC_YAWRAUTO_MAX: heading rate limit"),
-    # the acceleration feed-forward a trajectory streams (trajectory/follow.py FeedForward): what the flight
+    # the acceleration feed-forward a trajectory streams (follow.py FeedForward): what the flight
     # controller must command now, for its lag and the drag it does not model (0 = the reference's own)
     Param("ff_lead_s", 0.0, "s", 0.0, 1.0,
           description="the flight controller's lag from an acceleration setpoint to the vehicle's acceleration: "
@@ -102,6 +103,6 @@ PARAMS = [
           description="fc = the FC's estimate (state/vehicle); vio = VIO's odometry directly (state/visual_odometry)"),
     Param("state_dir", "", start_only=True,
           description="where the selected parts persist (plugins.PARTS_FILE); '' = $AERO_STATE_DIR or ~/.aero/state, /<vehicle>/"),
-    Param("hover_speed_mps", 0.3, "m/s", 0.05, 2.0, description="in the air below this speed = hovering (a part may be switched)"),
+    HOVER_SPEED_PARAM,
     Param("costmap_timeout_s", 0.5, "s", 0.1, 5.0, description="an older costmap -> hold until fresh (stale_costmap); none ever -> straight lines"),
 ]

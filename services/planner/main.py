@@ -9,6 +9,7 @@ from aeroperception.schemas import (
     DiagnosticStatus, Header, LandedState, MissionGoal, OccupancyGrid, Odometry, SelectPluginReply, SelectPluginRequest, Trajectory,
     TrajectorySetpoint, TrajectoryStatus, Vector3, VehicleState, WaypointReached,
 )
+from aeroperception.services.lib.trajectory.generators import limits_from
 from aeroperception.services.runtime.state_store import StateStore, default_state_dir
 from aeroperception.services.runtime import Health, LatestWorker, ParamError, Service, run
 
@@ -19,8 +20,7 @@ from .estimators import VioEstimate, fc_offset_m
 from .logic import Goal, GoalWatchdog, WaypointPlanner, tracking_errors
 from .plugins import PARTS_FILE, REGISTRIES, restore_parts, selected_parts, switch_refusal
 from .tracking import TrackerConfig, TrajectoryTracker, start_velocity_mps
-from .trajectory.follow import FeedForward
-from .trajectory.generators import limits_from
+from .follow import FeedForward
 
 
 class PlannerService(Service):

@@ -1,13 +1,13 @@
 """The planner's swappable parts and when one may be swapped.
 
 Three slots, each a registry keyed by name and a planner parameter naming the one that runs:
-trajectory_generator (trajectory/generators.py), controller (controllers.py), estimator
+trajectory_generator (services/lib/trajectory/generators.py), controller (controllers.py), estimator
 (estimators.py). `planner/srv/select_plugin` (SetTrajectoryGenerator / SetController /
 SetEstimator) and `aero param set planner <slot> NAME` are the same switch: both go through the
 parameter, so there is one value of what runs and one rule for when it may change.
 
 A switch is safe on the ground (landed or disarmed) or hovering (in the air, speed below
-`hover_speed_mps`); moving, the old part's reference and the new one's would disagree mid-way
+`hover_speed_mps`; the rule is services/lib/flight_state.py, shared with the mission's UAVMode); moving, the old part's reference and the new one's would disagree mid-way
 (a trajectory's timing, a feed-forward the other controller drops), so it is refused, saying
 how fast the vehicle moves. `vio` is refused while VIO's odometry is not fresh.
 
@@ -18,13 +18,12 @@ odometry gives the planner no state: it sends no setpoints and the flight contro
 """
 from __future__ import annotations
 
-import numpy as np
-
 from aeroperception.schemas import VehicleState
+from aeroperception.services.lib.flight_state import is_hovering, on_ground, speed_mps
+from aeroperception.services.lib.trajectory.generators import GENERATORS
 
 from .controllers import CONTROLLERS
 from .estimators import ESTIMATORS
-from .trajectory.generators import GENERATORS
 
 REGISTRIES: dict[str, dict] = {"trajectory_generator": GENERATORS, "controller": CONTROLLERS, "estimator": ESTIMATORS}
 PARTS_FILE = "planner_parts.json"
@@ -49,19 +48,6 @@ def restore_parts(saved: dict | None, params) -> list[str]:
         notes.append(f"{role} {name!r} restored (selected before the restart) over {params[role]!r}")
         params.set(role, name)
     return notes
-
-
-def speed_mps(state: VehicleState) -> float:
-    return float(np.linalg.norm(state.velocity_mps.to_array()))
-
-
-def on_ground(state: VehicleState) -> bool:
-    return state.landed or not state.armed
-
-
-def is_hovering(state: VehicleState, hover_speed_mps: float) -> bool:
-    """In the air and (nearly) still: speed below `hover_speed_mps`."""
-    return not on_ground(state) and speed_mps(state) < hover_speed_mps
 
 
 def switch_refusal(role: str, name: str, state: VehicleState | None, hover_speed_mps: float,

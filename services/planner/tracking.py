@@ -39,11 +39,11 @@ import msgspec
 import numpy as np
 
 from aeroperception.schemas import Trajectory
+from aeroperception.services.lib.trajectory.core import Limits, PlanningMargin
+from aeroperception.services.lib.trajectory.evaluate import TrajectoryRefused, evaluate
+from aeroperception.services.lib.trajectory.generators import GENERATORS, check_frames, generator_of, limits_of, path_for
 
-from .trajectory.core import Limits, PlanningMargin
-from .trajectory.evaluate import TrajectoryRefused, evaluate
-from .trajectory.follow import FeedForward, FollowStep, Follower, SpeedGovernor
-from .trajectory.generators import GENERATORS, check_frames, generator_of, limits_of, path_for
+from .follow import FeedForward, FollowStep, Follower, SpeedGovernor
 
 ON_PATH_M = 0.01          # a goal this close to a trajectory waypoint is that waypoint
 AHEAD_S = 3.0             # the stretch of path checked against the costmap

@@ -3,9 +3,8 @@ from aeroperception.schemas import (
     BatteryState, DiagnosticStatus, EmergencyStopReply, EmergencyStopRequest, GcsLink, PerceptionHealth,
     SafetyStatus, VehicleState, VehicleStatus,
 )
+from aeroperception.services.lib.geofence import GEOFENCE_PARAMS
 from aeroperception.services.runtime import Param, Queries, Query, Topic, Topics
-
-from .geofence import GEOFENCE_PARAMS
 
 NAME = "safety"
 INPUTS = Topics(

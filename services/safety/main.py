@@ -7,12 +7,12 @@ from aeroperception.schemas import (
     BatteryState, DiagnosticStatus, EmergencyStopReply, EmergencyStopRequest, GcsLink, PerceptionHealth,
     SafetyStatus, VehicleState, VehicleStatus,
 )
+from aeroperception.services.lib.geofence import GeofenceError
+from aeroperception.services.lib.safety_names import ACTION_NAMES, LEVEL_NAMES
 from aeroperception.services.runtime import CallError, Health, ParamError, Service, run
 
 from . import contract
-from .geofence import GeofenceError
 from .monitor import Config, SafetyMonitor
-from .rules import ACTION_NAMES, LEVEL_NAMES
 
 
 class SafetyService(Service):

@@ -14,8 +14,8 @@ from aeroperception.schemas import (
     BatteryState, DiagnosticStatus, GcsLink, Header, LandedState, PerceptionHealth, SafetyStatus, VehicleState,
     VehicleStatus,
 )
+from aeroperception.services.lib.geofence import Geofence
 
-from .geofence import Geofence
 from .rules import Battery, Facts, GeofenceAction, Verdict, evaluate
 
 

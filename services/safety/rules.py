@@ -20,6 +20,7 @@ from enum import IntEnum
 from typing import Callable
 
 from aeroperception.schemas import SafetyStatus
+from aeroperception.services.lib.safety_names import ACTION_NAMES
 
 L, A = SafetyStatus, SafetyStatus   # LEVEL_* and ACTION_* constants
 
@@ -135,10 +136,6 @@ RULES: list[Rule] = [
 RULE_NAMES = [r.name for r in RULES]
 
 
-LEVEL_NAMES = {L.LEVEL_NOMINAL: "NOMINAL", L.LEVEL_WARNING: "WARNING", L.LEVEL_CAUTION: "CAUTION",
-               L.LEVEL_EMERGENCY: "EMERGENCY"}
-ACTION_NAMES = {A.ACTION_NONE: "NONE", A.ACTION_WARN: "WARN", A.ACTION_HOLD: "HOLD", A.ACTION_RTH: "RTH",
-                A.ACTION_LAND: "LAND", A.ACTION_EMERGENCY_STOP: "EMERGENCY_STOP"}
 MOTION = (A.ACTION_HOLD, A.ACTION_RTH, A.ACTION_LAND)
 
 

@@ -22,7 +22,7 @@ from aerotest import free_udp_port, wait_for_message, wait_until
 from aeroperception.schemas import (
     DiagnosticStatus, HomePosition, ObjectEvent, TrackedObjectArray, decode,
 )
-from aeroperception.services.mavlink.geo import MapProjection
+from aeroperception.services.lib.geo import MapProjection
 from aeroperception.services.sim.world.scenario import load_scenario
 from aeroperception.services.sim.world.scene import get_scene
 from aeroperception.tools.eval.objects import unmet_goals

@@ -39,7 +39,7 @@ from aeroperception.schemas import (
     Header, NDArray, Odometry, Pose, Quaternion, Twist, Vector3, VehicleState, encode, load_mission_file,
 )
 from aeroperception.services.mavlink import frames
-from aeroperception.services.mavlink.geo import MapProjection
+from aeroperception.services.lib.geo import MapProjection
 from aeroperception.services.runtime.node import encoding_for
 from aeroperception.tools.cli import fc_params
 from aeroperception.tools.eval.vio import _live_metrics, _pose

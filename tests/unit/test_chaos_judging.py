@@ -3,7 +3,7 @@ vehicle is, how late the offboard-loss failsafe may be seen, which rows each fli
 from __future__ import annotations
 
 from aeroperception.schemas import Vector3, VehicleState
-from aeroperception.services.safety.geofence import Geofence
+from aeroperception.services.lib.geofence import Geofence
 from aeroperception.tools.cli.chaos import build_rows, judge_safety
 from aeroperception.tools.cli.chaos.judging import still_mps
 from aeroperception.tools.cli.chaos.rows import FAILSAFE_SEEN_S, OFFBOARD_LOSS_S

@@ -10,7 +10,7 @@ import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
 from aeroperception.services.fmu.truth import FcClock, ground_truth_from_mavlink, origin_from_mavlink
-from aeroperception.services.mavlink.geo import MapProjection
+from aeroperception.services.lib.geo import MapProjection
 
 ORIGIN = (47.3977459, 8.5455930, 489.056)      # PX4 SIH's EKF2 origin, as GPS_GLOBAL_ORIGIN reported it
 

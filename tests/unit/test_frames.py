@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from aeroperception.services.mavlink import frames as f
-from aeroperception.services.mavlink.geo import MapProjection
+from aeroperception.services.lib.geo import MapProjection
 
 RNG_SEED = 20240607
 

@@ -14,7 +14,7 @@ from aeroperception.services.gcs.commands import CommandHandler
 from aeroperception.services.gcs.home import Home, HomeTracker, home_from_msg, origin_shift_m
 from aeroperception.services.gcs.mission_items import Item, convert_items, mission_to_items
 from aeroperception.services.gcs.telemetry import TelemetryState
-from aeroperception.services.mavlink.geo import MapProjection
+from aeroperception.services.lib.geo import MapProjection
 
 
 def test_global_relative_to_enu_about_home_and_back():

@@ -3,7 +3,7 @@ import math
 
 import pytest
 
-from aeroperception.services.safety.geofence import GEOFENCE_PARAMS, Geofence, GeofenceError, parse_polygon
+from aeroperception.services.lib.geofence import GEOFENCE_PARAMS, Geofence, GeofenceError, parse_polygon
 
 
 def test_cylinder_and_ceiling_distances():

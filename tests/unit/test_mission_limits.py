@@ -10,7 +10,7 @@ import pytest
 from aeroperception.schemas import Mission
 from aeroperception.services.mission.fsm import State
 from aeroperception.services.mission.limits import Limits
-from aeroperception.services.safety.geofence import Geofence
+from aeroperception.services.lib.geofence import Geofence
 from mission_rig import Rig, survey, vehicle
 
 

@@ -11,7 +11,7 @@ from test_objects_projection import FX, BASELINE, infos, project, textured_pair
 from aeroperception.schemas import (
     Detection2D, Detection2DArray, Header, HomePosition, Image, ObjectEvent, Quaternion, Vector3, VehicleState,
 )
-from aeroperception.services.mavlink.geo import MapProjection
+from aeroperception.services.lib.geo import MapProjection
 from aeroperception.services.objects import contract
 from aeroperception.services.objects.logic import ObjectsPipeline
 from aeroperception.services.objects.projection import PoseSample

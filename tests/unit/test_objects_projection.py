@@ -1,17 +1,17 @@
 """Objects: a known box + pose + depth -> a known ENU point, by stereo disparity and by the ray to
-the ground; the pose history interpolates at the image's stamp and refuses stamps it has no pose
-for; covariances grow with range."""
+the ground; covariances grow with range (the pose history: test_pose_history.py)."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from aeroperception.schemas import CameraInfo, Header, NDArray, Pose, Quaternion, Vector3, VehicleState
+from aeroperception.schemas import CameraInfo, NDArray, Pose, Quaternion, Vector3
+from aeroperception.services.lib.pose_history import PoseSample
 from aeroperception.services.objects.projection import (
-    Camera, Measurement, Noise, PoseHistory, PoseSample, box_disparity, fuse, locate_by_disparity, locate_on_ground,
+    Camera, Measurement, Noise, box_disparity, fuse, locate_by_disparity, locate_on_ground,
     to_centre,
 )
-from aeroperception.services.runtime.rotations import quat_from_euler, quat_from_rotmat, quat_to_euler, quat_to_rotmat
+from aeroperception.services.runtime.rotations import quat_from_euler, quat_from_rotmat, quat_to_rotmat
 
 FX, CX, CY, W, H = 320.0, 319.5, 239.5, 640, 480
 # Optical (x right, y down, z forward) axes in body FLU: forward-looking camera.
@@ -144,27 +144,6 @@ def test_box_disparity_none_without_texture_or_room():
     assert box_disparity(flat, flat, (300, 200, 360, 320), 20) is None
     left, right = textured_pair(6, (300, 200, 360, 320))
     assert box_disparity(left, right, (0.0, 0.0, 1.0, 1.0), 20) is None
-
-
-def state(stamp_ns, x, yaw=0.0) -> VehicleState:
-    return VehicleState(header=Header(stamp_ns=stamp_ns), position_m=Vector3(x=x, z=10.0),
-                        orientation=Quaternion.from_array(quat_from_euler(0.0, 0.0, yaw)))
-
-
-def test_pose_history_interpolates_at_the_images_stamp_and_refuses_beyond_tolerance():
-    h = PoseHistory(horizon_s=3.0)
-    for i in range(11):                                            # 50 Hz, x = 1 m/s * t, yaw 0 -> 0.2
-        h.add(state(i * 20_000_000, i * 0.02, yaw=i * 0.02))
-    p = h.at(110_000_000, tolerance_s=0.05)
-    assert p.position_m[0] == pytest.approx(0.11)
-    assert quat_to_euler(p.q_enu_flu)[2] == pytest.approx(0.11, abs=1e-4)
-    assert h.at(240_000_000, 0.05) is not None                     # 40 ms after the newest: within tolerance
-    assert h.at(260_000_000, 0.05) is None                         # 60 ms: refused
-    assert h.at(-60_000_000, 0.05) is None
-    h.add(state(400_000_000, 0.4))                                 # a 200 ms gap: nothing to interpolate in it
-    assert h.at(300_000_000, 0.05) is None
-    h.add(state(100_000_000, 9.9))                                 # out of order: ignored
-    assert h.at(100_000_000, 0.05).position_m[0] == pytest.approx(0.1)
 
 
 def test_stereos_near_face_is_moved_half_a_footprint_farther_to_the_centre():

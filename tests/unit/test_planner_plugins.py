@@ -21,8 +21,8 @@ from aeroperception.services.planner.plugins import (
 )
 from aeroperception.services.runtime.params import ParamSet
 from aeroperception.services.planner.tracking import TrackerConfig, TrajectoryTracker
-from aeroperception.services.planner.trajectory import Limits
-from aeroperception.services.planner.trajectory.generators import GENERATORS, path_for
+from aeroperception.services.lib.trajectory import Limits
+from aeroperception.services.lib.trajectory.generators import GENERATORS, path_for
 
 HOVER = 0.3
 

@@ -8,8 +8,8 @@ import pytest
 
 from aeroperception.schemas import Header, Pose, PoseStamped, Quaternion, Trajectory, Vector3
 from aeroperception.services.planner.tracking import TrackerConfig, TrajectoryTracker, start_velocity_mps
-from aeroperception.services.planner.trajectory import Limits
-from aeroperception.services.planner.trajectory.core import PlanningMargin, peaks
+from aeroperception.services.lib.trajectory import Limits
+from aeroperception.services.lib.trajectory.core import PlanningMargin, peaks
 
 SURVEY = [(10, 0, 5), (10, 10, 5), (0, 0, 5)]
 DT = 0.02

@@ -10,7 +10,7 @@ from aeroperception.schemas import (
 )
 from aeroperception.services.runtime import ParamSet
 from aeroperception.services.safety import contract
-from aeroperception.services.safety.geofence import Geofence
+from aeroperception.services.lib.geofence import Geofence
 from aeroperception.services.safety.monitor import Config, SafetyMonitor, classify_battery, parse_services
 from aeroperception.services.safety.rules import (
     RULE_NAMES, RULES, Battery, Facts, GeofenceAction, evaluate,

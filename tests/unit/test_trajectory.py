@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from aeroperception.schemas import Header, Pose, PoseStamped, Quaternion, Trajectory, Vector3
-from aeroperception.services.planner.trajectory import Limits, TrajectoryRefused, evaluate, peaks, smooth
-from aeroperception.services.planner.trajectory.blend import CORNER_SHARE
+from aeroperception.services.lib.trajectory import Limits, TrajectoryRefused, evaluate, peaks, smooth
+from aeroperception.services.lib.trajectory.blend import CORNER_SHARE
 
 SURVEY = np.array([[0, 0, 5], [10, 0, 5], [10, 10, 5], [0, 0, 5]], float)
 

@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 
 from aeroperception.schemas import Header, Pose, PoseStamped, Quaternion, Trajectory, Vector3
-from aeroperception.services.planner.trajectory import Limits, TrajectoryRefused, smooth
-from aeroperception.services.planner.trajectory.core import PlanningMargin, peaks
-from aeroperception.services.planner.trajectory.follow import FeedForward, Follower, SpeedGovernor, setpoint_of
-from aeroperception.services.planner.trajectory.generators import path_for
+from aeroperception.services.lib.trajectory import Limits, TrajectoryRefused, smooth
+from aeroperception.services.lib.trajectory.core import PlanningMargin, peaks
+from aeroperception.services.planner.follow import FeedForward, Follower, SpeedGovernor, setpoint_of
+from aeroperception.services.lib.trajectory.generators import path_for
 
 LINE = np.array([[0, 0, 3], [10, 0, 3]], float)
 

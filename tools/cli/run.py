@@ -9,7 +9,7 @@ import aeroperception.services as services_pkg
 
 from aeroperception.tools.common import CliError
 
-NOT_SERVICES = {"runtime", "mavlink"}
+NOT_SERVICES = set(services_pkg.LIBRARIES)
 
 
 def available() -> list[str]:

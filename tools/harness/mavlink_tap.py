@@ -15,7 +15,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from aeroperception.schemas import Vector3, VehicleState
 from aeroperception.services.mavlink import frames, px4
-from aeroperception.services.safety.geofence import Geofence
+from aeroperception.services.lib.geofence import Geofence
 
 SAFE_SETPOINT_SPEED_MPS = 20.0       # a setpoint faster than this at the FC is unsafe
 

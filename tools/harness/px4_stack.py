@@ -18,7 +18,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from aeroperception.schemas import Vector3, VehicleState
 from aeroperception.services.mavlink import frames
-from aeroperception.services.mavlink.geo import MapProjection
+from aeroperception.services.lib.geo import MapProjection
 
 from .processes import profile_services
 from .sim_stack import FlightStack

@@ -10,7 +10,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from aeroperception.services.safety.geofence import Geofence
+from aeroperception.services.lib.geofence import Geofence
 
 from .mavlink_tap import MavlinkTap
 from .processes import free_udp_port, profile_services

@@ -10,7 +10,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from aeroperception.services.mavlink.geo import MapProjection
+from aeroperception.services.lib.geo import MapProjection
 from aeroperception.services.runtime.params import ParamSet
 from aeroperception.services.sim.truth import VehicleTruth
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from aeroperception.schemas import VehicleState
-from aeroperception.services.safety.geofence import Geofence
+from aeroperception.services.lib.geofence import Geofence
 from aeroperception.tools.harness import speed
 
 IMPACT_SPEED_MPS = 1.5               # touching the ground faster than this is an impact

@@ -24,7 +24,7 @@ import numpy as np
 
 from aeroperception.schemas import Trajectory, TrajectorySetpoint, Vector3
 
-from .core import Path, State
+from aeroperception.services.lib.trajectory.core import Path, State
 
 
 @dataclass(frozen=True)
