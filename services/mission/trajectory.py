@@ -21,7 +21,7 @@ import numpy as np
 from aeroperception.schemas import (
     Header, Pose, PoseStamped, Quaternion, SetTrajectoryGoal, Trajectory, TrajectoryLimits, Vector3,
 )
-from aeroperception.services.lib.trajectory import Limits, TrajectoryRefused
+from aeroperception.services.lib.trajectory import KinematicLimits, TrajectoryRefused
 from aeroperception.services.lib.trajectory.generators import path_for
 
 NONE = Trajectory()
@@ -92,7 +92,7 @@ def check_given(goal: SetTrajectoryGoal, position_m: np.ndarray, yaw_rad: float,
         return (f"`trajectory.generator_name` {msg.generator_name!r}: untimed waypoints are flown with 'smooth' "
                 "(give it, or times, or fly them as a mission)"), None
     try:
-        path = path_for(msg, position_m, yaw_rad, Limits(), acceptance_radius_m)
+        path = path_for(msg, position_m, yaw_rad, KinematicLimits(), acceptance_radius_m)
     except TrajectoryRefused as e:
         return f"trajectory refused: {e}", None
     end = path.sample(path.duration_s).position_m

@@ -25,17 +25,17 @@ from .projection import (
     Camera, GrayView, Noise, box_disparity, box_scale, centre_aims, fuse, locate_many_by_disparity,
     locate_many_on_ground, to_centre,
 )
-from .tracker import Observation, Track, Tracker, TrackerConfig
+from .tracker import ObjectTrackerConfig, Observation, Track, Tracker
 
 
-def tracker_config(p) -> TrackerConfig:
-    return TrackerConfig(confirm_hits=p.confirm_hits, lost_timeout_s=p.lost_timeout_s,
-                         tentative_timeout_s=p.tentative_timeout_s, high_score=p.high_score, low_score=p.min_score,
-                         gate_distance_m=p.gate_distance_m, accel_noise_mps2=p.accel_sigma_mps2, forget_s=p.forget_s,
-                         birth_sigma_m=p.birth_sigma_m, birth_spacing_m=p.birth_spacing_m,
-                         partial_ratio=p.partial_ratio, partial_scale=p.partial_scale,
-                         crowd_scale=p.crowd_scale, confirm_scale=p.confirm_scale, coast_tau_s=p.coast_tau_s,
-                         partial_sigma_scale=p.partial_sigma_scale)
+def tracker_config(p) -> ObjectTrackerConfig:
+    return ObjectTrackerConfig(confirm_hits=p.confirm_hits, lost_timeout_s=p.lost_timeout_s,
+                               tentative_timeout_s=p.tentative_timeout_s, high_score=p.high_score, low_score=p.min_score,
+                               gate_distance_m=p.gate_distance_m, accel_noise_mps2=p.accel_sigma_mps2, forget_s=p.forget_s,
+                               birth_sigma_m=p.birth_sigma_m, birth_spacing_m=p.birth_spacing_m,
+                               partial_ratio=p.partial_ratio, partial_scale=p.partial_scale,
+                               crowd_scale=p.crowd_scale, confirm_scale=p.confirm_scale, coast_tau_s=p.coast_tau_s,
+                               partial_sigma_scale=p.partial_sigma_scale)
 
 
 def noise(p, turn_px: float = 0.0) -> Noise:

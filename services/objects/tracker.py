@@ -30,7 +30,7 @@ def _horizontal_sigma(cov: np.ndarray) -> float:
 
 
 @dataclass(frozen=True)
-class TrackerConfig:
+class ObjectTrackerConfig:
     confirm_hits: int = 3
     lost_timeout_s: float = 3.0
     tentative_timeout_s: float = 0.5
@@ -96,13 +96,13 @@ class Events:
 class Tracker:
     """Step it with `update(stamp_ns, observations)` once per detection frame, in stamp order."""
 
-    def __init__(self, config: TrackerConfig):
+    def __init__(self, config: ObjectTrackerConfig):
         self.tracks: list[Track] = []
         self.lost: list[Track] = []     # confirmed tracks unseen for lost_timeout_s, kept for forget_s
         self.next_id = 1
         self.configure(config)
 
-    def configure(self, config: TrackerConfig) -> None:
+    def configure(self, config: ObjectTrackerConfig) -> None:
         self.config = config
         self._motions: dict[float, tuple[np.ndarray, np.ndarray]] = {}
 

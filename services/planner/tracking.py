@@ -39,7 +39,7 @@ import msgspec
 import numpy as np
 
 from aeroperception.schemas import Trajectory
-from aeroperception.services.lib.trajectory.core import Limits, PlanningMargin
+from aeroperception.services.lib.trajectory.core import KinematicLimits, PlanningMargin
 from aeroperception.services.lib.trajectory.evaluate import TrajectoryRefused, evaluate
 from aeroperception.services.lib.trajectory.generators import GENERATORS, check_frames, generator_of, limits_of, path_for
 
@@ -70,7 +70,7 @@ def is_clear(msg: Trajectory) -> bool:
 
 @dataclass
 class TrackerConfig:
-    limits: Limits
+    limits: KinematicLimits
     acceptance_radius_m: float
     lag_m: float = 1.5
     generator: str = "smooth"     # the planner's active generator (a message may name its own)

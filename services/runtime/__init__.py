@@ -2,7 +2,7 @@
 queryables, liveliness, diagnostics, parameters), the contract vocabulary (Topic, Query), the
 action pattern, rate loops, the clock, structured logs and the process shell (`Service`, `run`)."""
 from .actions import ActionClient, ActionServer, GoalHandle
-from .clock import Clock
+from .clock import ServiceClock
 from .keys import Queries, Query, Topic, Topics
 from .latest import LatestWorker, RateGate
 from .log import Logger
@@ -12,7 +12,7 @@ from .rate import LoopStats, RateLoop
 from .service import Service, run
 
 __all__ = [
-    "ActionClient", "ActionServer", "GoalHandle", "Clock", "Queries", "Query", "Topic", "Topics", "LatestWorker", "RateGate",
+    "ActionClient", "ActionServer", "GoalHandle", "ServiceClock", "Queries", "Query", "Topic", "Topics", "LatestWorker", "RateGate",
     "Logger", "CallError", "Health", "Node", "Publisher", "call", "Param", "ParamError", "ParamSet", "LoopStats",
     "RateLoop", "Service", "run",
 ]

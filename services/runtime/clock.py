@@ -14,7 +14,10 @@ if TYPE_CHECKING:
     from .node import Node
 
 
-class Clock:
+class ServiceClock:
+    """What a service stamps and sleeps by: wall time, or sim/clock followed (the message is
+    schemas.Clock)."""
+
     def __init__(self, node: "Node | None" = None):
         self._lock = threading.Lock()
         self._sim_ns: int | None = None

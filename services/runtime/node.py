@@ -24,7 +24,7 @@ from aeroperception.schemas import (
 )
 from aeroperception.schemas.system import ParamDescriptor
 
-from .clock import Clock
+from .clock import ServiceClock
 from .cpu import CpuMeter
 from .log import Logger
 from .params import Param, ParamError, ParamSet
@@ -100,7 +100,7 @@ class Node:
         self._conf = config if config is not None else make_config(zenoh_config, connect, mode=mode, service=True)
         self._sim_time = sim_time
         self.session: zenoh.Session | None = None
-        self.clock: Clock | None = None
+        self.clock: ServiceClock | None = None
         self.bad_input: Counter[str] = Counter()
         self.callback_errors: Counter[str] = Counter()
         self.params_rejected = 0
@@ -138,7 +138,7 @@ class Node:
         if exclusive:
             self._claim_instance(token_key)
             self._check_simultaneous_start()
-        self.clock = Clock(self if self._sim_time else None)
+        self.clock = ServiceClock(self if self._sim_time else None)
         self._entities.append(self.session.liveliness().declare_token(token_key))  # alive only once it is ours
         self._diag_pub = self.publisher("diagnostics/" + self.name, DiagnosticStatus)
         base = self.key(f"config/{self.name}")

@@ -124,7 +124,9 @@ STATE_NAMES = {INIT: "INIT", TRACKING: "TRACKING", DEGRADED: "DEGRADED", LOST: "
 
 
 @dataclass
-class VioHealth:
+class StrategyHealth:
+    """A strategy's own health record (messages.health makes the VioHealth message of it)."""
+
     state: int = INIT
     consecutive_lost: int = 0
     bias_norm: float = 0.0

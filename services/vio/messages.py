@@ -9,7 +9,7 @@ from aeroperception.schemas import (
 )
 from aeroperception.services.runtime.rotations import quat_from_rotmat, quat_to_rotmat
 
-from .dto import FeatureQuality, ImuBias, ImuSample, VioHealth, VioOutput, WarmStartPose
+from .dto import FeatureQuality, ImuBias, ImuSample, StrategyHealth, VioOutput, WarmStartPose
 
 ODOM_FRAME = "odom"
 BODY_FRAME = "base_link"
@@ -35,7 +35,7 @@ def odometry(out: VioOutput) -> Odometry:
         reset_counter=out.reset_counter, quality_pct=out.quality_pct)
 
 
-def health(snapshot: VioHealth, strategy: str, stamp_ns: int, quality: FeatureQuality | None,
+def health(snapshot: StrategyHealth, strategy: str, stamp_ns: int, quality: FeatureQuality | None,
            bias: ImuBias | None) -> VioHealthMsg:
     q = quality or FeatureQuality()
     b = bias or ImuBias()

@@ -26,7 +26,7 @@ from .calibration import CameraCalibration
 from .drift import DriftConfig, DriftCovariance
 from .dto import (
     DEGRADED, LOST, FeatureQuality, ImuBias, ImuSample, ImuWindow, NavCameraFrame,
-    StrategyNotAvailableError, VioDegradedError, VioFatalError, VioHealth, VioInitializingError,
+    StrategyNotAvailableError, VioDegradedError, VioFatalError, StrategyHealth, VioInitializingError,
     VioOutput, WarmStartPose,
 )
 from .frontend import FrontEnd, FrontEndConfig
@@ -67,7 +67,7 @@ class VioStrategy(ABC):
         """Restart from a known pose (e.g. after a companion reboot); INIT until the next frame."""
 
     @abstractmethod
-    def health_snapshot(self) -> VioHealth:
+    def health_snapshot(self) -> StrategyHealth:
         ...
 
 
@@ -81,7 +81,7 @@ class KltVio(VioStrategy):
         self.calib: CameraCalibration | None = None
         self.frontend: FrontEnd | None = None
         self.imu: list[ImuSample] = []   # sorted by time, trimmed to imu_buffer_s
-        self.health = VioHealth()
+        self.health = StrategyHealth()
         self.warm: WarmStartPose | None = None
         self.last_t_ns: int | None = None
         self.kf_world_T_body = np.eye(4)
@@ -95,9 +95,9 @@ class KltVio(VioStrategy):
 
     # ------------------------------------------------------------ seam
 
-    def health_snapshot(self) -> VioHealth:
+    def health_snapshot(self) -> StrategyHealth:
         h = self.health
-        return VioHealth(h.state, h.consecutive_lost, h.bias_norm, h.message)
+        return StrategyHealth(h.state, h.consecutive_lost, h.bias_norm, h.message)
 
     def reset_to_warm_start(self, warm: WarmStartPose) -> None:
         T = np.asarray(warm.world_T_body, float)
@@ -125,7 +125,7 @@ class KltVio(VioStrategy):
         if self.frontend:
             self.frontend.reset()
         self.counters["resets"] += 1
-        self.health = VioHealth(H.next_state(self.health.state, H.RESET), 0, self.health.bias_norm, why)
+        self.health = StrategyHealth(H.next_state(self.health.state, H.RESET), 0, self.health.bias_norm, why)
         self.last_t_ns = None
 
     def _set_calibration(self, calib: CameraCalibration) -> None:
@@ -204,7 +204,7 @@ class KltVio(VioStrategy):
         if not self.continuing:
             self.drift.reset()
         self.continuing = False
-        self.health = VioHealth(H.next_state(self.health.state, H.INITIALIZED), 0, est.bias.norm,
+        self.health = StrategyHealth(H.next_state(self.health.state, H.INITIALIZED), 0, est.bias.norm,
                                 f"initialised ({len(self.frontend.kf_px)} stereo features)")
         self.last_t_ns = t
         self.initialisations += 1

@@ -21,7 +21,7 @@ from aeroperception.services.planner.plugins import (
 )
 from aeroperception.services.runtime.params import ParamSet
 from aeroperception.services.planner.tracking import TrackerConfig, TrajectoryTracker
-from aeroperception.services.lib.trajectory import Limits
+from aeroperception.services.lib.trajectory import KinematicLimits
 from aeroperception.services.lib.trajectory.generators import GENERATORS, path_for
 
 HOVER = 0.3
@@ -103,9 +103,9 @@ def waypoints(generator="", frame="map", limits=None) -> Trajectory:
 
 def test_the_generator_is_the_messages_own_else_the_planners_and_waypoint_makes_no_path():
     here = np.array([0.0, 0.0, 5.0])
-    assert path_for(waypoints(), here, 0.0, Limits(), 0.5, "waypoint") is None
-    assert path_for(waypoints("smooth"), here, 0.0, Limits(), 0.5, "waypoint").duration_s > 10
-    tr = TrajectoryTracker(TrackerConfig(Limits(), 0.5, generator="waypoint"))
+    assert path_for(waypoints(), here, 0.0, KinematicLimits(), 0.5, "waypoint") is None
+    assert path_for(waypoints("smooth"), here, 0.0, KinematicLimits(), 0.5, "waypoint").duration_s > 10
+    tr = TrajectoryTracker(TrackerConfig(KinematicLimits(), 0.5, generator="waypoint"))
     tr.offer(waypoints())
     assert tr.generator() == "waypoint" and tr.step(here, 0.0, 0.0, np.array([10.0, 0, 5])) is None
     tr.set_generator("smooth")                               # switched while hovering: the next step makes a path
@@ -118,13 +118,13 @@ def test_a_trajectory_refused_for_what_it_asks_is_held_at_never_flown_goal_by_go
                        (waypoints(limits=TrajectoryLimits(max_velocity_mps=5.0)),
                         "`limits.max_velocity_mps` 5 is above the planner's max_velocity_mps 2"),
                        (waypoints("fast"), "`generator_name` 'fast'")]:
-        tr = TrajectoryTracker(TrackerConfig(Limits(), 0.5, generator="smooth"))
+        tr = TrajectoryTracker(TrackerConfig(KinematicLimits(), 0.5, generator="smooth"))
         tr.offer(msg)
         assert field in tr.refused and tr.holds_for(goal), tr.refused
         assert not tr.holds_for(np.array([3.0, 3, 3]))     # a goto elsewhere flies
     tighter = waypoints("smooth", limits=TrajectoryLimits(max_velocity_mps=1.0))
-    slow = path_for(tighter, np.zeros(3) + [0, 0, 5], 0.0, Limits(), 0.5)
-    fast = path_for(waypoints("smooth"), np.zeros(3) + [0, 0, 5], 0.0, Limits(), 0.5)
+    slow = path_for(tighter, np.zeros(3) + [0, 0, 5], 0.0, KinematicLimits(), 0.5)
+    fast = path_for(waypoints("smooth"), np.zeros(3) + [0, 0, 5], 0.0, KinematicLimits(), 0.5)
     assert slow.duration_s > 1.6 * fast.duration_s
 
 

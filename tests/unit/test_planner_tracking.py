@@ -8,7 +8,7 @@ import pytest
 
 from aeroperception.schemas import Header, Pose, PoseStamped, Quaternion, Trajectory, Vector3
 from aeroperception.services.planner.tracking import TrackerConfig, TrajectoryTracker, start_velocity_mps
-from aeroperception.services.lib.trajectory import Limits
+from aeroperception.services.lib.trajectory import KinematicLimits
 from aeroperception.services.lib.trajectory.core import PlanningMargin, peaks
 
 SURVEY = [(10, 0, 5), (10, 10, 5), (0, 0, 5)]
@@ -26,7 +26,7 @@ def smooth_msg(points=SURVEY, tid="survey_01@0") -> Trajectory:
 
 
 def tracker(radius=0.5) -> TrajectoryTracker:
-    return TrajectoryTracker(TrackerConfig(Limits(xy_vel_max_mps=2.0), radius))
+    return TrajectoryTracker(TrackerConfig(KinematicLimits(xy_vel_max_mps=2.0), radius))
 
 
 def fly(tr: TrajectoryTracker, start, goals, radius=0.5, lag_s=0.0, max_s=120.0, blocked=None):
@@ -129,7 +129,7 @@ def test_a_flight_controllers_velocity_error_is_planned_below_the_caps():
     """fc_velocity_error_mps: a generated path is timed that far below each speed cap (never below
     half of it) and the governor caps the FC's catch-up there too; a typed trajectory is checked
     against the limits themselves; 0 changes nothing."""
-    limits = Limits(xy_vel_max_mps=2.0, z_vel_max_up_mps=3.0, z_vel_max_dn_mps=1.5)
+    limits = KinematicLimits(xy_vel_max_mps=2.0, z_vel_max_up_mps=3.0, z_vel_max_dn_mps=1.5)
     lowered = limits.inside(PlanningMargin(speed_mps=0.15))
     assert (lowered.xy_vel_max_mps, lowered.z_vel_max_up_mps, lowered.z_vel_max_dn_mps) == pytest.approx((1.85, 2.85, 1.35))
     assert (lowered.acc_hor_mps2, lowered.jerk_mps3) == (limits.acc_hor_mps2, limits.jerk_mps3)
@@ -150,7 +150,7 @@ def test_a_flight_controllers_added_jerk_is_planned_below_the_jerk_limit():
     """fc_jerk_error_mps3: a generated path is planned that far below jerk_mps3 (never below half of
     it), so that the reference's jerk plus what the FC adds stays within the limit; speed and
     acceleration limits are untouched by it; 0 changes nothing."""
-    limits = Limits(xy_vel_max_mps=3.0, acc_hor_mps2=3.0, jerk_mps3=4.0)
+    limits = KinematicLimits(xy_vel_max_mps=3.0, acc_hor_mps2=3.0, jerk_mps3=4.0)
     lowered = limits.inside(PlanningMargin(jerk_mps3=1.0))
     assert lowered.jerk_mps3 == pytest.approx(3.0)
     assert (lowered.xy_vel_max_mps, lowered.acc_hor_mps2, lowered.z_vel_max_up_mps) == \

@@ -1,4 +1,4 @@
-"""Clock: wall time, or the sim clock followed (extrapolated, monotonic) when one is published."""
+"""ServiceClock: wall time, or the sim clock followed (extrapolated, monotonic) when one is published."""
 from __future__ import annotations
 
 import time
@@ -11,18 +11,18 @@ from aeroperception.schemas import (
     Clock as ClockMsg, Header,
 )
 from aeroperception.services.runtime import (
-    Clock,
+    ServiceClock,
 )
 
 
 def test_clock_wall():
-    c = Clock()
+    c = ServiceClock()
     assert not c.is_sim
     assert abs(c.now_ns() - time.time_ns()) < 50_000_000
 
 
 class _FakeNode:
-    """Only what Clock needs from a Node: subscribe()."""
+    """Only what ServiceClock needs from a Node: subscribe()."""
 
     def __init__(self):
         self.subs = {}
@@ -33,7 +33,7 @@ class _FakeNode:
 
 def test_clock_sim_follows_ticks_and_extrapolates_monotonic():
     node = _FakeNode()
-    c = Clock(node)
+    c = ServiceClock(node)
     assert c.is_sim and "sim/clock" in node.subs and node.subs["sim/clock"][0] is ClockMsg
     assert c.now_ns() == 0  # no tick heard: time has not started
     c._on_tick(ClockMsg(header=Header(stamp_ns=10_000_000_000), speed_factor=10.0))

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from aeroperception.schemas import Header, Pose, PoseStamped, Quaternion, Trajectory, Vector3
-from aeroperception.services.lib.trajectory import Limits, TrajectoryRefused, evaluate, peaks, smooth
+from aeroperception.services.lib.trajectory import KinematicLimits, TrajectoryRefused, evaluate, peaks, smooth
 from aeroperception.services.lib.trajectory.blend import CORNER_SHARE
 
 SURVEY = np.array([[0, 0, 5], [10, 0, 5], [10, 10, 5], [0, 0, 5]], float)
@@ -52,7 +52,7 @@ def distance_to_polyline(p: np.ndarray, pts: np.ndarray) -> float:
 
 
 def test_smooth_survey_is_continuous_within_limits_and_rounds_corners_inside_the_acceptance_radius():
-    limits = Limits(xy_vel_max_mps=2.0)
+    limits = KinematicLimits(xy_vel_max_mps=2.0)
     path = smooth(SURVEY, limits, acceptance_radius_m=0.5, yaws_rad=[0.0] * 4)
     assert_consistent(path)
     assert peaks(path).excess(limits) == []
@@ -70,7 +70,7 @@ def test_smooth_survey_is_continuous_within_limits_and_rounds_corners_inside_the
 
 
 def test_smooth_respects_vertical_caps_and_each_legs_own_cap():
-    limits = Limits(xy_vel_max_mps=5.0, z_vel_max_up_mps=1.0, z_vel_max_dn_mps=0.5)
+    limits = KinematicLimits(xy_vel_max_mps=5.0, z_vel_max_up_mps=1.0, z_vel_max_dn_mps=0.5)
     pts = np.array([[0, 0, 0], [0, 0, 6], [20, 0, 6], [20, 0, 2]], float)
     path = smooth(pts, limits, 0.5, speed_caps_mps=[0, 3.0, 0])
     pk = peaks(path)
@@ -81,7 +81,7 @@ def test_smooth_respects_vertical_caps_and_each_legs_own_cap():
 
 
 def test_smooth_slows_short_legs_instead_of_overlapping_blends_and_merges_repeated_points():
-    limits = Limits(xy_vel_max_mps=8.0)
+    limits = KinematicLimits(xy_vel_max_mps=8.0)
     pts = np.array([[0, 0, 2], [0.5, 0, 2], [0.5, 0, 2], [0.5, 0.4, 2], [3, 0.4, 2]], float)
     path = smooth(pts, limits, 0.3)
     assert len(path.waypoint_times_s) == 4          # the repeated point is merged
@@ -95,7 +95,7 @@ def test_smooth_slows_short_legs_instead_of_overlapping_blends_and_merges_repeat
 def test_smooth_random_polylines_stay_within_limits_and_on_their_legs(seed):
     rng = np.random.default_rng(seed)
     pts = np.cumsum(rng.uniform(-6, 6, size=(6, 3)), axis=0)
-    limits = Limits(xy_vel_max_mps=float(rng.uniform(1, 6)), jerk_mps3=float(rng.uniform(2, 8)))
+    limits = KinematicLimits(xy_vel_max_mps=float(rng.uniform(1, 6)), jerk_mps3=float(rng.uniform(2, 8)))
     path = smooth(pts, limits, float(rng.uniform(0.2, 1.0)))
     assert peaks(path, 0.005).excess(limits, tolerance=1e-3) == []
     assert_consistent(path)
@@ -107,7 +107,7 @@ def test_smooth_random_polylines_stay_within_limits_and_on_their_legs(seed):
 def test_smooth_starts_at_the_velocity_given_and_still_passes_every_waypoint(v0):
     """A path handed to a moving vehicle starts at its velocity (no step in the reference) and
     still passes each waypoint within the corner bound and ends at rest at the last one."""
-    limits, radius = Limits(xy_vel_max_mps=3.0), 0.5
+    limits, radius = KinematicLimits(xy_vel_max_mps=3.0), 0.5
     v0 = np.array(v0, float)
     pts = np.array([[0, 0, 4.7], [8, 0, 5], [8, 8, 5], [0, 8, 5]], float)
     path = smooth(pts, limits, radius, start_velocity_mps=v0)
@@ -127,7 +127,7 @@ def test_take_off_hand_over_climbing_into_the_path_has_no_velocity_step():
     ~0.27 m/s: a path from rest there stepped the velocity setpoint 0.27 -> 0 m/s, and the flight
     controller's answer to the step was the flight's peak jerk (built-in sim: 4.0-4.9 m/s^3
     vertical by truth, over MPC_JERK_AUTO 4). Carried on, the climb fades within the first blend."""
-    limits = Limits(xy_vel_max_mps=3.0)
+    limits = KinematicLimits(xy_vel_max_mps=3.0)
     pts = np.array([[0, 0, 4.7], [8, 0, 5], [8, 8, 5]], float)
     climbing = np.array([0, 0, 0.27])
     assert np.linalg.norm(smooth(pts, limits, 0.5).sample(0).velocity_mps - climbing) == pytest.approx(0.27)
@@ -138,7 +138,7 @@ def test_take_off_hand_over_climbing_into_the_path_has_no_velocity_step():
 
 
 def test_smooth_turns_to_each_waypoints_heading_within_the_yaw_rate_limit():
-    limits = Limits(yaw_rate_max_radps=math.radians(30))
+    limits = KinematicLimits(yaw_rate_max_radps=math.radians(30))
     pts = np.array([[0, 0, 3], [2, 0, 3], [4, 0, 3]], float)
     path = smooth(pts, limits, 0.5, yaws_rad=[0.0, math.pi / 2, -math.pi])     # the last turn is the short way
     assert peaks(path).yaw_rate_radps <= limits.yaw_rate_max_radps + 1e-9
@@ -153,11 +153,11 @@ def test_smooth_turns_to_each_waypoints_heading_within_the_yaw_rate_limit():
 
 def test_smooth_refuses_bad_inputs_saying_what():
     with pytest.raises(ValueError, match="speed caps"):
-        smooth(SURVEY, Limits(), 0.5, speed_caps_mps=[1.0])
+        smooth(SURVEY, KinematicLimits(), 0.5, speed_caps_mps=[1.0])
     with pytest.raises(ValueError, match="acceptance_radius_m"):
-        smooth(SURVEY, Limits(), 0.0)
+        smooth(SURVEY, KinematicLimits(), 0.0)
     with pytest.raises(ValueError, match="jerk_mps3"):
-        Limits(jerk_mps3=0.0)
+        KinematicLimits(jerk_mps3=0.0)
 
 
 # ---------------------------------------------------------------- Trajectory messages

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from aeroperception.schemas import Header, Pose, PoseStamped, Quaternion, Trajectory, Vector3
-from aeroperception.services.lib.trajectory import Limits, TrajectoryRefused, smooth
+from aeroperception.services.lib.trajectory import KinematicLimits, TrajectoryRefused, smooth
 from aeroperception.services.lib.trajectory.core import PlanningMargin, peaks
 from aeroperception.services.planner.follow import FeedForward, Follower, SpeedGovernor, setpoint_of
 from aeroperception.services.lib.trajectory.generators import path_for
@@ -21,7 +21,7 @@ def waypoint(x, y, z, yaw=0.0) -> PoseStamped:
 
 
 def test_reference_runs_in_time_while_the_vehicle_keeps_up_and_waits_when_it_lags():
-    path = smooth(LINE, Limits(), 0.5)
+    path = smooth(LINE, KinematicLimits(), 0.5)
     f = Follower(path, start_s=100.0, lag_m=1.5)
     for k in range(101):                              # a vehicle exactly on the reference
         now = 100.0 + 0.02 * k
@@ -42,7 +42,7 @@ def test_reference_runs_in_time_while_the_vehicle_keeps_up_and_waits_when_it_lag
 
 
 def test_a_later_start_waits_at_the_beginning():
-    path = smooth(LINE, Limits(), 0.5)
+    path = smooth(LINE, KinematicLimits(), 0.5)
     f = Follower(path, start_s=10.0)
     for now in (5.0, 7.0, 9.99):
         assert np.allclose(f.step(LINE[0], now).reference.position_m, LINE[0]) and f.t_s == 0.0
@@ -52,7 +52,7 @@ def test_a_later_start_waits_at_the_beginning():
 
 
 def test_setpoint_type_says_which_fields_are_valid():
-    ref = smooth(LINE, Limits(), 0.5, yaws_rad=[0.0, 0.0]).sample(1.0)
+    ref = smooth(LINE, KinematicLimits(), 0.5, yaws_rad=[0.0, 0.0]).sample(1.0)
     only = setpoint_of(ref, Trajectory.SETPOINT_POSITION_ONLY)
     assert only.position_valid and not (only.velocity_valid or only.acceleration_valid or only.yaw_valid)
     yaw = setpoint_of(ref, Trajectory.SETPOINT_POSITION_YAW)
@@ -66,7 +66,7 @@ def test_smooth_message_starts_where_the_vehicle_is_and_passes_every_waypoint():
     msg = Trajectory(generator_name="smooth", setpoint_type=Trajectory.SETPOINT_FULL_STATE,
                      waypoints=[waypoint(5, 0, 3), waypoint(5, 5, 3, math.pi / 2)])
     here = np.array([0.0, 0.0, 3.0])
-    path = path_for(msg, here, 0.3, Limits(), 0.5)
+    path = path_for(msg, here, 0.3, KinematicLimits(), 0.5)
     assert np.allclose(path.sample(0).position_m, here) and path.sample(0).yaw_rad == pytest.approx(0.3)
     assert np.allclose(path.sample(path.duration_s).position_m, [5, 5, 3])
     assert path.sample(path.duration_s).yaw_rad == pytest.approx(math.pi / 2)
@@ -87,17 +87,17 @@ def test_messages_the_planner_cannot_fly_as_given_are_refused_naming_why():
     ]
     for msg, why in cases:
         with pytest.raises(TrajectoryRefused, match=why):
-            path_for(msg, here, 0.0, Limits(), 0.5)
+            path_for(msg, here, 0.0, KinematicLimits(), 0.5)
     ok = Trajectory(trajectory_type=Trajectory.TRAJECTORY_POLYNOMIAL, total_duration_s=10.0, poly_order=1,
                     poly_coeffs_x=[0, 1.0], poly_coeffs_y=[0, 0], poly_coeffs_z=[3, 0])
-    assert path_for(ok, here, 0.0, Limits(), 0.5).duration_s == 10.0
+    assert path_for(ok, here, 0.0, KinematicLimits(), 0.5).duration_s == 10.0
 
 
 def test_the_acceleration_fed_forward_leads_the_reference_and_pays_for_drag():
     """What the flight controller must command now: the reference's acceleration `lead_s` ahead
     (its attitude lag) plus drag x the velocity it will then have; never past a waypoint the
     mission has not counted, and zero while waiting there."""
-    path = smooth(LINE, Limits(), 0.5)
+    path = smooth(LINE, KinematicLimits(), 0.5)
     ff = FeedForward(lead_s=0.2, drag_per_s=1.0)
     f = Follower(path, start_s=0.0, feedforward=ff)
     f.step(LINE[0], 0.0)
@@ -127,7 +127,7 @@ def test_the_feed_forward_pays_back_the_fcs_d_term_on_its_own_acceleration():
     much of the reference's current horizontal acceleration is added; vertically nothing (PX4's
     MPC_Z_VEL_D_ACC is 0)."""
     pts = np.array([[0, 0, 3], [10, 0, 3], [10, 8, 6]], float)
-    path = smooth(pts, Limits(), 0.5)
+    path = smooth(pts, KinematicLimits(), 0.5)
     t = 1.0                                                  # accelerating along x
     now, ahead = path.sample(t), path.sample(t + 0.25)
     ff = FeedForward(lead_s=0.25, drag_per_s=1.0, xy_vel_d=0.2)
@@ -144,7 +144,7 @@ def test_the_speed_governor_holds_the_clock_so_the_fcs_catch_up_stays_within_the
     """PX4 commands feed-forward + gain x (setpoint - vehicle): a vehicle 0.5 m behind at cruise
     would be flown at 2 + 0.95 x 0.5 = 2.48 m/s. The governor lets the reference run only as far
     as keeps that within the limit + 5 %, never backwards, and does nothing when off."""
-    path = smooth(np.array([[0, 0, 3], [40, 0, 3]], float), Limits(xy_vel_max_mps=2.0), 0.5)
+    path = smooth(np.array([[0, 0, 3], [40, 0, 3]], float), KinematicLimits(xy_vel_max_mps=2.0), 0.5)
     gov = SpeedGovernor(gain_per_s=0.95, xy_speed_mps=2.0)
     cruise_s = path.duration_s / 2
     ref = path.sample(cruise_s)
@@ -172,7 +172,7 @@ def test_the_governor_keeps_a_lagging_vehicle_within_the_limit_over_a_whole_path
     L-shaped path with the FC's law ff + gain x error: the commanded speed stays within the
     limit + 5 % with the governor and exceeds it without."""
     pts = np.array([[0, 0, 3], [12, 0, 3], [12, 8, 3]], float)
-    path = smooth(pts, Limits(xy_vel_max_mps=2.0), 0.5)
+    path = smooth(pts, KinematicLimits(xy_vel_max_mps=2.0), 0.5)
 
     def fly(gov: SpeedGovernor) -> tuple[float, bool]:
         f = Follower(path, start_s=0.0, governor=gov)
@@ -196,7 +196,7 @@ def test_the_governor_keeps_a_lagging_vehicle_within_the_limit_over_a_whole_path
 def test_a_reference_that_waits_streams_no_velocity():
     """A reference stopped by the lag rule feeds no velocity forward: with it, PX4 flew on past the
     stopped reference and sat 2.8 m ahead, its position loop balancing the feed-forward (figure8)."""
-    path = smooth(LINE, Limits(), 0.5)
+    path = smooth(LINE, KinematicLimits(), 0.5)
     f = Follower(path, start_s=0.0, feedforward=FeedForward(lead_s=0.2, drag_per_s=1.0))
     f.t_s, f.last_s = path.duration_s / 2, 0.0
     ref = path.sample(f.t_s)
@@ -211,12 +211,12 @@ def test_a_reference_that_waits_streams_no_velocity():
 def test_a_planning_margin_shapes_generated_paths_only():
     here = np.array([0.0, 0.0, 3.0])
     msg = Trajectory(generator_name="smooth", waypoints=[waypoint(20, 0, 3)])
-    slow = path_for(msg, here, 0.0, Limits(), 0.5, margin=PlanningMargin(0.2, 1.0))
+    slow = path_for(msg, here, 0.0, KinematicLimits(), 0.5, margin=PlanningMargin(0.2, 1.0))
     assert float(np.hypot(*slow.sample(slow.duration_s / 2).velocity_mps[:2])) == pytest.approx(1.8)
     assert peaks(slow, 0.005).jerk_mps3 == pytest.approx(3.0, abs=0.02)
     typed = Trajectory(trajectory_type=Trajectory.TRAJECTORY_POLYNOMIAL, total_duration_s=10.0, poly_order=1,
                        poly_coeffs_x=[0, 2.0], poly_coeffs_y=[0, 0], poly_coeffs_z=[3, 0])
-    assert path_for(typed, here, 0.0, Limits(), 0.5, margin=PlanningMargin(0.2, 1.0)).duration_s == 10.0   # flown as given
+    assert path_for(typed, here, 0.0, KinematicLimits(), 0.5, margin=PlanningMargin(0.2, 1.0)).duration_s == 10.0   # flown as given
 
 
 @pytest.mark.parametrize("off_m", [0.001, 0.02, 0.05])
@@ -226,11 +226,11 @@ def test_a_vehicle_already_at_the_first_waypoint_flies_on_from_it(off_m):
     refused (which made the planner fly goal by goal)."""
     msg = Trajectory(generator_name="smooth", waypoints=[waypoint(0, 0, 5), waypoint(8, 0, 5), waypoint(8, 8, 5)])
     here = np.array([0.0, off_m, 5.0])
-    path = path_for(msg, here, 0.3, Limits(), 0.5)
+    path = path_for(msg, here, 0.3, KinematicLimits(), 0.5)
     start = path.sample(0)
     assert np.linalg.norm(start.position_m - [0, 0, 5]) <= off_m + 1e-9 and start.yaw_rad == pytest.approx(0.3)
     assert np.allclose(path.sample(path.duration_s).position_m, [8, 8, 5])
     assert len(path.waypoint_times_s) == 4   # the vehicle's point, then each waypoint (the planner waits by index)
     far = Trajectory(generator_name="smooth", waypoints=[waypoint(0, 0, 5), waypoint(0.03, 0, 5)])
     with pytest.raises(TrajectoryRefused, match="waypoints"):   # two waypoints too close stay refused
-        path_for(far, np.array([-5.0, 0, 5]), 0.0, Limits(), 0.5)
+        path_for(far, np.array([-5.0, 0, 5]), 0.0, KinematicLimits(), 0.5)

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .core import Limits, State, wrap_pi
+from .core import KinematicLimits, State, wrap_pi
 
 ACC_PEAK = 1.875                  # max s'(u)
 JERK_PEAK = 10.0 / math.sqrt(3)   # max |s''(u)| = 5.774
@@ -50,7 +50,7 @@ def smoothstep(u: np.ndarray | float):
     return s, ds, dds, ddds, integral
 
 
-def blend_time_s(dv: np.ndarray, limits: Limits) -> float:
+def blend_time_s(dv: np.ndarray, limits: KinematicLimits) -> float:
     """The shortest blend that changes velocity by `dv` within the acceleration and jerk limits."""
     dv_xy, dv_z = math.hypot(dv[0], dv[1]), float(dv[2])
     if math.hypot(dv_xy, dv_z) < 1e-9:
@@ -60,7 +60,7 @@ def blend_time_s(dv: np.ndarray, limits: Limits) -> float:
                math.sqrt(JERK_PEAK * math.hypot(dv_xy, dv_z) / limits.jerk_mps3))
 
 
-def corner_cut_m(dv: np.ndarray, limits: Limits) -> float:
+def corner_cut_m(dv: np.ndarray, limits: KinematicLimits) -> float:
     """How far a blend of `dv` passes from the corner it rounds."""
     return CUT_AT_MIDDLE * float(np.linalg.norm(dv)) * blend_time_s(dv, limits)
 
@@ -74,7 +74,7 @@ class Piece:
 class BlendedPath:
     """The timeline of pieces, sampled. Built by `smooth()`."""
 
-    def __init__(self, start_m: np.ndarray, pieces: list[Piece], limits: Limits,
+    def __init__(self, start_m: np.ndarray, pieces: list[Piece], limits: KinematicLimits,
                  corner_piece: list[int], yaws: list[float | None]):
         self.limits = limits
         self.velocities = np.array([p.velocity_mps for p in pieces])
@@ -151,7 +151,7 @@ class _YawProfile:
         return (wrap_pi(yaw) if yaw is not None else None), 0.0
 
 
-def smooth(points_m: np.ndarray, limits: Limits, acceptance_radius_m: float,
+def smooth(points_m: np.ndarray, limits: KinematicLimits, acceptance_radius_m: float,
            speed_caps_mps: list[float] | None = None, yaws_rad: list[float | None] | None = None,
            start_velocity_mps: np.ndarray | None = None) -> BlendedPath:
     """A path from points_m[0] through every point to rest at the last one.
@@ -209,7 +209,7 @@ def smooth(points_m: np.ndarray, limits: Limits, acceptance_radius_m: float,
     raise ValueError("waypoints too close together for the limits (a leg cannot hold its blends)")
 
 
-def _corner_scale(v_in: np.ndarray, v_out: np.ndarray, max_cut_m: float, limits: Limits) -> float:
+def _corner_scale(v_in: np.ndarray, v_out: np.ndarray, max_cut_m: float, limits: KinematicLimits) -> float:
     """The largest share of the legs' speeds (<= 1) at which the corner's blend cuts it by at most
     `max_cut_m` (bisection: the cut grows with the speeds)."""
     if corner_cut_m(v_out - v_in, limits) <= max_cut_m:
@@ -221,7 +221,7 @@ def _corner_scale(v_in: np.ndarray, v_out: np.ndarray, max_cut_m: float, limits:
     return lo
 
 
-def _timeline(dirs, lengths, speed, alphas, limits: Limits, start_velocity_mps: np.ndarray):
+def _timeline(dirs, lengths, speed, alphas, limits: KinematicLimits, start_velocity_mps: np.ndarray):
     """Pieces start (the start velocity), [head, cruise, tail] per leg, rest, with each piece long
     enough for half of the blends at both its ends. Returns (pieces, the piece index each
     waypoint's time starts, legs too short at their speed: {leg: the share of the length it needs

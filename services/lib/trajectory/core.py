@@ -14,7 +14,7 @@ import numpy as np
 @dataclass(frozen=True)
 class PlanningMargin:
     """What a flight controller adds to the trajectory it tracks, planned inside the limits
-    (Limits.inside). `speed_mps`: its velocity estimate's error (it flies its estimate: at the cap
+    (KinematicLimits.inside). `speed_mps`: its velocity estimate's error (it flies its estimate: at the cap
     by the estimate, the vehicle is this much faster). `jerk_mps3`: the jerk its tracking adds to
     the reference's (its loops correcting the estimate's error and trailing the reference, and its
     height hold; PX4 SIH, figure8 at 3 m/s: the vehicle's jerk 0.5-1.1 m/s^3 above the reference's
@@ -25,7 +25,7 @@ class PlanningMargin:
 
 
 @dataclass(frozen=True)
-class Limits:
+class KinematicLimits:
     """Kinematic limits, each named after the PX4 parameter it mirrors."""
 
     xy_vel_max_mps: float = 2.0          # MPC_XY_VEL_MAX
@@ -42,7 +42,7 @@ class Limits:
             if not (value > 0 and math.isfinite(value)):
                 raise ValueError(f"limit `{name}` must be a positive number, got {value!r}")
 
-    def inside(self, margin: PlanningMargin) -> Limits:
+    def inside(self, margin: PlanningMargin) -> KinematicLimits:
         """These limits lowered by `margin` (each never below half of itself): what a trajectory is
         planned with for a flight controller that adds `margin` to it, so that what the vehicle
         flies stays within these limits."""
@@ -98,7 +98,7 @@ class Peaks:
     jerk_mps3: float = 0.0
     yaw_rate_radps: float = 0.0
 
-    def excess(self, limits: Limits, tolerance: float = 0.0) -> list[str]:
+    def excess(self, limits: KinematicLimits, tolerance: float = 0.0) -> list[str]:
         """Each limit exceeded by more than `tolerance` (a fraction), named with both values."""
         pairs = [("xy speed", self.xy_speed_mps, limits.xy_vel_max_mps, "MPC_XY_VEL_MAX"),
                  ("climb rate", self.z_up_mps, limits.z_vel_max_up_mps, "MPC_Z_VEL_MAX_UP"),

@@ -19,14 +19,14 @@ from aeroperception.schemas import Trajectory
 from aeroperception.schemas.mission import TRAJECTORY_GENERATORS
 
 from .blend import CORNER_SHARE, smooth
-from .core import Limits, Path, PlanningMargin, peaks
+from .core import KinematicLimits, Path, PlanningMargin, peaks
 from .evaluate import TrajectoryRefused, evaluate
 
 LIMIT_TOLERANCE = 0.10
 FRAME = "map"             # the one frame trajectories are given in (ENU)
 
 
-def _smooth(points_m: np.ndarray, yaws_rad: list[float | None], limits: Limits, acceptance_radius_m: float,
+def _smooth(points_m: np.ndarray, yaws_rad: list[float | None], limits: KinematicLimits, acceptance_radius_m: float,
             start_velocity_mps: np.ndarray | None) -> Path:
     return smooth(points_m, limits, acceptance_radius_m, yaws_rad=yaws_rad, start_velocity_mps=start_velocity_mps)
 
@@ -36,7 +36,7 @@ class Generator:
     description: str
     # (points from the vehicle on, yaws, limits, acceptance radius, the velocity to start at or None for
     # rest) -> path; None: flies goal by goal
-    make: Callable[[np.ndarray, list, Limits, float, np.ndarray | None], Path] | None
+    make: Callable[[np.ndarray, list, KinematicLimits, float, np.ndarray | None], Path] | None
 
 
 GENERATORS: dict[str, Generator] = {
@@ -64,13 +64,13 @@ def check_frames(msg: Trajectory) -> None:
                                     f"given in {FRAME!r}")
 
 
-# a Trajectory's `limits` field -> (the Limits field it tightens, the planner parameter behind it)
+# a Trajectory's `limits` field -> (the KinematicLimits field it tightens, the planner parameter behind it)
 OWN_LIMITS = {"max_velocity_mps": ("xy_vel_max_mps", "max_velocity_mps"), "acc_hor_mps2": ("acc_hor_mps2", "acc_hor_mps2"),
               "jerk_mps3": ("jerk_mps3", "jerk_mps3"), "z_vel_max_up_mps": ("z_vel_max_up_mps", "z_vel_max_up_mps"),
               "z_vel_max_dn_mps": ("z_vel_max_dn_mps", "z_vel_max_dn_mps")}
 
 
-def limits_of(msg: Trajectory, limits: Limits) -> Limits:
+def limits_of(msg: Trajectory, limits: KinematicLimits) -> KinematicLimits:
     """The planner's `limits` tightened by the message's own; one above the planner's is refused
     naming the field (a mission asking for more than the vehicle is set up for is not clipped)."""
     if msg.limits is None:
@@ -85,14 +85,14 @@ def limits_of(msg: Trajectory, limits: Limits) -> Limits:
     return dataclasses.replace(limits, **tighter)
 
 
-def path_for(msg: Trajectory, position_m: np.ndarray, yaw_rad: float, limits: Limits,
+def path_for(msg: Trajectory, position_m: np.ndarray, yaw_rad: float, limits: KinematicLimits,
              acceptance_radius_m: float, generator: str = "smooth", margin: PlanningMargin = PlanningMargin(),
              velocity_mps: np.ndarray | None = None) -> Path | None:
     """The path `msg` asks for, flown from `position_m` (an untimed WAYPOINT message starts there
     at `velocity_mps`, or at rest where a path cannot start so or none is given, and passes its
     waypoints in order), with `generator` unless the message names its
     own; None: that generator flies goal by goal. A generated path is planned inside the limits by
-    the flight controller's `margin` (Limits.inside); a typed one is flown as given, checked
+    the flight controller's `margin` (KinematicLimits.inside); a typed one is flown as given, checked
     against the limits themselves. Raises TrajectoryRefused naming the field."""
     check_frames(msg)
     limits = limits_of(msg, limits)
@@ -150,9 +150,9 @@ def path_for(msg: Trajectory, position_m: np.ndarray, yaw_rad: float, limits: Li
     return path
 
 
-def limits_from(params) -> Limits:
+def limits_from(params) -> KinematicLimits:
     """The planner parameters that bound every trajectory (contract: PX4's MPC_* defaults)."""
-    return Limits(xy_vel_max_mps=params["max_velocity_mps"], z_vel_max_up_mps=params["z_vel_max_up_mps"],
+    return KinematicLimits(xy_vel_max_mps=params["max_velocity_mps"], z_vel_max_up_mps=params["z_vel_max_up_mps"],
                   z_vel_max_dn_mps=params["z_vel_max_dn_mps"], acc_hor_mps2=params["acc_hor_mps2"],
                   acc_up_mps2=params["acc_up_mps2"], acc_down_mps2=params["acc_down_mps2"],
                   jerk_mps3=params["jerk_mps3"], yaw_rate_max_radps=math.radians(params["yaw_rate_max_dps"]))

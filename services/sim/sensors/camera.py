@@ -30,8 +30,8 @@ _LEVEL_MIN_FOOTPRINT = 2.0 ** (np.arange(TEXTURE_LEVELS) - 0.5 - LOD_BIAS)
 
 
 @dataclass(frozen=True)
-class CameraInfo:
-    """Calibration as published next to the images (sensor_msgs/CameraInfo-like)."""
+class CameraCalibration:
+    """A camera's calibration, which sim/main.py publishes as the CameraInfo message next to its images."""
     frame_id: str
     width: int
     height: int
@@ -86,9 +86,9 @@ class Camera:
 
     # ---- calibration ----
 
-    def info(self) -> CameraInfo:
+    def info(self) -> CameraCalibration:
         p = np.hstack([self.k, [[-self.fx * self._baseline_tx_m], [0.0], [0.0]]])
-        return CameraInfo(self.frame_id, self.width, self.height, tuple(self.k.ravel()), (0.0,) * 5,
+        return CameraCalibration(self.frame_id, self.width, self.height, tuple(self.k.ravel()), (0.0,) * 5,
                           tuple(p.ravel()), tuple(self.r_body_camera.ravel()),
                           tuple(self.t_body_camera_m), self.rate_hz, self.encoding)
 
@@ -168,7 +168,7 @@ class StereoCamera:
         left = self.left.render(truth_or_pose, exact)
         return left, (self.right.render(truth_or_pose, exact) if self.right else None)
 
-    def infos(self) -> list[CameraInfo]:
+    def infos(self) -> list[CameraCalibration]:
         return [c.info() for c in (self.left, self.right) if c is not None]
 
 
