@@ -112,16 +112,26 @@ def _statements(nodes):
 def imports_of(path: Path) -> tuple[str, ...]:
     """Every module name `path` imports, absolute (relative imports resolved), including the
     `from X import name` candidates X.name (a submodule or an attribute: module_file tells)."""
-    module = _module_name(path)
-    package = module if path.name == "__init__.py" else module.rpartition(".")[0]
-    names: list[str] = []
-    source = path.read_bytes()
-    tree = ast.parse(source, str(path))
+    return tuple(name for _, name in import_lines(path))
+
+
+def import_lines(path: Path) -> list[tuple[int, str]]:
+    """imports_of with the line of each import: [(line, module name), ...], in file order."""
+    return source_imports(path.read_bytes(), _module_name(path), path.name == "__init__.py", str(path))
+
+
+def source_imports(source: bytes, module: str, is_package: bool = False,
+                   filename: str = "<source>") -> list[tuple[int, str]]:
+    """[(line, module name)] of every import in `source`, the text of module `module` (a package's
+    __init__ when `is_package`): what relative imports are resolved against."""
+    package = module if is_package else module.rpartition(".")[0]
+    names: list[tuple[int, str]] = []
+    tree = ast.parse(source, filename)
     # import_module(...) is an expression, anywhere: the whole tree only where the source has one
     dynamic = b"import_module(" in source or b"__import__(" in source
     for node in ast.walk(tree) if dynamic else _statements(tree.body):
         if isinstance(node, ast.Import):
-            names += [a.name for a in node.names]
+            names += [(node.lineno, a.name) for a in node.names]
         elif isinstance(node, ast.ImportFrom):
             if node.level:
                 base = package.split(".")
@@ -129,13 +139,13 @@ def imports_of(path: Path) -> tuple[str, ...]:
                 src = ".".join(base + ([node.module] if node.module else []))
             else:
                 src = node.module or ""
-            names.append(src)
-            names += [f"{src}.{a.name}" for a in node.names if a.name != "*"]
+            names.append((node.lineno, src))
+            names += [(node.lineno, f"{src}.{a.name}") for a in node.names if a.name != "*"]
         elif isinstance(node, ast.Call):
-            dynamic = _dynamic_import(node)
-            if dynamic and not dynamic.startswith("."):
-                names.append(dynamic)
-    return tuple(names)
+            literal = _dynamic_import(node)
+            if literal and not literal.startswith("."):
+                names.append((node.lineno, literal))
+    return sorted(names, key=lambda n: n[0])
 
 
 def _parents(name: str) -> list[str]:
