@@ -49,6 +49,7 @@ class LatestWorker(Generic[T]):
                 if self._stopped:
                     return
                 item, self._pending = self._pending, None
+            assert item is not None     # waited for above: an offered item is never None
             try:
                 self.fn(item)
             except Exception as e:  # noqa: BLE001 - one bad input must not stop the worker

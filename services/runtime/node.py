@@ -78,7 +78,7 @@ class Publisher:
     def matched(self) -> bool:
         """Whether any subscriber matches the key now (~2 us, from Zenoh's own routing state):
         a producer whose message costs milliseconds to make skips it when nobody listens."""
-        return self._pub.matching_status.matching
+        return self._pub.matching_status.matching  # type: ignore[attr-defined]  # zenoh's stub: bool; it is a MatchingStatus
 
     def undeclare(self) -> None:
         self._pub.undeclare()
@@ -99,7 +99,8 @@ class Node:
         self.stop_event = threading.Event()
         self._conf = config if config is not None else make_config(zenoh_config, connect, mode=mode, service=True)
         self._sim_time = sim_time
-        self.session: zenoh.Session | None = None
+        # None until connect(): typed as the session, since every use comes after connect()
+        self.session: zenoh.Session = None  # type: ignore[assignment]
         self.clock: ServiceClock | None = None
         self.bad_input: Counter[str] = Counter()
         self.callback_errors: Counter[str] = Counter()
@@ -131,9 +132,10 @@ class Node:
             if attempt == 1 or attempt % 10 == 0:
                 self.log.warn("waiting_for_router", status="STALE", error=str(err).split(" at ")[0])
 
-        self.session = open_session(self._conf, self.stop_event, waiting, max_wait_s)
-        if self.session is None:
+        session = open_session(self._conf, self.stop_event, waiting, max_wait_s)
+        if session is None:
             return False
+        self.session = session
         token_key = f"{LIVELINESS_ROOT}/{self.vehicle or 'default'}/{self.name}"
         if exclusive:
             self._claim_instance(token_key)
@@ -183,10 +185,12 @@ class Node:
         Waiting `settle_s` first lets every copy stamped before us become visible (declarations
         propagate asynchronously), so exactly one sees no earlier copy."""
         time.sleep(settle_s)
-        others = [i for i in self._instances() if i.zid != self.instance.zid]
-        first = winner(others + [self.instance])
-        if first is not self.instance:
-            self._refuse(DuplicateInstanceError(self.name, self.instance.vehicle, first))
+        me = self.instance
+        assert me is not None, "_claim_instance() sets it first"
+        others = [i for i in self._instances() if i.zid != me.zid]
+        first = winner(others + [me])
+        if first is not me:
+            self._refuse(DuplicateInstanceError(self.name, me.vehicle, first))
 
     def _refuse(self, err: DuplicateInstanceError) -> None:
         """Close quietly (the caller prints the one-line refusal) and raise."""
@@ -391,7 +395,7 @@ class Node:
 
     def diagnostics(self) -> DiagnosticStatus:
         health = self._health_fn()
-        values: dict[str, str] = {}
+        values: dict[str, str | int | float | bool] = {}
         for k, v in (health.values or {}).items():
             values[k] = str(v)
         # Callback threads add keys meanwhile: read snapshots (list() of a dict view is atomic under
@@ -493,7 +497,8 @@ def call(session: zenoh.Session, full_key: str, request: Message | None, reply_c
     for reply in replies:
         got_any = True
         if reply.ok is None:
-            raise CallError(f"{full_key}: service replied with an error: {reply.err.payload.to_string()}")
+            why = reply.err.payload.to_string() if reply.err is not None else "?"
+            raise CallError(f"{full_key}: service replied with an error: {why}")
         try:
             return decode(reply.ok.payload.to_bytes(), reply_cls)
         except SchemaError as e:

@@ -28,7 +28,7 @@ import sys
 import threading
 import time
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any, Callable, Mapping
 
 SUPERVISOR_ENV = "AERO_SUPERVISOR_PID"
 INSTANCE_ROOT = "aero/instance"
@@ -170,7 +170,7 @@ class SupervisorBinding:
 
 
 def bind_to_supervisor(on_orphaned: Callable[[], None], grace_s: float = 3.0, poll_s: float = 0.5,
-                       env: dict[str, str] | None = None) -> SupervisorBinding:
+                       env: Mapping[str, str] | None = None) -> SupervisorBinding:
     """If started by a supervisor (AERO_SUPERVISOR_PID), stop when it dies.
 
     Linux: PR_SET_PDEATHSIG delivers SIGTERM (the service's normal clean stop). Everywhere: a
@@ -179,8 +179,7 @@ def bind_to_supervisor(on_orphaned: Callable[[], None], grace_s: float = 3.0, po
     EXIT_ORPHANED. A process that inherited the variable from further up (its parent is not the
     supervisor, which is still alive) is not bound.
     """
-    env = os.environ if env is None else env
-    raw = env.get(SUPERVISOR_ENV, "")
+    raw = (os.environ if env is None else env).get(SUPERVISOR_ENV, "")
     b = SupervisorBinding()
     if not raw.isdigit():
         return b

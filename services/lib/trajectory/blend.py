@@ -127,15 +127,16 @@ class _YawProfile:
         self.initial = current
         free_at = 0.0
         for k in range(1, len(yaws)):
-            if yaws[k] is None or current is None:
+            yaw = yaws[k]
+            if yaw is None or current is None:
                 continue
-            delta = wrap_pi(yaws[k] - current)
+            delta = wrap_pi(yaw - current)
             if abs(delta) > 1e-9:
                 start = max(times_s[k - 1], free_at)
                 duration = max(times_s[k] - start, ACC_PEAK * abs(delta) / max_rate_radps)
                 self.turns.append((start, duration, current, delta))
                 free_at = start + duration
-            current = yaws[k]
+            current = yaw
         self.end_s = free_at
 
     def at(self, t: float) -> tuple[float | None, float]:

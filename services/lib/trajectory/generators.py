@@ -101,7 +101,8 @@ def path_for(msg: Trajectory, position_m: np.ndarray, yaw_rad: float, limits: Ki
         gen = GENERATORS.get(name)
         if gen is None:
             raise TrajectoryRefused(f"`generator_name` {name!r} is not a generator: {', '.join(GENERATORS)}")
-        if gen.make is None:
+        make_path = gen.make
+        if make_path is None:
             return None
         for field in ("total_duration_s", "poly_order", "poly_coeffs_x", "poly_coeffs_y", "poly_coeffs_z",
                       "poly_coeffs_yaw"):
@@ -118,10 +119,10 @@ def path_for(msg: Trajectory, position_m: np.ndarray, yaw_rad: float, limits: Ki
             """At the velocity given, else (the first leg cannot hold the blend from it) at rest."""
             if velocity_mps is not None and np.any(velocity_mps):
                 try:
-                    return gen.make(np.array(pts), yws, planned, acceptance_radius_m, velocity_mps)
+                    return make_path(np.array(pts), yws, planned, acceptance_radius_m, velocity_mps)
                 except ValueError:
                     pass
-            return gen.make(np.array(pts), yws, planned, acceptance_radius_m, None)
+            return make_path(np.array(pts), yws, planned, acceptance_radius_m, None)
 
         try:
             return make(points, yaws)
