@@ -102,7 +102,7 @@ class ObjectsService(Service):
                           frame_cpu_ms_p99=round(float(np.percentile(cpu, 99)), 2), frame_cpu_ms_max=round(float(cpu.max()), 2))
         if pl.camera is None:
             return Health(DiagnosticStatus.WARN, "waiting for camera calibration (sensors/camera/left/info)", values)
-        if not pl.poses.samples:
+        if not pl.poses:
             return Health(DiagnosticStatus.WARN, "waiting for state/vehicle", values)
         return Health(DiagnosticStatus.OK, f"{values['tracks_confirmed']} confirmed tracks", values)
 

@@ -50,6 +50,7 @@ def test_nearest_takes_the_closest_sample_as_it_is_within_max_age():
     assert h.nearest(180 * MS, 0.1).stamp_ns == 80 * MS            # 100 ms after the newest: still within
     assert h.nearest(181 * MS, 0.1) is None
     assert PoseHistory().nearest(0, 1.0) is None
+    assert h and not PoseHistory()                                 # "any pose yet?" (objects' health)
 
 
 def test_old_poses_leave_after_the_horizon():
