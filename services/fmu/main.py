@@ -17,15 +17,15 @@ from aeroperception.schemas import (
 from aeroperception.services.runtime import Health, Service, run
 
 from . import contract
+from .fc_commands import FcCommands
 from .link import RebootWatch, open_fcu_link
 from .logic import (
-    CommandWaiter, Telemetry, ack_name, highres_imu_to_imu, odometry_fields, parse_global_origin, setpoint_target,
+    Telemetry, highres_imu_to_imu, odometry_fields, parse_global_origin, setpoint_target,
 )
 from .navigation import estimator_status_from_mavlink, gps_from_mavlink
 from .offboard import BRAKE, FOLLOW, Envelope, OffboardArbiter, StreamWarmth
 from .truth import FcClock, ground_truth_from_mavlink, origin_from_mavlink
 
-RETRY_S = 0.3       # re-send a TEMPORARILY_REJECTED OFFBOARD request after this
 FORCE_MAGIC = 21196  # COMPONENT_ARM_DISARM param2: force (PX4 and ArduPilot)
 STREAMS_HZ = {  # what we ask the FC for (SET_MESSAGE_INTERVAL); PX4 onboard links honour it
     mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 50,
@@ -54,11 +54,11 @@ class FmuService(Service):
     def start(self) -> None:
         p = self.params
         self.tm = Telemetry()
-        self.acks = CommandWaiter()
-        self.send_lock = threading.Lock()
         self.counters = {"rx": 0, "bad_packets": 0, "setpoints_sent": 0, "holds_sent": 0, "brakes_sent": 0,
                          "vio_injected": 0, "vio_stale_dropped": 0, "reboots_detected": 0, "link_setups": 0,
                          "commands_retried": 0, "global_origin_sent": 0, "ground_truth": 0, "ground_truth_no_origin": 0, "ground_truth_bad": 0}
+        self.commands = FcCommands(self._send_command, self.link_fresh, self.args.fcu_url, self.counters)
+        self.send_lock = threading.Lock()
         self.arbiter = OffboardArbiter(
             Envelope(p.max_velocity_mps, p.max_acceleration_mps2, p.max_distance_m, p.max_altitude_m,
                      p.min_altitude_m, p.max_yaw_rate_radps),
@@ -72,7 +72,6 @@ class FmuService(Service):
         self.last_setup_s = -math.inf
         self.streams_requested = False
         self.home_requested_s = -math.inf    # last MAV_CMD_REQUEST_MESSAGE(HOME_POSITION)
-        self.statustexts: deque[tuple[float, int, str]] = deque(maxlen=16)  # (rx time, severity, text)
         self.fc_clock = FcClock()            # HIGHRES_IMU and ground-truth stamps
         self.origin: tuple[float, float, float] | None = None   # the FC's local origin (GPS_GLOBAL_ORIGIN)
         self.origin_requested_s = -math.inf
@@ -168,7 +167,7 @@ class FmuService(Service):
             "ESTIMATOR_STATUS": lambda m, s: pubs["fmu/out/estimator_status"].publish(
                 estimator_status_from_mavlink(m, s)),
             "HOME_POSITION": self._on_home_position,   # our request's answer; PX4 also sends it when home changes
-            "COMMAND_ACK": lambda m, _s: self.acks.on_ack(m),
+            "COMMAND_ACK": lambda m, _s: self.commands.on_ack(m),
             "STATUSTEXT": self._on_statustext,
             "TIMESYNC": self._on_timesync,
         }
@@ -211,7 +210,7 @@ class FmuService(Service):
 
     def _on_statustext(self, m, _stamp: int) -> None:
         """The FC says why it refused a command (PX4: "Arming denied: ...")."""
-        self.statustexts.append((time.monotonic(), m.severity, str(m.text)))
+        self.commands.on_statustext(m.severity, str(m.text))
         self.log.info("fc_statustext", severity=m.severity, text=str(m.text))
 
     def _on_timesync(self, m, _stamp: int) -> None:
@@ -317,8 +316,10 @@ class FmuService(Service):
                 self.log.throttled("warn", "send", "mavlink_send_error", error=str(e))
 
     def _command_nowait(self, command: int, *params: float) -> None:
-        p = list(params) + [0.0] * (7 - len(params))
-        self._send(lambda mav: mav.command_long_send(self.tm.system_id, 1, command, 0, *p))
+        self._send_command(command, list(params) + [0.0] * (7 - len(params)))
+
+    def _send_command(self, command: int, params7: list[float]) -> None:
+        self._send(lambda mav: mav.command_long_send(self.tm.system_id, 1, command, 0, *params7))
 
     def link_fresh(self) -> bool:
         return time.monotonic() - self.tm.last_rx_s < self.params.link_timeout_s
@@ -439,47 +440,8 @@ class FmuService(Service):
 
     # ------------------------------------------------------------ queryables
 
-    def _command(self, command: int, params: list[float], confirm, timeout_s: float,
-                 retry_rejected: bool = False) -> tuple[bool, str]:
-        """COMMAND_LONG, wait for its ACK, then for `confirm()` (heartbeat state) within timeout.
-        `retry_rejected`: re-send every RETRY_S while the FC answers TEMPORARILY_REJECTED."""
-        if not self.link_fresh():
-            return False, f"no link to the flight controller ({self.args.fcu_url})"
-        deadline = time.monotonic() + timeout_s
-        p = params + [0.0] * (7 - len(params))
-        while True:
-            sent_s = time.monotonic()
-            ev, box = self.acks.expect(command)
-            self._send(lambda mav: mav.command_long_send(self.tm.system_id, 1, command, 0, *p))
-            if not ev.wait(max(0.0, deadline - time.monotonic())):
-                return False, f"no COMMAND_ACK within {timeout_s:.1f} s"
-            if box[0] == mavlink.MAV_RESULT_ACCEPTED:
-                break
-            if (retry_rejected and box[0] == mavlink.MAV_RESULT_TEMPORARILY_REJECTED
-                    and time.monotonic() + RETRY_S < deadline):
-                self.counters["commands_retried"] += 1
-                time.sleep(RETRY_S)
-                continue
-            reason = self._refusal_reason(sent_s)
-            return False, f"flight controller answered {ack_name(box[0])}" + (f": {reason}" if reason else "")
-        while time.monotonic() < deadline:
-            if confirm():
-                return True, "confirmed by heartbeat"
-            time.sleep(0.02)
-        return False, "accepted but not confirmed by the heartbeat in time"
-
-    def _refusal_reason(self, since_s: float, wait_s: float = 0.3) -> str:
-        """The warning STATUSTEXT the FC sent with a refusal (before or just after the ACK), or ''."""
-        end = time.monotonic() + wait_s
-        while True:
-            texts = [text for t, sev, text in list(self.statustexts)
-                     if t >= since_s and sev <= mavlink.MAV_SEVERITY_WARNING]
-            if texts or time.monotonic() >= end:
-                return texts[-1] if texts else ""
-            time.sleep(0.02)
-
     def _srv_arm(self, req: ArmRequest) -> ArmReply:
-        ok, msg = self._command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM,
+        ok, msg = self.commands.run(mavlink.MAV_CMD_COMPONENT_ARM_DISARM,
                                 [1.0 if req.arm else 0.0, FORCE_MAGIC if req.force else 0.0],
                                 lambda: self.tm.armed == req.arm, self.params.command_timeout_s)
         self.log.info("arm", arm=req.arm, force=req.force, success=ok, message=msg)
@@ -499,7 +461,7 @@ class FmuService(Service):
             timeout_s -= self._wait_stream_warm(min(self.params.offboard_warmup_s, timeout_s / 2))
         # Always ask the FC: the mode we last heard (1 Hz heartbeat) may be stale, e.g. right after
         # a failsafe switched OFFBOARD to HOLD; the FC acks a request for its current mode at once.
-        ok, msg = self._command(mavlink.MAV_CMD_DO_SET_MODE, [base, main_mode, sub_mode],
+        ok, msg = self.commands.run(mavlink.MAV_CMD_DO_SET_MODE, [base, main_mode, sub_mode],
                                 lambda: self.tm.flight_mode == mode, timeout_s, retry_rejected=offboard)
         self.log.info("set_mode", mode=mode, success=ok, message=msg)
         return SetModeReply(success=ok, message=msg, current_mode=self.tm.flight_mode)
@@ -518,7 +480,7 @@ class FmuService(Service):
         if not req.confirm:
             return EmergencyStopReply(success=False, message="refused: set confirm=true to terminate the flight")
         self.log.error("emergency_stop", reason=req.reason)
-        ok, msg = self._command(mavlink.MAV_CMD_DO_FLIGHTTERMINATION, [1.0], lambda: not self.tm.armed,
+        ok, msg = self.commands.run(mavlink.MAV_CMD_DO_FLIGHTTERMINATION, [1.0], lambda: not self.tm.armed,
                                 self.params.command_timeout_s)
         return EmergencyStopReply(success=ok, message=msg)
 

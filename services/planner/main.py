@@ -19,6 +19,7 @@ from .controllers import CONTROLLERS, Gains
 from .estimators import VioEstimate, fc_offset_m
 from .logic import Goal, GoalWatchdog, WaypointPlanner, tracking_errors
 from .plugins import PARTS_FILE, REGISTRIES, restore_parts, selected_parts, switch_refusal
+from .state_delay import StateDelay
 from .tracking import TrackerConfig, TrajectoryTracker, start_velocity_mps
 from .follow import FeedForward
 
@@ -38,8 +39,7 @@ class PlannerService(Service):
         self.fc_state: VehicleState | None = None     # the flight controller's (state/vehicle)
         self.vio = VioEstimate()
         self.odom_rx_s: float | None = None
-        self.stale_states = 0
-        self.delay_floor_ns: int | None = None
+        self.state_delay = StateDelay()     # a backlog after a stall is dropped (state_delay.py)
         self.state_rx_s = 0.0
         self.last_distance: float | None = None
         self.last_setpoint: TrajectorySetpoint | None = None   # what fmu was last sent
@@ -136,7 +136,7 @@ class PlannerService(Service):
             self.tracker.set_generator(name)
         elif role == "estimator":
             self.vio.alignment = None          # aligned anew, now, with the flight controller's estimate
-            self.delay_floor_ns = None         # another source's stamps
+            self.state_delay.reset()           # another source's stamps
         self.log.info("plugin_switched", role=role, name=name)
 
     def _on_param(self, name, value) -> None:
@@ -175,15 +175,8 @@ class PlannerService(Service):
 
     def _take_state(self, msg: VehicleState) -> None:
         """The active estimator's state (estimators.py), in the map frame."""
-        # A backlog delivered after this process was stalled (SIGSTOP, swap) must not be planned
-        # from: it would capture a hold point or a direction from the past and fly back to it.
-        # Judged against the lowest delay seen (creeping up 1 ms a sample), so a constant clock
-        # offset between machines is not mistaken for staleness.
-        delay = self.node.now_ns() - msg.header.stamp_ns
-        self.delay_floor_ns = delay if self.delay_floor_ns is None else min(delay, self.delay_floor_ns + 1_000_000)
-        if (delay - self.delay_floor_ns) * 1e-9 > self.params.state_timeout_s:
-            self.stale_states += 1
-            return
+        if self.state_delay.stale(self.node.now_ns(), msg.header.stamp_ns, self.params.state_timeout_s):
+            return   # a backlog delivered after this process stalled: never planned from
         if not self.state_fresh():
             # Back after a gap (fmu restart, FC link, router restart): the vehicle moved without us
             # and the mission re-checks it after an outage. Hold where it is until the mission's goal
@@ -195,14 +188,6 @@ class PlannerService(Service):
             self.planner.retake_hold()
         self.state, self.state_rx_s = msg, time.monotonic()
         self._cycle()  # event-driven: a fresh state goes out as a setpoint at once (hot path)
-
-    def _state_age_s(self, st: VehicleState) -> float:
-        """How old the state is: its delay on one clock; across machines (a lowest delay that is
-        not a plausible latency: clock offset) only the delay above the lowest one seen."""
-        delay = self.node.now_ns() - st.header.stamp_ns
-        floor = self.delay_floor_ns or 0
-        age_ns = delay if 0 <= floor < 50_000_000 else delay - floor
-        return min(max(0.0, age_ns * 1e-9), self.params.state_timeout_s)
 
     def _tick(self) -> None:
         """The 50 Hz deadline loop: guarantees the rate when state arrives slower or late."""
@@ -239,7 +224,7 @@ class PlannerService(Service):
         res = self.planner.step(st.position_m.to_array(), st.yaw_rad, time.monotonic())
         follow = None
         if self.planner.goal is not None:
-            age_s = self._state_age_s(st)
+            age_s = self.state_delay.age_s(self.node.now_ns(), st.header.stamp_ns, self.params.state_timeout_s)
             follow = self.tracker.step(st.position_m.to_array(), st.yaw_rad, time.monotonic(), self.planner.goal.position_m,
                                        self._path_blocked if self.params.obstacle_avoidance else None, age_s,
                                        self._start_velocity_mps(st))
@@ -333,7 +318,7 @@ class PlannerService(Service):
                   "trajectories_made": self.tracker.built, "trajectories_resumed": self.tracker.resumed,
                   "waypoints_counted_late": self.tracker.late_counts,
                   "obstacles": self.obstacle_state, "replans": self.replanner.processed,
-                  "stale_states_dropped": self.stale_states}
+                  "stale_states_dropped": self.state_delay.stale_count}
         if self.obstacle_state in ("blocked", "unreachable", "stale_costmap"):
             return Health(DiagnosticStatus.WARN, f"holding: {self.obstacle_reason}", values)
         if self.tracker.holds_for(self._mission_goal_m()):
