@@ -4,6 +4,13 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from aeroperception.schemas import DiagnosticArray, DiagnosticStatus, Header
+from aeroperception.services.runtime.config import param
+
+
+@dataclass(frozen=True)
+class DiagnosticsConfig:
+    stale_after_s: float = param("stale_after_s")
+    publish_rate_hz: float = param("publish_rate_hz")
 
 
 @dataclass

@@ -7,7 +7,7 @@ from aeroperception.schemas import DiagnosticStatus
 from aeroperception.services.runtime import Health, Service, run
 
 from . import contract
-from .logic import Aggregator
+from .logic import Aggregator, DiagnosticsConfig
 
 
 class DiagnosticsService(Service):
@@ -15,18 +15,22 @@ class DiagnosticsService(Service):
 
     NAME = contract.NAME
     PARAMS = contract.PARAMS
+    CONTRACT = contract
+    CONFIG = DiagnosticsConfig
 
     def start(self) -> None:
-        self.agg = Aggregator(stale_after_s=self.params.stale_after_s)
-        self.params.on_change(lambda n, v: setattr(self.agg, "stale_after_s", v) if n == "stale_after_s" else None)
-        self.node.subscribe("diagnostics/*", DiagnosticStatus, self._on_status)
+        self.agg = Aggregator(stale_after_s=self.cfg.stale_after_s)
         self.node.on_liveliness("*", self.agg.on_liveliness)
-        self.pub = self.node.publisher("diagnostics/agg", contract.OUTPUTS["diagnostics/agg"])
+        self.pub = self.io["diagnostics/agg"]
         self.last = None
-        self.loop = self.node.every(1.0 / self.params.publish_rate_hz, self._publish, name="publish")
-        self.params.on_change(lambda n, v: self.loop.set_rate(v) if n == "publish_rate_hz" else None)
+        self.loop = self.node.every(1.0 / self.cfg.publish_rate_hz, self._publish, name="publish")
 
-    def _on_status(self, st: DiagnosticStatus) -> None:
+    def on_config(self, cfg: DiagnosticsConfig) -> None:
+        self.agg.stale_after_s = cfg.stale_after_s
+        if cfg.publish_rate_hz != self.cfg.publish_rate_hz:
+            self.loop.set_rate(cfg.publish_rate_hz)
+
+    def on_diagnostics(self, st: DiagnosticStatus) -> None:
         self.agg.on_status(st, time.monotonic())
 
     def _publish(self) -> None:

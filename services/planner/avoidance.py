@@ -26,43 +26,30 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Mapping
 
 import numpy as np
 
 from aeroperception.services.lib.costmap import BLOCKED
-
-from . import contract
+from aeroperception.services.runtime.config import param
 
 _EPS_M = 1e-3        # float32 distances: 1.0 m is sometimes 0.99999994
 GO_WEIGHT = 10.0      # goal outside the window: score = path cost + GO_WEIGHT * straight distance left
 
 
-# AvoidanceConfig field -> the planner parameter that sets it (defaults, units and ranges there).
-_PARAMS = {"clearance_m": "avoid_clearance_m", "goal_clearance_m": "avoid_goal_clearance_m",
-           "lookahead_m": "avoid_lookahead_m", "slow_distance_m": "avoid_slow_distance_m",
-           "stop_distance_m": "avoid_stop_distance_m", "costmap_timeout_s": "costmap_timeout_s"}
-_PARAM_DEFAULT = {p.name: p.default for p in contract.PARAMS}
-_DEFAULT = {field_name: _PARAM_DEFAULT[param] for field_name, param in _PARAMS.items()}
-
-
 @dataclass(frozen=True)
 class AvoidanceConfig:
+    """The planner's avoid_* parameters (defaults, units and ranges: contract.py) and fixed tuning."""
+
+    clearance_m: float = param("avoid_clearance_m")            # plan this far from lethal cells (tracking error included)
+    goal_clearance_m: float = param("avoid_goal_clearance_m")  # a goal nearer than this to a lethal cell is unreachable
+    lookahead_m: float = param("avoid_lookahead_m")
+    slow_distance_m: float = param("avoid_slow_distance_m")    # full speed while the clearance zone ahead is farther
+    stop_distance_m: float = param("avoid_stop_distance_m")    # zero speed this close to the clearance zone ahead
+    costmap_timeout_s: float = param("costmap_timeout_s")
     cell_m: float = 0.2                 # planning resolution (costmap cells are pooled to this)
-    clearance_m: float = _DEFAULT["clearance_m"]            # plan this far from lethal cells (tracking error included)
-    goal_clearance_m: float = _DEFAULT["goal_clearance_m"]  # a goal nearer than this to a lethal cell is unreachable
-    lookahead_m: float = _DEFAULT["lookahead_m"]
-    slow_distance_m: float = _DEFAULT["slow_distance_m"]    # full speed while the clearance zone ahead is farther
-    stop_distance_m: float = _DEFAULT["stop_distance_m"]    # zero speed this close to the clearance zone ahead
     cost_weight: float = 4.0            # path cost per metre = 1 + cost_weight * cost / 98
     check_horizon_s: float = 0.3
     sight_m: float = 9.0                # straight to the goal only if free this far (~half the window)
-    costmap_timeout_s: float = _DEFAULT["costmap_timeout_s"]
-
-    @classmethod
-    def from_params(cls, params: Mapping[str, Any]) -> "AvoidanceConfig":
-        """The settings the planner's parameters give (the rest keep their defaults)."""
-        return cls(**{field_name: params[param] for field_name, param in _PARAMS.items()})
 
 
 @dataclass
@@ -187,8 +174,8 @@ def clearance_grid(view: CostmapView, relief) -> np.ndarray | float:
 
 
 class LocalPlanner:
-    def __init__(self, cfg: AvoidanceConfig | None = None):
-        self.cfg = cfg or AvoidanceConfig()
+    def __init__(self, cfg: AvoidanceConfig):
+        self.cfg = cfg
         self.view: CostmapView | None = None
         self._goal: np.ndarray | None = None
         self._plan_key: tuple | None = None

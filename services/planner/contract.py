@@ -1,4 +1,5 @@
-"""Contract of the planner: keys in/out (ENU) and parameters.
+"""Contract of the planner: keys in/out (ENU) and parameters. The service is wired from it
+(Node.bind: each input to on_<key>, e.g. on_state_vehicle) and configured from PARAMS (config.py).
 
 The planner owns all three swappable parts (trajectory generator, controller, estimator) because
 it is the one that turns the goal into setpoints: the generator shapes the reference, the
@@ -13,7 +14,7 @@ from aeroperception.schemas import (
 )
 from aeroperception.services.lib.flight_state import HOVER_SPEED_PARAM
 from aeroperception.services.lib.trajectory.generators import GENERATORS
-from aeroperception.services.runtime import Param, Queries, Query, Topic, Topics
+from aeroperception.services.runtime import EXPRESS, Param, Queries, Query, Topic, Topics
 
 from .controllers import CONTROLLERS
 from .estimators import ESTIMATORS
@@ -22,11 +23,11 @@ NAME = "planner"
 INPUTS = Topics(
     Topic("state/vehicle", VehicleState),
     # The goal to fly to (with its own speed caps). header.frame_id MissionGoal.HOLD_FRAME: stop and hold where you are.
-    Topic("mission/active_goal", MissionGoal),
+    Topic("mission/active_goal", MissionGoal, strict=True),
     # The lidar service's rolling costmap: obstacle-aware velocity (planner/avoidance.py).
     Topic("perception/costmap", OccupancyGrid),
     # The whole way to fly (smooth waypoints or a typed trajectory), flown while the goal is on it (planner/tracking.py).
-    Topic("mission/active_trajectory", Trajectory, note="on change + 2 Hz; empty = none"),
+    Topic("mission/active_trajectory", Trajectory, note="on change + 2 Hz; empty = none", strict=True),
     Topic("state/visual_odometry", Odometry, note="the vio estimator's input (freshness checked before a switch to it)"),
 )
 SERVICES = Queries(
@@ -35,7 +36,7 @@ SERVICES = Queries(
 )
 STATUS_RATE_HZ = 10.0
 OUTPUTS = Topics(
-    Topic("fmu/in/trajectory_setpoint", TrajectorySetpoint, 50.0, note="always (rate_hz)"),
+    Topic("fmu/in/trajectory_setpoint", TrajectorySetpoint, 50.0, note="always (rate_hz)", qos=EXPRESS),
     Topic("planner/status", TrajectoryStatus, STATUS_RATE_HZ, note="progress, times, setpoint, errors"),
     Topic("planner/waypoint_reached", WaypointReached, note="event; index = n-th goal received"),
 )

@@ -9,19 +9,18 @@ from aeroperception.schemas import (
     DiagnosticStatus, Header, LandedState, MissionGoal, OccupancyGrid, Odometry, SelectPluginReply, SelectPluginRequest, Trajectory,
     TrajectorySetpoint, TrajectoryStatus, Vector3, VehicleState, WaypointReached,
 )
-from aeroperception.services.lib.trajectory.generators import limits_from
 from aeroperception.services.runtime.state_store import StateStore, default_state_dir
 from aeroperception.services.runtime import Health, LatestWorker, ParamError, Service, run
 
 from . import contract
-from .avoidance import AvoidanceConfig, LocalPlanner
+from .avoidance import LocalPlanner
+from .config import PlannerConfig
 from .controllers import CONTROLLERS, Gains
 from .estimators import VioEstimate, fc_offset_m
 from .logic import Goal, GoalWatchdog, WaypointPlanner, tracking_errors
 from .plugins import PARTS_FILE, REGISTRIES, restore_parts, selected_parts, switch_refusal
 from .state_delay import StateDelay
-from .tracking import TrackerConfig, TrajectoryTracker, start_velocity_mps
-from .follow import FeedForward
+from .tracking import TrajectoryTracker, start_velocity_mps
 
 
 class PlannerService(Service):
@@ -29,12 +28,13 @@ class PlannerService(Service):
 
     NAME = contract.NAME
     PARAMS = contract.PARAMS
+    CONTRACT = contract
+    CONFIG = PlannerConfig
 
     def start(self) -> None:
-        p = self.params
-        self._restore_parts()    # before the switch rule listens: a restart keeps what flew
+        self._restore_parts()    # before on_config: a restart keeps what flew
+        p = self.cfg
         self.planner = WaypointPlanner(p.max_velocity_mps, p.kp, p.acceptance_radius_m)
-        self.params.on_change(self._on_param)
         self.state: VehicleState | None = None        # the active estimator's, in the map frame
         self.fc_state: VehicleState | None = None     # the flight controller's (state/vehicle)
         self.vio = VioEstimate()
@@ -46,26 +46,19 @@ class PlannerService(Service):
         self.goal_msg: MissionGoal | None = None
         self.goals_received = 0
         self.goal_watch = GoalWatchdog(p.goal_timeout_s)
-        self.pub_sp = self.node.publisher("fmu/in/trajectory_setpoint", contract.OUTPUTS["fmu/in/trajectory_setpoint"],
-                                          express=True)
-        self.pub_status = self.node.publisher("planner/status", TrajectoryStatus)
-        self.pub_reached = self.node.publisher("planner/waypoint_reached", WaypointReached)
-        self.node.subscribe("state/vehicle", VehicleState, self._on_state)
-        self.node.subscribe("mission/active_goal", MissionGoal, self._on_goal, strict=True)
+        self.pub_sp = self.io["fmu/in/trajectory_setpoint"]
+        self.pub_status = self.io["planner/status"]
+        self.pub_reached = self.io["planner/waypoint_reached"]
         # Obstacles: plans run on their own thread (10-30 ms), the setpoint path only steers.
-        self.avoid = LocalPlanner(AvoidanceConfig.from_params(p))
+        self.avoid = LocalPlanner(p.avoidance)
         self.obstacle_state, self.obstacle_reason = ("off", "") if not p.obstacle_avoidance else ("no_costmap", "")
         self.replanner = LatestWorker(lambda pg: self.avoid.replan(*pg), "planner-replan",
                                       on_error=lambda e: self.log.throttled("error", "replan", "replan_failed",
                                                                             error=f"{type(e).__name__}: {e}"))
-        self.node.subscribe("perception/costmap", OccupancyGrid, self._on_costmap)
         # Trajectories: the mission's whole way, flown while its goal is on it (tracking.py).
-        self.tracker = TrajectoryTracker(self._tracker_config())
+        self.tracker = TrajectoryTracker(p.tracker)
         self.trajectory_msg: Trajectory | None = None
         self.tracking_error_m: float | None = None     # vehicle to the trajectory's reference, while flying one
-        self.node.subscribe("mission/active_trajectory", Trajectory, self._on_trajectory, strict=True)
-        self.node.subscribe("state/visual_odometry", Odometry, self._on_odometry)
-        self.node.serve("planner/srv/select_plugin", SelectPluginRequest, SelectPluginReply, self._select_plugin)
         self.last_pub_s = 0.0
         self.loop = self.node.every(1.0 / p.rate_hz, self._tick, name="setpoint")
         self.node.every(1.0 / contract.STATUS_RATE_HZ, self._publish_status, name="status")
@@ -73,26 +66,20 @@ class PlannerService(Service):
     def stop(self) -> None:
         self.replanner.stop()
 
-    def _on_costmap(self, msg: OccupancyGrid) -> None:
+    def on_perception_costmap(self, msg: OccupancyGrid) -> None:
         o = msg.origin.position
         self.avoid.set_costmap(msg.data.to_numpy(), (o.x, o.y), msg.resolution_m, time.monotonic())
         self._maybe_replan()
 
     def _maybe_replan(self) -> None:
         g = self.planner.goal
-        if g is None or not self.state_fresh() or not self.params.obstacle_avoidance:
+        if g is None or not self.state_fresh() or not self.cfg.obstacle_avoidance:
             return
         pos = self.state.position_m.to_array()
         if self.avoid.needs_plan(pos, g.position_m):
             self.replanner.offer((pos, g.position_m.copy()))
 
-    def _tracker_config(self) -> TrackerConfig:
-        p = self.params
-        return TrackerConfig(limits_from(p), p.acceptance_radius_m, p.trajectory_lag_m, p.trajectory_generator,
-                             FeedForward(p.ff_lead_s, p.drag_per_s, p.fc_xy_vel_d), p.fc_xy_gain_per_s,
-                             p.fc_velocity_error_mps, p.fc_jerk_error_mps3)
-
-    def _on_trajectory(self, msg: Trajectory) -> None:
+    def on_mission_active_trajectory(self, msg: Trajectory) -> None:
         if msg == self.trajectory_msg:
             return  # re-sent at 2 Hz for late joiners: already taken
         self.trajectory_msg = msg
@@ -103,17 +90,17 @@ class PlannerService(Service):
     def _path_blocked(self, points_xy) -> bool:
         return self.avoid.path_blocked(points_xy, time.monotonic())
 
-    def _select_plugin(self, req: SelectPluginRequest) -> SelectPluginReply:
+    def on_planner_select_plugin(self, req: SelectPluginRequest) -> SelectPluginReply:
         """SetTrajectoryGenerator / SetController / SetEstimator: the slot's parameter, set live
         (plugins.py's rule refuses it moving; the parameter's choices list what exists)."""
         r = self.node.set_param(req.role, req.name)
         return SelectPluginReply(success=r.success, message=r.message, active=self.params[req.role])
 
     def _vio_fresh(self) -> bool:
-        return self.odom_rx_s is not None and time.monotonic() - self.odom_rx_s < self.params.state_timeout_s
+        return self.odom_rx_s is not None and time.monotonic() - self.odom_rx_s < self.cfg.state_timeout_s
 
     def _restore_parts(self) -> None:
-        self.parts_store = StateStore(self.params.state_dir or default_state_dir(self.node.vehicle), PARTS_FILE)
+        self.parts_store = StateStore(self.cfg.state_dir or default_state_dir(self.node.vehicle), PARTS_FILE)
         self.parts_restored: list[str] = []
         try:
             saved = self.parts_store.load()
@@ -139,43 +126,43 @@ class PlannerService(Service):
             self.state_delay.reset()           # another source's stamps
         self.log.info("plugin_switched", role=role, name=name)
 
-    def _on_param(self, name, value) -> None:
-        if name in REGISTRIES:
-            why = switch_refusal(name, value, self.state or self.fc_state, self.params.hover_speed_mps,
+    def on_config(self, cfg: PlannerConfig) -> None:
+        """A parameter changed (one at a time: a live set): a part switched only by plugins.py's rule."""
+        old = self.cfg
+        switched = [role for role in REGISTRIES if getattr(cfg, role) != getattr(old, role)]
+        for role in switched:
+            why = switch_refusal(role, getattr(cfg, role), self.state or self.fc_state, old.hover_speed_mps,
                                  self._vio_fresh())
             if why:
-                raise ParamError(f"{name} stays {self.params[name]!r}: {why}")
-            self._switch(name, value)
+                raise ParamError(f"{role} stays {getattr(old, role)!r}: {why}")
+        self.tracker.cfg = cfg.tracker       # the next trajectory made uses it
+        self.avoid.cfg = cfg.avoidance
+        for role in switched:
+            self._switch(role, getattr(cfg, role))
             self._save_parts()
-        if name in ("max_velocity_mps", "acceptance_radius_m", "trajectory_lag_m", "ff_lead_s", "drag_per_s") or \
-                name.startswith(("acc_", "jerk_", "z_vel_", "yaw_rate_", "fc_")):
-            self.tracker.cfg = self._tracker_config()   # the next trajectory made uses it
-        if name.startswith("avoid_") or name == "costmap_timeout_s":
-            self.avoid.cfg = AvoidanceConfig.from_params(self.params)
-        elif name == "obstacle_avoidance":
-            self.obstacle_state, self.obstacle_reason = ("no_costmap", "") if value else ("off", "")
-        if name == "goal_timeout_s":
-            self.goal_watch.timeout_s = value
-        if name in ("max_velocity_mps", "kp", "acceptance_radius_m"):
-            setattr(self.planner, name, value)
-        elif name == "rate_hz":
-            self.loop.set_rate(value)
+        if cfg.obstacle_avoidance != old.obstacle_avoidance:
+            self.obstacle_state, self.obstacle_reason = ("no_costmap", "") if cfg.obstacle_avoidance else ("off", "")
+        self.goal_watch.timeout_s = cfg.goal_timeout_s
+        self.planner.max_velocity_mps, self.planner.kp = cfg.max_velocity_mps, cfg.kp
+        self.planner.acceptance_radius_m = cfg.acceptance_radius_m
+        if cfg.rate_hz != old.rate_hz:
+            self.loop.set_rate(cfg.rate_hz)
 
-    def _on_state(self, msg: VehicleState) -> None:
+    def on_state_vehicle(self, msg: VehicleState) -> None:
         self.fc_state = msg
-        if self.params.estimator == "fc":
+        if self.cfg.estimator == "fc":
             self._take_state(msg)
 
-    def _on_odometry(self, msg: Odometry) -> None:
+    def on_state_visual_odometry(self, msg: Odometry) -> None:
         self.odom_rx_s = time.monotonic()
-        if self.params.estimator == "vio":
+        if self.cfg.estimator == "vio":
             est = self.vio.estimate(msg, self.fc_state)
             if est is not None:
                 self._take_state(est)
 
     def _take_state(self, msg: VehicleState) -> None:
         """The active estimator's state (estimators.py), in the map frame."""
-        if self.state_delay.stale(self.node.now_ns(), msg.header.stamp_ns, self.params.state_timeout_s):
+        if self.state_delay.stale(self.node.now_ns(), msg.header.stamp_ns, self.cfg.state_timeout_s):
             return   # a backlog delivered after this process stalled: never planned from
         if not self.state_fresh():
             # Back after a gap (fmu restart, FC link, router restart): the vehicle moved without us
@@ -194,7 +181,7 @@ class PlannerService(Service):
         if time.monotonic() - self.last_pub_s > 1.25 * self.loop.period_s:
             self._cycle()
 
-    def _on_goal(self, msg: MissionGoal) -> None:
+    def on_mission_active_goal(self, msg: MissionGoal) -> None:
         if self.goal_watch.heard(time.monotonic()):
             self.log.info("mission_back", note="goal stream resumed: following the mission's goal")
         if msg == self.goal_msg:
@@ -213,7 +200,7 @@ class PlannerService(Service):
         return None if g is None or g.header.frame_id == MissionGoal.HOLD_FRAME else g.pose.position.to_array()
 
     def state_fresh(self) -> bool:
-        return self.state is not None and time.monotonic() - self.state_rx_s < self.params.state_timeout_s
+        return self.state is not None and time.monotonic() - self.state_rx_s < self.cfg.state_timeout_s
 
     def _cycle(self) -> None:
         if not self.state_fresh():
@@ -224,21 +211,21 @@ class PlannerService(Service):
         res = self.planner.step(st.position_m.to_array(), st.yaw_rad, time.monotonic())
         follow = None
         if self.planner.goal is not None:
-            age_s = self.state_delay.age_s(self.node.now_ns(), st.header.stamp_ns, self.params.state_timeout_s)
+            age_s = self.state_delay.age_s(self.node.now_ns(), st.header.stamp_ns, self.cfg.state_timeout_s)
             follow = self.tracker.step(st.position_m.to_array(), st.yaw_rad, time.monotonic(), self.planner.goal.position_m,
-                                       self._path_blocked if self.params.obstacle_avoidance else None, age_s,
+                                       self._path_blocked if self.cfg.obstacle_avoidance else None, age_s,
                                        self._start_velocity_mps(st))
         self.tracking_error_m = follow.tracking_error_m if follow is not None else None
         if follow is not None:
             res.setpoint = follow.setpoint       # the trajectory is clear of obstacles ahead (checked in step)
-            if self.params.obstacle_avoidance:
+            if self.cfg.obstacle_avoidance:
                 self.obstacle_state, self.obstacle_reason = "clear", ""
-        elif self.params.obstacle_avoidance and self.planner.goal is not None:
+        elif self.cfg.obstacle_avoidance and self.planner.goal is not None:
             out = self.avoid.adjust(st.position_m.to_array(), self.planner.goal.position_m,
                                     res.setpoint.velocity_mps.to_array(), time.monotonic())
             res.setpoint.velocity_mps = Vector3.from_array(out.velocity_mps)
             self.obstacle_state, self.obstacle_reason = out.state, out.reason
-        elif self.params.obstacle_avoidance:
+        elif self.cfg.obstacle_avoidance:
             self.obstacle_state, self.obstacle_reason = "clear", ""   # holding: no verdict about an old goal
         res.setpoint = self._to_fc(res.setpoint, st)
         res.setpoint.header = Header(stamp_ns=st.header.stamp_ns, frame_id="map")
@@ -260,7 +247,7 @@ class PlannerService(Service):
     def _to_fc(self, sp: TrajectorySetpoint, st: VehicleState) -> TrajectorySetpoint:
         """The reference as the active controller gives it to the flight controller, its position
         in the flight controller's own estimate (estimators.fc_offset_m)."""
-        p = self.params
+        p = self.cfg
         sp = CONTROLLERS[p.controller].apply(sp, st.position_m.to_array(), Gains(p.kp, p.max_velocity_mps))
         if sp.position_valid:
             sp.position_m = Vector3.from_array(sp.position_m.to_array() + fc_offset_m(self.fc_state, st))
@@ -269,7 +256,7 @@ class PlannerService(Service):
     def _check_goal_stream(self) -> None:
         if self.goal_watch.expired(time.monotonic(), self.planner.goal is not None):
             self._forget_goal()
-            self.log.warn("mission_silent", timeout_s=self.params.goal_timeout_s,
+            self.log.warn("mission_silent", timeout_s=self.cfg.goal_timeout_s,
                           note="no goal from the mission (mission or ground link down): holding")
 
     def _forget_goal(self) -> None:
@@ -281,7 +268,7 @@ class PlannerService(Service):
         self._check_goal_stream()
         fresh = self.state_fresh()
         status = self.planner.status if fresh else TrajectoryStatus.STATUS_ERROR
-        p = self.params
+        p = self.cfg
         msg = TrajectoryStatus(header=self.node.header("map"), status=status, trajectory_id=f"goal-{self.goals_received}",
                                obstacle_state=self.obstacle_state, message=self.obstacle_reason,
                                active_trajectory_generator=p.trajectory_generator, active_controller=p.controller,
@@ -312,8 +299,8 @@ class PlannerService(Service):
             return Health(DiagnosticStatus.ERROR, "no fresh state/vehicle: not publishing setpoints")
         values = {"distance_m": self.last_distance if self.last_distance is not None else "n/a",
                   "trajectory": self.tracker.trajectory_id if self.tracking_error_m is not None else "-",
-                  "trajectory_generator": self.params.trajectory_generator, "controller": self.params.controller,
-                  "estimator": self.params.estimator, "flying_with": self.tracker.generator() or "-",
+                  "trajectory_generator": self.cfg.trajectory_generator, "controller": self.cfg.controller,
+                  "estimator": self.cfg.estimator, "flying_with": self.tracker.generator() or "-",
                   "parts_restored": "; ".join(self.parts_restored) or "-",
                   "trajectories_made": self.tracker.built, "trajectories_resumed": self.tracker.resumed,
                   "waypoints_counted_late": self.tracker.late_counts,
@@ -327,7 +314,7 @@ class PlannerService(Service):
             return Health(DiagnosticStatus.WARN, f"trajectory refused, flying goal by goal: {self.tracker.refused}", values)
         if self.goal_watch.silent:
             return Health(DiagnosticStatus.WARN, "holding: no goal from the mission for "
-                          f"{self.params.goal_timeout_s:g} s (mission or ground link down)", values)
+                          f"{self.cfg.goal_timeout_s:g} s (mission or ground link down)", values)
         return Health(DiagnosticStatus.OK, "holding" if self.planner.goal is None else "tracking goal", values)
 
 

@@ -32,6 +32,8 @@ Rules, each for a reason:
 """
 from __future__ import annotations
 
+import dataclasses
+import math
 from dataclasses import dataclass
 from typing import Callable
 
@@ -42,6 +44,7 @@ from aeroperception.schemas import Trajectory
 from aeroperception.services.lib.trajectory.core import KinematicLimits, PlanningMargin
 from aeroperception.services.lib.trajectory.evaluate import TrajectoryRefused, evaluate
 from aeroperception.services.lib.trajectory.generators import GENERATORS, check_frames, generator_of, limits_of, path_for
+from aeroperception.services.runtime.config import param
 
 from .follow import FeedForward, FollowStep, Follower, SpeedGovernor
 
@@ -68,16 +71,40 @@ def is_clear(msg: Trajectory) -> bool:
     return not (msg.waypoints or msg.poly_coeffs_x or msg.poly_coeffs_y or msg.poly_coeffs_z)
 
 
-@dataclass
+@dataclass(frozen=True)
 class TrackerConfig:
-    limits: KinematicLimits
-    acceptance_radius_m: float
-    lag_m: float = 1.5
-    generator: str = "smooth"     # the planner's active generator (a message may name its own)
-    feedforward: FeedForward = FeedForward()
-    fc_xy_gain_per_s: float = 0.0   # the FC's horizontal position gain (PX4's MPC_XY_P): SpeedGovernor; 0 = off
-    fc_velocity_error_mps: float = 0.0   # generated paths are timed this far below the speed caps; 0 = off
-    fc_jerk_error_mps3: float = 0.0      # ... and planned this far below the jerk limit; 0 = off
+    """What the planner's parameters set for trajectories (defaults, units and ranges: contract.py).
+    A change applies to the next trajectory made (the one being flown keeps its timing)."""
+
+    max_velocity_mps: float = param("max_velocity_mps")
+    z_vel_max_up_mps: float = param("z_vel_max_up_mps")
+    z_vel_max_dn_mps: float = param("z_vel_max_dn_mps")
+    acc_hor_mps2: float = param("acc_hor_mps2")
+    acc_up_mps2: float = param("acc_up_mps2")
+    acc_down_mps2: float = param("acc_down_mps2")
+    jerk_mps3: float = param("jerk_mps3")
+    yaw_rate_max_radps: float = param("yaw_rate_max_dps", math.radians)
+    acceptance_radius_m: float = param("acceptance_radius_m")
+    lag_m: float = param("trajectory_lag_m")
+    generator: str = param("trajectory_generator")   # the planner's active generator (a message may name its own)
+    ff_lead_s: float = param("ff_lead_s")
+    drag_per_s: float = param("drag_per_s")
+    fc_xy_vel_d: float = param("fc_xy_vel_d")
+    fc_xy_gain_per_s: float = param("fc_xy_gain_per_s")   # the FC's horizontal position gain (PX4's MPC_XY_P): SpeedGovernor; 0 = off
+    fc_velocity_error_mps: float = param("fc_velocity_error_mps")   # generated paths are timed this far below the speed caps; 0 = off
+    fc_jerk_error_mps3: float = param("fc_jerk_error_mps3")         # ... and planned this far below the jerk limit; 0 = off
+
+    @property
+    def limits(self) -> KinematicLimits:
+        """The limits that bound every trajectory (PX4's MPC_* names; max_velocity_mps is MPC_XY_VEL_MAX)."""
+        return KinematicLimits(xy_vel_max_mps=self.max_velocity_mps, z_vel_max_up_mps=self.z_vel_max_up_mps,
+                               z_vel_max_dn_mps=self.z_vel_max_dn_mps, acc_hor_mps2=self.acc_hor_mps2,
+                               acc_up_mps2=self.acc_up_mps2, acc_down_mps2=self.acc_down_mps2, jerk_mps3=self.jerk_mps3,
+                               yaw_rate_max_radps=self.yaw_rate_max_radps)
+
+    @property
+    def feedforward(self) -> FeedForward:
+        return FeedForward(self.ff_lead_s, self.drag_per_s, self.fc_xy_vel_d)
 
     @property
     def margin(self) -> PlanningMargin:
@@ -147,7 +174,7 @@ class TrajectoryTracker:
 
     def set_generator(self, name: str) -> None:
         """The planner's active generator changed: a path of the old one is made anew with it."""
-        self.cfg.generator = name
+        self.cfg = dataclasses.replace(self.cfg, generator=name)
         self.left = None
         if self.msg is not None and self._generated():
             self.follower = None

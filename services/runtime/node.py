@@ -26,11 +26,13 @@ from aeroperception.schemas.system import ParamDescriptor
 
 from .clock import ServiceClock
 from .cpu import CpuMeter
+from .keys import DEFAULT_QOS, QoS
 from .log import Logger
 from .params import Param, ParamError, ParamSet
 from .rate import RateLoop
 from .session import make_config, open_session
 from .supervision import INSTANCE_ROOT, DuplicateInstanceError, Instance, this_instance, winner
+from .wiring import Wiring, bind, zenoh_qos
 
 M = TypeVar("M", bound=Message)
 R = TypeVar("R", bound=Message)
@@ -65,9 +67,12 @@ class Health:
 class Publisher:
     """Typed publisher: encodes a message of one schema and puts it with its encoding."""
 
-    def __init__(self, node: "Node", key: str, cls: type[Message], **qos: Any):
-        self.key, self.cls = key, cls
-        self._pub = node.session.declare_publisher(key, encoding=encoding_for(cls), **qos)
+    def __init__(self, node: "Node", key: str, cls: type[Message], qos: QoS | None = None, **zenoh_kwargs: Any):
+        """qos: the contract's declaration (keys.QoS); zenoh_kwargs: zenoh's own, for a key no
+        contract declares (tools, benchmarks)."""
+        self.key, self.cls, self.qos = key, cls, qos or DEFAULT_QOS
+        kw = {**zenoh_qos(self.qos), **zenoh_kwargs}
+        self._pub = node.session.declare_publisher(key, encoding=encoding_for(cls), **kw)
         self.count = 0
 
     def publish(self, msg: Message) -> None:
@@ -232,10 +237,16 @@ class Node:
 
     # ------------------------------------------------------------ pub/sub
 
-    def publisher(self, key: str, cls: type[Message], **qos: Any) -> Publisher:
-        pub = Publisher(self, self.key(key), cls, **qos)
+    def publisher(self, key: str, cls: type[Message], qos: QoS | None = None, **zenoh_kwargs: Any) -> Publisher:
+        pub = Publisher(self, self.key(key), cls, qos, **zenoh_kwargs)
         self._entities.append(pub)
         return pub
+
+    def bind(self, contract: Any, handlers: Any, **select: Any) -> Wiring:
+        """Declare the contract's subscribers, publishers and queryables and deliver each input to
+        its handler (wiring.py): the returned Wiring maps each output key to its Publisher.
+        Raises WiringError at once when the code and the contract disagree."""
+        return bind(self, contract, handlers, **select)
 
     def subscribe(self, key: str, cls: type[M], callback: Callable[[M], None], strict: bool = False) -> None:
         """Decode samples on `key` (vehicle prefix applied) as `cls` and call `callback(msg)`.

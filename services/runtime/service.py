@@ -2,7 +2,10 @@
 the service's logic, wait for SIGINT/SIGTERM, stop cleanly within 2 s.
 
 A service is a subclass of `Service` declaring NAME, PARAMS (and optionally extra CLI flags);
-its module's `main()` is `run(MyService)`. `aero run NAME` and `python -m
+its module's `main()` is `run(MyService)`. One that declares CONTRACT (its contract module) is
+wired from it before start(): `self.io[key]` is each output's publisher and each input is
+delivered to its handler (wiring.py); one that declares CONFIG gets `self.cfg` built from its
+parameters and one `on_config(cfg)` on a live change (config.py). `aero run NAME` and `python -m
 aeroperception.services.NAME` both end up here.
 
 Stack dumps: a crash in native code (SIGSEGV/SIGABRT in zenoh, OpenCV, Open3D, ONNX Runtime...)
@@ -17,8 +20,9 @@ import importlib
 import os
 import signal
 import sys
-from typing import ClassVar, Sequence
+from typing import Any, ClassVar, Sequence
 
+from .config import build, check_covers
 from .node import Health, Node
 from .params import Param, ParamError, parse_overrides
 from .session import ZenohConfigError
@@ -37,12 +41,49 @@ class Service:
     # % of one core this service should stay within (cpu.py: WARN when the 10 s mean exceeds it);
     # None: the CPU_BUDGET_PCT of the contract.py beside the service's module, if it declares one.
     CPU_BUDGET_PCT: ClassVar[float | None] = None
+    # The contract module (NAME, INPUTS, OUTPUTS, SERVICES): wired by `wire()` before start().
+    CONTRACT: ClassVar[Any] = None
+    # A config dataclass whose fields reference PARAMS (config.param): `self.cfg`, `on_config`.
+    CONFIG: ClassVar[type | None] = None
 
     def __init__(self, node: Node, args: argparse.Namespace):
         self.node = node
         self.args = args
         self.params = node.params
         self.log = node.log
+        self.cfg: Any = None
+        self.io: Any = None
+        self._configured = False
+
+    def wire(self) -> None:
+        """Before start(), holding node.lock (so no input is delivered before start() is done):
+        the config built from the parameters, then the contract's keys declared and bound.
+        Raises (config.ConfigError, wiring.WiringError) when code and contract disagree."""
+        if self.CONFIG is not None:
+            check_covers(self.CONFIG, self.PARAMS, self.NAME)
+            self.cfg = build(self.CONFIG, self.params)
+            self.params.on_change(self._reconfigure)
+        if self.CONTRACT is not None:
+            self.io = self.node.bind(self.CONTRACT, self, **self.bind_selection())
+
+    def bind_selection(self) -> dict[str, Any]:
+        """Which of the contract's keys this run binds (inputs=, outputs=, services=: key lists);
+        {} = all of them. For keys only some modes use (the simulator's --follow)."""
+        return {}
+
+    def _reconfigure(self, _name: str, _value: Any) -> None:
+        """A parameter changed: the whole config anew, one on_config (after start; during start()
+        the config is only rebuilt). A ParamError from on_config refuses the change."""
+        cfg = build(self.CONFIG, self.params)
+        if cfg == self.cfg:
+            return
+        if self._configured:
+            self.on_config(cfg)
+        self.cfg = cfg
+
+    def on_config(self, cfg: Any) -> None:
+        """The config changed live (self.cfg is still the old one while this runs): take it, or
+        raise ParamError to refuse it."""
 
     @classmethod
     def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
@@ -140,7 +181,9 @@ def run(service_cls: type[Service], argv: Sequence[str] | None = None) -> int:
     code = 0
     try:
         with node.lock:
+            service.wire()
             service.start()
+            service._configured = True
         shutdown.wait()
         if shutdown.signal_name:
             node.log.info("signal", signal=shutdown.signal_name)

@@ -21,9 +21,9 @@ from aeroperception.schemas import (
 from aeroperception.services.runtime import Health, ParamError, Service, run
 from aeroperception.services.runtime.rotations import quat_from_rotmat
 
-from .contract import FOLLOW_OUTPUTS, NAME, OUTPUTS, PARAMS
+from . import contract
+from .contract import FOLLOW_OUTPUTS, NAME, OUTPUTS, PARAMS, RENDERED, SENSOR_CHOICES
 from .follow import Follower, ImuLag
-from .qos import qos_for
 from .render import RenderProcess
 from .sensors.rig import build_sensors
 from .truth import VehicleTruth
@@ -55,7 +55,7 @@ class SimService(Service):
         parser.add_argument("--scenario", default="open_field", help="open_field, village, slope_forest or a YAML path")
         parser.add_argument("--speed", type=float, default=1.0, help="sim seconds per wall second")
         parser.add_argument("--seed", type=int, default=None, help="seed (default: the scenario's)")
-        parser.add_argument("--sensors", default="all", choices=["all", "lidar", "camera", "imu", "none"],
+        parser.add_argument("--sensors", default="all", choices=SENSOR_CHOICES,
                             help="which scenario sensors to render (lidar: IMU + LiDAR, no cameras; "
                                  "camera: IMU + cameras, no LiDAR (VIO without its CPU); "
                                  "none: vehicle and truth only)")
@@ -85,9 +85,8 @@ class SimService(Service):
             self.endpoint = MavlinkEndpoint(target=parse_address(a.target), bind=parse_address(a.bind))
         self.blackout_until_ns = 0
         self.node.params.on_change(self._on_param)
-        pub = self.node.publisher
-        self.pubs = {k: pub(k, cls, **qos_for(k)) for k, cls in (FOLLOW_OUTPUTS if a.follow else OUTPUTS).items()}
         self.sensors = build_sensors(self.scenario) if a.sensors != "none" else None
+        self.cameras = self.sensors.cameras() if self.sensors is not None and a.sensors in ("all", "camera") else {}
         self.workers: list[RenderProcess] = []
         node_kwargs = dict(vehicle=a.vehicle, zenoh_config=a.zenoh_config, connect=a.connect, log_level=a.log_level)
         self.next_ns: dict[str, int] = {}
@@ -95,21 +94,26 @@ class SimService(Service):
         if self.sensors is not None and not a.follow:     # following: the IMU is the FC's (fmu)
             self.periods_ns["imu"] = int(1e9 / self.scenario.sensors.imu.rate_hz)
         if self.sensors is not None:
-            if a.sensors in ("all", "camera") and self.sensors.stereo is not None:
-                self.periods_ns["camera"] = int(1e9 / self.sensors.stereo.infos()[0].rate_hz)
+            if self.cameras:
+                self.periods_ns["camera"] = int(1e9 / max(cam.rate_hz for cam in self.cameras.values()))
                 self.workers.append(RenderProcess("camera", a.scenario, node_kwargs))
-                for info in self.sensors.stereo.infos():
-                    side = "left" if "left" in info.frame_id else "right"
-                    key = f"sensors/camera/{side}/info"
-                    self.node.serve(key, None, CameraInfo, lambda _r, i=info: camera_info_msg(i, self.now_stamp()))
                 self.node.every(1.0, self._publish_infos, name="camera_info")
             if a.sensors in ("all", "lidar") and self.sensors.lidar is not None:
                 self.periods_ns["lidar"] = int(1e9 / self.sensors.lidar.info().rate_hz)
                 self.workers.append(RenderProcess("lidar", a.scenario, node_kwargs))
+        # The shell's part of the contract (the render processes publish RENDERED); following, no
+        # sim/clock nor IMU of its own (FOLLOW_OUTPUTS), and the FC's truth and IMU in.
+        handlers = {f"on_sensors_camera_{name}_info": lambda _r, i=cam.info(): camera_info_msg(i, self.now_stamp())
+                    for name, cam in self.cameras.items()}
         if a.follow:
-            self.node.subscribe("fmu/out/vehicle_ground_truth", VehicleState, self._on_ground_truth)
-            self.node.subscribe("fmu/out/sensor_combined", Imu, lambda m: self.imu_lag.add_imu(
-                m.header.stamp_ns, m.angular_velocity_radps.to_array()))
+            handlers.update(on_fmu_out_vehicle_ground_truth=self._on_ground_truth,
+                            on_fmu_out_sensor_combined=lambda m: self.imu_lag.add_imu(
+                                m.header.stamp_ns, m.angular_velocity_radps.to_array()))
+        rendered = {k for keys in RENDERED.values() for k in keys}
+        self.io = self.node.bind(contract, handlers, inputs=contract.INPUTS if a.follow else (),
+                                 outputs=[k for k in (FOLLOW_OUTPUTS if a.follow else OUTPUTS) if k not in rendered],
+                                 services=[f"sensors/camera/{name}/info" for name in self.cameras])
+        if a.follow:
             self.log.info("sim_following", scenario=self.scenario.name, sensors=a.sensors,
                           truth="fmu/out/vehicle_ground_truth")
             return
@@ -166,8 +170,8 @@ class SimService(Service):
         now = t.stamp_ns
         stamp = self.stamp(now)
         if self._due("truth", now):
-            self.pubs["sim/clock"].publish(Clock(header=Header(stamp_ns=stamp), speed_factor=self.speed))
-            self.pubs["sim/truth/state"].publish(VehicleState(
+            self.io["sim/clock"].publish(Clock(header=Header(stamp_ns=stamp), speed_factor=self.speed))
+            self.io["sim/truth/state"].publish(VehicleState(
                 header=Header(stamp_ns=stamp, frame_id="map"), position_m=Vector3.from_array(t.position_enu_m),
                 velocity_mps=Vector3.from_array(t.velocity_enu_mps), acceleration_mps2=Vector3.from_array(t.accel_enu_mps2),
                 orientation=Quaternion.from_array(t.q_enu_flu), angular_velocity_radps=Vector3.from_array(t.angular_velocity_flu_radps),
@@ -175,7 +179,7 @@ class SimService(Service):
                 flight_mode=self.vehicle.commander.mode, connected=True))
         if "imu" in self.periods_ns and self._due("imu", now):
             s = self.sensors.imu.sample(t)
-            self.pubs["sensors/imu"].publish(Imu(header=Header(stamp_ns=stamp, frame_id="base_link"),
+            self.io["sensors/imu"].publish(Imu(header=Header(stamp_ns=stamp, frame_id="base_link"),
                                                  angular_velocity_radps=Vector3.from_array(s.angular_velocity_flu_radps),
                                                  linear_acceleration_mps2=Vector3.from_array(s.linear_acceleration_flu_mps2)))
         for w in self.workers:
@@ -196,7 +200,7 @@ class SimService(Service):
         now = self.truth_stamp_ns = t.stamp_ns
         self.imu_lag.add_truth(now, t.angular_velocity_flu_radps)
         if self._due("truth", now):
-            self.pubs["sim/truth/state"].publish(VehicleState(
+            self.io["sim/truth/state"].publish(VehicleState(
                 header=Header(stamp_ns=now, frame_id="map"), position_m=Vector3.from_array(t.position_enu_m),
                 velocity_mps=Vector3.from_array(t.velocity_enu_mps), acceleration_mps2=Vector3.from_array(t.accel_enu_mps2),
                 orientation=Quaternion.from_array(t.q_enu_flu), angular_velocity_radps=Vector3.from_array(t.angular_velocity_flu_radps),
@@ -219,9 +223,8 @@ class SimService(Service):
     # ------------------------------------------------------------ renderers (own threads)
 
     def _publish_infos(self) -> None:
-        for info in self.sensors.stereo.infos():
-            side = "left" if "left" in info.frame_id else "right"
-            self.pubs[f"sensors/camera/{side}/info"].publish(camera_info_msg(info, self.now_stamp()))
+        for name, cam in self.cameras.items():
+            self.io[f"sensors/camera/{name}/info"].publish(camera_info_msg(cam.info(), self.now_stamp()))
 
     # ------------------------------------------------------------ health
 

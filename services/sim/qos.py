@@ -1,4 +1,6 @@
-"""Zenoh QoS of the simulator's streams, by key (one home for main.py and the render processes).
+"""Why the simulator's streams travel as they do (declared on each Topic in contract.py: SMALL,
+BULK) and `qos_for` for code that publishes one of those keys outside the simulator (benchmarks,
+tests replaying a stream).
 
 The small high-rate streams must not be lost behind the ~1 MB images and scans on the same link:
 with zenoh's defaults (priority DATA, congestion control DROP) 5-10 % of IMU / clock / truth
@@ -18,17 +20,15 @@ arm request until it timed out (tests/integration/test_multihost.py::test_impair
 """
 from __future__ import annotations
 
-import zenoh
+from aeroperception.services.runtime.wiring import zenoh_qos
 
-SMALL_STREAMS = ("sensors/imu", "sim/clock", "sim/truth/state")
-BULK_STREAMS = ("sensors/camera/left/image", "sensors/camera/right/image", "sensors/lidar/points",
-                "sim/truth/lidar_labels")
+from .contract import OUTPUTS
+
+SMALL_STREAMS = tuple(k for k, t in OUTPUTS.declared.items() if t.qos.express and t.qos.priority == "data_high")
+BULK_STREAMS = tuple(k for k, t in OUTPUTS.declared.items() if t.qos.bulk)   # thinned on a thin link
 
 
 def qos_for(key: str) -> dict:
-    """Keyword arguments for Node.publisher(key, ...)."""
-    if key in SMALL_STREAMS:
-        return dict(express=True, priority=zenoh.Priority.DATA_HIGH, congestion_control=zenoh.CongestionControl.DROP)
-    if key in BULK_STREAMS:
-        return dict(priority=zenoh.Priority.DATA_LOW, congestion_control=zenoh.CongestionControl.DROP)
-    return {}
+    """Keyword arguments for Node.publisher(key, ...): zenoh's, from the key's declaration."""
+    t = OUTPUTS.declared.get(key)
+    return zenoh_qos(t.qos) if t is not None else {}

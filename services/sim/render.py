@@ -25,46 +25,53 @@ import numpy as np
 
 from aeroperception.schemas import Detection2D, Detection2DArray, Header, Image, NDArray, PointCloud
 
-from .qos import qos_for
+from .contract import CAMERAS, RENDERED
 
-CAMERA_KEYS = ("sensors/camera/left/image", "sensors/camera/right/image", "sim/truth/boxes")
-LIDAR_KEYS = ("sensors/lidar/points", "sim/truth/lidar_labels")
+RATE_SLACK = 0.75  # a camera slower than the frame requests (the down camera) renders once 75 % of its period passed
 
 
 class _CameraRenderer:
-    def __init__(self, node, sensors, scenario):
+    def __init__(self, io, sensors, scenario):
         self.stereo, self.has_targets = sensors.stereo, bool(scenario.targets)
-        self.left = node.publisher(CAMERA_KEYS[0], Image, **qos_for(CAMERA_KEYS[0]))
-        self.right = node.publisher(CAMERA_KEYS[1], Image, **qos_for(CAMERA_KEYS[1]))
-        self.boxes = node.publisher(CAMERA_KEYS[2], Detection2DArray)
+        built = sensors.cameras()
+        unknown = sorted(set(built) - set(CAMERAS))
+        if unknown:
+            raise RuntimeError(f"camera {unknown[0]} is built but not declared in services/sim/contract.py OUTPUTS")
+        self.cameras = {name: (cam, io[f"sensors/camera/{name}/image"]) for name, cam in built.items()}
+        self.last_ns: dict[str, int] = {}
+        self.request_hz = max((cam.rate_hz for cam in built.values()), default=0.0)   # the sim requests at this rate
+        self.boxes = io["sim/truth/boxes"]
         # Compile the camera kernels (or load them from numba's cache, ~0.7 s CPU) before the child
         # says ready, not while the first frame someone waits for is due.
-        self.stereo.left.render((np.zeros(3), (1.0, 0.0, 0.0, 0.0)))
+        for cam, _pub in list(self.cameras.values())[:1]:
+            cam.render((np.zeros(3), (1.0, 0.0, 0.0, 0.0)))
+
+    def _due(self, name: str, rate_hz: float, stamp_ns: int) -> bool:
+        if rate_hz >= self.request_hz:
+            return True
+        last = self.last_ns.get(name)
+        if last is not None and 0 <= stamp_ns - last < RATE_SLACK * 1e9 / rate_hz:
+            return False
+        self.last_ns[name] = stamp_ns
+        return True
 
     def __call__(self, truth, stamp_ns: int, blackout: bool = False) -> bool:
         """Render and publish what is subscribed; False when nothing was."""
         from .sensors.truth_boxes import project_targets
 
-        want_left = self.left.matched
-        want_right = self.stereo.right is not None and self.right.matched
-        want_boxes = self.has_targets and self.boxes.matched
-        if not (want_left or want_right or want_boxes):
+        want = [(cam, pub) for name, (cam, pub) in self.cameras.items()
+                if pub.matched and self._due(name, cam.rate_hz, stamp_ns)]
+        want_boxes = self.has_targets and self.stereo is not None and self.boxes.matched
+        if not (want or want_boxes):
             return False
-        header = Header(stamp_ns=stamp_ns, frame_id="camera_left_optical")
-        info = self.stereo.infos()[0]
-        if want_left or want_right:
-            if blackout:  # the SIM_CAM_BLACKOUT fault: frames keep coming, all black
-                black = np.zeros((info.height, info.width), np.uint8)
-                left, right = black, black
-            else:
-                left = self.stereo.left.render(truth) if want_left else None
-                right = self.stereo.right.render(truth) if want_right else None
-            encoding = "mono8" if (left if want_left else right).ndim == 2 else "rgb8"
-            if want_left:
-                self.left.publish(Image.from_numpy(left, encoding, header))
-            if want_right:
-                self.right.publish(Image.from_numpy(right, encoding, Header(stamp_ns=stamp_ns, frame_id="camera_right_optical")))
+        for cam, pub in want:
+            # the SIM_CAM_BLACKOUT fault: frames keep coming, all black
+            image = np.zeros((cam.height, cam.width), np.uint8) if blackout else cam.render(truth)
+            encoding = "mono8" if image.ndim == 2 else "rgb8"
+            pub.publish(Image.from_numpy(image, encoding, Header(stamp_ns=stamp_ns, frame_id=cam.frame_id)))
         if want_boxes:
+            header = Header(stamp_ns=stamp_ns, frame_id=self.stereo.left.frame_id)
+            info = self.stereo.infos()[0]
             dets = [Detection2D(center_x_px=(b.bbox_xyxy_px[0] + b.bbox_xyxy_px[2]) / 2,
                                 center_y_px=(b.bbox_xyxy_px[1] + b.bbox_xyxy_px[3]) / 2,
                                 size_x_px=b.bbox_xyxy_px[2] - b.bbox_xyxy_px[0],
@@ -77,11 +84,11 @@ class _CameraRenderer:
 
 
 class _LidarRenderer:
-    def __init__(self, node, sensors, scenario):
+    def __init__(self, io, sensors, scenario):
         self.lidar = sensors.lidar
         self.lidar.compile()   # as the cameras: the kernel ready before the child says ready
-        self.points = node.publisher(LIDAR_KEYS[0], PointCloud, **qos_for(LIDAR_KEYS[0]))
-        self.labels = node.publisher(LIDAR_KEYS[1], PointCloud, **qos_for(LIDAR_KEYS[1]))
+        self.points = io["sensors/lidar/points"]
+        self.labels = io["sim/truth/lidar_labels"]
 
     def __call__(self, truth, stamp_ns: int, blackout: bool = False) -> bool:
         """Render and publish what is subscribed; False when nothing was."""
@@ -108,6 +115,8 @@ MAX_QUEUED = 4   # requests the parent lets wait in the pipe before skipping fra
 def _child_main(sensor: str, scenario_ref: str, node_kwargs: dict, conn) -> None:
     """Entry point of the render process (spawned: no inherited Zenoh state)."""
     from aeroperception.services.runtime import Node
+
+    from . import contract
     from aeroperception.services.runtime.supervision import lower_own_priority
 
     lower_own_priority(RENDER_NICE)  # before the Zenoh session starts its threads
@@ -121,7 +130,9 @@ def _child_main(sensor: str, scenario_ref: str, node_kwargs: dict, conn) -> None
         return
     try:
         scenario = load_scenario(scenario_ref)
-        render = RENDERERS[sensor](node, build_sensors(scenario), scenario)
+        # this process's part of the simulator's contract: the keys it renders (contract.RENDERED)
+        io = node.bind(contract, None, inputs=(), outputs=RENDERED[sensor], services=())
+        render = RENDERERS[sensor](io, build_sensors(scenario), scenario)
         conn.send(("ready", os.getpid()))
         parent = os.getppid()
         while True:

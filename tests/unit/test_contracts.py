@@ -3,6 +3,12 @@ calls and whose liveliness it watches are all declared in services/<name>/contra
 declared key is used. The code is walked (ast), not run, so a key used on a rare path (a fault
 branch, an optional parameter) is checked too.
 
+A service wired from its contract (`CONTRACT = contract`: Node.bind) needs less of this: bind
+declares its inputs, outputs and queryables, refuses at start an input without a handler, a
+handler no key feeds and a publisher the contract lacks (tests/unit/test_runtime_wiring.py); here
+only its handlers are checked without Zenoh and its outputs (`self.io[key]`) are read like any
+other use, so an output declared but never published still fails.
+
 A key is read from the call's key argument: a literal, an f-string (`{x}` = one chunk), a module
 constant, a local assigned once, a loop over a literal tuple, or a parameter of a function whose
 callers pass one of those. Anything else is a key the walker cannot see; DYNAMIC lists each such
@@ -27,6 +33,7 @@ ROOT = Path(__file__).resolve().parents[2] / "services"
 # call_async / on_liveliness (key first), ActionServer / ActionClient (key second).
 METHOD_ROLES = {"subscribe": "inputs", "publisher": "outputs", "serve": "services", "call": "calls",
                 "call_async": "calls", "on_liveliness": "liveliness"}
+WIRING = "io"     # a bound service's Wiring: `self.io[key]` publishes an output
 CLASS_ROLES = {"ActionServer": "actions", "ActionClient": "action_calls"}
 ACTION_VERBS = ("goal", "cancel", "result")
 
@@ -34,7 +41,6 @@ ACTION_VERBS = ("goal", "cancel", "result")
 # every key it uses, or None when nothing is used through it).
 DYNAMIC = {
     ("fmu", "k"): ("a loop over contract.OUTPUTS", "outputs"),
-    ("sim", "k"): ("a loop over contract.OUTPUTS", "outputs"),
     ("ros2bridge", "key"): ("the `topics` parameter's keys, refused at start unless in convert.CATALOG "
                             "(tests/unit/test_ros2bridge_logic.py pins CATALOG == contract.INPUTS)", "inputs"),
     ("viz", "ad.key"): ("the adapters' keys; tests/unit/test_viz_adapters.py pins them == contract.INPUTS",
@@ -49,6 +55,7 @@ class Use:
     role: str
     key: str            # resolved key pattern ("*" = one chunk), or the expression when dynamic
     where: str          # file:line
+    by_hand: bool = True   # False: through a bound service's Wiring (`self.io[key]`)
 
 
 @dataclass
@@ -92,10 +99,21 @@ class ServiceWalker:
         return cls({str(p.relative_to(ROOT)): p.read_text() for p in sorted(folder.rglob("*.py"))
                     if p.name != "contract.py"})
 
+    @property
+    def bound(self) -> bool:
+        """Whether the service is wired by Node.bind: a class declares CONTRACT, or its code calls bind."""
+        return any((isinstance(n, ast.Assign) and any(isinstance(t, ast.Name) and t.id == "CONTRACT" for t in n.targets))
+                   or (isinstance(n, ast.Call) and isinstance(n.func, ast.Attribute) and n.func.attr == "bind"
+                       and n.args and ast.unparse(n.args[0]) == "contract")
+                   for tree in self.trees.values() for n in ast.walk(tree))
+
     def walk(self) -> Walk:
         out = Walk()
         for path, tree in self.trees.items():
             for node in ast.walk(tree):
+                if isinstance(node, ast.Subscript) and getattr(node.value, "attr", getattr(node.value, "id", "")) == WIRING:
+                    for key in self.resolve(node.slice, depth=0) or ():
+                        out.uses.append(Use("outputs", key, f"services/{path}:{node.lineno}", False))
                 if not isinstance(node, ast.Call):
                     continue
                 role, arg = self._role(self._unalias(node))
@@ -210,10 +228,11 @@ def declared(c: contracts.Contract, role: str) -> list[str]:
     return list(getattr(c, role))
 
 
-def check(c: contracts.Contract, walk: Walk) -> list[str]:
-    """Findings: keys used but not declared, declared but not used, unresolved uses not in DYNAMIC."""
+def check(c: contracts.Contract, walk: Walk, bound: bool = False) -> list[str]:
+    """Findings: keys used but not declared, declared but not used, unresolved uses not in DYNAMIC.
+    `bound`: inputs and queryables are Node.bind's (each has its handler, checked at start)."""
     findings = []
-    covered: set[str] = set()
+    covered: set[str] = {"inputs", "services"} if bound else set()
     for u in walk.unresolved:
         known = DYNAMIC.get((c.service, u.key))
         if known is None:
@@ -238,15 +257,44 @@ CONTRACTS = {c.service: c for c in contracts.load_contracts()}
 
 
 @functools.cache
+def walker_of(service: str) -> ServiceWalker:
+    return ServiceWalker.of(service)
+
+
+@functools.cache
 def walk_of(service: str) -> Walk:
-    return ServiceWalker.of(service).walk()
+    return walker_of(service).walk()
 
 
 @pytest.mark.parametrize("service", sorted(CONTRACTS))
 def test_contract_declares_exactly_the_keys_the_code_uses(service):
     c = CONTRACTS[service]
-    findings = check(c, walk_of(service))
+    findings = check(c, walk_of(service), walker_of(service).bound)
     assert not findings, "\n".join(findings)
+
+
+BOUND = sorted(s for s in CONTRACTS if walker_of(s).bound)
+
+
+@pytest.mark.parametrize("service", [s for s in BOUND if "CONTRACT = contract" in (ROOT / s / "main.py").read_text()])
+def test_a_bound_service_has_a_handler_for_every_input_and_no_other(service):
+    # What Node.bind refuses at start, without Zenoh: each input and queryable has its handler.
+    from aeroperception.services.runtime import Service
+    from aeroperception.services.runtime.wiring import check_handlers
+
+    main = importlib.import_module(f"aeroperception.services.{service}.main")
+    classes = [v for v in vars(main).values()
+               if isinstance(v, type) and issubclass(v, Service) and getattr(v, "CONTRACT", None) is not None]
+    assert classes, f"services/{service}/main.py: no Service with CONTRACT"
+    for cls in classes:
+        check_handlers(cls.CONTRACT, object.__new__(cls))
+
+
+@pytest.mark.parametrize("service", BOUND)
+def test_a_bound_service_declares_no_contract_key_by_hand(service):
+    hand = [f"{u.where}: {u.role} {u.key}" for u in walk_of(service).uses
+            if u.by_hand and u.role in ("inputs", "outputs", "services")]
+    assert not hand, "declared by hand, not from the contract (Node.bind):\n" + "\n".join(hand)
 
 
 def test_every_service_folder_has_a_contract():

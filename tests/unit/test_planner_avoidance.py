@@ -5,7 +5,9 @@ import math
 import numpy as np
 import pytest
 
+from aeroperception.services.planner import contract
 from aeroperception.services.planner.avoidance import AvoidanceConfig, LocalPlanner
+from aeroperception.services.runtime.config import build
 
 
 def costmap(walls=(), size=200, res=0.1):
@@ -55,7 +57,7 @@ def lethal_distance(track, walls):
 
 
 def planner(walls=(), at=(0.0, 0.0), goal=None):
-    lp = LocalPlanner(AvoidanceConfig())
+    lp = LocalPlanner(build(AvoidanceConfig, contract.PARAMS))
     lp.set_costmap(*costmap(walls), stamp_s=0.0)
     if goal is not None and lp.needs_plan(np.array(at), np.array(goal)):
         lp.replan(np.array(at), np.array(goal))
@@ -115,7 +117,7 @@ def test_a_way_cut_only_by_a_shadow_goes_to_look_and_then_reaches_the_goal():
     o = origin[0]
     rows = slice(round((-0.2 - o) / res), round((0.2 - o) / res))   # y -0.2..0.2: two planning cells
     grid[rows, round((7.6 - o) / res):] = -1                   # beyond the person's inflation
-    lp = LocalPlanner(AvoidanceConfig())
+    lp = LocalPlanner(build(AvoidanceConfig, contract.PARAMS))
     lp.set_costmap(grid, origin, res, stamp_s=0.0)
     p = np.array([-3.0, -0.5])
     track, states = [p.copy()], set()
@@ -143,7 +145,7 @@ def test_a_goal_walled_off_on_the_costmap_is_boxed_in_although_unknown_cells_are
     walls = [(4.0, -10.0, 4.4, 10.0)]                           # across the whole window
     g, origin, res = costmap(walls)
     g[:20, :20] = -1                                           # an unseen corner far from the wall
-    lp = LocalPlanner(AvoidanceConfig())
+    lp = LocalPlanner(build(AvoidanceConfig, contract.PARAMS))
     lp.set_costmap(g, origin, res, stamp_s=0.0)
     lp.replan(np.array([0.0, 0.0]), np.array([8.0, 0.0]))
     out = lp.adjust(np.array([0, 0, 3.0]), np.array([8, 0, 3.0]), np.array([2.0, 0, 0]), 0.0)
@@ -176,7 +178,7 @@ def test_stale_costmap_holds_instead_of_flying_blind():
 
 
 def test_no_costmap_ever_leaves_the_velocity_alone():
-    lp = LocalPlanner(AvoidanceConfig())
+    lp = LocalPlanner(build(AvoidanceConfig, contract.PARAMS))
     out = lp.adjust(np.array([0, 0, 3.0]), np.array([8, 0, 3.0]), np.array([2.0, 0, 0]), now_s=5.0)
     assert out.state == "no_costmap" and out.velocity_mps == pytest.approx([2.0, 0, 0])
 

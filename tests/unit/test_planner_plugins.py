@@ -21,6 +21,7 @@ from aeroperception.services.planner.plugins import (
 )
 from aeroperception.services.runtime.params import ParamSet
 from aeroperception.services.planner.tracking import TrackerConfig, TrajectoryTracker
+from aeroperception.services.runtime.config import build
 from aeroperception.services.lib.trajectory import KinematicLimits
 from aeroperception.services.lib.trajectory.generators import GENERATORS, path_for
 
@@ -105,7 +106,7 @@ def test_the_generator_is_the_messages_own_else_the_planners_and_waypoint_makes_
     here = np.array([0.0, 0.0, 5.0])
     assert path_for(waypoints(), here, 0.0, KinematicLimits(), 0.5, "waypoint") is None
     assert path_for(waypoints("smooth"), here, 0.0, KinematicLimits(), 0.5, "waypoint").duration_s > 10
-    tr = TrajectoryTracker(TrackerConfig(KinematicLimits(), 0.5, generator="waypoint"))
+    tr = TrajectoryTracker(build(TrackerConfig, contract.PARAMS, generator="waypoint"))
     tr.offer(waypoints())
     assert tr.generator() == "waypoint" and tr.step(here, 0.0, 0.0, np.array([10.0, 0, 5])) is None
     tr.set_generator("smooth")                               # switched while hovering: the next step makes a path
@@ -118,7 +119,7 @@ def test_a_trajectory_refused_for_what_it_asks_is_held_at_never_flown_goal_by_go
                        (waypoints(limits=TrajectoryLimits(max_velocity_mps=5.0)),
                         "`limits.max_velocity_mps` 5 is above the planner's max_velocity_mps 2"),
                        (waypoints("fast"), "`generator_name` 'fast'")]:
-        tr = TrajectoryTracker(TrackerConfig(KinematicLimits(), 0.5, generator="smooth"))
+        tr = TrajectoryTracker(build(TrackerConfig, contract.PARAMS, generator="smooth"))
         tr.offer(msg)
         assert field in tr.refused and tr.holds_for(goal), tr.refused
         assert not tr.holds_for(np.array([3.0, 3, 3]))     # a goto elsewhere flies

@@ -7,7 +7,9 @@ import numpy as np
 import pytest
 
 from aeroperception.schemas import Header, Pose, PoseStamped, Quaternion, Trajectory, Vector3
+from aeroperception.services.planner import contract
 from aeroperception.services.planner.tracking import TrackerConfig, TrajectoryTracker, start_velocity_mps
+from aeroperception.services.runtime.config import build
 from aeroperception.services.lib.trajectory import KinematicLimits
 from aeroperception.services.lib.trajectory.core import PlanningMargin, peaks
 
@@ -26,7 +28,8 @@ def smooth_msg(points=SURVEY, tid="survey_01@0") -> Trajectory:
 
 
 def tracker(radius=0.5) -> TrajectoryTracker:
-    return TrajectoryTracker(TrackerConfig(KinematicLimits(xy_vel_max_mps=2.0), radius))
+    return TrajectoryTracker(build(TrackerConfig, contract.PARAMS, max_velocity_mps=2.0, acceptance_radius_m=radius,
+                                   generator="smooth"))
 
 
 def fly(tr: TrajectoryTracker, start, goals, radius=0.5, lag_s=0.0, max_s=120.0, blocked=None):
@@ -137,7 +140,8 @@ def test_a_flight_controllers_velocity_error_is_planned_below_the_caps():
     assert limits.inside(PlanningMargin(speed_mps=1.9)).xy_vel_max_mps == pytest.approx(1.0)   # half the cap at least
     peaks = {}
     for margin in (0.0, 0.15):
-        tr = TrajectoryTracker(TrackerConfig(limits, 0.5, fc_xy_gain_per_s=0.95, fc_velocity_error_mps=margin))
+        tr = TrajectoryTracker(build(TrackerConfig, contract.PARAMS, max_velocity_mps=limits.xy_vel_max_mps, generator="smooth",
+                                     fc_xy_gain_per_s=0.95, fc_velocity_error_mps=margin))
         tr.offer(smooth_msg())
         fly(tr, (0, 0, 5), SURVEY)
         path = tr.follower.path
@@ -160,7 +164,8 @@ def test_a_flight_controllers_added_jerk_is_planned_below_the_jerk_limit():
     assert (both.xy_vel_max_mps, both.jerk_mps3) == pytest.approx((2.8, 3.0))
     jerks = {}
     for margin in (0.0, 1.0):
-        tr = TrajectoryTracker(TrackerConfig(limits, 0.5, fc_jerk_error_mps3=margin))
+        tr = TrajectoryTracker(build(TrackerConfig, contract.PARAMS, max_velocity_mps=limits.xy_vel_max_mps, generator="smooth",
+                                     fc_jerk_error_mps3=margin))
         tr.offer(smooth_msg())
         fly(tr, (0, 0, 5), SURVEY)
         jerks[margin] = peaks(tr.follower.path, 0.005).jerk_mps3

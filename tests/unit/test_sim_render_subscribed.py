@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from aeroperception.schemas import Detection2DArray, Image, PointCloud
+from aeroperception.services.sim import contract
 from aeroperception.services.sim.render import _CameraRenderer, _LidarRenderer
 from aeroperception.services.sim.sensors.rig import build_sensors
 from aeroperception.services.sim.sensors.synthetic import hover_truth
@@ -20,6 +21,11 @@ from aeroperception.services.sim.world.scenario import load_scenario
 def village():
     scn = load_scenario("village")
     return scn, build_sensors(scn)
+
+
+def wired(node, sensor: str):
+    """The render process's part of the sim's contract, as _child_main binds it."""
+    return node.bind(contract, None, inputs=(), outputs=contract.RENDERED[sensor], services=())
 
 
 class Inbox:
@@ -53,23 +59,25 @@ def _render_until_received(render, truth, inbox: Inbox, key: str, stamp_ns: int,
 
 def test_camera_renders_only_the_subscribed_eye_and_nothing_unwatched(make_node, village):
     scn, sensors = village
-    render = _CameraRenderer(make_node("sim_camera"), sensors, scn)
+    io = wired(make_node("sim_camera"), "camera")
+    render = _CameraRenderer(io, sensors, scn)
+    left, right, boxes = io["sensors/camera/left/image"], io["sensors/camera/right/image"], io["sim/truth/boxes"]
     truth = hover_truth(np.array(scn.start_pose()[0]) + [0.0, 0.0, 3.0])
     assert render(truth, 1) is False                          # nobody listens: nothing made
 
     inbox = Inbox(make_node("reader"), [("sensors/camera/right/image", Image)])
-    _wait_matched([render.right], True)
-    assert not render.left.matched and not render.boxes.matched
-    right = _render_until_received(render, truth, inbox, "sensors/camera/right/image", 2)
-    assert right.header.stamp_ns == 2 and right.header.frame_id == "camera_right_optical"
+    _wait_matched([right], True)
+    assert not left.matched and not boxes.matched
+    image = _render_until_received(render, truth, inbox, "sensors/camera/right/image", 2)
+    assert image.header.stamp_ns == 2 and image.header.frame_id == "camera_right_optical"
     # The right eye alone is exactly what the stereo pair renders for it.
-    assert np.array_equal(right.to_numpy(), sensors.stereo.render(truth)[1])
-    assert render.left.count == 0 and render.boxes.count == 0
+    assert np.array_equal(image.to_numpy(), sensors.stereo.render(truth)[1])
+    assert left.count == 0 and boxes.count == 0
 
 
 def test_lidar_labels_only_for_their_subscriber(make_node, village):
     scn, sensors = village
-    render = _LidarRenderer(make_node("sim_lidar"), sensors, scn)
+    render = _LidarRenderer(wired(make_node("sim_lidar"), "lidar"), sensors, scn)
     truth = hover_truth(np.array(scn.start_pose()[0]) + [0.0, 0.0, 3.0])
     assert render(truth, 1) is False
 
@@ -89,10 +97,11 @@ def test_truth_boxes_without_images(make_node, village):
     scn, sensors = village
     if not scn.targets:
         pytest.skip("village has no detector targets")
-    render = _CameraRenderer(make_node("sim_camera_boxes"), sensors, scn)
+    io = wired(make_node("sim_camera_boxes"), "camera")
+    render = _CameraRenderer(io, sensors, scn)
     inbox = Inbox(make_node("boxes_reader"), [("sim/truth/boxes", Detection2DArray)])
-    _wait_matched([render.boxes], True)
+    _wait_matched([io["sim/truth/boxes"]], True)
     truth = hover_truth(np.array(scn.start_pose()[0]) + [0.0, 0.0, 3.0])
     boxes = _render_until_received(render, truth, inbox, "sim/truth/boxes", 5)
-    assert render.left.count == render.right.count == 0
+    assert io["sensors/camera/left/image"].count == io["sensors/camera/right/image"].count == 0
     assert boxes.header.stamp_ns == 5 and boxes.image_width == sensors.stereo.infos()[0].width

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import importlib
 
+from aeroperception.services.sim.contract import SENSOR_CHOICES
 from aeroperception.tools.common import CliError
 
 
@@ -39,7 +40,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=_bench("sim", lambda m, a: m.run(a.n, a.scenario)))
     p = bsub.add_parser("flight", help="hot path state -> planner -> fmu -> MAVLink, with the sim profile running")
     p.add_argument("--duration", type=float, default=20.0, help="seconds of hover to measure")
-    p.add_argument("--sensors", default="none", choices=["none", "imu", "all"], help="sim sensor load while measuring")
+    p.add_argument("--sensors", default="none", choices=SENSOR_CHOICES, help="sim sensor load while measuring")
     p.add_argument("--priorities", default="on", choices=["on", "off"],
                    help="aero up's scheduling priorities (tools/profiles.yaml); off: all at the default")
     p.add_argument("--links", default="direct", choices=["direct", "router"], help="aero up --links (default direct)")
@@ -48,7 +49,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = bsub.add_parser("stack", help="is this machine big enough: the whole stack hovering in the village; per "
                                       "process CPU %% and RSS, achieved vs rated rates, the hot path, idle %%, a verdict")
     p.add_argument("--profile", default="sim", help="aero up profile (sim, viz, ...)")
-    p.add_argument("--sensors", default="all", choices=["all", "lidar", "camera", "imu", "none"],
+    p.add_argument("--sensors", default="all", choices=SENSOR_CHOICES,
                    help="what the sim renders (as aero up --sensors)")
     p.add_argument("--duration", type=float, default=30.0, help="seconds measured (after take-off and settling)")
     p.add_argument("--scenario", default="village")
@@ -87,7 +88,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         a.duration, a.compression)))
     p = bsub.add_parser("soak", help="fly missions in a loop for N minutes; RSS/CPU per service process")
     p.add_argument("--minutes", type=float, default=30.0, help="how long to fly")
-    p.add_argument("--sensors", default="all", choices=["none", "imu", "all"], help="sim sensors rendered meanwhile")
+    p.add_argument("--sensors", default="all", choices=SENSOR_CHOICES, help="sim sensors rendered meanwhile")
     p.add_argument("--period", type=float, default=5.0, help="seconds between /proc samples")
     p.add_argument("--json", default=None, metavar="FILE", help="write the results as JSON too")
     p.set_defaults(func=_bench("soak", lambda m, a: m.run(

@@ -9,7 +9,6 @@ and refused when it would exceed the limits by more than LIMIT_TOLERANCE.
 from __future__ import annotations
 
 import dataclasses
-import math
 from dataclasses import dataclass
 from typing import Callable
 
@@ -150,10 +149,3 @@ def path_for(msg: Trajectory, position_m: np.ndarray, yaw_rad: float, limits: Ki
                                 f"{LIMIT_TOLERANCE:.0%}: {'; '.join(over)}")
     return path
 
-
-def limits_from(params) -> KinematicLimits:
-    """The planner parameters that bound every trajectory (contract: PX4's MPC_* defaults)."""
-    return KinematicLimits(xy_vel_max_mps=params["max_velocity_mps"], z_vel_max_up_mps=params["z_vel_max_up_mps"],
-                  z_vel_max_dn_mps=params["z_vel_max_dn_mps"], acc_hor_mps2=params["acc_hor_mps2"],
-                  acc_up_mps2=params["acc_up_mps2"], acc_down_mps2=params["acc_down_mps2"],
-                  jerk_mps3=params["jerk_mps3"], yaw_rate_max_radps=math.radians(params["yaw_rate_max_dps"]))

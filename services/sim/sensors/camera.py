@@ -30,8 +30,9 @@ _LEVEL_MIN_FOOTPRINT = 2.0 ** (np.arange(TEXTURE_LEVELS) - 0.5 - LOD_BIAS)
 
 
 @dataclass(frozen=True)
-class CameraCalibration:
-    """A camera's calibration, which sim/main.py publishes as the CameraInfo message next to its images."""
+class PinholeModel:
+    """A rendered camera's pinhole model (no distortion), which sim/main.py publishes as the CameraInfo
+    message next to its images."""
     frame_id: str
     width: int
     height: int
@@ -86,9 +87,9 @@ class Camera:
 
     # ---- calibration ----
 
-    def info(self) -> CameraCalibration:
+    def info(self) -> PinholeModel:
         p = np.hstack([self.k, [[-self.fx * self._baseline_tx_m], [0.0], [0.0]]])
-        return CameraCalibration(self.frame_id, self.width, self.height, tuple(self.k.ravel()), (0.0,) * 5,
+        return PinholeModel(self.frame_id, self.width, self.height, tuple(self.k.ravel()), (0.0,) * 5,
                           tuple(p.ravel()), tuple(self.r_body_camera.ravel()),
                           tuple(self.t_body_camera_m), self.rate_hz, self.encoding)
 
@@ -168,7 +169,7 @@ class StereoCamera:
         left = self.left.render(truth_or_pose, exact)
         return left, (self.right.render(truth_or_pose, exact) if self.right else None)
 
-    def infos(self) -> list[CameraCalibration]:
+    def infos(self) -> list[PinholeModel]:
         return [c.info() for c in (self.left, self.right) if c is not None]
 
 

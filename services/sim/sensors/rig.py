@@ -18,6 +18,12 @@ class SimSensors:
     imu: ImuModel
     lidar: Lidar | None             # None when sensors.lidar.enabled is false
 
+    def cameras(self) -> dict[str, Camera]:
+        """The cameras built, by the name their keys carry (sensors/camera/<name>/image: contract.CAMERAS)."""
+        cams = {"left": self.stereo.left, "right": self.stereo.right} if self.stereo is not None else {}
+        cams["down"] = self.down
+        return {name: cam for name, cam in cams.items() if cam is not None}
+
 
 def build_sensors(scenario: Scenario) -> SimSensors:
     """Noise streams are seeded from scenario.seed, so a scenario replays identically."""

@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 
 from aeroperception.services.runtime.session import LINKS
+from aeroperception.services.sim.contract import SENSOR_CHOICES
 from aeroperception.tools.common import emit
 
 from .. import px4_sitl
@@ -65,7 +66,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--scenario", default=None, help="sim: scenario world (open_field, village, slope_forest)")
     p.add_argument("--speed", type=float, default=None, help="sim: run faster than real time (services follow sim/clock)")
     p.add_argument("--seed", type=int, default=None, help="sim: random seed (wind, noise)")
-    p.add_argument("--sensors", default=None, choices=["all", "lidar", "camera", "imu", "none"],
+    p.add_argument("--sensors", default=None, choices=SENSOR_CHOICES,
                    help="sim: which scenario sensors to render (none: vehicle and truth only, least CPU)")
     p.add_argument("--fcu-url", default=None, help="fmu: MAVLink URL of the flight controller")
     p.add_argument("--px4", default=None, metavar="DIR",
