@@ -18,7 +18,7 @@ Never read a parameter by its string in logic: take it from the config.
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Callable, Iterable, Mapping, TypeVar
+from typing import Any, Callable, Iterable, Mapping, TypeVar, cast
 
 C = TypeVar("C")
 
@@ -51,12 +51,12 @@ def referenced(cls: type) -> set[str]:
     return out
 
 
-def build(cls: type[C], values: Mapping[str, Any], **overrides: Any) -> C:
+def build(cls: type[C], values: Any, **overrides: Any) -> C:
     """`cls` from parameter values ({name: value}, a ParamSet, or a list of Param declarations for
     their defaults); `overrides` set fields by their field name (a test's variations)."""
     values = _values(values)
     kw: dict[str, Any] = {}
-    for f in dataclasses.fields(cls):
+    for f in dataclasses.fields(cast(Any, cls)):
         if f.name in overrides:
             kw[f.name] = overrides.pop(f.name)
         elif PARAM in f.metadata:

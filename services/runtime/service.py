@@ -74,7 +74,8 @@ class Service:
     def _reconfigure(self, _name: str, _value: Any) -> None:
         """A parameter changed: the whole config anew, one on_config (after start; during start()
         the config is only rebuilt). A ParamError from on_config refuses the change."""
-        cfg = build(self.CONFIG, self.params)
+        assert self.CONFIG is not None   # registered only when there is a config
+        cfg: Any = build(self.CONFIG, self.params)
         if cfg == self.cfg:
             return
         if self._configured:

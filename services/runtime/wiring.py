@@ -73,8 +73,8 @@ def check_handlers(contract: Any, handlers: Any, inputs: Iterable[str] | None = 
     """{("INPUTS" | "SERVICES", key): bound handler} for the inputs and queryables selected (None: all declared); raises
     WiringError when one has no handler, or a handler (an `on_*` method) matches no declared key."""
     service = _name(contract)
-    ins: Topics = getattr(contract, "INPUTS", Topics())
-    srvs: Queries = getattr(contract, "SERVICES", Queries())
+    ins: Topics = getattr(contract, "INPUTS", None) or Topics()
+    srvs: Queries = getattr(contract, "SERVICES", None) or Queries()
     declared = {d.handler_name: k for t in (ins, srvs) for k, d in t.declared.items()}
     unknown = sorted(_candidates(handlers) - set(declared) - RUNTIME_HOOKS)
     if unknown:
@@ -124,11 +124,11 @@ def bind(node: "Node", contract: Any, handlers: Any, *, inputs: Iterable[str] | 
     service's keys, e.g. the simulator's render processes, selects its part)."""
     service = _name(contract)
     bound = check_handlers(contract, handlers, inputs, services)
-    outs: Topics = getattr(contract, "OUTPUTS", Topics())
+    outs: Topics = getattr(contract, "OUTPUTS", None) or Topics()
     pubs = {k: node.publisher(k, outs[k], qos=outs.declared[k].qos)
             for k in _selected(outs, outputs, "OUTPUTS", service)}
-    ins: Topics = getattr(contract, "INPUTS", Topics())
-    srvs: Queries = getattr(contract, "SERVICES", Queries())
+    ins: Topics = getattr(contract, "INPUTS", None) or Topics()
+    srvs: Queries = getattr(contract, "SERVICES", None) or Queries()
     for (what, key), fn in bound.items():
         if what == "INPUTS":
             t = ins.declared[key]
