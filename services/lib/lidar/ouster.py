@@ -49,6 +49,7 @@ class OusterMetadata:
     offset_m: np.ndarray                    # (H, W, 3): beam origin per pixel, sensor frame
     lidar_port: int
     imu_port: int
+    ring: np.ndarray                        # (H,) uint16 per row: 0 = the lowest beam
 
     @classmethod
     def load(cls, path: str | Path) -> "OusterMetadata":
@@ -76,7 +77,8 @@ class OusterMetadata:
         t = np.asarray(m.get("lidar_to_sensor_transform", np.eye(4).ravel()), float).reshape(4, 4)
         return cls(w, int(fmt["columns_per_packet"]), h, np.asarray(fmt["pixel_shift_by_row"], int), profile,
                    d @ t[:3, :3].T, o @ t[:3, :3].T + t[:3, 3] * 1e-3,
-                   int(m.get("udp_port_lidar", 7502)), int(m.get("udp_port_imu", 7503)))
+                   int(m.get("udp_port_lidar", 7502)), int(m.get("udp_port_imu", 7503)),
+                   np.argsort(np.argsort(alt[:, 0], kind="stable"), kind="stable").astype(np.uint16))
 
     @property
     def legacy(self) -> bool:
