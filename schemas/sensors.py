@@ -154,7 +154,10 @@ class CameraInfo(Message, kw_only=True):
 @schema("PointCloud", 1)
 class PointCloud(Message, kw_only=True):
     """N points (metres, float32 x/y/z rows) in `header.frame_id`, with optional per-point
-    intensity (float32) and labels (uint8, e.g. ground/obstacle/cluster id).
+    intensity (float32), labels (uint8, e.g. ground/obstacle/cluster id), ring (uint16, the
+    laser's row, 0 = lowest beam) and time_offset_s (float32, when the point was measured, seconds
+    after header.stamp_ns: a real sensor's sweep takes its whole period; the stamp is the sweep's
+    first point).
 
     Replaces sensor_msgs/PointCloud2 with a fixed layout: consumers get an (N, 3) array directly.
     """
@@ -163,16 +166,20 @@ class PointCloud(Message, kw_only=True):
     points: NDArray = msgspec.field(default_factory=lambda: NDArray.zeros((0, 3), "float32"))
     intensity: NDArray | None = None
     labels: NDArray | None = None
+    ring: NDArray | None = None
+    time_offset_s: NDArray | None = None
 
-    __shapes__ = {"points": (-1, 3), "intensity": (-1,), "labels": (-1,)}
+    __shapes__ = {"points": (-1, 3), "intensity": (-1,), "labels": (-1,), "ring": (-1,), "time_offset_s": (-1,)}
 
     def __post_init__(self) -> None:
         super().__post_init__()
         check_dtype("points", self.points, ("float32",))
         check_dtype("intensity", self.intensity, ("float32",))
         check_dtype("labels", self.labels, ("uint8",))
+        check_dtype("ring", self.ring, ("uint16",))
+        check_dtype("time_offset_s", self.time_offset_s, ("float32",))
         n = self.points.shape[0]
-        for name in ("intensity", "labels"):
+        for name in ("intensity", "labels", "ring", "time_offset_s"):
             arr = getattr(self, name)
             if arr is not None and arr.shape[0] != n:
                 raise ValueError(f"field `{name}` has {arr.shape[0]} entries but there are {n} points")

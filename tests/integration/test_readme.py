@@ -43,6 +43,9 @@ HOW: dict[str, tuple] = {
                                  "the suite on today's releases (install.sh's AERO_DEPS): checked for syntax"),
     "deploy/lock.sh": (SKIP, ["bash", "-n", "deploy/lock.sh"],
                        "re-resolves the pins and runs the whole CI: test_lock checks the lock it writes"),
+    "aero run lidar_driver --param device_ip=192.168.1.201": (
+        SKIP, ["aero", "run", "lidar_driver", "--help"],
+        "needs a LiDAR on the network: test_lidar_driver_service replays a real VLP-16 capture into it over UDP"),
     "aero doctor": (SKIP, ["aero", "doctor", "--help"],
                     "exits 1 on a busy default port: test_doctor_cli runs it on free ports and on a held one"),
     "aero doctor --profile px4 --px4 DIR": (SKIP, ["aero", "doctor", "--help"],

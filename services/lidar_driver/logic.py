@@ -1,0 +1,221 @@
+"""Packets into whole rotations, free of sockets and Zenoh: feed (payload, arrival ns), get the
+scans a rotation completed, and the counters diagnostics report.
+
+A Velodyne rotation ends where the azimuth wraps (points before 180 deg of the wrap packet go to
+the new scan); an Ouster rotation is one frame id. Coverage is the share of the rotation that
+arrived (1-degree azimuth bins, or the frame's columns): below min_coverage the scan is dropped
+with its reason, else published with what arrived.
+"""
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from aeroperception.services.lib.lidar import ouster, velodyne
+from aeroperception.services.lib.lidar.velodyne import PacketError
+from aeroperception.services.runtime.config import param
+
+HOUR_NS = 3600 * 1_000_000_000
+
+
+@dataclass(frozen=True)
+class DriverConfig:
+    vendor: str = param("vendor")
+    model: str = param("model")
+    metadata_path: str = param("metadata_path")
+    device_ip: str = param("device_ip")
+    bind_address: str = param("bind_address")
+    port: int = param("port")
+    frame_id: str = param("frame_id")
+    scan_rate_hz: float = param("scan_rate_hz")
+    min_range_m: float = param("min_range_m")
+    max_range_m: float = param("max_range_m")
+    expected_points: int = param("expected_points")
+    min_coverage: float = param("min_coverage")
+    time_source: str = param("time_source")
+
+
+@dataclass
+class Scan:
+    stamp_ns: int                  # the first point's time
+    xyz_m: np.ndarray              # (N, 3) float32, sensor frame
+    intensity: np.ndarray          # (N,) float32
+    ring: np.ndarray               # (N,) uint16
+    time_offset_s: np.ndarray      # (N,) float32 after stamp_ns
+    coverage: float                # share of the rotation that arrived
+    packets: int
+
+
+@dataclass
+class _Batch:
+    """One packet's points: absolute times, and where in the rotation they lie."""
+    xyz: np.ndarray
+    intensity: np.ndarray
+    ring: np.ndarray
+    t_ns: np.ndarray
+    cells: np.ndarray              # coverage cells hit: per point its azimuth degree (Velodyne), or the columns (Ouster)
+    new_scan: np.ndarray | None    # per point: belongs to the next rotation (Velodyne wrap)
+    frame: int | None              # Ouster frame id
+
+
+@dataclass
+class ScanAssembler:
+    cfg: DriverConfig
+    counts: Counter[str] = field(default_factory=Counter)
+    last_scan: Scan | None = None
+
+    def __post_init__(self) -> None:
+        if self.cfg.vendor == "ouster":
+            if not self.cfg.metadata_path:
+                raise ValueError("vendor ouster needs metadata_path (the sensor's metadata JSON)")
+            self.meta: ouster.OusterMetadata | None = ouster.OusterMetadata.load(self.cfg.metadata_path)
+            self.velodyne: velodyne.VelodyneDecoder | None = None
+            self.cells_per_rotation = self.meta.columns_per_frame
+        else:
+            self.meta = None
+            self.velodyne = velodyne.VelodyneDecoder(None if self.cfg.model == "auto" else self.cfg.model)
+            self.cells_per_rotation = 360
+        self._parts: list[_Batch] = []
+        self._cells: set[int] = set()
+        self._frame: int | None = None
+        self._last_az: float | None = None
+        self._last_dev: int | None = None      # the previous packet's sensor time (ns)
+        self._last_rx_ns = 0
+
+    # ------------------------------------------------------------ packets in
+
+    def feed(self, payload: bytes, rx_ns: int) -> list[Scan]:
+        self.counts["packets"] += 1
+        try:
+            b = self._decode(payload, rx_ns)
+        except PacketError as e:
+            self.counts[f"bad: {e}".split(",")[0][:60]] += 1
+            self.counts["bad_packets"] += 1
+            return []
+        if b is None:
+            return []
+        self._last_rx_ns = rx_ns
+        out: list[Scan] = []
+        if b.frame is not None:                        # Ouster: one frame id per rotation
+            if self._frame is not None and b.frame != self._frame:
+                if (b.frame - self._frame) % 65536 > 32768:
+                    self.counts["reordered_packets"] += 1
+                    return []
+                out += self._finish("frame ended")
+            self._frame = b.frame
+            self._add(b, None)
+        else:
+            split = b.new_scan
+            if split is not None and split.any():
+                self._add(b, ~split)
+                out += self._finish("rotation ended")
+                self._add(b, split)
+            else:
+                self._add(b, None)
+        return out
+
+    def flush(self, now_ns: int) -> list[Scan]:
+        """No packet for two rotation periods: end the scan in progress (a stalled or stopped sensor)."""
+        if self._parts and now_ns - self._last_rx_ns > 2e9 / self.cfg.scan_rate_hz:
+            self._last_az, self._last_dev = None, None
+            return self._finish("stream stalled")
+        return []
+
+    def _add(self, b: _Batch, keep: np.ndarray | None) -> None:
+        if keep is not None:
+            b = _Batch(b.xyz[keep], b.intensity[keep], b.ring[keep], b.t_ns[keep],
+                       b.cells[keep] if b.frame is None else b.cells, None, b.frame)
+        self._parts.append(b)
+        self._cells.update(np.unique(b.cells).tolist())
+
+    def _finish(self, why: str) -> list[Scan]:
+        parts, cells = self._parts, len(self._cells)
+        self._parts, self._cells = [], set()
+        if not parts:
+            return []
+        coverage = cells / self.cells_per_rotation
+        if self.meta is not None:
+            self.counts["lost_columns"] += self.cells_per_rotation - cells
+        if coverage < self.cfg.min_coverage:
+            self.counts[f"scans_dropped: {coverage:.0%} of the rotation ({why})"] += 1
+            self.counts["scans_dropped"] += 1
+            return []
+        xyz = np.concatenate([p.xyz for p in parts])
+        r = np.linalg.norm(xyz, axis=1)
+        keep = (r >= self.cfg.min_range_m) & (r <= self.cfg.max_range_m)
+        t = np.concatenate([p.t_ns for p in parts])[keep]
+        stamp = int(t.min()) if t.size else int(parts[0].t_ns.min()) if parts[0].t_ns.size else self._last_rx_ns
+        scan = Scan(stamp, xyz[keep].astype(np.float32), np.concatenate([p.intensity for p in parts])[keep].astype(np.float32),
+                    np.concatenate([p.ring for p in parts])[keep].astype(np.uint16),
+                    ((t - stamp) * 1e-9).astype(np.float32), coverage, len(parts))
+        self.counts["scans"] += 1
+        self.last_scan = scan
+        return [scan]
+
+    # ------------------------------------------------------------ vendors
+
+    def _decode(self, payload: bytes, rx_ns: int) -> _Batch | None:
+        if self.meta is not None:
+            return self._ouster(payload, rx_ns)
+        return self._velodyne(payload, rx_ns)
+
+    def _velodyne(self, payload: bytes, rx_ns: int) -> _Batch | None:
+        assert self.velodyne is not None
+        if len(payload) == 512:          # position (GPS/NMEA) packets share the stream on some setups
+            self.counts["position_packets"] += 1
+            return None
+        p = self.velodyne.decode(payload)
+        dev_ns = p.stamp_us * 1000
+        if self._last_dev is not None:
+            gap = (dev_ns - self._last_dev) % HOUR_NS
+            if gap > HOUR_NS // 2:                    # earlier than the previous packet
+                self.counts["reordered_packets"] += 1
+                return None
+            m = self.velodyne.model_of(payload)      # a packet spans 12 blocks (6 in dual mode) of firings
+            blocks = velodyne.BLOCKS // (2 if p.return_mode == "dual" else 1)
+            period = m.firing_period_us * 1000 * (velodyne.SLOTS // m.lasers) * blocks
+            if gap > 1.5 * period:
+                self.counts["lost_packets"] += int(round(gap / period)) - 1
+        self._last_dev = dev_ns
+        t_off = (p.time_offset_s * 1e9).astype(np.int64)
+        if self.cfg.time_source == "sensor":        # the hour from our clock, nearest to the arrival
+            base = rx_ns - rx_ns % HOUR_NS + dev_ns
+            base += HOUR_NS * int(np.round((rx_ns - base) / HOUR_NS))
+        else:                                       # arrival = just after the packet's last firing
+            base = rx_ns - int(t_off.max() if t_off.size else 0)
+        az = p.azimuth_deg
+        new_scan = None
+        if az.size:
+            wrapped_inside = az.max() - az.min() > 180.0
+            wrapped_before = self._last_az is not None and self._last_az - float(az[0]) > 180.0
+            if wrapped_inside:
+                new_scan = az < 180.0
+            elif wrapped_before:
+                new_scan = np.ones(az.size, bool)
+            self._last_az = float(az[-1])
+        return _Batch(p.xyz_m, p.reflectivity.astype(np.float32), p.ring, base + t_off,
+                      np.floor(az).astype(np.int64) % 360, new_scan, None)
+
+    def _ouster(self, payload: bytes, rx_ns: int) -> _Batch | None:
+        meta = self.meta
+        assert meta is not None
+        if len(payload) == ouster.IMU_PACKET_BYTES:
+            self.counts["imu_packets"] += 1
+            return None
+        c = ouster.decode_lidar(meta, payload)
+        self.counts["invalid_columns"] += int((~c.valid).sum())
+        cols = c.measurement_id[c.valid]
+        rng = c.fields["range_mm"][c.valid].T                      # (H, C)
+        pts = ouster.xyz(meta, rng, cols)                          # (H, C, 3)
+        hit = rng > 0
+        stamps = c.stamp_ns[c.valid].astype(np.int64)
+        if self.cfg.time_source == "sensor":
+            t_col = stamps
+        else:
+            t_col = rx_ns - (int(stamps.max()) - stamps) if stamps.size else stamps
+        ring = np.broadcast_to(meta.ring[:, None], hit.shape)
+        refl = c.fields["reflectivity"][c.valid].T.astype(np.float32)
+        return _Batch(pts[hit], refl[hit], ring[hit], np.broadcast_to(t_col[None, :], hit.shape)[hit], cols,
+                      None, c.frame_id)
