@@ -254,6 +254,8 @@ def test_px4_flies_survey_01_smooth_on_its_reference_and_its_legs(px4):
 # ---------------------------------------------------------------- (b) pilot HOLD -> resume
 
 
+@pytest.mark.extended   # ~54 s: PX4's HOLD by a pilot is the default chaos row pilot_hold (tests/faults/test_chaos_px4.py),
+#                         the mission's START resume after an FC HOLD is test_mission_faults' fc_switched_to_hold (default)
 def test_px4_switched_to_hold_by_a_pilot_holds_the_mission_and_start_resumes(px4):
     st = px4
     start_survey(st)
