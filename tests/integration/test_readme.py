@@ -52,6 +52,13 @@ HOW: dict[str, tuple] = {
         SKIP, ["aero", "play", "euroc", "--help"], "test_play plays it into the vio service and scores it"),
     "aero play pcap vlp16.pcap --to 127.0.0.1 --port 2368": (
         SKIP, ["aero", "play", "pcap", "--help"], "test_play sends a real VLP-16 capture to a lidar_driver"),
+    "aero run camera --param source=/dev/video0 --param calibration_path=camchain.yaml": (
+        SKIP, ["aero", "run", "camera", "--help"],
+        "needs a camera: test_camera_service runs it on EuRoC images with a Kalibr calibration"),
+    "aero run camera --param source=/dev/video0 --param layout=side_by_side --param calibration_path=stereo.yml": (
+        SKIP, ["aero", "run", "camera", "--help"], "test_camera_service splits a side-by-side video"),
+    "aero run camera --param source=../shared/data/euroc/MH_01_clip/mav0/cam0/data": (
+        SKIP, ["aero", "run", "camera", "--help"], "runs until stopped: test_camera_service plays the folder"),
     "aero doctor": (SKIP, ["aero", "doctor", "--help"],
                     "exits 1 on a busy default port: test_doctor_cli runs it on free ports and on a held one"),
     "aero doctor --profile px4 --px4 DIR": (SKIP, ["aero", "doctor", "--help"],
