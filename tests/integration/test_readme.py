@@ -187,6 +187,15 @@ HOW: dict[str, tuple] = {
     "aero run ros2bridge --param topics=state/vehicle,sensors/imu,perception/detections": (
         SKIP, ["aero", "run", "ros2bridge", "--help"], "test_ros2bridge runs the bridge against zenoh-ros2-sdk"),
     "ros2 topic echo /aero/odom": (SKIP, None, "needs ROS 2: test_ros2bridge plays the ROS node with zenoh-ros2-sdk"),
+    "aero run ros2bridge --param inputs=/ouster/points=sensors/lidar/points,/imu/data=sensors/imu": (
+        SKIP, ["aero", "run", "ros2bridge", "--help"],
+        "needs a ROS 2 driver: test_ros2bridge_sensors publishes real KITTI scans and EuRoC IMU rows from zenoh-ros2-sdk"),
+    "aero run ros2bridge --param inputs=/camera/color/image_raw=sensors/camera/left/image,"
+    "/camera/color/camera_info=sensors/camera/left/info --param left_mount_pitch_deg=30": (
+        SKIP, ["aero", "run", "ros2bridge", "--help"],
+        "needs a ROS 2 camera: test_ros2bridge_sensors publishes EuRoC frames and CameraInfo from zenoh-ros2-sdk"),
+    "ros2 run velodyne_driver velodyne_driver_node": (SKIP, None, "needs ROS 2 and a Velodyne: test_ros2bridge_sensors "
+                                                                  "plays a driver's PointCloud2 with zenoh-ros2-sdk"),
     "aero up --gps-denied --scenario village --sensors camera": (DRY, None, "SIM_GPS_DENIED"),
     "aero mission fly examples/missions/village_survey_gps_denied.json": (
         SKIP, ["aero", "mission", "fly", "--help"],
