@@ -59,6 +59,11 @@ HOW: dict[str, tuple] = {
         SKIP, ["aero", "run", "camera", "--help"], "test_camera_service splits a side-by-side video"),
     "aero run camera --param source=../shared/data/euroc/MH_01_clip/mav0/cam0/data": (
         SKIP, ["aero", "run", "camera", "--help"], "runs until stopped: test_camera_service plays the folder"),
+    "aero up --profile vehicle --fcu-url /dev/ttyACM0,921600 --sensors-file sensors.yaml": (
+        SKIP, ["aero", "up", "--help"], "needs a flight controller and the sensors: test_vehicle_sensors brings the "
+                                        "profile up with a sensors file, test_up_sensors decodes them"),
+    "aero up --profile vehicle --sensors-file sensors.yaml --dry-run": (
+        SKIP, ["aero", "up", "--help"], "sensors.yaml is the page's example: test_up_sensors plans it"),
     "aero doctor": (SKIP, ["aero", "doctor", "--help"],
                     "exits 1 on a busy default port: test_doctor_cli runs it on free ports and on a held one"),
     "aero doctor --profile px4 --px4 DIR": (SKIP, ["aero", "doctor", "--help"],
