@@ -38,4 +38,5 @@ class LidarConfig:
     use_imu_tilt: bool = param("use_imu_tilt")
     processing_rate_hz: float = param("processing_rate_hz")
     pose_max_age_s: float = param("pose_max_age_s")
+    deskew: bool = param("deskew")
     ground_publish_period_s: float = param("ground_publish_period_s")

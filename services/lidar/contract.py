@@ -45,6 +45,8 @@ PARAMS = [
     Param("mount_roll_deg", 0.0, "deg", -180.0, 180.0), Param("mount_pitch_deg", 0.0, "deg", -90.0, 90.0),
     Param("mount_yaw_deg", 0.0, "deg", -180.0, 180.0),
     Param("pose_max_age_s", 0.1, "s", 0.01, 1.0, description="no state/vehicle this near the scan stamp: no costmap"),
+    Param("deskew", True, description="move each point to the sensor's pose at the scan stamp with the vehicle's "
+                                      "poses over the sweep (scans with time_offset_s: a real spinning LiDAR)"),
     # the costmap (LID-3: Nav2 semantics)
     Param("costmap_size_m", 20.0, "m", 5.0, 200.0, description="rolling window edge"),
     Param("costmap_resolution_m", 0.1, "m", 0.02, 1.0, description="cell size"),

@@ -17,6 +17,7 @@ from aeroperception.schemas import (
     DiagnosticStatus, Header, Imu, LandedState, NDArray, OccupancyGrid, PointCloud, Pose, Quaternion, SchemaError, Vector3,
     VehicleState,
 )
+from aeroperception.services.lib.lidar.deskew import Mount, deskew
 from aeroperception.services.lib.pose_history import PoseHistory
 from aeroperception.services.runtime import Health, LatestWorker, RateGate, Service, run
 from aeroperception.services.runtime.rotations import quat_from_euler, quat_to_rotmat
@@ -53,6 +54,7 @@ class LidarService(Service):
         self.refused = 0
         self.scans = 0
         self.no_pose = 0
+        self.deskewed, self.deskew_skipped, self.deskew_why = 0, 0, ""
         self.on_ground = False
         self.scans_on_ground = 0
         self.last_counts: dict[str, int] = {}
@@ -106,7 +108,8 @@ class LidarService(Service):
             return
         # The decoded array is a read-only view into the bytes the node copied the payload to
         # (not Zenoh's buffer): the worker can keep it without another 1.3 MB copy.
-        self.worker.offer((msg.header.stamp_ns, msg.points.to_numpy()))
+        t = msg.time_offset_s.to_numpy() if msg.time_offset_s is not None else None
+        self.worker.offer((msg.header.stamp_ns, msg.points.to_numpy(), t))
 
     # ------------------------------------------------------------ processing (worker thread)
 
@@ -117,16 +120,24 @@ class LidarService(Service):
             self.node.callback_errors["lidar-scan"] += 1
             self.log.throttled("error", "scan", "scan_failed", error=f"{type(e).__name__}: {e}")
 
-    def _process(self, item: tuple[int, np.ndarray]) -> None:
+    def _process(self, item: tuple[int, np.ndarray, np.ndarray | None]) -> None:
         cpu0 = time.thread_time()
         self._process_scan(*item)
         self.timings.setdefault("cpu", deque(maxlen=100)).append((time.thread_time() - cpu0) * 1e3)
 
-    def _process_scan(self, stamp_ns: int, points: np.ndarray) -> None:
+    def _process_scan(self, stamp_ns: int, points: np.ndarray, time_offset_s: np.ndarray | None = None) -> None:
         """Pipeline, costmap and publication of one scan (the worker thread's CPU per scan is
         reported as cpu_ms_p50 / p99: what the CPU budget is spent on)."""
         cfg = self.cfg
         r_bs, t_bs = cfg.mount.body_sensor()
+        if cfg.deskew and time_offset_s is not None:
+            t0 = time.perf_counter()
+            straight, why = deskew(points, time_offset_s, stamp_ns, self.poses, Mount(r_bs, t_bs), cfg.pose_max_age_s)
+            if straight is None:       # measured as it came: said in diagnostics, never guessed
+                self.deskew_skipped, self.deskew_why = self.deskew_skipped + 1, why
+            else:
+                points, self.deskewed = straight, self.deskewed + 1
+                self.timings.setdefault("deskew", deque(maxlen=100)).append((time.perf_counter() - t0) * 1e3)
         pose = self.poses.nearest(stamp_ns, cfg.pose_max_age_s)
         if pose is not None:
             pos, r_wb = pose.position_m, pose.r_world_body
@@ -183,6 +194,8 @@ class LidarService(Service):
 
     def health(self) -> Health:
         values: dict[str, object] = {"scans": self.scans, "dropped": self.worker.dropped, "no_pose": self.no_pose,
+                                     "deskewed": self.deskewed, "deskew_skipped": self.deskew_skipped,
+                                     **({"deskew_skipped_why": self.deskew_why} if self.deskew_why else {}),
                                      "scans_on_ground": self.scans_on_ground,
                                      "ground_found": self.ground_found, **self.last_counts}
         # The worker thread adds a stage's series when the stage first runs (some only in the air):
