@@ -116,6 +116,19 @@ class VelodynePoints:
     return_kind: np.ndarray        # (N,) uint8: RETURN_STRONGEST / RETURN_LAST
 
 
+@dataclass(frozen=True)
+class _Table:
+    """Per (block, slot) of one model and return mode (see VelodyneDecoder._table)."""
+    t_us: np.ndarray                 # firing time after the packet stamp
+    t_in_block_us: np.ndarray        # after its block's first firing
+    azimuth_offset_deg: np.ndarray
+    cos_el: np.ndarray
+    sin_el: np.ndarray
+    vertical_m: np.ndarray
+    ring: np.ndarray
+    time_s: np.ndarray
+
+
 class VelodyneDecoder:
     """Packets of one sensor into points. `model` None: taken from each packet's product byte."""
 
@@ -123,7 +136,7 @@ class VelodyneDecoder:
         if model is not None and model not in MODELS:
             raise ValueError(f"unknown Velodyne model {model!r}; known: {', '.join(MODELS)}")
         self.model = MODELS[model] if model else None
-        self._tables: dict[tuple[str, bool], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        self._tables: dict[tuple[str, bool], _Table] = {}
 
     def model_of(self, packet: bytes) -> VelodyneModel:
         if len(packet) != PACKET_BYTES:
@@ -135,21 +148,24 @@ class VelodyneDecoder:
             raise PacketError(f"unknown product id 0x{packet[1205]:02x}")
         return m
 
-    def _table(self, m: VelodyneModel, dual: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Per (block, slot): laser id, firing time after the packet stamp (us), and after its
-        block's first firing (us)."""
+    def _table(self, m: VelodyneModel, dual: bool) -> "_Table":
+        """Everything per (block, slot) that does not depend on the packet's contents, once per
+        model and return mode: a packet's decode is then a few array operations on its own data."""
         key = (m.name, dual)
         if key not in self._tables:
             block = np.arange(BLOCKS)[:, None]
             slot = np.arange(SLOTS)[None, :]
             seq_per_block = SLOTS // m.lasers            # 2 firing sequences per block on a VLP-16
-            laser = np.broadcast_to(slot % m.lasers, (BLOCKS, SLOTS))
+            laser = np.broadcast_to(slot % m.lasers, (BLOCKS, SLOTS)).astype(np.intp)
             seq_in_block = slot // m.lasers
             fired = (slot % m.lasers) // m.lasers_per_firing
             block_seq = (block // 2 if dual else block) * seq_per_block
-            t_us = m.firing_period_us * (block_seq + seq_in_block) + m.laser_period_us * fired
-            t_in_block = t_us - m.firing_period_us * block_seq
-            self._tables[key] = (laser.astype(np.intp), t_us.astype(np.float64), t_in_block.astype(np.float64))
+            t_us = (m.firing_period_us * (block_seq + seq_in_block) + m.laser_period_us * fired).astype(np.float64)
+            el = np.radians(np.asarray(m.elevation_deg))[laser]
+            self._tables[key] = _Table(
+                t_us=t_us, t_in_block_us=t_us - m.firing_period_us * block_seq,
+                azimuth_offset_deg=np.asarray(m.azimuth_offset_deg)[laser], cos_el=np.cos(el), sin_el=np.sin(el),
+                vertical_m=np.asarray(m.vertical_offset_mm)[laser] * 1e-3, ring=m.ring[laser], time_s=t_us * 1e-6)
         return self._tables[key]
 
     def decode(self, packet: bytes) -> VelodynePoints:
@@ -164,9 +180,9 @@ class VelodyneDecoder:
             raise PacketError(f"azimuth {int(az.max())} out of 0..35999")
         mode = int(p["mode"])
         dual = mode == DUAL
-        laser, t_us, t_in_block = self._table(m, dual)
-        rate = np.mod(az[-1] - az[0], 36000.0) / (t_us[-1, 0] - t_us[0, 0])     # 0.01 deg / us
-        azimuth = (az[:, None] + rate * t_in_block) * 0.01 + np.asarray(m.azimuth_offset_deg)[laser]
+        tb = self._table(m, dual)
+        rate = np.mod(az[-1] - az[0], 36000.0) / (tb.t_us[-1, 0] - tb.t_us[0, 0])     # 0.01 deg / us
+        azimuth = (az[:, None] + rate * tb.t_in_block_us) * 0.01 + tb.azimuth_offset_deg
         distance = blocks["ret"]["distance"]
         valid = distance > 0
         if dual:     # even blocks: last return; odd: strongest (the second strongest if that is the last)
@@ -178,13 +194,15 @@ class VelodyneDecoder:
         else:
             kind = np.full((BLOCKS, SLOTS), RETURN_LAST if mode == LAST else RETURN_STRONGEST, np.uint8)
         r = distance[valid] * m.distance_unit_m
-        el = np.radians(np.asarray(m.elevation_deg))[laser[valid]]
-        v = np.asarray(m.vertical_offset_mm)[laser[valid]] * 1e-3
-        a = np.radians(azimuth[valid])
-        xy = r * np.cos(el)
-        xyz = np.stack([xy * np.cos(a), -xy * np.sin(a), r * np.sin(el) + v], axis=1)
+        az_v = azimuth[valid]
+        a = np.radians(az_v)
+        xy = r * tb.cos_el[valid]
+        xyz = np.empty((r.size, 3))
+        xyz[:, 0] = xy * np.cos(a)
+        xyz[:, 1] = -xy * np.sin(a)
+        xyz[:, 2] = r * tb.sin_el[valid] + tb.vertical_m[valid]
         return VelodynePoints(
             stamp_us=int(p["stamp_us"]), return_mode=RETURN_MODES.get(mode, f"0x{mode:02x}"), xyz_m=xyz,
-            reflectivity=blocks["ret"]["reflectivity"][valid], ring=m.ring[laser[valid]],
-            time_offset_s=t_us[valid] * 1e-6, azimuth_deg=np.mod(azimuth[valid], 360.0),
+            reflectivity=blocks["ret"]["reflectivity"][valid], ring=tb.ring[valid],
+            time_offset_s=tb.time_s[valid], azimuth_deg=np.mod(az_v, 360.0),
             return_kind=kind[valid].astype(np.uint8))
