@@ -25,7 +25,7 @@ _DEFAULT = {p.name: p.default for p in contract.PARAMS}
 class Limits:
     """The mission parameters of the same names (defaults declared once, in contract.PARAMS)."""
 
-    geofence: Geofence = field(default_factory=Geofence)
+    geofence: Geofence = field(default_factory=Geofence.from_params)
     max_takeoff_altitude_m: float = _DEFAULT["max_takeoff_altitude_m"]
     min_acceptance_radius_m: float = _DEFAULT["min_acceptance_radius_m"]
     max_acceptance_radius_m: float = _DEFAULT["max_acceptance_radius_m"]

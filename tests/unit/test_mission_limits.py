@@ -49,7 +49,7 @@ def test_takeoff_altitude_above_the_limits_is_refused():
 
 
 def test_goto_outside_the_geofence_or_with_a_silly_radius_is_refused():
-    rig = Rig(limits=Limits(geofence=Geofence(radius_m=100.0)))
+    rig = Rig(limits=Limits(geofence=Geofence.from_params(radius_m=100.0)))
     rig.to_holding()
     rig.clear()
     ok, msg = rig.mgr.goto(np.array([500.0, 0.0, 5.0]), None)
