@@ -40,7 +40,6 @@ ACTION_VERBS = ("goal", "cancel", "result")
 # (service, key expression) the walker cannot resolve -> (why it is complete, contract table whose
 # every key it uses, or None when nothing is used through it).
 DYNAMIC = {
-    ("fmu", "k"): ("a loop over contract.OUTPUTS", "outputs"),
     ("ros2bridge", "key"): ("the `topics` parameter's keys, refused at start unless in convert.CATALOG "
                             "(tests/unit/test_ros2bridge_logic.py pins CATALOG == contract.INPUTS)", "inputs"),
     ("viz", "ad.key"): ("the adapters' keys; tests/unit/test_viz_adapters.py pins them == contract.INPUTS",
