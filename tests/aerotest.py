@@ -13,6 +13,7 @@ Test-only helpers defined here:
     signal_other_thread(pid, sig)          a signal delivered to a non-main thread (tgkill)
     chaos_row_param(name, ci_rows, mark)   a fault row as a pytest param (xfail if pending, `mark` unless CI's)
     assert_chaos_row(st, row, mission)     run an `aero chaos` row; assert it safe by the truth and as expected
+    forward_camera_info(y_m, ...)          a 640x480 pinhole looking forward from y_m on the body (VIO tests)
 """
 from __future__ import annotations
 
@@ -31,6 +32,20 @@ from aeroperception.tools.harness import (  # noqa: F401 - re-exported for the t
     token_alive, wait_for_message, wait_until, zenoh_client,
 )
 from aeroperception.tools.harness.stack import STARTUP_TIMEOUT_S, STOP_TIMEOUT_S  # noqa: F401
+
+
+def forward_camera_info(y_m: float, width: int = 640, height: int = 480, model: str = "plumb_bob"):
+    """A pinhole camera (f = 320 px, centred) 0.1 m ahead of the body origin and y_m to its left,
+    looking forward (FLU body): one of the VIO tests' stereo pair."""
+    from aeroperception.schemas import CameraInfo, Pose, Quaternion, Vector3
+    from aeroperception.services.runtime.rotations import quat_from_rotmat
+    from aeroperception.services.sim.sensors.frames import R_FLU_OPTICAL_FORWARD
+
+    q = Quaternion.from_array(quat_from_rotmat(R_FLU_OPTICAL_FORWARD))
+    ci = CameraInfo.pinhole(width, height, 320.0, 320.0, (width - 1) / 2, (height - 1) / 2,
+                            T_body_camera=Pose(position=Vector3(x=0.1, y=y_m, z=0.0), orientation=q))
+    ci.distortion_model = model
+    return ci
 
 
 @contextmanager

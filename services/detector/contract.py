@@ -20,8 +20,6 @@ OUTPUTS = Topics(
 )
 # The bundled model, relative to this package (tools/training/train_detector.py makes it; models/MODEL_CARD.md).
 BUNDLED_MODEL = "models/aero_sim_det.onnx"
-# Changing one of these loads a new model beside the running one (swapped only if it works).
-RELOAD_PARAMS = ("model_path", "classes_file", "intra_op_threads", "input_width", "input_height", "execution_provider")
 PARAMS = [
     Param("model_path", BUNDLED_MODEL,
           description="YOLOv8 / YOLO11 / YOLO26 (end-to-end) ONNX export (relative: working directory, else the detector package); live"),

@@ -17,7 +17,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from aeroperception.schemas import Detection2D, Detection2DArray, DiagnosticStatus, Header
-from aeroperception.services.runtime import Health
+from aeroperception.services.runtime import Health, param, section
 
 from .yolo import Detection, ModelError, YoloModel
 
@@ -37,7 +37,7 @@ def resolve_model_path(text: str, base: Path = PACKAGE_DIR) -> Path:
 
 @dataclass(frozen=True)
 class LoadRequest:
-    """Everything a model load depends on (the parameters in contract.RELOAD_PARAMS)."""
+    """Everything a model load depends on (ModelConfig.request: the model's parameters)."""
 
     model_path: str
     classes_file: str = ""
@@ -45,11 +45,35 @@ class LoadRequest:
     input_hw: tuple[int, int] | None = None
     provider: str = "cpu"
 
-    @classmethod
-    def from_params(cls, p) -> "LoadRequest":
-        hw = (p["input_height"], p["input_width"])
-        return cls(model_path=p["model_path"], classes_file=p["classes_file"], threads=p["intra_op_threads"],
-                   input_hw=hw if all(hw) else None, provider=p["execution_provider"])
+
+@dataclass(frozen=True)
+class ModelConfig:
+    """The parameters a model load depends on: a live change of one loads the new model beside
+    the running one (swapped only if it works)."""
+
+    model_path: str = param("model_path")
+    classes_file: str = param("classes_file")
+    intra_op_threads: int = param("intra_op_threads")
+    input_width: int = param("input_width")
+    input_height: int = param("input_height")
+    execution_provider: str = param("execution_provider")
+
+    def request(self) -> LoadRequest:
+        hw = (self.input_height, self.input_width)
+        return LoadRequest(model_path=self.model_path, classes_file=self.classes_file, threads=self.intra_op_threads,
+                           input_hw=hw if all(hw) else None, provider=self.execution_provider)
+
+
+@dataclass(frozen=True)
+class DetectorConfig:
+    """The detector's parameters (contract.PARAMS), rebuilt on a live change."""
+
+    model: ModelConfig = section(ModelConfig)
+    confidence_threshold: float = param("confidence_threshold")
+    nms_threshold: float = param("nms_threshold")
+    inference_frequency_hz: float = param("inference_frequency_hz")
+    max_detections: int = param("max_detections")
+    image_timeout_s: float = param("image_timeout_s")
 
 
 class ModelHolder:

@@ -3,24 +3,25 @@
 Frames above the rate are skipped at arrival (counted); an admitted frame that arrives while the
 previous one is still being inferred replaces the pending one (runtime LatestWorker, counted as
 dropped), so a slow machine lowers the output rate instead of growing a queue. A change of a
-RELOAD_PARAMS parameter loads the new model beside the one in use (logic.ModelHolder) before the
+model parameter (logic.ModelConfig) loads the new model beside the one in use (logic.ModelHolder) before the
 set is answered: a model that does not load refuses the set with the reason, the parameter keeps
 the path that runs, and inference goes on with the old model meanwhile (it reads the holder, not
 the parameter).
 """
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections import deque
 from pathlib import Path
 
 import numpy as np
 
-from aeroperception.schemas import Detection2DArray, DiagnosticStatus, Header, Image
+from aeroperception.schemas import Header, Image
 from aeroperception.services.runtime import Health, LatestWorker, ParamError, RateGate, Service, run
 
 from . import contract
-from .logic import LoadRequest, ModelHolder, StageTimes, detection_array, detector_health
+from .logic import DetectorConfig, LoadRequest, ModelHolder, StageTimes, detection_array, detector_health
 
 # Image encodings the detector reads, and the channel order letterbox() is told.
 CHANNELS = {"rgb8": "rgb", "rgba8": "rgb", "bgr8": "bgr", "bgra8": "bgr", "mono8": "rgb", "mono16": "rgb",
@@ -32,24 +33,23 @@ class DetectorService(Service):
 
     NAME = contract.NAME
     PARAMS = contract.PARAMS
+    CONTRACT = contract
+    CONFIG = DetectorConfig
 
     def start(self) -> None:
-        p = self.params
         self.holder = ModelHolder()
-        self.gate = RateGate(p.inference_frequency_hz)
+        self.gate = RateGate(self.cfg.inference_frequency_hz)
         self.times = StageTimes()
         self.received = 0
         self.processed_without_model = 0
         self.last_image_s: float | None = None
         self.last_count = 0
         self.published_s: deque[float] = deque(maxlen=20)
-        self.pub_dets = self.node.publisher("perception/detections", Detection2DArray)
-        self.pub_health = self.node.publisher("perception/detector_health", DiagnosticStatus)
-        self._load(LoadRequest.from_params(p))        # the first model before the first frame
+        self.pub_dets = self.io["perception/detections"]
+        self.pub_health = self.io["perception/detector_health"]
+        self._load(self.cfg.model.request())        # the first model before the first frame
         self.worker = LatestWorker(self._process, "detector-infer", on_error=self._on_error)
-        p.on_change(self._on_param)
-        self.node.subscribe("sensors/camera/left/image", Image, self._on_image)
-        self.node.every(1.0, lambda: self.pub_health.publish(self.node.diagnostics()), name="health")
+        self.node.every(1.0, self._publish_health, name="health")
 
     def stop(self) -> None:
         self.worker.stop()
@@ -66,19 +66,23 @@ class DetectorService(Service):
                        running=self.holder.model.path if self.holder.model else "none")
         return False
 
-    def _on_param(self, name, value) -> None:
-        if name in contract.RELOAD_PARAMS:
+    def on_config(self, cfg: DetectorConfig) -> None:
+        if cfg.model != self.cfg.model:
             # Loads while the set waits (node lock held: a frame callback waits too, inference does not).
-            if not self._load(LoadRequest.from_params(self.params)):
+            if not self._load(cfg.model.request()):
                 m = self.holder.model
                 running = f"still running {Path(m.path).name}" if m else "no model running"
-                raise ParamError(f"{name}: model refused ({running}): {self.holder.error}")
-        elif name == "inference_frequency_hz":
-            self.gate.rate_hz = value
+                changed = [f.name for f in dataclasses.fields(cfg.model)
+                           if getattr(cfg.model, f.name) != getattr(self.cfg.model, f.name)]
+                raise ParamError(f"{', '.join(changed)}: model refused ({running}): {self.holder.error}")
+        self.gate.rate_hz = cfg.inference_frequency_hz
+
+    def _publish_health(self) -> None:
+        self.pub_health.publish(self.node.diagnostics())
 
     # ------------------------------------------------------------ frames (node thread -> worker)
 
-    def _on_image(self, msg: Image) -> None:
+    def on_sensors_camera_left_image(self, msg: Image) -> None:
         self.received += 1
         self.last_image_s = time.monotonic()
         if msg.encoding not in CHANNELS:
@@ -103,7 +107,7 @@ class DetectorService(Service):
         if model is None:
             self.processed_without_model += 1
             return
-        p = self.params
+        p = self.cfg
         dets, times = model.detect(pixels, p.confidence_threshold, p.nms_threshold, channels, p.max_detections)
         self.times.add(times)
         self.pub_dets.publish(detection_array(dets, model.names, header, pixels.shape[:2]))
@@ -120,8 +124,7 @@ class DetectorService(Service):
 
     def health(self) -> Health:
         age = None if self.last_image_s is None else time.monotonic() - self.last_image_s
-        h = detector_health(self.holder, self.times, self.params.inference_frequency_hz, age,
-                            self.params.image_timeout_s)
+        h = detector_health(self.holder, self.times, self.cfg.inference_frequency_hz, age, self.cfg.image_timeout_s)
         h.values = {**(h.values or {}), "frames_received": self.received, "frames_skipped_rate": self.gate.skipped,
                     "frames_dropped_busy": self.worker.dropped, "frames_processed": self.worker.processed,
                     "frames_without_model": self.processed_without_model, "detections_last": self.last_count,

@@ -19,20 +19,23 @@ from dataclasses import dataclass
 import numpy as np
 
 from aeroperception.services.lib.costmap import FREE, INSCRIBED, LETHAL, UNKNOWN
+from aeroperception.services.runtime import param
 
 AZIMUTH_BINS = 2048      # ~0.18 deg: a 0.1 m cell at 15 m spans ~2 bins
 
 
 @dataclass(frozen=True)
 class CostmapConfig:
-    size_m: float = 20.0
-    resolution_m: float = 0.1
-    obstacle_range_m: float = 10.0
-    raytrace_range_m: float = 15.0
-    mark_threshold: int = 2
-    inscribed_radius_m: float = 0.4
-    inflation_radius_m: float = 1.5
-    cost_scaling_factor: float = 3.0
+    """The costmap's parameters (defaults, units and ranges: contract.PARAMS)."""
+
+    size_m: float = param("costmap_size_m")
+    resolution_m: float = param("costmap_resolution_m")
+    obstacle_range_m: float = param("obstacle_range_m")
+    raytrace_range_m: float = param("raytrace_range_m")
+    mark_threshold: int = param("mark_threshold")
+    inscribed_radius_m: float = param("inscribed_radius_m")
+    inflation_radius_m: float = param("inflation_radius_m")
+    cost_scaling_factor: float = param("cost_scaling_factor")
 
 
 def _azimuth_bin(x: np.ndarray, y: np.ndarray) -> np.ndarray:

@@ -6,7 +6,6 @@ machine lowers the output rate instead of growing a queue.
 """
 from __future__ import annotations
 
-import dataclasses
 import math
 import threading
 import time
@@ -15,29 +14,19 @@ from collections import deque
 import numpy as np
 
 from aeroperception.schemas import (
-    DiagnosticStatus, Header, Imu, LandedState, NDArray, OccupancyGrid, PointCloud, Pose, Quaternion, SchemaError, Vector3, VehicleState,
+    DiagnosticStatus, Header, Imu, LandedState, NDArray, OccupancyGrid, PointCloud, Pose, Quaternion, SchemaError, Vector3,
+    VehicleState,
 )
 from aeroperception.services.lib.pose_history import PoseHistory
 from aeroperception.services.runtime import Health, LatestWorker, RateGate, Service, run
 from aeroperception.services.runtime.rotations import quat_from_euler, quat_to_rotmat
 
 from . import contract
-from .costmap import CostmapConfig, RollingCostmap
-from .pipeline import ObstaclePipeline, PipelineConfig, ScanError
+from .config import LidarConfig
+from .costmap import RollingCostmap
+from .pipeline import ObstaclePipeline, ScanError
 
 WORLD_FRAME = "map"
-
-
-def pipeline_config(p) -> PipelineConfig:
-    """The pipeline's settings are parameters of the same names."""
-    return PipelineConfig(**{f.name: p[f.name] for f in dataclasses.fields(PipelineConfig)})
-
-
-def costmap_config(p) -> CostmapConfig:
-    return CostmapConfig(size_m=p["costmap_size_m"], resolution_m=p["costmap_resolution_m"],
-                         obstacle_range_m=p["obstacle_range_m"], raytrace_range_m=p["raytrace_range_m"],
-                         mark_threshold=p["mark_threshold"], inscribed_radius_m=p["inscribed_radius_m"],
-                         inflation_radius_m=p["inflation_radius_m"], cost_scaling_factor=p["cost_scaling_factor"])
 
 
 def gravity_levelling(f_body: np.ndarray) -> np.ndarray:
@@ -53,11 +42,12 @@ class LidarService(Service):
 
     NAME = contract.NAME
     PARAMS = contract.PARAMS
+    CONTRACT = contract
+    CONFIG = LidarConfig
 
     def start(self) -> None:
-        p = self.params
-        self.pipeline = ObstaclePipeline(pipeline_config(p))
-        self.costmap = RollingCostmap(costmap_config(p))
+        self.pipeline = ObstaclePipeline(self.cfg.pipeline)
+        self.costmap = RollingCostmap(self.cfg.costmap)
         self.poses = PoseHistory(horizon_s=2.0)
         self.gravity: np.ndarray | None = None
         self.refused = 0
@@ -67,54 +57,46 @@ class LidarService(Service):
         self.scans_on_ground = 0
         self.last_counts: dict[str, int] = {}
         self.timings: dict[str, deque[float]] = {}
-        self.gate = RateGate(p.processing_rate_hz)
+        self.gate = RateGate(self.cfg.processing_rate_hz)
         self.last_ground_s = 0.0
         self.ground_found = False
         self.last_pose_ok = False
         self._config_lock = threading.Lock()
-        p.on_change(self._on_param)
-        self.pub_obstacles = self.node.publisher("perception/obstacles", PointCloud)
-        self.pub_ground = self.node.publisher("perception/ground", PointCloud)
-        self.pub_costmap = self.node.publisher("perception/costmap", OccupancyGrid)
+        self.pub_obstacles = self.io["perception/obstacles"]
+        self.pub_ground = self.io["perception/ground"]
+        self.pub_costmap = self.io["perception/costmap"]
         self.worker = LatestWorker(self._process, "lidar-scan", on_error=self._on_error)
-        self.node.subscribe("state/vehicle", VehicleState, self._on_state)
-        self.node.subscribe("sensors/imu", Imu, self._on_imu)
-        self.node.subscribe("sensors/lidar/points", PointCloud, self._on_scan)
 
     def stop(self) -> None:
         self.worker.stop()
 
     # ------------------------------------------------------------ inputs (node threads)
 
-    def _on_param(self, name, value) -> None:
-        if name == "processing_rate_hz":
-            self.gate.rate_hz = value
+    def on_config(self, cfg: LidarConfig) -> None:
+        self.gate.rate_hz = cfg.processing_rate_hz
         with self._config_lock:
-            self.pipeline.cfg = pipeline_config(self.params)
-            if name.startswith("costmap_") or name in ("obstacle_range_m", "raytrace_range_m", "mark_threshold",
-                                                        "inscribed_radius_m", "inflation_radius_m",
-                                                        "cost_scaling_factor"):
-                cfg = costmap_config(self.params)
-                if (cfg.size_m, cfg.resolution_m) != (self.costmap.cfg.size_m, self.costmap.cfg.resolution_m):
-                    self.costmap = RollingCostmap(cfg)
-                else:
-                    self.costmap.cfg = cfg
+            self.pipeline.cfg = cfg.pipeline
+            new = cfg.costmap
+            if (new.size_m, new.resolution_m) != (self.costmap.cfg.size_m, self.costmap.cfg.resolution_m):
+                self.costmap = RollingCostmap(new)
+            else:
+                self.costmap.cfg = new
 
-    def _on_state(self, msg: VehicleState) -> None:
+    def on_state_vehicle(self, msg: VehicleState) -> None:
         if not msg.connected:
             return
         self.on_ground = msg.landed_state == LandedState.ON_GROUND
         self.poses.add(msg)
 
-    def _on_imu(self, msg: Imu) -> None:
+    def on_sensors_imu(self, msg: Imu) -> None:
         f = msg.linear_acceleration_mps2.to_array()
         if np.all(np.isfinite(f)):
             self.gravity = f if self.gravity is None else 0.98 * self.gravity + 0.02 * f
 
-    def _on_scan(self, msg: PointCloud) -> None:
-        if len(msg) > self.params.max_points:      # garbage, not load: counted as invalid input
-            self.node.report_bad_input("sensors/lidar/points",
-                                       f"{len(msg)} points is more than max_points {self.params.max_points}")
+    def on_sensors_lidar_points(self, msg: PointCloud) -> None:
+        max_points = self.cfg.pipeline.max_points
+        if len(msg) > max_points:      # garbage, not load: counted as invalid input
+            self.node.report_bad_input("sensors/lidar/points", f"{len(msg)} points is more than max_points {max_points}")
             return
         # Thinned by the scans' own stamps, not their arrival times: scans at the processing rate
         # arrive with jitter under load (one 30 ms late, the next early), and an arrival-time
@@ -135,11 +117,6 @@ class LidarService(Service):
             self.node.callback_errors["lidar-scan"] += 1
             self.log.throttled("error", "scan", "scan_failed", error=f"{type(e).__name__}: {e}")
 
-    def _mount(self) -> tuple[np.ndarray, np.ndarray]:
-        p = self.params
-        r = quat_to_rotmat(quat_from_euler(*np.radians([p.mount_roll_deg, p.mount_pitch_deg, p.mount_yaw_deg])))
-        return r, np.array([p.mount_x_m, p.mount_y_m, p.mount_z_m])
-
     def _process(self, item: tuple[int, np.ndarray]) -> None:
         cpu0 = time.thread_time()
         self._process_scan(*item)
@@ -148,15 +125,16 @@ class LidarService(Service):
     def _process_scan(self, stamp_ns: int, points: np.ndarray) -> None:
         """Pipeline, costmap and publication of one scan (the worker thread's CPU per scan is
         reported as cpu_ms_p50 / p99: what the CPU budget is spent on)."""
-        r_bs, t_bs = self._mount()
-        pose = self.poses.nearest(stamp_ns, self.params.pose_max_age_s)
+        cfg = self.cfg
+        r_bs, t_bs = cfg.mount.body_sensor()
+        pose = self.poses.nearest(stamp_ns, cfg.pose_max_age_s)
         if pose is not None:
             pos, r_wb = pose.position_m, pose.r_world_body
             r_level_sensor = r_wb @ r_bs
             sensor_offset = r_wb @ t_bs            # sensor relative to the vehicle, levelled axes
         else:
             self.no_pose += 1
-            if self.gravity is None or not self.params.use_imu_tilt:
+            if self.gravity is None or not cfg.use_imu_tilt:
                 r_level_body = np.eye(3)
             else:
                 r_level_body = gravity_levelling(self.gravity)
@@ -197,7 +175,7 @@ class LidarService(Service):
             origin=Pose(position=Vector3(x=ox, y=oy, z=0.0), orientation=Quaternion()),
             data=NDArray.from_numpy(grid)))
         now = time.monotonic()
-        if now - self.last_ground_s >= self.params.ground_publish_period_s:
+        if now - self.last_ground_s >= cfg.ground_publish_period_s:
             self.last_ground_s = now
             self.pub_ground.publish(PointCloud.from_numpy(res.ground + origin.astype(np.float32), header=hdr))
 

@@ -18,26 +18,28 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from aeroperception.services.runtime import param
+
 
 @dataclass(frozen=True)
 class PipelineConfig:
-    """The pipeline's parameters (LID-1 defaults; names in the contract; units in metres / degrees)."""
+    """The pipeline's parameters, of the same names (defaults, units and ranges: contract.PARAMS)."""
 
-    voxel_leaf_m: float = 0.05
-    min_range_m: float = 0.5
-    max_range_m: float = 50.0
-    ground_enabled: bool = True
-    ground_distance_threshold_m: float = 0.05
-    ground_max_iterations: int = 100
-    ground_max_angle_deg: float = 10.0
-    min_obstacle_height_m: float = 0.1
-    max_obstacle_height_m: float = 2.0
-    overhead_clearance_m: float = 1.0
-    clustering_enabled: bool = False
-    cluster_tolerance_m: float = 0.2
-    min_cluster_size: int = 10
-    max_cluster_size: int = 5000
-    max_points: int = 500_000
+    voxel_leaf_m: float = param("voxel_leaf_m")
+    min_range_m: float = param("min_range_m")
+    max_range_m: float = param("max_range_m")
+    ground_enabled: bool = param("ground_enabled")
+    ground_distance_threshold_m: float = param("ground_distance_threshold_m")
+    ground_max_iterations: int = param("ground_max_iterations")
+    ground_max_angle_deg: float = param("ground_max_angle_deg")
+    min_obstacle_height_m: float = param("min_obstacle_height_m")
+    max_obstacle_height_m: float = param("max_obstacle_height_m")
+    overhead_clearance_m: float = param("overhead_clearance_m")
+    clustering_enabled: bool = param("clustering_enabled")
+    cluster_tolerance_m: float = param("cluster_tolerance_m")
+    min_cluster_size: int = param("min_cluster_size")
+    max_cluster_size: int = param("max_cluster_size")
+    max_points: int = param("max_points")
 
 
 MIN_SENSOR_HEIGHT_M = 0.2    # a "ground" plane less than this below the sensor (or above it) is not ground

@@ -163,6 +163,7 @@ class MissionManager(OperatorCommands, FcAuthority, OutageWatch, Restart, Percep
         self.vehicle: VehicleState | None = None
         self.vehicle_rx_s: float | None = None
         self.last_tick_s: float | None = None
+        self.awake_since_s: float | None = None
         self.armed_seen = False                 # armed since entering TAKEOFF (FC_LANDED guard)
         self.perception_healthy = False
         self.perception_rx_s: float | None = None

@@ -32,6 +32,7 @@ class OutageWatch:
     fmu_outage: Outage | None
     fmu_alive: bool
     planner_alive: bool             # unknown until its token is seen: assume up
+    awake_since_s: float | None     # when this process last resumed from a stall of its own
 
     @property
     def outage(self) -> str | None:
@@ -65,10 +66,16 @@ class OutageWatch:
                     and st.header.stamp_ns - stale_at < self.cfg.vehicle_timeout_s * 1e9)
 
     def _check_vehicle_age(self, now_s: float, stalled: bool) -> None:
-        """(tick) No state/vehicle for vehicle_timeout_s is an fmu outage, unless this process
-        itself stalled (`stalled`: samples may be queued, not missing)."""
-        if (self.vehicle_rx_s is not None and not self.outage and not stalled
-                and now_s - self.vehicle_rx_s > self.cfg.vehicle_timeout_s):
+        """(tick) No state/vehicle for vehicle_timeout_s of this process's own running time is an
+        fmu outage. `stalled` (this process itself stopped: CPU, GIL, SIGSTOP) restarts that time:
+        the samples fmu sent meanwhile are queued, and a loaded host can take more than one tick
+        to deliver them, so only a full vehicle_timeout_s awake without one is an outage."""
+        if stalled:
+            self.awake_since_s = now_s
+        if self.vehicle_rx_s is None or self.outage:
+            return
+        silent_s = now_s - max(self.vehicle_rx_s, self.awake_since_s or 0.0)
+        if silent_s > self.cfg.vehicle_timeout_s:
             self._outage_begins(f"fmu outage (no state/vehicle for {now_s - self.vehicle_rx_s:.1f} s)",
                                 stamp_ns=self.vehicle.header.stamp_ns if self.vehicle else 0)
 

@@ -19,6 +19,7 @@ from aeroperception.schemas import (
 )
 from aeroperception.services.lib.geo import MapProjection
 from aeroperception.services.lib.pose_history import PoseHistory
+from aeroperception.services.runtime import param, section
 
 from . import contract
 from .projection import (
@@ -28,17 +29,26 @@ from .projection import (
 from .tracker import ObjectTrackerConfig, Observation, Track, Tracker
 
 
-def tracker_config(p) -> ObjectTrackerConfig:
-    return ObjectTrackerConfig(confirm_hits=p.confirm_hits, lost_timeout_s=p.lost_timeout_s,
-                               tentative_timeout_s=p.tentative_timeout_s, high_score=p.high_score, low_score=p.min_score,
-                               gate_distance_m=p.gate_distance_m, accel_noise_mps2=p.accel_sigma_mps2, forget_s=p.forget_s,
-                               birth_sigma_m=p.birth_sigma_m, birth_spacing_m=p.birth_spacing_m,
-                               partial_ratio=p.partial_ratio, partial_scale=p.partial_scale,
-                               crowd_scale=p.crowd_scale, confirm_scale=p.confirm_scale, coast_tau_s=p.coast_tau_s,
-                               partial_sigma_scale=p.partial_sigma_scale)
+@dataclass(frozen=True)
+class ObjectsConfig:
+    """Every parameter of contract.PARAMS, referenced once (rebuilt on a live change)."""
+
+    tracker: ObjectTrackerConfig = section(ObjectTrackerConfig)
+    stereo: bool = param("stereo")
+    stereo_max_range_m: float = param("stereo_max_range_m")
+    max_range_m: float = param("max_range_m")
+    ground_z_m: float = param("ground_z_m")
+    pose_tolerance_s: float = param("pose_tolerance_s")
+    min_score: float = param("min_score")
+    pixel_sigma_px: float = param("pixel_sigma_px")
+    disparity_sigma_px: float = param("disparity_sigma_px")
+    height_sigma_m: float = param("height_sigma_m")
+    position_sigma_m: float = param("position_sigma_m")
+    pose_time_sigma_s: float = param("pose_time_sigma_s")
+    attitude_sigma_rad: float = param("attitude_sigma_rad")
 
 
-def noise(p, turn_px: float = 0.0) -> Noise:
+def noise(p: ObjectsConfig, turn_px: float = 0.0) -> Noise:
     """The placement noise; `turn_px` (the pixels the camera turns through in the pose's timing
     uncertainty) adds to the box centre's: a ray's direction is what an attitude error moves, so
     the ground path's range takes it amplified at a shallow angle, as it does the pixel noise."""
@@ -98,15 +108,15 @@ class FrameResult:
 class ObjectsPipeline:
     """Feed it state, home, camera infos and images as they come; `process(detections)` per frame."""
 
-    def __init__(self, params):
-        self.params = params
+    def __init__(self, cfg: ObjectsConfig):
+        self.cfg = cfg
         self.poses = PoseHistory()
         self.frames = StereoFrames()
         self.infos: dict[str, CameraInfo | None] = {"left": None, "right": None}
         self.camera: Camera | None = None
         self.home: HomePosition | None = None
         self.projection: MapProjection | None = None
-        self.tracker = Tracker(tracker_config(params))
+        self.tracker = Tracker(cfg.tracker)
         self.dropped = Counter()               # detections (or frames) not placed, by reason
         self.placed = Counter()                # detections placed, by method
         self.last_stamp_ns = 0
@@ -129,13 +139,14 @@ class ObjectsPipeline:
     def on_image(self, side: str, msg: Image) -> None:
         self.frames.add(side, msg)
 
-    def reconfigure(self) -> None:
-        self.tracker.configure(tracker_config(self.params))
+    def reconfigure(self, cfg: ObjectsConfig) -> None:
+        self.cfg = cfg
+        self.tracker.configure(cfg.tracker)
 
     # ------------------------------------------------------------ one frame
 
     def ground_z_m(self) -> float:
-        return self.home.position_m.z if self.home is not None else self.params.ground_z_m
+        return self.home.position_m.z if self.home is not None else self.cfg.ground_z_m
 
     def process(self, dets: Detection2DArray) -> FrameResult | None:
         """Place, associate, publishable result; None when the frame cannot be used (counted)."""
@@ -147,7 +158,7 @@ class ObjectsPipeline:
         if self.camera is None:
             self.dropped["frame_no_camera_info"] += 1
             return None
-        pose = self.poses.at(stamp, self.params.pose_tolerance_s)
+        pose = self.poses.at(stamp, self.cfg.pose_tolerance_s)
         if pose is None:
             self.dropped["frame_no_pose"] += 1
             return None
@@ -167,7 +178,7 @@ class ObjectsPipeline:
         return [self._event(ObjectEvent.LOST, t, stamp_ns) for t in ev.lost]
 
     def _observations(self, dets: Detection2DArray, pose) -> list[Observation]:
-        p, cam = self.params, self.camera
+        p, cam = self.cfg, self.camera
         nz = noise(p, cam.fx * pose.rate_radps * p.pose_time_sigma_s)
         pair = self.frames.pair(dets.header.stamp_ns) if p.stereo and cam.baseline_m > 0 else None
         max_disp = int(np.ceil(cam.fx * cam.baseline_m / p.stereo_max_range_m)) if pair else 0

@@ -8,18 +8,19 @@ stamp, calibration, home) under the node lock, which the worker takes while it p
 """
 from __future__ import annotations
 
+import functools
 import time
 from collections import deque
 
 import numpy as np
 
 from aeroperception.schemas import (
-    CameraInfo, Detection2DArray, DiagnosticStatus, HomePosition, Image, ObjectEvent, TrackedObjectArray, VehicleState,
+    CameraInfo, Detection2DArray, DiagnosticStatus, HomePosition, Image, ObjectEvent, VehicleState,
 )
 from aeroperception.services.runtime import CallError, Health, LatestWorker, Service, run
 
 from . import contract
-from .logic import ObjectsPipeline
+from .logic import ObjectsConfig, ObjectsPipeline
 
 SIDES = ("left", "right")
 
@@ -29,34 +30,56 @@ class ObjectsService(Service):
 
     NAME = contract.NAME
     PARAMS = contract.PARAMS
+    CONTRACT = contract
+    CONFIG = ObjectsConfig
 
     def start(self) -> None:
         node = self.node
-        self.pipeline = ObjectsPipeline(self.params)
+        self.pipeline = ObjectsPipeline(self.cfg)
         self.frame_ms: deque[tuple[float, float]] = deque(maxlen=1000)   # (wall, CPU) per frame: minutes of a flight
         self.received = 0
         self.events_sent = {ObjectEvent.CONFIRMED: 0, ObjectEvent.LOST: 0, ObjectEvent.REACQUIRED: 0}
-        self.pub_objects = node.publisher("perception/objects", TrackedObjectArray)
-        self.pub_events = node.publisher("perception/objects/events", ObjectEvent)
+        self.pub_objects = self.io["perception/objects"]
+        self.pub_events = self.io["perception/objects/events"]
         self.worker = LatestWorker(self._process, "objects-frame", on_error=self._on_error)
-        self.params.on_change(lambda _name, _value: self.pipeline.reconfigure())
-        node.subscribe("state/vehicle", VehicleState, self.pipeline.on_state)
-        node.subscribe("fmu/out/home_position", HomePosition, self.pipeline.on_home)
         for side in SIDES:
-            node.subscribe(f"sensors/camera/{side}/image", Image, lambda m, s=side: self.pipeline.on_image(s, m))
-            node.subscribe(f"sensors/camera/{side}/info", CameraInfo, lambda m, s=side: self.pipeline.on_info(s, m))
-            node.call_async(f"sensors/camera/{side}/info", None, CameraInfo,
-                            lambda r, s=side: None if isinstance(r, CallError) else
-                            node.run_callback(f"sensors/camera/{s}/info", self.pipeline.on_info, s, r))
-        node.subscribe("perception/detections", Detection2DArray, self._on_detections)
+            node.call_async(f"sensors/camera/{side}/info", None, CameraInfo, functools.partial(self._on_info_reply, side))
         node.every(0.5, self._expire, name="expire")
 
     def stop(self) -> None:
         self.worker.stop()
 
-    def _on_detections(self, msg: Detection2DArray) -> None:
+    def on_config(self, cfg: ObjectsConfig) -> None:
+        self.pipeline.reconfigure(cfg)
+
+    # ------------------------------------------------------------ inputs (node lock held)
+
+    def on_perception_detections(self, msg: Detection2DArray) -> None:
         self.received += 1
         self.worker.offer(msg)
+
+    def on_state_vehicle(self, msg: VehicleState) -> None:
+        self.pipeline.on_state(msg)
+
+    def on_fmu_out_home_position(self, msg: HomePosition) -> None:
+        self.pipeline.on_home(msg)
+
+    def on_sensors_camera_left_image(self, msg: Image) -> None:
+        self.pipeline.on_image("left", msg)
+
+    def on_sensors_camera_right_image(self, msg: Image) -> None:
+        self.pipeline.on_image("right", msg)
+
+    def on_sensors_camera_left_info(self, msg: CameraInfo) -> None:
+        self.pipeline.on_info("left", msg)
+
+    def on_sensors_camera_right_info(self, msg: CameraInfo) -> None:
+        self.pipeline.on_info("right", msg)
+
+    def _on_info_reply(self, side: str, reply: CameraInfo | CallError) -> None:
+        """The latched camera model asked for at start (a worker thread: taken like an input)."""
+        if not isinstance(reply, CallError):
+            self.node.run_callback(f"sensors/camera/{side}/info", self.pipeline.on_info, side, reply)
 
     def _on_error(self, e: BaseException) -> None:
         self.node.callback_errors["objects-frame"] += 1

@@ -17,6 +17,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from aeroperception.services.runtime import param
+
 from .projection import Measurement
 
 CHI2_3DOF_99 = 11.345                   # squared Mahalanobis gate, 3 degrees of freedom, 99 %
@@ -31,23 +33,25 @@ def _horizontal_sigma(cov: np.ndarray) -> float:
 
 @dataclass(frozen=True)
 class ObjectTrackerConfig:
-    confirm_hits: int = 3
-    lost_timeout_s: float = 3.0
-    tentative_timeout_s: float = 0.5
-    high_score: float = 0.5
-    low_score: float = 0.1
-    gate_distance_m: float = 3.0
-    accel_noise_mps2: float = 0.5       # constant-velocity model: white acceleration, 1 sigma
-    initial_speed_mps: float = 2.0      # 1 sigma of a new track's unknown velocity
-    forget_s: float = 600.0             # a lost track is remembered this long: seen again, it is reacquired
-    coast_tau_s: float = 0.5            # an unseen track's velocity decays with this time constant
-    partial_ratio: float = 1.25         # a box this much shorter or taller than the track's boxes is a partial view
-    partial_scale: float = 0.75         # a box_scale below this is a partial view whatever the track's boxes
-    crowd_scale: float = 2.0            # a box_scale above this takes in more than the object (a neighbour)
-    confirm_scale: float = 0.92         # half of a track's whole boxes must reach this box_scale to confirm it
-    partial_sigma_scale: float = 1.0    # a shorter box's placement widened by this x (1 - r) x its class's length
-    birth_sigma_m: float = 2.0          # a detection less precise than this (horizontal 1 sigma) never starts a track
-    birth_spacing_m: float = 2.5        # nor one this close to a known track of its class
+    """The tracker's parameters (defaults, units and ranges, and what each does: contract.PARAMS)."""
+
+    confirm_hits: int = param("confirm_hits")
+    lost_timeout_s: float = param("lost_timeout_s")
+    tentative_timeout_s: float = param("tentative_timeout_s")
+    high_score: float = param("high_score")
+    low_score: float = param("min_score")
+    gate_distance_m: float = param("gate_distance_m")
+    accel_noise_mps2: float = param("accel_sigma_mps2")   # constant-velocity model: white acceleration, 1 sigma
+    forget_s: float = param("forget_s")
+    coast_tau_s: float = param("coast_tau_s")
+    partial_ratio: float = param("partial_ratio")
+    partial_scale: float = param("partial_scale")
+    crowd_scale: float = param("crowd_scale")
+    confirm_scale: float = param("confirm_scale")
+    partial_sigma_scale: float = param("partial_sigma_scale")
+    birth_sigma_m: float = param("birth_sigma_m")
+    birth_spacing_m: float = param("birth_spacing_m")
+    initial_speed_mps: float = 2.0      # 1 sigma of a new track's unknown velocity (not a parameter)
 
 
 @dataclass

@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from aeroperception.schemas import DiagnosticStatus, Header, PerceptionHealth, VioHealth
+from aeroperception.services.runtime import param
 
 PH = PerceptionHealth
 VIO_STATUS = {VioHealth.INIT: PH.INITIALIZING, VioHealth.TRACKING: PH.HEALTHY,
@@ -20,6 +21,21 @@ DIAG_STATUS = {DiagnosticStatus.OK: PH.HEALTHY, DiagnosticStatus.WARN: PH.DEGRAD
                DiagnosticStatus.ERROR: PH.FAILED, DiagnosticStatus.STALE: PH.UNKNOWN}
 SOURCES = ("vio", "detector", "lidar")
 QUIET = (PH.HEALTHY, PH.NOT_CONFIGURED)   # statuses the verdict's message gives without detail
+
+
+@dataclass(frozen=True)
+class CoordinatorConfig:
+    """The coordinator's parameters (contract.PARAMS), rebuilt on a live change."""
+
+    sources: str = param("sources")
+    vio_timeout_s: float = param("vio_timeout_s")
+    detector_timeout_s: float = param("detector_timeout_s")
+    lidar_timeout_s: float = param("lidar_timeout_s")
+    publish_rate_hz: float = param("publish_rate_hz")
+    check_rate_hz: float = param("check_rate_hz")
+
+    def timeouts_s(self) -> dict[str, float]:
+        return {"vio": self.vio_timeout_s, "detector": self.detector_timeout_s, "lidar": self.lidar_timeout_s}
 
 
 @dataclass
@@ -44,6 +60,15 @@ class Coordinator:
         self.sources = sources
         self.seen = {s: _Seen() for s in SOURCES}
         self.last_key: tuple | None = None
+
+    @classmethod
+    def from_config(cls, cfg: CoordinatorConfig) -> "Coordinator":
+        return cls(cfg.timeouts_s(), parse_sources(cfg.sources))
+
+    def configure(self, cfg: CoordinatorConfig) -> None:
+        """A new config (a live change); ValueError naming an unknown source, nothing changed."""
+        sources = parse_sources(cfg.sources)
+        self.timeouts_s, self.sources = cfg.timeouts_s(), sources
 
     def on_vio(self, msg: VioHealth, now_s: float) -> None:
         self.seen["vio"] = _Seen(VIO_STATUS.get(msg.state, PH.UNKNOWN), f"{msg.state_name}: {msg.message}", now_s)

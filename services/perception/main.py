@@ -7,7 +7,7 @@ from aeroperception.schemas import DiagnosticStatus, PerceptionHealth, VioHealth
 from aeroperception.services.runtime import Health, ParamError, Service, run
 
 from . import contract
-from .logic import SOURCES, Coordinator, parse_sources
+from .logic import SOURCES, Coordinator, CoordinatorConfig
 
 LEVEL = {PerceptionHealth.HEALTHY: DiagnosticStatus.OK, PerceptionHealth.NOT_CONFIGURED: DiagnosticStatus.OK,
          PerceptionHealth.FAILED: DiagnosticStatus.ERROR}
@@ -18,41 +18,44 @@ class PerceptionService(Service):
 
     NAME = contract.NAME
     PARAMS = contract.PARAMS
+    CONTRACT = contract
+    CONFIG = CoordinatorConfig
 
     def start(self) -> None:
-        p = self.params
-        self.coord = Coordinator({s: p[f"{s}_timeout_s"] for s in SOURCES}, parse_sources(p.sources))
-        self.params.on_change(self._on_param)
-        self.pub = self.node.publisher("perception/health", PerceptionHealth)
+        self.coord = Coordinator.from_config(self.cfg)
+        self.pub = self.io["perception/health"]
         self.last: PerceptionHealth | None = None
         self.last_sent_s = 0.0
         self.published = 0
-        node = self.node
-        node.subscribe("state/vio_health", VioHealth, lambda m: self._input(self.coord.on_vio, m))
-        node.subscribe("perception/detector_health", DiagnosticStatus, lambda m: self._input(self.coord.on_detector, m))
-        node.subscribe("diagnostics/lidar", DiagnosticStatus, lambda m: self._input(self.coord.on_lidar, m))
-        self.loop = node.every(1.0 / p.check_rate_hz, self._check, name="check")
+        self.loop = self.node.every(1.0 / self.cfg.check_rate_hz, self._check, name="check")
 
-    def _on_param(self, name, value) -> None:
-        if name.endswith("_timeout_s") and name[: -len("_timeout_s")] in SOURCES:
-            self.coord.timeouts_s[name[: -len("_timeout_s")]] = value
-        elif name == "check_rate_hz":
-            self.loop.set_rate(value)
-        elif name == "sources":
-            try:
-                self.coord.sources = parse_sources(value)
-            except ValueError as e:
-                raise ParamError(str(e)) from None
-            self._check()
+    def on_config(self, cfg: CoordinatorConfig) -> None:
+        try:
+            self.coord.configure(cfg)
+        except ValueError as e:
+            raise ParamError(str(e)) from None
+        if cfg.check_rate_hz != self.cfg.check_rate_hz:
+            self.loop.set_rate(cfg.check_rate_hz)
+        if cfg.sources != self.cfg.sources:
+            self._check(cfg)
 
-    def _input(self, feed, msg) -> None:
-        feed(msg, time.monotonic())
+    def on_state_vio_health(self, msg: VioHealth) -> None:
+        self.coord.on_vio(msg, time.monotonic())
         self._check()
 
-    def _check(self) -> None:
+    def on_perception_detector_health(self, msg: DiagnosticStatus) -> None:
+        self.coord.on_detector(msg, time.monotonic())
+        self._check()
+
+    def on_diagnostics_lidar(self, msg: DiagnosticStatus) -> None:
+        self.coord.on_lidar(msg, time.monotonic())
+        self._check()
+
+    def _check(self, cfg: CoordinatorConfig | None = None) -> None:
+        """The verdict, published on a change or when due (`cfg`: the one about to be taken)."""
         now = time.monotonic()
         msg = self.coord.verdict(now, self.node.now_ns())
-        if self.coord.changed(msg) or now - self.last_sent_s >= 1.0 / self.params.publish_rate_hz:
+        if self.coord.changed(msg) or now - self.last_sent_s >= 1.0 / (cfg or self.cfg).publish_rate_hz:
             self.pub.publish(msg)
             self.last, self.last_sent_s = msg, now
             self.published += 1

@@ -25,6 +25,7 @@ import msgspec
 from mcap.writer import CompressionType, Writer
 
 from aeroperception.schemas import REGISTRY
+from aeroperception.services.runtime import param, section
 
 from . import contract
 
@@ -36,6 +37,11 @@ MSGPACK_MIME = "application/msgpack"
 
 def default_output_dir() -> Path:
     return Path(os.environ.get("AERO_RECORD_DIR") or Path.home() / ".aero" / "recordings")
+
+
+def output_path(text: str) -> Path:
+    """The output_dir parameter: a path (~ expanded), '' = default_output_dir()."""
+    return Path(text).expanduser() if text else default_output_dir()
 
 
 def select_keys(preset: str, keys: Iterable[str] = (), record_images: bool = False) -> list[str]:
@@ -115,15 +121,17 @@ class BoundedBuffer:
             self._cond.notify_all()
 
 
-@dataclass
+@dataclass(frozen=True)
 class SinkConfig:
-    output_dir: Path
-    prefix: str = "aero"
-    max_bag_size: int = 1 << 30
-    chunk_size: int = 1 << 20
-    compression: str = "zstd"
-    flush_interval_s: float = 0.5
-    max_total_size: int = 0      # disk budget of <prefix>_*.mcap in output_dir (0: none), see McapSink._rotate
+    """Where and how the files are written (defaults, units and ranges: contract.PARAMS)."""
+
+    output_dir: Path = param("output_dir", output_path)
+    prefix: str = param("prefix")
+    max_bag_size: int = param("max_bag_size")
+    chunk_size: int = param("chunk_size")
+    compression: str = param("compression")
+    flush_interval_s: float = param("flush_interval_s")
+    max_total_size: int = param("max_total_size")    # disk budget of <prefix>_*.mcap in output_dir (0: none), see McapSink._rotate
 
     def check(self) -> None:
         """A budget must hold a finished split besides the one being written (at most
@@ -132,6 +140,22 @@ class SinkConfig:
         if self.max_total_size and self.max_total_size < least:
             raise ValueError(f"max_total_size {self.max_total_size} B keeps less than one finished file: "
                              f"give at least 2 x max_bag_size + chunk_size = {least} B, or lower max_bag_size")
+
+
+@dataclass(frozen=True)
+class RecorderConfig:
+    """Every parameter of contract.PARAMS, referenced once (all read when the recording starts)."""
+
+    sink: SinkConfig = section(SinkConfig)
+    preset: str = param("preset")
+    keys: str = param("keys")
+    record_images: bool = param("record_images")
+    max_buffer_mb: float = param("max_buffer_mb")
+    params_timeout_s: float = param("params_timeout_s")
+
+    def key_exprs(self) -> list[str]:
+        """The key expressions to record (select_keys)."""
+        return select_keys(self.preset, [k for k in self.keys.split(",") if k.strip()], self.record_images)
 
 
 _COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}

@@ -1,4 +1,10 @@
-"""Process shell: subscribe to the preset's keys, hand raw samples to the Recording, report health."""
+"""Process shell: subscribe to the preset's keys, hand raw samples to the Recording, report health.
+
+Its subscriptions are not its contract's: the preset's key expressions (any key, `**` included)
+are taken raw (Node.subscribe_raw: no schema, no decoding) and recorded with each sample's own
+encoding, so they cannot be contract Topics (a key and a schema). It declares CONTRACT all the
+same, so Node.bind refuses an input or output it would grow by hand; its config is RecorderConfig.
+"""
 from __future__ import annotations
 
 import json
@@ -14,7 +20,7 @@ from aeroperception.schemas import DiagnosticStatus, ParamList, SchemaError, dec
 from aeroperception.services.runtime import Health, ParamError, Service, run
 
 from . import contract
-from .logic import KeyFilter, McapSink, Recording, SinkConfig, default_output_dir, select_keys
+from .logic import KeyFilter, McapSink, Recording, RecorderConfig
 
 
 def stack_version() -> str:
@@ -41,19 +47,17 @@ class RecorderService(Service):
 
     NAME = contract.NAME
     PARAMS = contract.PARAMS
+    CONTRACT = contract
+    CONFIG = RecorderConfig
 
     @classmethod
     def add_arguments(cls, parser) -> None:
         parser.add_argument("--scenario", default="", help="scenario name for the file's metadata")
 
     def start(self) -> None:
-        p = self.params
-        extra = [k for k in p.keys.split(",") if k.strip()]
-        self.exprs = select_keys(p.preset, extra, p.record_images)
-        out = Path(p.output_dir).expanduser() if p.output_dir else default_output_dir()
-        cfg = SinkConfig(output_dir=out, prefix=p.prefix, max_bag_size=p.max_bag_size, chunk_size=p.chunk_size,
-                         compression=p.compression, flush_interval_s=p.flush_interval_s,
-                         max_total_size=p.max_total_size)
+        p = self.cfg
+        self.exprs = p.key_exprs()
+        cfg = p.sink
         try:
             cfg.check()
         except ValueError as e:
@@ -69,8 +73,8 @@ class RecorderService(Service):
         self._drops_seen, self._drop_at = 0, float("-inf")
         for i, expr in enumerate(self.exprs):
             self.node.subscribe_raw(self.node.key(expr), self._on_sample_for(i))
-        self.log.info("recording", keys=self.exprs, output_dir=str(out), max_bag_size=p.max_bag_size,
-                      max_total_size=p.max_total_size or None)
+        self.log.info("recording", keys=self.exprs, output_dir=str(cfg.output_dir), max_bag_size=cfg.max_bag_size,
+                      max_total_size=cfg.max_total_size or None)
         threading.Thread(target=self._record_params, name="recorder-params", daemon=True).start()
 
     def _on_sample_for(self, index: int):
@@ -86,7 +90,7 @@ class RecorderService(Service):
         try:
             replies = self.node.session.get(key, target=zenoh.QueryTarget.ALL,
                                             consolidation=zenoh.ConsolidationMode.NONE,
-                                            timeout=self.params.params_timeout_s)
+                                            timeout=self.cfg.params_timeout_s)
             for r in replies:
                 if r.ok is None:
                     continue

@@ -1,30 +1,33 @@
 """Process shell: our keys -> rmw_zenoh publications, one ROS goal topic -> the mission's goto action.
 
 Topics and names are read at start (restart the service to change them). Every sample is
-converted and sent from the subscriber's callback: a slow ROS consumer cannot queue anything
-here, and `max_rate_hz` drops extra samples of a fast key instead of copying every image.
+converted and sent from the subscriber's callback (bridge.TopicBridge): a slow ROS consumer
+cannot queue anything here, and `max_rate_hz` drops extra samples of a fast key instead of
+copying every image.
+
+Our keys are wired from the contract: the `topics` parameter selects which of its INPUTS are
+bound (bind_selection), each to its TopicBridge through one table of handlers. The ROS side is
+declared by hand, and must be: rmw_zenoh's data keys (`<domain>/<namespace>/<topic>/<type>/<hash>`,
+CDR payloads, built from the parameters at start) and its `@ros2_lv/**` liveliness tokens are
+not the stack's key space, so no contract Topic can name them.
 """
 from __future__ import annotations
 
-import os
-import time
+import functools
 from collections import Counter
 
 import zenoh
 
-from aeroperception.schemas import DiagnosticStatus, GoalReply
+from aeroperception.schemas import DiagnosticStatus, GoalReply, GoToPositionGoal
 from aeroperception.services.runtime import Health, Service, run
 from aeroperception.services.runtime.node import CallError
 
 from . import contract
+from .bridge import RosBridgeConfig, TopicBridge, ros_name
 from .convert import CATALOG, GOAL_TYPE, Converter, conversion
-from .rmw import RosNode, attachment, data_key, make_typestore
+from .rmw import RosNode, data_key, make_typestore
 
 CDR = zenoh.Encoding("application/cdr")
-
-
-def ros_name(namespace: str, topic: str) -> str:
-    return "/" + "/".join(p for p in (namespace.strip("/"), topic.strip("/")) if p)
 
 
 class RosBridgeService(Service):
@@ -32,27 +35,29 @@ class RosBridgeService(Service):
 
     NAME = contract.NAME
     PARAMS = contract.PARAMS
+    CONTRACT = contract
+    CONFIG = RosBridgeConfig
+
+    def handlers(self) -> dict:
+        """Every input to its TopicBridge (`_on_input` with its key)."""
+        return {t.handler_name: functools.partial(self._on_input, key) for key, t in contract.INPUTS.declared.items()}
+
+    def bind_selection(self) -> dict:
+        return {"inputs": self.cfg.bridged_keys()}      # an unknown key fails at start, naming what exists
 
     def start(self) -> None:
-        p = self.params
-        keys = [k.strip() for k in p.topics.split(",") if k.strip()]
-        unknown = [k for k in keys if k not in CATALOG]
-        if unknown:
-            raise ValueError(f"topics: {', '.join(unknown)} cannot be bridged; choose from {', '.join(CATALOG)}")
+        p = self.cfg
         self.store = make_typestore()
         self.conv = Converter(self.store)
         session = self.node.session
         self.ros = RosNode(domain_id=p.domain_id, zid=str(session.zid()), namespace=p.namespace, name=p.node_name)
         self.entities = [session.liveliness().declare_token(self.ros.token())]
-        self.sent: Counter = Counter()
-        self.dropped: Counter = Counter()
-        self.errors: Counter = Counter()
-        self.unheard: Counter = Counter()   # samples skipped: no ROS subscriber matched
+        self.bridges: dict[str, TopicBridge] = {}
         self.goals = Counter()
         self.last_goal = ""
         self.topics: dict[str, str] = {}
         entity = 0
-        for key in keys:
+        for key in p.bridged_keys():
             entity += 1
             self._bridge(key, entity)
         goal_topic = p.goal_topic.strip("/")
@@ -62,47 +67,28 @@ class RosBridgeService(Service):
 
     def _bridge(self, key: str, entity_id: int) -> None:
         b = CATALOG[key]
-        topic = ros_name(self.params.namespace, b.topic)
+        topic = ros_name(self.cfg.namespace, b.topic)
         type_hash = self.store.hash_rihs01(b.ros_type)
-        pub = self.node.session.declare_publisher(data_key(self.params.domain_id, topic, b.ros_type, type_hash),
+        pub = self.node.session.declare_publisher(data_key(self.cfg.domain_id, topic, b.ros_type, type_hash),
                                                   encoding=CDR)
         self.entities.append(self.node.session.liveliness().declare_token(
             self.ros.endpoint_token("MP", entity_id, topic, b.ros_type, type_hash)))
-        convert = conversion(self.conv, b)
-        gid = os.urandom(16)
-        min_period = 1.0 / self.params.max_rate_hz
-        last = [0.0]
+        bridge = self.bridges[key] = TopicBridge(key, b.ros_type, conversion(self.conv, b), self.store.serialize_cdr,
+                                                 pub.put, self.cfg.max_rate_hz, self.node.report_bad_input)
         # Nobody on the ROS side listening: no conversion at all (images and clouds cost CPU).
-        matching = [pub.matching_status.matching]
-        self.entities.append(pub.declare_matching_listener(lambda st: matching.__setitem__(0, st.matching)))
-
-        def on_message(msg) -> None:
-            if not matching[0]:
-                self.unheard[key] += 1
-                return
-            now = time.monotonic()
-            if now - last[0] < min_period:
-                self.dropped[key] += 1
-                return
-            last[0] = now
-            try:
-                cdr = self.store.serialize_cdr(convert(msg), b.ros_type)
-            except Exception as e:  # noqa: BLE001 - one unconvertible sample is counted, not fatal
-                self.errors[key] += 1
-                self.node.report_bad_input(key, f"cannot convert to {b.ros_type}: {e}")
-                return
-            self.sent[key] += 1
-            pub.put(bytes(cdr), attachment=attachment(self.sent[key], time.time_ns(), gid))
-
-        self.node.subscribe(key, contract.INPUTS[key], on_message)
+        bridge.matching = pub.matching_status.matching
+        self.entities.append(pub.declare_matching_listener(bridge.on_matching))
         self.topics[topic] = b.ros_type
+
+    def _on_input(self, key: str, msg) -> None:
+        self.bridges[key].on_message(msg)
 
     def _goal_input(self, topic: str, entity_id: int) -> None:
         type_hash = self.store.hash_rihs01(GOAL_TYPE)
-        key = data_key(self.params.domain_id, topic, GOAL_TYPE, type_hash)
+        key = data_key(self.cfg.domain_id, topic, GOAL_TYPE, type_hash)
         self.entities.append(self.node.session.liveliness().declare_token(
             self.ros.endpoint_token("MS", entity_id, topic, GOAL_TYPE, type_hash)))
-        self.node.subscribe_raw(key, lambda s: self._on_goal(key, s))
+        self.node.subscribe_raw(key, functools.partial(self._on_goal, key))
         self.topics[topic] = GOAL_TYPE
 
     def _on_goal(self, key: str, sample: zenoh.Sample) -> None:
@@ -115,24 +101,26 @@ class RosBridgeService(Service):
             self.node.report_bad_input(key, str(e) or type(e).__name__)
             return
         self.goals["received"] += 1
+        self.node.call_async("mission/action/goto/goal", goal, GoalReply, functools.partial(self._on_goal_reply, goal),
+                             timeout_s=3.0)
 
-        def done(reply: GoalReply | CallError) -> None:
-            ok = not isinstance(reply, CallError) and reply.success
-            self.goals["accepted" if ok else "refused"] += 1
-            self.last_goal = "accepted" if ok else (str(reply) if isinstance(reply, CallError) else reply.message)
-            self.node.log.info("ros_goal", accepted=ok, reason=self.last_goal,
-                               position=[goal.position_m.x, goal.position_m.y, goal.position_m.z])
-
-        self.node.call_async("mission/action/goto/goal", goal, GoalReply, done, timeout_s=3.0)
+    def _on_goal_reply(self, goal: GoToPositionGoal, reply: GoalReply | CallError) -> None:
+        ok = not isinstance(reply, CallError) and reply.success
+        self.goals["accepted" if ok else "refused"] += 1
+        self.last_goal = "accepted" if ok else (str(reply) if isinstance(reply, CallError) else reply.message)
+        self.node.log.info("ros_goal", accepted=ok, reason=self.last_goal,
+                           position=[goal.position_m.x, goal.position_m.y, goal.position_m.z])
 
     def health(self) -> Health:
-        values = {"topics": len(self.topics), "sent": sum(self.sent.values()),
-                  "dropped_rate_limit": sum(self.dropped.values()),
-                  "skipped_no_subscriber": sum(self.unheard.values()), "convert_errors": sum(self.errors.values()),
+        bridges = self.bridges.values()
+        errors = sum(b.errors for b in bridges)
+        values = {"topics": len(self.topics), "sent": sum(b.sent for b in bridges),
+                  "dropped_rate_limit": sum(b.dropped for b in bridges),
+                  "skipped_no_subscriber": sum(b.unheard for b in bridges), "convert_errors": errors,
                   "goals": ",".join(f"{k}={v}" for k, v in sorted(self.goals.items())) or "none",
                   "last_goal": self.last_goal}
-        level = DiagnosticStatus.WARN if self.errors else DiagnosticStatus.OK
-        return Health(level, f"{len(self.topics)} ROS topics in domain {self.params.domain_id}", values)
+        level = DiagnosticStatus.WARN if errors else DiagnosticStatus.OK
+        return Health(level, f"{len(self.topics)} ROS topics in domain {self.cfg.domain_id}", values)
 
     def stop(self) -> None:
         for t in getattr(self, "tokens", []):

@@ -20,7 +20,7 @@ import importlib
 import os
 import signal
 import sys
-from typing import Any, ClassVar, Sequence
+from typing import Any, ClassVar, Iterable, Sequence
 
 from .config import build, check_covers
 from .node import Health, Node
@@ -64,12 +64,32 @@ class Service:
             self.cfg = build(self.CONFIG, self.params)
             self.params.on_change(self._reconfigure)
         if self.CONTRACT is not None:
-            self.io = self.node.bind(self.CONTRACT, self, **self.bind_selection())
+            self.io = self.node.bind(self.CONTRACT, self.handlers(), **self.bind_selection())
+
+    def launch(self) -> None:
+        """wire() then start(), holding node.lock: what `run` does, for a caller that owns the
+        Node and its lifetime (`aero record`, a test)."""
+        with self.node.lock:
+            self.wire()
+            self.start()
+            self._configured = True
 
     def bind_selection(self) -> dict[str, Any]:
         """Which of the contract's keys this run binds (inputs=, outputs=, services=: key lists);
         {} = all of them. For keys only some modes use (the simulator's --follow)."""
         return {}
+
+    def handlers(self) -> Any:
+        """What the contract's inputs and queryables are delivered to: this service (its
+        on_<key> methods), or a {handler name: callable} mapping for a service whose inputs all go
+        through one table (viz's adapters, ros2bridge's topics): every name must be a declared
+        input's or queryable's handler name, and every bound one must be in it."""
+        return self
+
+    def bind_inputs(self, keys: Iterable[str]) -> None:
+        """Subscribe more of the contract's inputs after start, with their handlers: inputs the
+        selection left out that a live change turns on (a viz rate raised from 0)."""
+        self.node.bind(self.CONTRACT, self.handlers(), inputs=keys, outputs=(), services=())
 
     def _reconfigure(self, _name: str, _value: Any) -> None:
         """A parameter changed: the whole config anew, one on_config (after start; during start()
@@ -185,10 +205,7 @@ def run(service_cls: type[Service], argv: Sequence[str] | None = None) -> int:
     node.set_health(service.health)
     code = 0
     try:
-        with node.lock:
-            service.wire()
-            service.start()
-            service._configured = True
+        service.launch()
         shutdown.wait()
         if shutdown.signal_name:
             node.log.info("signal", signal=shutdown.signal_name)

@@ -1,6 +1,6 @@
 """Contract of vio: keys in/out and parameters (stereo-inertial odometry, requirements VIO-1 - VIO-8)."""
 from aeroperception.schemas import CameraInfo, Image, Imu, Odometry, Reply, VioHealth, VioResetRequest
-from aeroperception.services.runtime import Param, Queries, Query, Topic, Topics
+from aeroperception.services.runtime import EXPRESS, Param, Queries, Query, Topic, Topics
 from aeroperception.services.runtime.params import start_only_but
 
 from .backend import BackendConfig
@@ -22,7 +22,7 @@ OUTPUTS = Topics(
     # 6x6 covariances: the smoother's marginals plus the drift accumulated since initialisation
     # (drift.py: grows with distance flown and yaw turned).
     Topic("state/visual_odometry", Odometry, note="one per processed frame; with imu_rate_hz also IMU-propagated "
-                                                 "poses between frames, stamps always increasing"),
+                                                 "poses between frames, stamps always increasing", qos=EXPRESS),
     Topic("state/vio_health", VioHealth, 1.0, note="and on every state change"),
 )
 SERVICES = Queries(
@@ -36,13 +36,13 @@ CALLS = Queries(
 _DECLARED = [
     Param("strategy", "klt_stereo", description="VioStrategy at start: klt_stereo, klt_mono (okvis2, vins_mono: not built)"),
     Param("max_features", FrontEndConfig.max_features, "", 20, 1000, description="features per keyframe"),
-    Param("keyframe_max_age_s", 0.5, "s", 0.05, 5.0, description="new keyframe at least this often (< 0.9 lag_s)"),
-    Param("ransac_threshold_px", 1.5, "px", 0.3, 10.0, description="PnP RANSAC inlier threshold"),
-    Param("lag_s", 1.5, "s", 0.3, 10.0, description="fixed-lag smoother window"),
+    Param("keyframe_max_age_s", FrontEndConfig.keyframe_max_age_s, "s", 0.05, 5.0, description="new keyframe at least this often (< 0.9 lag_s)"),
+    Param("ransac_threshold_px", FrontEndConfig.ransac_threshold_px, "px", 0.3, 10.0, description="PnP RANSAC inlier threshold"),
+    Param("lag_s", BackendConfig.lag_s, "s", 0.3, 10.0, description="fixed-lag smoother window"),
     Param("covariance_every_frames", BackendConfig.covariance_every_frames, "", 1, 10,
           description="recompute the window's marginal covariance every this many frames with a visual fix "
                       "(always after a frame without one); in between the last is kept. 1 = every frame"),
-    Param("lost_after_frames", 10, "", 1, 1000, description="frames without a visual fix before LOST"),
+    Param("lost_after_frames", VioConfig.lost_after_frames, "", 1, 1000, description="frames without a visual fix before LOST"),
     Param("gyro_noise_density", ImuNoise.gyro_noise_density, "rad/s/sqrt(Hz)", 1e-6, 1.0),
     Param("accel_noise_density", ImuNoise.accel_noise_density, "m/s^2/sqrt(Hz)", 1e-6, 10.0),
     Param("gyro_random_walk", ImuNoise.gyro_random_walk, "rad/s^2/sqrt(Hz)", 1e-9, 1.0),
@@ -51,8 +51,8 @@ _DECLARED = [
           description="1-sigma horizontal drift per axis as % of distance flown, added to the window's covariance"),
     Param("drift_z_pct", 100 * DriftConfig.drift_z_frac, "%", 0.0, 10.0,
           description="1-sigma vertical drift as % of distance flown"),
-    Param("imu_gap_warn_s", 0.05, "s", 0.005, 1.0, description="longer IMU gap: DEGRADED for that frame"),
-    Param("imu_gap_reset_s", 1.0, "s", 0.05, 10.0, description="longer IMU gap: re-initialise"),
+    Param("imu_gap_warn_s", VioConfig.imu_gap_warn_s, "s", 0.005, 1.0, description="longer IMU gap: DEGRADED for that frame"),
+    Param("imu_gap_reset_s", VioConfig.imu_gap_reset_s, "s", 0.05, 10.0, description="longer IMU gap: re-initialise"),
     Param("imu_wait_s", 0.5, "s", 0.0, 5.0,
           description="before a frame, wait up to this long for the IMU samples up to its stamp (they can run "
                       "behind the images under load); then process it with what is in"),
@@ -67,18 +67,6 @@ _DECLARED = [
                       "core): one does the frame's work on the worker thread itself; a pool spent ~10 % more CPU "
                       "a frame (waking, spinning) for a shorter wall time VIO does not need at 20 Hz"),
 ]
-# Every parameter configures the strategy built at start (vio_config): a live set is refused, saying
+# Every parameter configures the strategy built at start (config.py): a live set is refused, saying
 # so, instead of being reported as in force while the old strategy runs.
 PARAMS = start_only_but(_DECLARED)
-
-
-def vio_config(p) -> VioConfig:
-    """The strategy configuration from the parameter values (read at start)."""
-    fe = FrontEndConfig(max_features=p.max_features, keyframe_max_age_s=p.keyframe_max_age_s,
-                        ransac_threshold_px=p.ransac_threshold_px)
-    imu = ImuNoise(gyro_noise_density=p.gyro_noise_density, accel_noise_density=p.accel_noise_density,
-                   gyro_random_walk=p.gyro_random_walk, accel_random_walk=p.accel_random_walk)
-    drift = DriftConfig(drift_xy_frac=p.drift_xy_pct / 100, drift_z_frac=p.drift_z_pct / 100)
-    return VioConfig(frontend=fe, backend=BackendConfig(lag_s=p.lag_s, covariance_every_frames=p.covariance_every_frames), imu=imu, drift=drift,
-                     lost_after_frames=p.lost_after_frames, imu_gap_warn_s=p.imu_gap_warn_s,
-                     imu_gap_reset_s=p.imu_gap_reset_s)

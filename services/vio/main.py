@@ -8,19 +8,19 @@ replaced frame is counted as dropped) and queue IMU samples.
 from __future__ import annotations
 
 import ctypes
+import functools
 import threading
 from collections import deque
 
 import cv2
 import numpy as np
 
-from aeroperception.schemas import (
-    CameraInfo, DiagnosticStatus, Image, Imu, Odometry, Reply, VioHealth as VioHealthMsg, VioResetRequest,
-)
+from aeroperception.schemas import CameraInfo, DiagnosticStatus, Image, Imu, Reply, VioResetRequest
 from aeroperception.services.runtime import CallError, Health, Service, run
 
 from . import contract, messages
 from .calibration import CalibrationError, CameraCalibration
+from .config import VioServiceConfig
 from .slot import FrameSlot, ImuWatermark
 from .dto import (
     DEGRADED, INIT, LOST, STATE_NAMES, TRACKING, ImuWindow, NavCameraFrame, VioDegradedError,
@@ -39,13 +39,15 @@ class VioService(Service):
 
     NAME = contract.NAME
     PARAMS = contract.PARAMS
+    CONTRACT = contract
+    CONFIG = VioServiceConfig
 
     def start(self) -> None:
-        p = self.params
+        p = self.cfg
         if p.opencv_threads > 0:
             cv2.setNumThreads(p.opencv_threads)
         keep_freed_memory()
-        self.strategy = create_strategy(p.strategy, contract.vio_config(p))   # unknown name: fails at start
+        self.strategy = create_strategy(p.strategy, p.strategy_config())   # unknown name: fails at start
         self.stereo = getattr(self.strategy, "stereo", True)
         self.infos: dict[str, CameraInfo | None] = {"left": None, "right": None}
         self.calib: CameraCalibration | None = None
@@ -58,20 +60,15 @@ class VioService(Service):
         self.timings: dict[str, deque] = {}
         self.last_out = None
         self.published_state: int | None = None
-        self.pub_odom = self.node.publisher("state/visual_odometry", Odometry, express=True)
+        self.pub_odom = self.io["state/visual_odometry"]
         self.odom_lock = threading.Lock()
         self.last_odom = (-1, 0)  # (reset_counter, stamp_ns) sent last: stamps only increase until a restart
-        self.propagator = ImuPropagator(contract.vio_config(p).imu, p.imu_rate_hz, p.imu_rate_max_horizon_s) \
+        self.propagator = ImuPropagator(p.imu_noise(), p.imu_rate_hz, p.imu_rate_max_horizon_s) \
             if p.imu_rate_hz > 0 else None
-        self.pub_health = self.node.publisher("state/vio_health", VioHealthMsg)
+        self.pub_health = self.io["state/vio_health"]
         for side in ("left", "right"):
-            self.node.subscribe(f"sensors/camera/{side}/image", Image, lambda m, s=side: self._on_image(s, m))
-            self.node.subscribe(f"sensors/camera/{side}/info", CameraInfo, lambda m, s=side: self._on_info(s, m))
-            self.node.call_async(f"sensors/camera/{side}/info", None, CameraInfo,
-                                 lambda r, s=side: None if isinstance(r, CallError) else self._on_info(s, r))
-        self.node.subscribe("sensors/imu", Imu, self._on_imu)
+            self.node.call_async(f"sensors/camera/{side}/info", None, CameraInfo, functools.partial(self._on_info_reply, side))
         self.pending_warm = None   # set by vio/srv/reset, applied by the worker before its next frame
-        self.node.serve("vio/srv/reset", VioResetRequest, Reply, self._on_reset)
         self.node.every(1.0, self._publish_health, name="health")
         self._stop = threading.Event()
         self.worker = threading.Thread(target=self._work, name="vio-worker", daemon=True)
@@ -84,6 +81,24 @@ class VioService(Service):
         self.worker.join(1.0)
 
     # ------------------------------------------------------------ inputs (callbacks)
+
+    def on_sensors_camera_left_image(self, msg: Image) -> None:
+        self.frames.put("left", msg, msg.header.stamp_ns)
+
+    def on_sensors_camera_right_image(self, msg: Image) -> None:
+        if self.stereo:
+            self.frames.put("right", msg, msg.header.stamp_ns)
+
+    def on_sensors_camera_left_info(self, msg: CameraInfo) -> None:
+        self._on_info("left", msg)
+
+    def on_sensors_camera_right_info(self, msg: CameraInfo) -> None:
+        self._on_info("right", msg)
+
+    def _on_info_reply(self, side: str, reply: CameraInfo | CallError) -> None:
+        """The latched camera model asked for at start (on a call worker thread, not holding node.lock)."""
+        if not isinstance(reply, CallError):
+            self._on_info(side, reply)
 
     def _on_info(self, side: str, msg: CameraInfo) -> None:
         old = self.infos[side]
@@ -102,11 +117,7 @@ class VioService(Service):
             self.calib, self.calib_error = None, str(e)
             self.log.throttled("error", "calib", "calibration_rejected", error=str(e))
 
-    def _on_image(self, side: str, msg: Image) -> None:
-        if side == "left" or self.stereo:
-            self.frames.put(side, msg, msg.header.stamp_ns)
-
-    def _on_imu(self, msg: Imu) -> None:
+    def on_sensors_imu(self, msg: Imu) -> None:
         sample = messages.imu_sample(msg)
         with self.imu_lock:
             self.imu_pending.append(sample)
@@ -125,7 +136,7 @@ class VioService(Service):
             self.last_odom = (out.reset_counter, out.stamp_ns)
         self.pub_odom.publish(messages.odometry(out))
 
-    def _on_reset(self, req: VioResetRequest) -> Reply:
+    def on_vio_reset(self, req: VioResetRequest) -> Reply:
         try:
             warm = messages.warm_start(req)
         except ValueError as e:
@@ -152,7 +163,7 @@ class VioService(Service):
             pair = self.frames.take(0.2)
             if pair is None:
                 continue
-            self.imu_mark.wait_for(pair[0].header.stamp_ns, self.params.imu_wait_s)
+            self.imu_mark.wait_for(pair[0].header.stamp_ns, self.cfg.imu_wait_s)
             with self.imu_lock:
                 imu, self.imu_pending = self.imu_pending, []
             frame_id += 1
@@ -193,7 +204,7 @@ class VioService(Service):
             snap.message = self.calib_error or "waiting for camera calibration (sensors/camera/*/info)"
         out = self.last_out
         self.pub_health.publish(messages.health(
-            snap, self.params.strategy, self.node.now_ns(), out.feature_quality if out else None,
+            snap, self.cfg.strategy, self.node.now_ns(), out.feature_quality if out else None,
             out.imu_bias if out else None))
         if snap.state != self.published_state:
             self.log.log(LOG_LEVEL[snap.state], "vio_state", state=STATE_NAMES[snap.state], message=snap.message)
@@ -203,7 +214,7 @@ class VioService(Service):
 
     def health(self) -> Health:
         snap = self.strategy.health_snapshot()
-        values: dict = {"state": STATE_NAMES[snap.state], "strategy": self.params.strategy,
+        values: dict = {"state": STATE_NAMES[snap.state], "strategy": self.cfg.strategy,
                         "keyframes": getattr(self.strategy, "keyframes", 0), **self.counts,
                         "frames_in": self.frames.frames_in, "dropped_frames": self.frames.dropped,
                         "unpaired": self.frames.unpaired}

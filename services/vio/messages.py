@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from aeroperception.schemas import (
-    Header, Image, Imu, NDArray, Odometry, Pose, Quaternion, Twist, Vector3, VioHealth as VioHealthMsg,
+    Header, Image, Imu, NDArray, Odometry, Pose, Quaternion, Twist, Vector3, VioHealth,
     VioResetRequest,
 )
 from aeroperception.services.runtime.rotations import quat_from_rotmat, quat_to_rotmat
@@ -36,10 +36,10 @@ def odometry(out: VioOutput) -> Odometry:
 
 
 def health(snapshot: StrategyHealth, strategy: str, stamp_ns: int, quality: FeatureQuality | None,
-           bias: ImuBias | None) -> VioHealthMsg:
+           bias: ImuBias | None) -> VioHealth:
     q = quality or FeatureQuality()
     b = bias or ImuBias()
-    return VioHealthMsg(
+    return VioHealth(
         header=Header(stamp_ns=int(stamp_ns), frame_id=ODOM_FRAME), state=snapshot.state,
         message=snapshot.message, strategy=strategy, tracked_features=q.tracked, lost_features=q.lost,
         consecutive_lost=snapshot.consecutive_lost, mean_parallax_px=q.mean_parallax_px,

@@ -14,7 +14,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Any, Callable, NamedTuple
+from typing import TYPE_CHECKING, Any, Callable, NamedTuple
 
 import numpy as np
 import rerun as rr
@@ -25,6 +25,9 @@ from aeroperception.schemas import (
     TrackedObjectArray, TrajectoryStatus, VehicleState, VioHealth, WaypointReached, parse_mission,
 )
 from aeroperception.services.runtime.rotations import quat_from_rotmat
+
+if TYPE_CHECKING:
+    from .config import VizConfig
 
 WORLD = "world"
 TIMELINE = "stamp"          # header.stamp_ns of every message (sim time in sim, epoch-anchored)
@@ -494,8 +497,8 @@ class Adapter:
     slot: Callable[[Any], str] | None = field(default=None)
 
 
-def build_adapters(p) -> list[Adapter]:
-    """The registry, with fresh converter state, configured from the viz parameters `p`."""
+def build_adapters(p: "VizConfig") -> list[Adapter]:
+    """The registry, with fresh converter state, configured from the viz config `p`."""
     trail = dict(trail_period_s=p.trail_period_s, trail_max_points=p.trail_max_points)
     left, right = "sensors/camera/left/image", "sensors/camera/right/image"
     return [

@@ -1,6 +1,10 @@
 """Process shell of viz: subscribe to each adapter's key, sample, hand newest-wins to a worker
 per slot, log to the viewer sink.
 
+Every input goes through the adapter table (adapters.build_adapters): the contract's inputs are
+bound to one table of handlers (`handlers()`), and each is bound when its rate is on, at start or
+when a live change raises it from 0 (`bind_inputs`).
+
 The Zenoh callbacks only compare a timestamp and swap a slot (microseconds, under node.lock);
 conversion (JPEG, arrays) and Rerun logging run on the slot's worker. A worker still busy when a
 newer sample arrives drops the older one (counted), and while the viewer is behind every new
@@ -8,6 +12,7 @@ sample is dropped (counted): viz may show less, never later, and never slows the
 """
 from __future__ import annotations
 
+import functools
 import time
 from collections import Counter, deque
 
@@ -19,7 +24,8 @@ from aeroperception.services.runtime.node import CallError
 
 from . import contract
 from .adapters import Adapter, build_adapters, mission_waypoints, static_scene
-from .viewer import Outputs, ViewerConfigError, ViewerSink
+from .config import VizConfig
+from .viewer import ViewerConfigError, ViewerSink
 
 
 class FrameGate:
@@ -58,9 +64,18 @@ class VizService(Service):
 
     NAME = contract.NAME
     PARAMS = contract.PARAMS
+    CONTRACT = contract
+    CONFIG = VizConfig
+
+    def handlers(self) -> dict:
+        """Every input to `_on_input` with its key: the adapter table decides what becomes of it."""
+        return {t.handler_name: functools.partial(self._on_input, key) for key, t in contract.INPUTS.declared.items()}
+
+    def bind_selection(self) -> dict:
+        return {"inputs": ()}       # bound by start() and on_config(), as their rates turn on
 
     def start(self) -> None:
-        p = self.params
+        p = self.cfg
         self.received: Counter[str] = Counter()
         self.sampled_out: Counter[str] = Counter()
         self.backlog_dropped: Counter[str] = Counter()
@@ -71,26 +86,30 @@ class VizService(Service):
         self.frames = FrameGate()
         self.mission_id: str | None = None
         try:
-            self.sink = ViewerSink(Outputs.from_params(p), flush_timeout_s=p.flush_timeout_s,
-                                   on_backlog=lambda: self.log.warn("viewer_behind", note="dropping until it catches up"))
+            self.sink = ViewerSink(p.outputs, flush_timeout_s=p.flush_timeout_s, on_backlog=self._on_backlog)
         except ViewerConfigError as e:
             raise RuntimeError(f"viz: {e}") from None
         self.sink.write(self.node.now_ns() or time.time_ns(), static_scene())
-        self.adapters = build_adapters(p)
+        self.adapters = {ad.key: ad for ad in build_adapters(p)}
         self.subscribed: set[str] = set()
-        self._subscribe_enabled()
-        self.params.on_change(lambda _name, _value: self._subscribe_enabled())
+        self._subscribe_enabled(p)
         self.log.info("viewer", outputs=self.sink.describe())
 
-    def _subscribe_enabled(self) -> None:
+    def on_config(self, cfg: VizConfig) -> None:
+        self._subscribe_enabled(cfg)
+
+    def _subscribe_enabled(self, cfg: VizConfig) -> None:
         """Subscribe each key whose rate is on. A key whose rate is 0 is not even subscribed (an
         image stream costs the router bandwidth); a live set that turns it on subscribes it then.
         Turned off again, it stays subscribed and the sampler drops everything."""
-        for ad in self.adapters:
-            if ad.key in self.subscribed or (ad.rate_param and self.params[ad.rate_param] <= 0):
-                continue
-            self.subscribed.add(ad.key)
-            self.node.subscribe(ad.key, ad.schema, lambda msg, ad=ad: self._on_msg(ad, msg))
+        keys = [k for k, ad in self.adapters.items()
+                if k not in self.subscribed and (ad.rate_param is None or cfg.rate_hz(ad.rate_param) > 0)]
+        if keys:
+            self.bind_inputs(keys)
+            self.subscribed.update(keys)
+
+    def _on_backlog(self) -> None:
+        self.log.warn("viewer_behind", note="dropping until it catches up")
 
     def stop(self) -> None:
         for w in list(self.workers.values()):
@@ -100,12 +119,13 @@ class VizService(Service):
 
     # ------------------------------------------------------------ Zenoh callbacks (cheap)
 
-    def _on_msg(self, ad: Adapter, msg) -> None:
+    def _on_input(self, key: str, msg) -> None:
+        ad: Adapter = self.adapters[key]
         slot = ad.slot(msg) if ad.slot else ad.key
         self.received[slot] += 1
         if ad.key == "mission/status":
             self._check_mission(msg)
-        if ad.truth and not self.params.show_truth:
+        if ad.truth and not self.cfg.show_truth:
             self.sampled_out[slot] += 1
             return
         stamp = msg.header.stamp_ns
@@ -113,7 +133,7 @@ class VizService(Service):
             if not self.frames.admits(ad.follows, stamp):
                 self.sampled_out[slot] += 1
                 return
-        elif ad.rate_param and not self.sampler.admit(slot, self.params[ad.rate_param], time.monotonic()):
+        elif ad.rate_param and not self.sampler.admit(slot, self.cfg.rate_hz(ad.rate_param), time.monotonic()):
             self.sampled_out[slot] += 1
             return
         if self.sink.backlogged:
@@ -126,11 +146,12 @@ class VizService(Service):
     def _worker(self, slot: str, convert) -> LatestWorker:
         w = self.workers.get(slot)
         if w is None:
-            w = self.workers[slot] = LatestWorker(
-                lambda m, slot=slot: self._write(slot, convert, m), f"viz-{slot}",
-                on_error=lambda e, slot=slot: self.log.throttled(
-                    "error", f"viz:{slot}", "convert_failed", key=slot, error=f"{type(e).__name__}: {e}"))
+            w = self.workers[slot] = LatestWorker(functools.partial(self._write, slot, convert), f"viz-{slot}",
+                                                  on_error=functools.partial(self._on_convert_error, slot))
         return w
+
+    def _on_convert_error(self, slot: str, e: BaseException) -> None:
+        self.log.throttled("error", f"viz:{slot}", "convert_failed", key=slot, error=f"{type(e).__name__}: {e}")
 
     def _check_mission(self, msg: MissionStatus) -> None:
         if msg.mission_id == self.mission_id:

@@ -18,6 +18,8 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
+from aeroperception.services.runtime import param
+
 from .adapters import TIMELINE, WORLD, Log
 
 
@@ -47,21 +49,18 @@ def default_blueprint() -> rrb.Blueprint:
     )
 
 
-@dataclass
+@dataclass(frozen=True)
 class Outputs:
-    """What the parameters ask for (see contract.PARAMS)."""
-    web_port: int = 0
-    grpc_port: int = 9876
-    serve_grpc: bool = False
-    bind_ip: str = "0.0.0.0"
-    server_memory_limit: str = "256MiB"
-    viewer_url: str = ""
-    spawn: bool = False
-    save_path: str = ""
+    """Where the view goes: the parameters of the same names (see contract.PARAMS)."""
 
-    @classmethod
-    def from_params(cls, p) -> "Outputs":
-        return cls(**{k: p[k] for k in cls.__dataclass_fields__})
+    web_port: int = param("web_port")
+    grpc_port: int = param("grpc_port")
+    serve_grpc: bool = param("serve_grpc")
+    bind_ip: str = param("bind_ip")
+    server_memory_limit: str = param("server_memory_limit")
+    viewer_url: str = param("viewer_url")
+    spawn: bool = param("spawn")
+    save_path: str = param("save_path")
 
     @property
     def serving(self) -> bool:

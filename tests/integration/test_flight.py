@@ -2,8 +2,9 @@
 separate processes, MAVLink between sim and fmu on free UDP ports (never 14540/14580), Zenoh on a
 free loopback port. Ground truth comes from sim/truth/state (ENU), never from the autonomy.
 
-- test_survey_01_end_to_end (slow): `aero mission fly examples/missions/survey_01.json`; every
-  waypoint reached by the true track in order, landed and disarmed, mission states in order.
+- test_survey_01_end_to_end (slow, extended): `aero mission fly examples/missions/survey_01.json`;
+  every waypoint reached by the true track in order, landed and disarmed, mission states in order
+  (assert_survey_flown). By default test_recorder.py judges its survey_01 flight the same way.
 - failure modes and actions on one module-scoped stack: invalid mission, arming refused without
   a position, planner silent (fmu holds), setpoints stopped (the sim fails over to RTL like
   PX4 SITL, and back to OFFBOARD when they resume), and the takeoff / goto (cancelled and completed) / land actions through ActionClient.
@@ -179,14 +180,52 @@ def test_fly_bad_mission_file_is_one_line_exit_2(tmp_path, text, field):
 # ---------------------------------------------------------------- the whole mission
 
 
-@pytest.mark.slow
-def test_survey_01_end_to_end(stack):
+def survey_captures(st):
+    """A Capture of what assert_survey_flown judges a survey_01 flight on."""
+    return st.capture(truth=("sim/truth/state", VehicleState), status=("mission/status", MissionStatus),
+                      reached=("mission/waypoint_reached", WaypointReached),
+                      vstatus=("fmu/out/vehicle_status", VehicleStatus))
+
+
+def assert_survey_flown(rec) -> None:
+    """survey_01 flown end to end, judged on `rec` (survey_captures, kept from before the flight until
+    after the disarm): every waypoint, in order, by the true track (not the estimate the mission used);
+    mission/waypoint_reached for each; landed and disarmed; the mission FSM path."""
     mission = load_mission_file(SURVEY)
     radius = mission.waypoint_acceptance_radius_m
+    track = np.array([pos(m) for m in rec.get("truth")])
+    states = [m.state for m in rec.get("status")]
+    reached = [m.index for m in rec.get("reached")]
+    final = rec.get("truth")[-1]
+    vstatus = rec.last("vstatus")
+    start, closest = 0, []
+    for i, wp in enumerate(mission.waypoints):
+        d = np.linalg.norm(track[start:] - np.array([wp.x, wp.y, wp.z]), axis=1)
+        assert d.size and d.min() < radius, \
+            f"waypoint {i} {wp}: closest true approach {d.min() if d.size else math.inf:.2f} m >= {radius} m"
+        closest.append(round(float(d.min()), 3))
+        start += int(np.argmax(d < radius))
+    print(f"survey_01: {len(track)} truth samples; closest true approach to each waypoint (m): {closest}")
+    assert reached == list(range(len(mission.waypoints))), f"mission/waypoint_reached indices {reached}"
+    # Landed and disarmed.
+    assert final.position_m.z < 0.2, f"truth z {final.position_m.z:.2f} m after landing"
+    assert not final.armed and vstatus is not None and not vstatus.armed
+    # The FSM path. The mission service goes TAKEOFF -(ALTITUDE_REACHED)-> HOLDING -(START, already
+    # requested)-> EXECUTING inside one transition, so HOLDING is allowed only between TAKEOFF and
+    # EXECUTING (mission/status is sampled at 2 Hz and normally never shows it).
+    distinct = [s for k, s in enumerate(states) if k == 0 or s != states[k - 1]]
+    path = [s for k, s in enumerate(distinct)
+            if not (s == "HOLDING" and 0 < k < len(distinct) - 1
+                    and distinct[k - 1] == "TAKEOFF" and distinct[k + 1] == "EXECUTING")]
+    assert path == ["IDLE", "TAKEOFF", "EXECUTING", "LAND", "IDLE"], f"mission states {distinct}"
+
+
+@pytest.mark.slow
+@pytest.mark.extended   # ~40 s: by default test_recorder.py::test_survey_01_flown_end_to_end_by_truth judges the
+#                         same survey_01 flight (this stack plus the recorder) with assert_survey_flown
+def test_survey_01_end_to_end(stack):
     st = flight_stack(stack)
-    with st.capture(truth=("sim/truth/state", VehicleState), status=("mission/status", MissionStatus),
-                   reached=("mission/waypoint_reached", WaypointReached),
-                   vstatus=("fmu/out/vehicle_status", VehicleStatus)) as rec:
+    with survey_captures(st) as rec:
         wait_until(lambda: rec.last("status"), 5, "mission/status recorded")
         t0 = time.monotonic()
         r = st.aero("mission", "fly", str(SURVEY), "--quiet", "--timeout", "120", timeout_s=150)
@@ -196,34 +235,8 @@ def test_survey_01_end_to_end(stack):
         wait_until(lambda: rec.last("vstatus") is not None and not rec.last("vstatus").armed, 5,
                    "fmu/out/vehicle_status disarmed")
         time.sleep(0.5)  # a few more truth samples on the ground
-        track = np.array([pos(m) for m in rec.get("truth")])
-        states = [m.state for m in rec.get("status")]
-        reached = [m.index for m in rec.get("reached")]
-        final = rec.get("truth")[-1]
-        vstatus = rec.last("vstatus")
-
-    print(f"survey_01 at x{SPEED:g}: {flight_s:.1f} s wall, {len(track)} truth samples")
-    # Every waypoint, in order, by the true track (not the estimate the mission used).
-    start, closest = 0, []
-    for i, wp in enumerate(mission.waypoints):
-        d = np.linalg.norm(track[start:] - np.array([wp.x, wp.y, wp.z]), axis=1)
-        assert d.size and d.min() < radius, \
-            f"waypoint {i} {wp}: closest true approach {d.min() if d.size else math.inf:.2f} m >= {radius} m"
-        closest.append(round(float(d.min()), 3))
-        start += int(np.argmax(d < radius))
-    print(f"closest true approach to each waypoint (m): {closest}")
-    assert reached == list(range(len(mission.waypoints))), f"mission/waypoint_reached indices {reached}"
-    # Landed and disarmed.
-    assert final.position_m.z < 0.2, f"truth z {final.position_m.z:.2f} m after landing"
-    assert not final.armed and not vstatus.armed
-    # The FSM path. The mission service goes TAKEOFF -(ALTITUDE_REACHED)-> HOLDING -(START, already
-    # requested)-> EXECUTING inside one transition, so HOLDING is allowed only between TAKEOFF and
-    # EXECUTING (mission/status is sampled at 2 Hz and normally never shows it).
-    distinct = [s for k, s in enumerate(states) if k == 0 or s != states[k - 1]]
-    path = [s for k, s in enumerate(distinct)
-            if not (s == "HOLDING" and 0 < k < len(distinct) - 1
-                    and distinct[k - 1] == "TAKEOFF" and distinct[k + 1] == "EXECUTING")]
-    assert path == ["IDLE", "TAKEOFF", "EXECUTING", "LAND", "IDLE"], f"mission states {distinct}"
+    print(f"survey_01 at x{SPEED:g}: {flight_s:.1f} s wall")
+    assert_survey_flown(rec)
 
 
 # ---------------------------------------------------------------- failure modes and actions

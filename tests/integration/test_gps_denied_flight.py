@@ -101,10 +101,16 @@ def line_mission(tmp_path: Path, length_m: float) -> Path:
     return p
 
 
-def blackout_when_executing(st, rec: Capture, seconds: float, after_s: float = 3.0) -> float:
+def blackout_when_executing(st, rec: Capture, seconds: float, after_s: float = 3.0,
+                            past_x_m: float | None = None) -> float:
+    """SIM_CAM_BLACKOUT `seconds` once the mission is EXECUTING: `after_s` later, or (`past_x_m`) as
+    soon as the true track is east of that x (under way on the line's outbound leg)."""
     wait_until(lambda: rec.last("status") is not None and rec.last("status").state == "EXECUTING", 60,
                "mission EXECUTING")
-    time.sleep(after_s)
+    if past_x_m is None:
+        time.sleep(after_s)
+    else:
+        wait_until(lambda: rec.last("truth").position_m.x > past_x_m, 30, f"under way east of x = {past_x_m} m")
     r = st.aero("param", "set", "sim", "SIM_CAM_BLACKOUT", str(seconds))
     assert r.returncode == 0, r.stderr
     return time.monotonic()
@@ -165,8 +171,10 @@ def test_blackout_3s_holds_then_resumes(gstack, tmp_path):
     assert sim_flag(st, "gps_denied")
     rec = record(st)
     try:
-        p = fly(st, line_mission(tmp_path, 14.0), 150)    # 2 -> 14 -> 2 m: resumed, then flown on both ways
-        t_black = blackout_when_executing(st, rec, 3.0)
+        # 2 -> 10 -> 2 m, the blackout just past x = 2.5 m on the way out: it holds well short of the far
+        # end (x = 4-5 m), so reaching it proves the resumed leg was flown, and the leg back after it
+        p = fly(st, line_mission(tmp_path, 10.0), 150)
+        t_black = blackout_when_executing(st, rec, 3.0, past_x_m=2.5)
         code, out = finish(p, 180)
         assert code == 0, f"fly exit {code}\n{out}\n{st.describe()}"
         wait_until(lambda: st.landed(0.1), 20, "landed and disarmed per truth")
@@ -174,15 +182,18 @@ def test_blackout_3s_holds_then_resumes(gstack, tmp_path):
         vio = distinct([m.state_name for m in rec.get("vio", t_black)])
         states = distinct([m.state for m in rec.get("status", t_black - 1.0)])   # EXECUTING before it
         track = np.array([m.position_m.to_array() for m in rec.get("truth")])
+        t_hold = next((t for t, m in rec.since("status", t_black) if m.state == "HOLDING"), None)
+        x_hold = rec.get("truth", t_hold)[0].position_m.x if t_hold is not None else None
     finally:
         rec.close()
-    print(f"VIO after the blackout: {vio}; mission: {states}")
+    print(f"VIO after the blackout: {vio}; mission: {states}; HOLDING at true x = {x_hold} m")
     assert "LOST" in vio and vio[-1] == "TRACKING", vio
     k = states.index("HOLDING")
     assert k > 0 and states[k - 1] == "EXECUTING" and states[k + 1] == "EXECUTING", states
     assert states[-1] == "IDLE" and "LAND" in states
-    # the far end was still flown (within the VIO drift the module's flights have accumulated)
-    assert np.linalg.norm(track[:, :2] - [14.0, 0.0], axis=1).min() < 3.0
+    # the far end was still flown after the hold (within the VIO drift the module's flights have accumulated)
+    assert x_hold is not None and x_hold < 7.0, x_hold
+    assert np.linalg.norm(track[:, :2] - [10.0, 0.0], axis=1).min() < 3.0
 
 
 @pytest.mark.slow

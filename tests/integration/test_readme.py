@@ -46,6 +46,19 @@ HOW: dict[str, tuple] = {
     "aero run lidar_driver --param device_ip=192.168.1.201": (
         SKIP, ["aero", "run", "lidar_driver", "--help"],
         "needs a LiDAR on the network: test_lidar_driver_service replays a real VLP-16 capture into it over UDP"),
+    "aero eval vio --live --duration 16": (SKIP, ["aero", "eval", "vio", "--help"],
+                                           "needs a played recording: test_play scores the MH_01 clip live"),
+    "aero play euroc ../shared/data/euroc/MH_01_clip": (
+        SKIP, ["aero", "play", "euroc", "--help"], "test_play plays it into the vio service and scores it"),
+    "aero play pcap vlp16.pcap --to 127.0.0.1 --port 2368": (
+        SKIP, ["aero", "play", "pcap", "--help"], "test_play sends a real VLP-16 capture to a lidar_driver"),
+    "aero run camera --param source=/dev/video0 --param calibration_path=camchain.yaml": (
+        SKIP, ["aero", "run", "camera", "--help"],
+        "needs a camera: test_camera_service runs it on EuRoC images with a Kalibr calibration"),
+    "aero run camera --param source=/dev/video0 --param layout=side_by_side --param calibration_path=stereo.yml": (
+        SKIP, ["aero", "run", "camera", "--help"], "test_camera_service splits a side-by-side video"),
+    "aero run camera --param source=../shared/data/euroc/MH_01_clip/mav0/cam0/data": (
+        SKIP, ["aero", "run", "camera", "--help"], "runs until stopped: test_camera_service plays the folder"),
     "aero doctor": (SKIP, ["aero", "doctor", "--help"],
                     "exits 1 on a busy default port: test_doctor_cli runs it on free ports and on a held one"),
     "aero doctor --profile px4 --px4 DIR": (SKIP, ["aero", "doctor", "--help"],
@@ -144,7 +157,7 @@ HOW: dict[str, tuple] = {
                                                 "test_viz_native: aero viz on Xvfb + lavapipe, screenshot checked"),
     "aero record --images sensors/imu 'sensors/camera/*/info'": (
         SKIP, ["aero", "record", "--help"], "runs until Ctrl-C: test_recorder_perception records the VIO inputs"),
-    "aero run vio --sim-time": (SKIP, ["aero", "run", "vio", "--help"], "test_recorder_perception runs it on the replay"),
+    "aero run vio --sim-time": (SKIP, ["aero", "run", "vio", "--help"], "test_recorder_perception runs it on the replay, test_play on the MH_01 clip"),
     "aero replay FILE.mcap --keys sensors/imu 'sensors/camera/*/image' 'sensors/camera/*/info'": (
         SKIP, ["aero", "replay", "--help"], "test_recorder_perception: replayed VIO matches the live one"),
     "aero service call vio/srv/reset '{pose: {position: {x: 10, y: -2, z: 3}}}' --type VioResetRequest": (

@@ -1,5 +1,6 @@
 """The recorder on a real flight: one module stack (sim, fmu, planner, mission,
-diagnostics, recorder) flies survey_01 once while
+diagnostics, recorder) flies survey_01 once (judged end to end by the truth as
+test_flight.py's extended test_survey_01_end_to_end judges its own: the default run's survey_01) while
 
 - `aero record` (essentials + sim/truth/state) records it from the CLI: every essentials key the
   running services publish is there at its contract rate, readable with the plain `mcap` reader
@@ -35,6 +36,7 @@ from aerotest import (
 )
 from aeroperception.schemas import DiagnosticStatus, MissionStatus, TrajectorySetpoint, VehicleState, decode
 from aeroperception.services.recorder.contract import ESSENTIALS
+from test_flight import assert_survey_flown, survey_captures  # helpers only (no test functions here)
 
 pytestmark = pytest.mark.slow
 
@@ -91,6 +93,7 @@ def flight(stack_module, tmp_path_factory):
     wait_until(lambda: wait_for_message(st.session, "state/vehicle", VehicleState, lambda m: m.connected, 2), 15,
                "state/vehicle connected")
     wait_for_message(st.session, "mission/status", MissionStatus, timeout_s=10)
+    survey = survey_captures(st)      # the flight as test_flight judges survey_01, from before it starts
     cli = record_cli(st.endpoint, base / "cli", "sim/truth/state")
     full = record_cli(st.endpoint, base / "full", "--preset", "all", fsize=FSIZE_LIMIT)
     errors: list[DiagnosticStatus] = []
@@ -109,6 +112,7 @@ def flight(stack_module, tmp_path_factory):
     os.kill(pid, signal.SIGKILL)
     out, _ = fly.communicate(timeout=200)
     time.sleep(1.0)
+    survey.close()
     alive_after = {s: st.alive(s) for s in ("sim", "fmu", "planner", "mission", "diagnostics")}
     full_running = full.poll() is None
     full_code = stop_cli(full)
@@ -118,7 +122,16 @@ def flight(stack_module, tmp_path_factory):
            "cli_file": only_file(base / "cli"), "service_file": first_file, "kill_ns": kill_ns,
            "full_running": full_running, "full_code": full_code, "full_file": only_file(base / "full"),
            "full_log": (base / "full.log").read_text(errors="replace"), "errors": errors,
-           "alive_after": alive_after}
+           "alive_after": alive_after, "survey": survey}
+
+
+def test_survey_01_flown_end_to_end_by_truth(flight):
+    """The default run's survey_01 end to end (test_flight.py's test_survey_01_end_to_end is extended):
+    `aero mission fly` exits 0 with 4/4 done; every waypoint passed in order by the true track, each
+    reported on mission/waypoint_reached, landed and disarmed, the mission's states in order."""
+    assert flight["fly_code"] == 0, flight["fly_out"]
+    assert "4/4 done" in flight["fly_out"]
+    assert_survey_flown(flight["survey"])
 
 
 def test_flight_recording_has_every_essentials_key_at_its_rate(flight):

@@ -12,7 +12,9 @@ import numpy as np
 
 from aeroperception.schemas import DiagnosticStatus, Imu, VehicleState
 from aeroperception.services.recorder.files import info, is_indexed
+from aeroperception.services.recorder import contract as recorder_contract
 from aeroperception.services.recorder.logic import SinkConfig, split_files
+from aeroperception.services.runtime.config import build
 from aeroperception.tools.cli.up import load_profiles
 from aerotest import free_port, sample_stream, standalone_fc, wait_for_message
 
@@ -55,7 +57,8 @@ def test_vehicle_profile_records_the_flight_within_its_disk_budget(stack, tmp_pa
     vehicle = load_profiles()["vehicle"]
     assert "recorder" in vehicle["services"]
     own = profile_params(vehicle["args"]["recorder"])
-    SinkConfig(Path("."), max_bag_size=own["max_bag_size"], max_total_size=own["max_total_size"]).check()
+    build(SinkConfig, recorder_contract.PARAMS, output_dir=Path("."), max_bag_size=own["max_bag_size"],
+          max_total_size=own["max_total_size"]).check()
     assert own["max_total_size"] >= 8 * own["max_bag_size"]
 
     out = tmp_path / "recordings"

@@ -27,8 +27,7 @@ def start_viz(make_node, **params) -> VizService:
     node = make_node("viz", params=contract.PARAMS)
     node.params.update({"web_port": 0, "flush_timeout_s": 0.2, "pose_rate_hz": 10.0, **params})
     svc = VizService(node, argparse.Namespace())
-    with node.lock:
-        svc.start()
+    svc.launch()
     return svc
 
 
@@ -87,8 +86,7 @@ def test_absent_viewer_means_counted_drops_not_a_queue_and_a_prompt_stop(make_no
     node.params.update({"web_port": 0, "viewer_url": f"rerun+http://127.0.0.1:{closed_port()}/proxy",
                         "save_path": str(tmp_path / "v.rrd"), "flush_timeout_s": 0.2, "pose_rate_hz": 10.0})
     svc = VizService(node, argparse.Namespace())
-    with node.lock:
-        svc.start()
+    svc.launch()
     pub_node = make_node("test-fmu")
     pub = pub_node.publisher("state/vehicle", VehicleState)
     try:

@@ -202,11 +202,11 @@ def _foxglove() -> None:
 
 
 def _lidar() -> None:
-    from aeroperception.services.lidar.main import pipeline_config
     from aeroperception.services.lidar.contract import PARAMS
-    from aeroperception.services.lidar.pipeline import ObstaclePipeline
+    from aeroperception.services.lidar.pipeline import ObstaclePipeline, PipelineConfig
+    from aeroperception.services.runtime.config import build
 
-    cfg = pipeline_config({p.name: p.default for p in PARAMS})
+    cfg = build(PipelineConfig, PARAMS)
     results = [ObstaclePipeline(cfg).process(got.points.to_numpy(), np.eye(3))
                for got in decoded_at_every_offset(samples()[PointCloud])]
     for r in results[1:]:

@@ -8,9 +8,10 @@ from detector_graphs import box_finder_model, classifier_model, paint_blocks
 from aeroperception.schemas import DiagnosticStatus, Header
 from aeroperception.services.detector import contract
 from aeroperception.services.detector.logic import (
-    PACKAGE_DIR, LoadRequest, ModelHolder, StageTimes, detection_array, detector_health,
+    PACKAGE_DIR, LoadRequest, ModelConfig, ModelHolder, StageTimes, detection_array, detector_health,
     resolve_model_path,
 )
+from aeroperception.services.runtime.config import build
 
 
 def test_hot_swap_keeps_the_running_model_until_a_good_one_loads(tmp_path):
@@ -42,10 +43,10 @@ def test_hot_swap_keeps_the_running_model_until_a_good_one_loads(tmp_path):
 
 
 def test_load_request_from_parameters():
-    p = {x.name: x.default for x in contract.PARAMS}
-    assert LoadRequest.from_params(p) == LoadRequest(contract.BUNDLED_MODEL, "", 1, None)
-    p.update(input_width=320, input_height=256, intra_op_threads=2)
-    assert LoadRequest.from_params(p).input_hw == (256, 320) and LoadRequest.from_params(p).threads == 2
+    assert build(ModelConfig, contract.PARAMS).request() == LoadRequest(contract.BUNDLED_MODEL, "", 1, None)
+    req = build(ModelConfig, {**{x.name: x.default for x in contract.PARAMS},
+                              "input_width": 320, "input_height": 256, "intra_op_threads": 2}).request()
+    assert req.input_hw == (256, 320) and req.threads == 2
 
 
 def test_relative_model_paths_fall_back_to_the_package(tmp_path, monkeypatch):

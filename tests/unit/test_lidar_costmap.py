@@ -8,7 +8,9 @@ import numpy as np
 import pytest
 
 from aeroperception.services.lidar.costmap import FREE, INSCRIBED, LETHAL, UNKNOWN, CostmapConfig, RollingCostmap
+from aeroperception.services.lidar import contract
 from aeroperception.services.runtime import LatestWorker
+from aeroperception.services.runtime.config import build
 
 
 def ring(radius_m, n=2000, center=(0.0, 0.0)):
@@ -30,7 +32,7 @@ def scan(cm, obstacles, ground):
 
 
 def test_wall_is_lethal_free_space_in_front_unknown_behind():
-    cm = RollingCostmap(CostmapConfig())
+    cm = RollingCostmap(build(CostmapConfig, contract.PARAMS))
     cm.recenter(0, 0)
     ground = ring(8.0, 4000)
     scan(cm, wall(5.0), ground[ground[:, 0] < 4.9])     # the wall hides the ground behind it
@@ -41,7 +43,7 @@ def test_wall_is_lethal_free_space_in_front_unknown_behind():
 
 
 def test_inflation_follows_nav2_decay():
-    cfg = CostmapConfig(inscribed_radius_m=0.4, inflation_radius_m=1.5, cost_scaling_factor=3.0)
+    cfg = build(CostmapConfig, contract.PARAMS, inscribed_radius_m=0.4, inflation_radius_m=1.5, cost_scaling_factor=3.0)
     cm = RollingCostmap(cfg)
     cm.recenter(0, 0)
     scan(cm, wall(5.0), ring(9.0, 4000))
@@ -56,7 +58,7 @@ def test_inflation_follows_nav2_decay():
 
 
 def test_mark_threshold_ignores_a_lone_return():
-    cm = RollingCostmap(CostmapConfig(mark_threshold=2))
+    cm = RollingCostmap(build(CostmapConfig, contract.PARAMS, mark_threshold=2))
     cm.recenter(0, 0)
     scan(cm, np.array([[3.05, 3.05]]), ring(6.0))
     assert cell_value(cm, cm.grid, 3.05, 3.05) != LETHAL
@@ -65,7 +67,7 @@ def test_mark_threshold_ignores_a_lone_return():
 
 
 def test_obstacle_that_moved_away_is_cleared_by_later_rays():
-    cm = RollingCostmap(CostmapConfig())
+    cm = RollingCostmap(build(CostmapConfig, contract.PARAMS))
     cm.recenter(0, 0)
     scan(cm, wall(4.0), ring(8.0, 4000))
     assert cell_value(cm, cm.grid, 4.0, 0.0) == LETHAL
@@ -74,14 +76,14 @@ def test_obstacle_that_moved_away_is_cleared_by_later_rays():
 
 
 def test_obstacles_beyond_obstacle_range_are_not_marked():
-    cm = RollingCostmap(CostmapConfig(obstacle_range_m=5.0, size_m=30.0))
+    cm = RollingCostmap(build(CostmapConfig, contract.PARAMS, obstacle_range_m=5.0, size_m=30.0))
     cm.recenter(0, 0)
     scan(cm, wall(7.0), ring(12.0, 4000))
     assert cell_value(cm, cm.grid, 7.0, 0.0) != LETHAL
 
 
 def test_rolling_window_keeps_what_it_saw():
-    cm = RollingCostmap(CostmapConfig())
+    cm = RollingCostmap(build(CostmapConfig, contract.PARAMS))
     cm.recenter(0, 0)
     scan(cm, wall(5.0), ring(8.0, 4000))
     cm.recenter(3.0, 1.0)

@@ -8,6 +8,8 @@ import pytest
 from aeroperception.services.lidar.pipeline import (
     ObstaclePipeline, PipelineConfig, ScanError, classify, fit_ground, grid_clusters, sanitize, voxel_downsample,
 )
+from aeroperception.services.lidar import contract
+from aeroperception.services.runtime.config import build
 from aeroperception.services.runtime.rotations import quat_from_euler, quat_to_rotmat
 from aeroperception.services.runtime.data import kitti_scans
 
@@ -39,7 +41,7 @@ def test_voxel_grid_keeps_one_real_point_per_occupied_voxel():
 def test_flat_ground_and_boxes_are_separated():
     ground = plane_points()
     boxes = np.vstack([box_points((5, 0, -2.0), (1, 1, 2)), box_points((-4, 3, -2.5), (0.5, 0.5, 1))])
-    pipe = ObstaclePipeline(PipelineConfig())
+    pipe = ObstaclePipeline(build(PipelineConfig, contract.PARAMS))
     res = pipe.process(np.vstack([ground, boxes]), np.eye(3))
     assert res.plane.found and res.plane.tilt_deg < 1.0
     assert res.plane.d == pytest.approx(3.0, abs=0.02)     # plane z = -3 m: n.p + d = 0 -> d = 3
@@ -51,18 +53,18 @@ def test_flat_ground_and_boxes_are_separated():
 
 def test_tilted_ground_is_found_within_the_imu_seeded_cone():
     ground = plane_points(tilt_deg=8.0)
-    res = ObstaclePipeline(PipelineConfig()).process(ground, np.eye(3))
+    res = ObstaclePipeline(build(PipelineConfig, contract.PARAMS)).process(ground, np.eye(3))
     assert res.plane.found and res.plane.tilt_deg == pytest.approx(8.0, abs=0.5)
     # A wall-like plane (60 deg) is never accepted as ground.
     wall = plane_points(tilt_deg=60.0)
-    assert not fit_ground(wall, PipelineConfig(), np.random.default_rng(0)).found
+    assert not fit_ground(wall, build(PipelineConfig, contract.PARAMS), np.random.default_rng(0)).found
 
 
 def test_levelling_with_the_vehicle_attitude_undoes_a_tilted_sensor():
     ground = plane_points(z=-4.0)
     r = quat_to_rotmat(quat_from_euler(math.radians(12), math.radians(-7), 0.3))
     sensor_pts = ground @ r            # what a sensor rolled 12 deg / pitched -7 deg measures (R^T p)
-    res = ObstaclePipeline(PipelineConfig()).process(sensor_pts, r)
+    res = ObstaclePipeline(build(PipelineConfig, contract.PARAMS)).process(sensor_pts, r)
     assert res.plane.found and res.plane.tilt_deg < 1.0 and res.plane.d == pytest.approx(4.0, abs=0.03)
 
 
@@ -73,7 +75,7 @@ def test_canopy_below_the_vehicle_is_an_obstacle_and_above_it_is_not():
     low = box_points((5, 0, -3.0), (4, 4, 0.2))
     high = box_points((-5, 0, 3.0), (4, 4, 0.2))
     pts = np.vstack([ground, low, high])
-    pipe = ObstaclePipeline(PipelineConfig())
+    pipe = ObstaclePipeline(build(PipelineConfig, contract.PARAMS))
     res = pipe.process(pts, np.eye(3))
     _, o = classify(pts, res.plane, pipe.cfg)
     n0, n1 = len(ground), len(ground) + len(low)
@@ -81,7 +83,7 @@ def test_canopy_below_the_vehicle_is_an_obstacle_and_above_it_is_not():
 
 
 def test_empty_nan_and_absurd_scans():
-    pipe = ObstaclePipeline(PipelineConfig())
+    pipe = ObstaclePipeline(build(PipelineConfig, contract.PARAMS))
     res = pipe.process(np.zeros((0, 3), np.float32), np.eye(3))
     assert res.counts["obstacles"] == 0 and not res.plane.found
     garbage = np.vstack([plane_points(2000), np.full((500, 3), np.nan, np.float32),
@@ -95,7 +97,7 @@ def test_empty_nan_and_absurd_scans():
 
 
 def test_scan_with_no_ground_keeps_the_previous_plane_and_says_so():
-    pipe = ObstaclePipeline(PipelineConfig())
+    pipe = ObstaclePipeline(build(PipelineConfig, contract.PARAMS))
     first = pipe.process(plane_points(), np.eye(3))
     assert first.plane.found
     # Only a ceiling and a pole are in view (e.g. flying under a canopy): a level plane, but
@@ -117,7 +119,7 @@ def test_grid_clusters_separate_objects():
 @pytest.mark.parametrize("path", kitti_scans(), ids=lambda p: p.stem)
 def test_real_kitti_scan_road_is_ground_and_cars_walls_are_obstacles(path):
     raw = np.fromfile(path, np.float32).reshape(-1, 4)[:, :3].copy()
-    pipe = ObstaclePipeline(PipelineConfig())
+    pipe = ObstaclePipeline(build(PipelineConfig, contract.PARAMS))
     res = pipe.process(raw, np.eye(3))
     assert res.plane.found and res.plane.tilt_deg < 3.0
     assert res.plane.d == pytest.approx(1.73, abs=0.15)    # HDL-64E ~1.73 m above the road

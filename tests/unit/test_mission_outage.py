@@ -130,8 +130,27 @@ def test_a_stalled_mission_process_is_not_an_fmu_outage():
     rig.tick(0.1)
     rig.tick(2.0, fresh_state=False)                  # our own tick was 2 s late: we stalled, not fmu
     assert rig.mgr.state == State.EXECUTING and not rig.mgr.outage
-    rig.tick(0.1, fresh_state=False)                  # on time again and still no state: outage
+    rig.tick(0.1, fresh_state=False)                  # on time again: the backlog may still be on its way
+    assert rig.mgr.state == State.EXECUTING and not rig.mgr.outage
+    rig.tick(0.45, fresh_state=False)                 # 0.55 s awake and still no state: outage
     assert rig.mgr.state == State.HOLDING and "fmu outage" in rig.mgr.message
+
+
+def test_a_stall_whose_backlog_arrives_a_few_ticks_late_never_holds():
+    """A loaded host: the mission stopped 0.7 s, then both its timers ran before the subscriber
+    thread delivered the queued states (0.3 s later): no hold, so the planner never brakes to a
+    stop mid-path (the figure-8 at 3 m/s stopped dead from 2.8-3.0 m/s this way)."""
+    rig = Rig(Config.from_params(vehicle_timeout_s=0.5))
+    rig.to_executing()
+    rig.tick(0.1)
+    before = len(rig.mgr.transitions)
+    rig.tick(0.7, fresh_state=False)                  # the stall
+    for _ in range(3):
+        rig.tick(0.1, fresh_state=False)              # timers on time, the backlog not delivered yet
+        assert rig.mgr.state == State.EXECUTING and not rig.mgr.outage
+    rig.tick(0.1)                                     # the backlog
+    assert rig.mgr.state == State.EXECUTING and not rig.mgr.outage
+    assert rig.mgr.transitions[before:] == []
 
 
 def stamped(st: VehicleState, t_s: float) -> VehicleState:

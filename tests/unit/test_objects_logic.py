@@ -13,9 +13,9 @@ from aeroperception.schemas import (
 )
 from aeroperception.services.lib.geo import MapProjection
 from aeroperception.services.objects import contract
-from aeroperception.services.objects.logic import ObjectsPipeline
+from aeroperception.services.objects.logic import ObjectsConfig, ObjectsPipeline
 from aeroperception.services.objects.projection import PoseSample
-from aeroperception.services.runtime import ParamSet
+from aeroperception.services.runtime.config import build
 from aeroperception.services.runtime.rotations import quat_from_euler
 
 MS = 1_000_000
@@ -26,10 +26,7 @@ HOME = HomePosition(latitude_deg=47.397742, longitude_deg=8.545594, altitude_ams
 
 
 def pipeline(**overrides) -> ObjectsPipeline:
-    p = ParamSet.from_declarations(contract.PARAMS)
-    for k, v in overrides.items():
-        p.set(k, v)
-    pl = ObjectsPipeline(p)
+    pl = ObjectsPipeline(build(ObjectsConfig, {**{p.name: p.default for p in contract.PARAMS}, **overrides}))
     left, right = infos(PITCH)
     pl.on_info("left", left)
     pl.on_info("right", right)
@@ -89,7 +86,7 @@ def test_tracks_are_lost_on_the_image_clock_when_frames_stop():
     assert pl.expire(placed_at + 2.5) == []
     lost = pl.expire(placed_at + 3.2)
     assert [(e.event, e.object.track_id) for e in lost] == [(ObjectEvent.LOST, 1)] and pl.tracker.tracks == []
-    assert ObjectsPipeline(pl.params).expire(1e9) == []                  # no frame yet: nothing to lose
+    assert ObjectsPipeline(pl.cfg).expire(1e9) == []                  # no frame yet: nothing to lose
 
 
 def test_frames_without_a_pose_camera_info_or_in_order_are_counted_not_placed():
@@ -102,7 +99,7 @@ def test_frames_without_a_pose_camera_info_or_in_order_are_counted_not_placed():
     assert pl.process(frame(T0 + 50 * MS, [(320, 300, 10, 30)])) is not None
     assert pl.process(frame(T0 + 30 * MS, [(320, 300, 10, 30)])) is None
     assert pl.dropped["frame_out_of_order"] == 1
-    bare = ObjectsPipeline(ParamSet.from_declarations(contract.PARAMS))
+    bare = ObjectsPipeline(build(ObjectsConfig, contract.PARAMS))
     assert bare.process(frame(T0, [])) is None and bare.dropped["frame_no_camera_info"] == 1
 
 

@@ -16,7 +16,9 @@ from aeroperception.schemas import (
     Detection2D, Detection2DArray, Header, HomePosition, Image, Quaternion, Vector3, VehicleState, encode,
 )
 from aeroperception.services.objects.projection import PoseSample
+from aeroperception.services.recorder import contract as recorder_contract
 from aeroperception.services.recorder.logic import McapSink, Recording, SinkConfig
+from aeroperception.services.runtime.config import build
 from aeroperception.services.runtime.node import encoding_for
 from aeroperception.services.runtime.rotations import quat_from_euler
 from aeroperception.tools.cli.aero import main as aero
@@ -50,7 +52,8 @@ def record(tmp_path, metadata=True, detections=True):
     """2 s at 10 detection frames a second: what `aero record --images` keeps of a hover."""
     scenario = tmp_path / "one_person.yaml"
     scenario.write_text(SCENARIO)
-    sink = McapSink(SinkConfig(tmp_path / "rec"), {"aeroperception": {"scenario": str(scenario)}} if metadata else {})
+    sink = McapSink(build(SinkConfig, recorder_contract.PARAMS, output_dir=tmp_path / "rec"),
+                    {"aeroperception": {"scenario": str(scenario)}} if metadata else {})
     rec = Recording(sink, 64 << 20).start()
     left_info, right_info = infos(0.0)
     q = quat_from_euler(0.0, 0.0, 0.0)

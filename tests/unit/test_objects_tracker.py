@@ -9,7 +9,9 @@ import numpy as np
 import pytest
 
 from aeroperception.services.objects.projection import Measurement
+from aeroperception.services.objects import contract
 from aeroperception.services.objects.tracker import Observation, Tracker, ObjectTrackerConfig
+from aeroperception.services.runtime.config import build
 
 MS = 1_000_000
 PERSON, CAR = (0, "person"), (2, "car")
@@ -28,7 +30,7 @@ def sighted(tr: Tracker, xy, box_scale: float, k: int):
 
 
 def test_a_track_is_confirmed_after_n_hits_and_lost_after_t_unseen():
-    tr = Tracker(ObjectTrackerConfig(confirm_hits=3, lost_timeout_s=1.0))
+    tr = Tracker(build(ObjectTrackerConfig, contract.PARAMS, confirm_hits=3, lost_timeout_s=1.0))
     confirmed_at = None
     for k in range(5):
         ev = tr.update(k * 100 * MS, [obs((10.0, 2.0))])
@@ -42,14 +44,14 @@ def test_a_track_is_confirmed_after_n_hits_and_lost_after_t_unseen():
 
 
 def test_an_unconfirmed_track_is_dropped_without_an_event():
-    tr = Tracker(ObjectTrackerConfig(confirm_hits=3, tentative_timeout_s=0.3))
+    tr = Tracker(build(ObjectTrackerConfig, contract.PARAMS, confirm_hits=3, tentative_timeout_s=0.3))
     tr.update(0, [obs((10.0, 2.0))])
     ev = tr.expire(400 * MS)
     assert ev.lost == [] and ev.confirmed == [] and tr.tracks == []
 
 
 def test_low_scores_extend_a_track_but_never_start_one():
-    tr = Tracker(ObjectTrackerConfig(confirm_hits=3, high_score=0.5, low_score=0.1))
+    tr = Tracker(build(ObjectTrackerConfig, contract.PARAMS, confirm_hits=3, high_score=0.5, low_score=0.1))
     tr.update(0, [obs((10.0, 2.0), score=0.3)])
     assert tr.tracks == []
     tr.update(100 * MS, [obs((10.0, 2.0), score=0.8)])
@@ -62,14 +64,14 @@ def test_low_scores_extend_a_track_but_never_start_one():
 
 
 def test_a_detection_of_another_class_never_joins_a_track():
-    tr = Tracker(ObjectTrackerConfig(confirm_hits=2))
+    tr = Tracker(build(ObjectTrackerConfig, contract.PARAMS, confirm_hits=2))
     tr.update(0, [obs((10.0, 2.0))])
     tr.update(100 * MS, [obs((10.0, 2.0), CAR)])
     assert sorted((t.class_name, t.hits) for t in tr.tracks) == [("car", 1), ("person", 1)]
 
 
 def test_a_far_detection_neither_captures_a_track_metres_away_nor_starts_one():
-    tr = Tracker(ObjectTrackerConfig(gate_distance_m=3.0, birth_sigma_m=1.5))
+    tr = Tracker(build(ObjectTrackerConfig, contract.PARAMS, gate_distance_m=3.0, birth_sigma_m=1.5))
     tr.update(0, [obs((10.0, 2.0))])
     tr.update(100 * MS, [obs((14.0, 2.0), sigma_m=5.0)])        # far: metres uncertain
     assert len(tr.tracks) == 1 and tr.tracks[0].hits == 1 and tr.tracks[0].x[0] == pytest.approx(10.0)
@@ -80,7 +82,7 @@ def test_a_far_detection_neither_captures_a_track_metres_away_nor_starts_one():
 def test_a_second_box_on_one_object_does_not_start_a_second_track():
     """The detector sometimes boxes one person twice (once taking in the car behind): the second
     placement, 1.8 m off but inside the track's Mahalanobis gate, is no second person."""
-    tr = Tracker(ObjectTrackerConfig(confirm_hits=3))
+    tr = Tracker(build(ObjectTrackerConfig, contract.PARAMS, confirm_hits=3))
     for k in range(5):
         tr.update(k * 100 * MS, [obs((30.0, 4.0), sigma_m=0.5), obs((31.8, 4.2), score=0.6, sigma_m=0.8)])
     assert [(t.track_id, t.hits) for t in tr.tracks] == [(1, 5)]
@@ -92,7 +94,7 @@ def test_a_second_box_on_one_object_does_not_start_a_second_track():
 def test_a_partial_box_keeps_a_track_alive_without_moving_it():
     """A box much shorter than the track's boxes (the object half hidden behind something nearer)
     has its centre off the object's: the track is seen (not lost) but stays where it was."""
-    tr = Tracker(ObjectTrackerConfig(confirm_hits=2, lost_timeout_s=1.0, partial_ratio=1.25))
+    tr = Tracker(build(ObjectTrackerConfig, contract.PARAMS, confirm_hits=2, lost_timeout_s=1.0, partial_ratio=1.25))
     seen = functools.partial(sighted, tr)
 
     for k in range(4):
@@ -112,7 +114,7 @@ def test_a_run_of_boxes_smaller_than_its_class_is_never_learnt_as_its_new_look()
     """The detector boxing only a truck's cab, near and end-on, for many frames in a row: boxes
     shorter than its class's whole size (confirm_scale) placed 2.3 m short keep the track alive
     but never move it, however long the run; a whole view afterwards still does."""
-    tr = Tracker(ObjectTrackerConfig(confirm_hits=2, lost_timeout_s=1.0, partial_ratio=1.25, confirm_scale=0.92))
+    tr = Tracker(build(ObjectTrackerConfig, contract.PARAMS, confirm_hits=2, lost_timeout_s=1.0, partial_ratio=1.25, confirm_scale=0.92))
     seen = functools.partial(sighted, tr)
     for k in range(6):
         seen((72.0, 5.0), 1.3, k)
@@ -130,7 +132,7 @@ def test_a_box_shorter_than_the_tracks_whole_boxes_moves_it_by_less():
     may miss a fifth of the truck: its placement moves the track with 1 sigma 0.2 x 8 m = 1.6 m
     added horizontally; a box as tall as the track's, or with no class length, keeps its own."""
     def run(length_m: float, scale: float) -> float:
-        tr = Tracker(ObjectTrackerConfig(confirm_hits=2, partial_ratio=1.3, partial_sigma_scale=1.0))
+        tr = Tracker(build(ObjectTrackerConfig, contract.PARAMS, confirm_hits=2, partial_ratio=1.3, partial_sigma_scale=1.0))
         for k in range(6):
             sighted(tr, (72.0, 5.0), 1.3, k)
         o = obs((70.0, 5.0), sigma_m=0.5)
@@ -141,7 +143,7 @@ def test_a_box_shorter_than_the_tracks_whole_boxes_moves_it_by_less():
     unwidened, shrunk, whole = run(0.0, 1.04), run(8.0, 1.04), run(8.0, 1.3)
     assert whole == pytest.approx(unwidened) and unwidened > 0.5
     assert 0.0 < shrunk < 0.3 * unwidened
-    tr = Tracker(ObjectTrackerConfig(partial_sigma_scale=1.0))
+    tr = Tracker(build(ObjectTrackerConfig, contract.PARAMS, partial_sigma_scale=1.0))
     o = obs((70.0, 5.0), sigma_m=0.5)
     o.box_scale, o.length_m = 1.04, 8.0
     assert np.allclose(tr._widened(o, 1.3).covariance_m2, np.diag([0.25 + 1.6 ** 2, 0.25 + 1.6 ** 2, 0.25]))
@@ -151,7 +153,7 @@ def test_a_box_shorter_than_the_tracks_whole_boxes_moves_it_by_less():
 def test_ground_objects_do_not_climb_and_an_unseen_tracks_velocity_decays():
     """Placements that creep as the vehicle approaches (a range-dependent bias) must not read as a
     climb, and must not carry a static object away while it is unseen."""
-    tr = Tracker(ObjectTrackerConfig(confirm_hits=2, lost_timeout_s=5.0, coast_tau_s=0.5))
+    tr = Tracker(build(ObjectTrackerConfig, contract.PARAMS, confirm_hits=2, lost_timeout_s=5.0, coast_tau_s=0.5))
     for k in range(10):                                         # creeping 0.5 m/s east and 0.3 m/s up
         m = Measurement(np.array([10.0 + 0.05 * k, 2.0, 0.9 + 0.03 * k]), np.eye(3) * 0.01, 15.0, "stereo")
         tr.update(k * 100 * MS, [Observation(m, *PERSON, 0.9)])
@@ -165,7 +167,7 @@ def test_ground_objects_do_not_climb_and_an_unseen_tracks_velocity_decays():
 
 
 def test_a_lost_track_is_remembered_where_it_was_last_seen():
-    tr = Tracker(ObjectTrackerConfig(confirm_hits=2, lost_timeout_s=1.0, coast_tau_s=0.0))
+    tr = Tracker(build(ObjectTrackerConfig, contract.PARAMS, confirm_hits=2, lost_timeout_s=1.0, coast_tau_s=0.0))
     for k in range(10):                                         # moving 1 m/s east, then unseen
         tr.update(k * 100 * MS, [obs((10.0 + 0.1 * k, 2.0), sigma_m=0.1)])
     last = tr.tracks[0].x[0]
@@ -174,7 +176,7 @@ def test_a_lost_track_is_remembered_where_it_was_last_seen():
 
 
 def test_two_objects_of_different_classes_crossing_keep_their_ids():
-    tr = Tracker(ObjectTrackerConfig(confirm_hits=3))
+    tr = Tracker(build(ObjectTrackerConfig, contract.PARAMS, confirm_hits=3))
     ids: dict[str, set[int]] = {"person": set(), "car": set()}
     rng = np.random.default_rng(0)
     for k in range(40):                                         # 10 Hz, 4 s; they meet at k = 20
@@ -192,7 +194,7 @@ def test_two_objects_of_different_classes_crossing_keep_their_ids():
 
 
 def test_two_people_crossing_keep_their_ids_by_their_velocity():
-    tr = Tracker(ObjectTrackerConfig(confirm_hits=3))
+    tr = Tracker(build(ObjectTrackerConfig, contract.PARAMS, confirm_hits=3))
     seen: dict[int, list[float]] = {}
     for k in range(40):
         t = k * 0.1
@@ -205,7 +207,7 @@ def test_two_people_crossing_keep_their_ids_by_their_velocity():
 
 
 def test_a_lost_object_seen_again_is_reacquired_under_its_id_until_forgotten():
-    tr = Tracker(ObjectTrackerConfig(confirm_hits=2, lost_timeout_s=1.0, forget_s=60.0))
+    tr = Tracker(build(ObjectTrackerConfig, contract.PARAMS, confirm_hits=2, lost_timeout_s=1.0, forget_s=60.0))
     for k in range(3):
         tr.update(k * 100 * MS, [obs((10.0, 2.0)), obs((30.0, 0.0), CAR)])
     assert [t.track_id for t in tr.update(1500 * MS, []).lost] == [1, 2]
@@ -218,7 +220,7 @@ def test_a_lost_object_seen_again_is_reacquired_under_its_id_until_forgotten():
 
 
 def test_a_box_cut_by_the_images_edge_neither_moves_nor_starts_a_track():
-    tr = Tracker(ObjectTrackerConfig(confirm_hits=2))
+    tr = Tracker(build(ObjectTrackerConfig, contract.PARAMS, confirm_hits=2))
     for k in range(3):
         tr.update(k * 100 * MS, [obs((20.0, 2.0))])
     cut = obs((18.5, 2.0))
@@ -237,7 +239,7 @@ def test_a_box_implausible_for_its_class_neither_moves_nor_starts_a_track(box_sc
     """Shorter than partial_scale of what the class fills from there (a car going under an awning,
     its boxes shrinking frame after frame), or taller than crowd_scale (a neighbour taken in):
     however many come in a row, they keep the track alive where its whole boxes put it."""
-    tr = Tracker(ObjectTrackerConfig(confirm_hits=2, partial_scale=0.7, crowd_scale=2.0))
+    tr = Tracker(build(ObjectTrackerConfig, contract.PARAMS, confirm_hits=2, partial_scale=0.7, crowd_scale=2.0))
     seen = functools.partial(sighted, tr)
 
     for k in range(4):
@@ -264,7 +266,7 @@ def test_a_look_alike_smaller_than_its_class_is_held_tentative_however_long_it_i
     """A low wall (1.8 m, 10 m long) that the detector boxes as a 3.4 m truck fills 0.71-0.96 of
     a truck's box: seen 60 frames -- a late run of near-fitting views among them -- it is never
     confirmed, and it holds its place (no second track starts on it)."""
-    tr = Tracker(ObjectTrackerConfig(confirm_hits=3, confirm_scale=0.92))
+    tr = Tracker(build(ObjectTrackerConfig, contract.PARAMS, confirm_hits=3, confirm_scale=0.92))
     scales = [0.78, 0.84, 0.80, 0.76, 0.83] * 8 + [0.94, 0.96, 0.93, 0.97, 0.95] * 3 + [0.75] * 5
     for k, s in enumerate(scales):
         assert truck_seen(tr, s, k).confirmed == []
@@ -275,27 +277,27 @@ def test_a_look_alike_smaller_than_its_class_is_held_tentative_however_long_it_i
 def test_an_object_its_classs_size_is_confirmed_once_half_its_boxes_fit(scales):
     """Boxed at 1.10-1.31x its class's typical size (the detector's margin, median), a real object is
     confirmed at confirm_hits; a few short boxes among the first only wait until half fit."""
-    tr = Tracker(ObjectTrackerConfig(confirm_hits=3, confirm_scale=0.92))
+    tr = Tracker(build(ObjectTrackerConfig, contract.PARAMS, confirm_hits=3, confirm_scale=0.92))
     confirmed = [k for k, s in enumerate(scales) if truck_seen(tr, s, k).confirmed]
     assert confirmed == [len(scales) - 1]
 
 
 def test_boxes_cut_by_the_images_edge_never_count_against_the_class_size():
-    tr = Tracker(ObjectTrackerConfig(confirm_hits=3, confirm_scale=0.92))
+    tr = Tracker(build(ObjectTrackerConfig, contract.PARAMS, confirm_hits=3, confirm_scale=0.92))
     truck_seen(tr, 1.2, 0)
     truck_seen(tr, 0.4, 1, cut=True)                             # half the truck outside the image
     assert truck_seen(tr, 0.45, 2, cut=True).confirmed == tr.tracks
 
 
 def test_confirm_scale_zero_confirms_any_size():
-    tr = Tracker(ObjectTrackerConfig(confirm_hits=3, confirm_scale=0.0))
+    tr = Tracker(build(ObjectTrackerConfig, contract.PARAMS, confirm_hits=3, confirm_scale=0.0))
     assert [k for k in range(3) if truck_seen(tr, 0.8, k).confirmed] == [2]
 
 
 def test_a_far_imprecise_placement_keeps_a_track_alive_without_dragging_it():
     """A track placed from near must not be pulled metres away by far placements (each a few
     metres biased, each inside the gate of where the last one left the track)."""
-    tr = Tracker(ObjectTrackerConfig(confirm_hits=2, birth_sigma_m=2.0, lost_timeout_s=1.0))
+    tr = Tracker(build(ObjectTrackerConfig, contract.PARAMS, confirm_hits=2, birth_sigma_m=2.0, lost_timeout_s=1.0))
     for k in range(5):
         tr.update(k * 100 * MS, [obs((20.0, 2.0), sigma_m=0.3)])
     for k in range(5, 15):                                      # 0.25 m further west each frame, sigma 2.3 m
@@ -308,7 +310,7 @@ def test_a_biased_view_of_a_well_placed_object_is_no_second_object():
     """Seen many times from near, a person is placed to 0.1 m; a later view placed 2 m off with a
     covariance of 0.5 m (outside the Mahalanobis gate: the bias is not in the covariance) starts
     no second track while it lies within birth_spacing_m; beyond it, it does."""
-    tr = Tracker(ObjectTrackerConfig(confirm_hits=2, birth_spacing_m=2.5))
+    tr = Tracker(build(ObjectTrackerConfig, contract.PARAMS, confirm_hits=2, birth_spacing_m=2.5))
     for k in range(30):
         tr.update(k * 100 * MS, [obs((20.0, 2.0), sigma_m=0.3)])
     for k in range(30, 35):
@@ -321,7 +323,7 @@ def test_a_biased_view_of_a_well_placed_object_is_no_second_object():
 def test_a_far_view_within_three_of_its_sigmas_of_a_known_object_is_that_object():
     """From 35 m a person's box (taking in the car in front) is placed 5 m off its track: within 3
     sigma (1.9 m) of the placement, so no second person; seen from near, a person there is."""
-    tr = Tracker(ObjectTrackerConfig(confirm_hits=2, birth_spacing_m=2.5, birth_sigma_m=2.0))
+    tr = Tracker(build(ObjectTrackerConfig, contract.PARAMS, confirm_hits=2, birth_spacing_m=2.5, birth_sigma_m=2.0))
     for k in range(10):
         tr.update(k * 100 * MS, [obs((12.0, -5.0), sigma_m=0.3)])
     for k in range(10, 15):
@@ -334,7 +336,7 @@ def test_a_far_view_within_three_of_its_sigmas_of_a_known_object_is_that_object(
 def test_a_coasting_tracks_velocity_uncertainty_decays_with_its_velocity():
     """Kept alive for seconds by views that do not move it, a track must not come out of it so
     loose that its next whole view (biased by a metre near) throws it past where the object is."""
-    tr = Tracker(ObjectTrackerConfig(confirm_hits=2, lost_timeout_s=10.0, coast_tau_s=0.5))
+    tr = Tracker(build(ObjectTrackerConfig, contract.PARAMS, confirm_hits=2, lost_timeout_s=10.0, coast_tau_s=0.5))
     for k in range(10):
         tr.update(k * 100 * MS, [obs((20.0, 2.0), sigma_m=0.3)])
     for k in range(10, 50):                                     # 4 s of cut boxes: alive, unmoved

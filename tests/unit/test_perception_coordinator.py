@@ -71,3 +71,17 @@ def test_unknown_sources_are_refused_naming_them():
     with pytest.raises(ValueError, match="unknown radar; known: vio, detector, lidar"):
         parse_sources("vio,radar")
     assert parse_sources("") == frozenset()
+
+
+def test_the_config_comes_from_the_parameters_and_a_bad_source_changes_nothing():
+    from aeroperception.services.perception import contract
+    from aeroperception.services.perception.logic import CoordinatorConfig
+    from aeroperception.services.runtime.config import build
+
+    c = Coordinator.from_config(build(CoordinatorConfig, contract.PARAMS))
+    assert c.sources == frozenset(("vio", "detector", "lidar")) and c.timeouts_s == {"vio": 3.0, "detector": 3.0, "lidar": 3.0}
+    c.configure(build(CoordinatorConfig, contract.PARAMS, sources="vio", lidar_timeout_s=5.0))
+    assert c.sources == frozenset(("vio",)) and c.timeouts_s["lidar"] == 5.0
+    with pytest.raises(ValueError, match="unknown radar"):
+        c.configure(build(CoordinatorConfig, contract.PARAMS, sources="radar", vio_timeout_s=9.0))
+    assert c.sources == frozenset(("vio",)) and c.timeouts_s["vio"] == 3.0

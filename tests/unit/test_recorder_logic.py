@@ -26,7 +26,13 @@ from aeroperception.services.recorder.logic import (
 )
 from aeroperception.services.recorder.replay import CLOCK_KEY, Recorded, Replayer
 from aeroperception.services.runtime import ParamError, ParamSet
+from aeroperception.services.runtime.config import build
 from aeroperception.services.runtime.node import encoding_for
+
+
+def sink_config(output_dir: Path, **kw) -> SinkConfig:
+    """The defaults of the recorder's parameters, writing to output_dir (and `kw` set)."""
+    return build(SinkConfig, contract.PARAMS, output_dir=output_dir, **kw)
 
 
 def sample(msg, key: str, t_ns: int) -> Sample:
@@ -61,7 +67,7 @@ def test_essentials_preset_is_seed_list_mapped_and_images_only_when_asked():
 
 
 def test_recording_decodes_with_plain_mcap_reader_and_plain_msgpack(tmp_path):
-    sink = McapSink(SinkConfig(tmp_path), {"aeroperception": {"scenario": "open_field"}})
+    sink = McapSink(sink_config(tmp_path), {"aeroperception": {"scenario": "open_field"}})
     rec = Recording(sink, 1 << 20).start()
     for i in range(50):
         assert rec.offer("state/vehicle", str(encoding_for(VehicleState)), encode(state(i)), 1_000_000_000 + i * 20_000_000)
@@ -85,7 +91,7 @@ def test_recording_decodes_with_plain_mcap_reader_and_plain_msgpack(tmp_path):
 
 
 def test_splits_past_max_bag_size_each_file_complete(tmp_path):
-    cfg = SinkConfig(tmp_path, max_bag_size=1 << 16, chunk_size=1 << 14, compression="none")
+    cfg = sink_config(tmp_path, max_bag_size=1 << 16, chunk_size=1 << 14, compression="none")
     clock = FakeClock()
     sink = McapSink(cfg, {"aeroperception": {"preset": "x"}}, clock=clock)
     payload = bytes(range(256)) * 4
@@ -128,8 +134,8 @@ def test_split_files_are_ours_only_oldest_first_by_start_then_split_number(tmp_p
 
 def test_a_budget_below_two_splits_is_refused():
     with pytest.raises(ValueError, match="max_total_size"):
-        SinkConfig(Path("."), max_bag_size=1 << 16, chunk_size=1 << 14, max_total_size=1 << 17).check()
-    SinkConfig(Path("."), max_bag_size=1 << 16, chunk_size=1 << 14, max_total_size=(1 << 17) + (1 << 14)).check()
+        sink_config(Path("."), max_bag_size=1 << 16, chunk_size=1 << 14, max_total_size=1 << 17).check()
+    sink_config(Path("."), max_bag_size=1 << 16, chunk_size=1 << 14, max_total_size=(1 << 17) + (1 << 14)).check()
 
 
 def test_rotation_keeps_the_directory_within_budget_while_recording(tmp_path):
@@ -143,7 +149,7 @@ def test_rotation_keeps_the_directory_within_budget_while_recording(tmp_path):
     foreign.write_bytes(b"\x00" * 1000)
     live = tmp_path / "aero_20200101T000001Z_0.mcap"            # another recorder's file being written
     live.write_bytes(b"\x89MCAP0\r\n" + b"\x00" * 5000)
-    cfg = SinkConfig(tmp_path, max_bag_size=1 << 16, chunk_size=1 << 14, compression="none", max_total_size=budget)
+    cfg = sink_config(tmp_path, max_bag_size=1 << 16, chunk_size=1 << 14, compression="none", max_total_size=budget)
     cfg.check()
     clock = FakeClock()
     sink = McapSink(cfg, clock=clock)
@@ -176,7 +182,7 @@ def test_recorder_parameters_are_read_at_start_so_a_live_set_is_refused():
 def test_chunks_reach_disk_every_flush_interval_and_recover_indexes_a_cut_file(tmp_path):
     """What a kill -9 leaves: the file as written so far, never finished."""
     clock = FakeClock()
-    sink = McapSink(SinkConfig(tmp_path, flush_interval_s=0.5), clock=clock)
+    sink = McapSink(sink_config(tmp_path, flush_interval_s=0.5), clock=clock)
     for i in range(300):                       # 3 s at 100 Hz
         clock.t = i * 0.01
         sink.write([sample(state(i), "state/vehicle", i * 10_000_000)])
@@ -197,9 +203,12 @@ def test_chunks_reach_disk_every_flush_interval_and_recover_indexes_a_cut_file(t
 FSIZE_SCRIPT = textwrap.dedent("""
     import resource, sys
     from pathlib import Path
+    from aeroperception.services.recorder import contract
     from aeroperception.services.recorder.logic import McapSink, Sample, SinkConfig
+    from aeroperception.services.runtime.config import build
     resource.setrlimit(resource.RLIMIT_FSIZE, (200_000, 200_000))
-    sink = McapSink(SinkConfig(Path(sys.argv[1]), flush_interval_s=0.05, compression="none"))
+    sink = McapSink(build(SinkConfig, contract.PARAMS, output_dir=Path(sys.argv[1]), flush_interval_s=0.05,
+                          compression="none"))
     import time
     for i in range(2000):
         sink.write([Sample("blob", "application/octet-stream", bytes(1000), i)])
@@ -225,14 +234,14 @@ def test_file_size_limit_is_an_error_with_reason_and_the_file_stays_readable(tmp
 
 def test_unwritable_directory_is_an_error_not_an_exception(tmp_path):
     (tmp_path / "file").write_text("x")
-    sink = McapSink(SinkConfig(tmp_path / "file" / "sub"))
+    sink = McapSink(sink_config(tmp_path / "file" / "sub"))
     sink.write([sample(state(1), "state/vehicle", 1)])
     sink.close()
     assert sink.failed and "Not a directory" in sink.error
 
 
 def test_buffer_is_bounded_and_counts_drops(tmp_path):
-    rec = Recording(McapSink(SinkConfig(tmp_path)), max_buffer_bytes=10_000)  # writer not started
+    rec = Recording(McapSink(sink_config(tmp_path)), max_buffer_bytes=10_000)  # writer not started
     ok = [rec.offer("k", "application/octet-stream", bytes(1000), i + 1) for i in range(25)]
     assert sum(ok) == 10 and rec.dropped == 15 and rec.buffer.bytes == 10_000
 
@@ -240,7 +249,7 @@ def test_buffer_is_bounded_and_counts_drops(tmp_path):
 def test_sample_before_the_sim_clock_started_is_counted_not_recorded(tmp_path):
     """On sim time the node's clock reads 0 until sim/clock is heard: such a sample would put the
     file's start in 1970 and make a replay wait that long for the next message."""
-    rec = Recording(McapSink(SinkConfig(tmp_path)), max_buffer_bytes=10_000)
+    rec = Recording(McapSink(sink_config(tmp_path)), max_buffer_bytes=10_000)
     assert not rec.offer("diagnostics/agg", "application/octet-stream", b"x", 0)
     assert rec.offer("diagnostics/agg", "application/octet-stream", b"x", 1_800_000_000_000_000_000)
     assert rec.before_clock == 1 and rec.dropped == 0 and len(rec.buffer.take_all(0)) == 1
@@ -283,7 +292,7 @@ def test_foxglove_export_validates_against_foxglove_schemas(tmp_path):
         ("diagnostics/agg", DiagnosticArray(header=h, status=[DiagnosticStatus(name="fmu", level=2, message="link lost")])),
         ("mission/status", MissionStatus(header=h, state="EXECUTING")),
     ]
-    sink = McapSink(SinkConfig(tmp_path))
+    sink = McapSink(sink_config(tmp_path))
     sink.write([sample(m, k, 10 + i) for i, (k, m) in enumerate(msgs)])
     sink.close()
     out = tmp_path / "fox.mcap"
@@ -319,7 +328,7 @@ def test_cli_errors_are_one_line_with_what_to_do(tmp_path, capsys):
     assert main(["mcap", "recover", str(tmp_path / "junk.mcap")]) == 2
     assert "not an MCAP file" in capsys.readouterr().err
     clock = FakeClock()
-    sink = McapSink(SinkConfig(tmp_path, flush_interval_s=0.1), clock=clock)
+    sink = McapSink(sink_config(tmp_path, flush_interval_s=0.1), clock=clock)
     for i in range(20):
         clock.t = i * 0.05
         sink.write([sample(state(i), "state/vehicle", i)])

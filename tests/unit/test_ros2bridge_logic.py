@@ -1,5 +1,6 @@
 """ros2bridge logic without Zenoh: rmw_zenoh names, hashes, attachment, conversions, goal checks."""
 import math
+import types
 
 import numpy as np
 import pytest
@@ -8,8 +9,10 @@ from aeroperception.schemas import (
     Detection2D, Detection2DArray, Image, Imu, NDArray, PointCloud, Quaternion, Vector3, VehicleState,
 )
 from aeroperception.services.ros2bridge import contract
+from aeroperception.services.ros2bridge.bridge import RosBridgeConfig, TopicBridge, ros_name
 from aeroperception.services.ros2bridge.convert import CATALOG, GOAL_TYPE, Converter
 from aeroperception.services.ros2bridge.rmw import RosNode, attachment, data_key, make_typestore, parse_attachment
+from aeroperception.services.runtime.config import build
 
 STORE = make_typestore()
 CONV = Converter(STORE)
@@ -78,3 +81,57 @@ def test_goal_from_ros_pose_stamped_and_what_it_refuses():
         CONV.goal_from_pose_stamped(_pose_stamped(frame="base_link"))
     with pytest.raises(ValueError, match="non-finite"):
         CONV.goal_from_pose_stamped(_pose_stamped(x=float("nan")))
+
+
+class _Clock:
+    def __init__(self):
+        self.t = 100.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
+def _bridge(convert=CONV.from_imu, max_rate_hz=10.0):
+    sent, reported, clock = [], [], _Clock()
+    b = TopicBridge("sensors/imu", "sensor_msgs/msg/Imu", convert, STORE.serialize_cdr,
+                    lambda cdr, attachment: sent.append((cdr, parse_attachment(attachment))), max_rate_hz,
+                    lambda key, error: reported.append((key, error)), clock)
+    return b, sent, reported, clock
+
+
+def test_a_topic_nobody_on_the_ros_side_hears_is_not_converted():
+    b, sent, _, _ = _bridge(convert=lambda msg: pytest.fail("converted for nobody"))
+    b.on_message(Imu())
+    assert (b.unheard, b.sent, sent) == (1, 0, [])
+
+
+def test_samples_faster_than_max_rate_are_dropped_never_queued():
+    b, sent, _, clock = _bridge(max_rate_hz=10.0)
+    b.on_matching(types.SimpleNamespace(matching=True))
+    for _ in range(5):                      # 5 samples within 40 ms: one goes out
+        b.on_message(Imu())
+        clock.t += 0.01
+    clock.t += 0.1
+    b.on_message(Imu())
+    assert (b.sent, b.dropped) == (2, 4)
+    assert [seq for _, (seq, _, gid) in sent] == [1, 2] and all(gid == b.gid for _, (_, _, gid) in sent)
+    assert STORE.deserialize_cdr(sent[0][0], "sensor_msgs/msg/Imu")
+
+
+def test_an_unconvertible_sample_is_counted_and_reported_not_raised():
+    def broken(msg):
+        raise ValueError("no such field")
+
+    b, sent, reported, _ = _bridge(convert=broken)
+    b.on_matching(types.SimpleNamespace(matching=True))
+    b.on_message(Imu())
+    assert (b.errors, b.sent, sent) == (1, 0, [])
+    assert reported == [("sensors/imu", "cannot convert to sensor_msgs/msg/Imu: no such field")]
+
+
+def test_topics_parameter_names_only_catalog_keys():
+    cfg = build(RosBridgeConfig, contract.PARAMS)
+    assert cfg.bridged_keys() == ["state/vehicle", "state/visual_odometry", "sensors/imu", "perception/detections"]
+    with pytest.raises(ValueError, match="topics: sensors/radar cannot be bridged; choose from state/vehicle"):
+        build(RosBridgeConfig, contract.PARAMS, topics="sensors/imu, sensors/radar").bridged_keys()
+    assert ros_name("/aero/", "/vio/odom") == "/aero/vio/odom" and ros_name("", "imu") == "/imu"

@@ -4,6 +4,8 @@ and contract is refused at start in one line. Also the configs built from parame
 (runtime/config.py) and their one on_config."""
 from __future__ import annotations
 
+import functools
+import time
 import types
 from dataclasses import dataclass
 
@@ -144,6 +146,50 @@ def test_a_strict_input_refuses_unknown_fields_a_lenient_one_takes_them(make_nod
                                    encoding=encoding_for(ClockMsg)) or svc.commands, 10, "a valid command")
     finally:
         raw.close()
+
+
+class Tabled(Service):
+    """Inputs delivered through one table ({handler name: callable}), bound in two steps: the
+    selection at start, one more input when a live change turns it on."""
+
+    NAME, CONTRACT = "demo", DEMO
+
+    def start(self) -> None:
+        self.got: list[tuple[str, ClockMsg]] = []
+
+    def handlers(self):
+        return {DEMO.INPUTS.declared[k].handler_name: functools.partial(self._on_input, k) for k in DEMO.INPUTS}
+
+    def bind_selection(self):
+        return {"inputs": ["test/clock"], "services": []}
+
+    def _on_input(self, key: str, msg: ClockMsg) -> None:
+        self.got.append((key, msg))
+
+
+def test_a_table_of_handlers_is_checked_like_methods():
+    table = Tabled.handlers(object.__new__(Tabled))
+    assert set(check_handlers(DEMO, table, services=[])) == {("INPUTS", "test/clock"), ("INPUTS", "test/command")}
+    with pytest.raises(WiringError, match="handler on_test_gone matches no input"):
+        check_handlers(DEMO, {**table, "on_test_gone": print}, services=[])
+    with pytest.raises(WiringError, match="SERVICES 'test/srv/arm' has no handler"):
+        check_handlers(DEMO, table)
+
+
+@pytest.mark.timeout(60)
+def test_a_service_binds_its_table_at_start_and_more_inputs_later(make_node):
+    other = make_node("other")
+    svc = Tabled(make_node("demo"), None)
+    svc.launch()
+    assert set(svc.io) == set(DEMO.OUTPUTS)
+    clock, command = other.publisher("test/clock", ClockMsg), other.publisher("test/command", ClockMsg)
+    wait_until(lambda: clock.publish(ClockMsg(speed_factor=2.0)) or svc.got, 10, "the selected input at its handler")
+    command.publish(ClockMsg(speed_factor=3.0))
+    time.sleep(0.3)
+    assert {k for k, _ in svc.got} == {"test/clock"}        # not selected: not subscribed
+    svc.bind_inputs(["test/command"])
+    wait_until(lambda: command.publish(ClockMsg(speed_factor=3.0)) or any(k == "test/command" for k, _ in svc.got),
+               10, "the input bound later at its handler")
 
 
 # ---------------------------------------------------------------- configs from parameters

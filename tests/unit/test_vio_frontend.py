@@ -3,6 +3,8 @@ rendered by the simulator's own camera along a known trajectory, with its IMU mo
 import numpy as np
 import pytest
 
+from aerotest import forward_camera_info
+
 from aeroperception.services.runtime.rotations import quat_to_rotmat
 from aeroperception.services.vio.calibration import CameraCalibration
 from aeroperception.services.vio.dto import ImuWindow, NavCameraFrame, VioDegradedError, VioInitializingError
@@ -131,8 +133,7 @@ def test_a_restart_after_an_imu_gap_in_flight_carries_the_pose_over_the_gap(seq)
 
 
 def _mono_calib() -> CameraCalibration:
-    from test_vio_strategy import info
-    return CameraCalibration.from_camera_infos(info(0.04))
+    return CameraCalibration.from_camera_infos(forward_camera_info(0.04))
 
 
 @pytest.mark.parametrize("yaw_deg", [0.0, 3.0])

@@ -7,9 +7,10 @@ import cv2
 import numpy as np
 import pytest
 
-from aeroperception.schemas import CameraInfo, Pose, Quaternion, Vector3
+from aerotest import forward_camera_info
+
+from aeroperception.schemas import Pose, Quaternion, Vector3
 from aeroperception.services.runtime.rotations import quat_from_rotmat
-from aeroperception.services.sim.sensors.frames import R_FLU_OPTICAL_FORWARD
 from aeroperception.services.vio import health as H
 from aeroperception.services.vio.calibration import CalibrationError, CameraCalibration
 from aeroperception.services.vio.dto import (
@@ -22,15 +23,7 @@ W, H_PX, D_PX = 640, 480, 20
 DT_NS = 50_000_000
 
 
-def info(y_m: float, width=W, height=H_PX, model="plumb_bob") -> CameraInfo:
-    q = Quaternion.from_array(quat_from_rotmat(R_FLU_OPTICAL_FORWARD))
-    ci = CameraInfo.pinhole(width, height, 320.0, 320.0, (width - 1) / 2, (height - 1) / 2,
-                            T_body_camera=Pose(position=Vector3(x=0.1, y=y_m, z=0.0), orientation=q))
-    ci.distortion_model = model
-    return ci
-
-
-CALIB = CameraCalibration.from_camera_infos(info(0.04), info(-0.04))
+CALIB = CameraCalibration.from_camera_infos(forward_camera_info(0.04), forward_camera_info(-0.04))
 
 
 def images():
@@ -114,7 +107,7 @@ def test_still_stereo_rig_initialises_level_and_stays_put():
 
 
 def test_mono_strategy_tracks_the_same_scene_with_the_left_camera_only():
-    calib = CameraCalibration.from_camera_infos(info(0.04))
+    calib = CameraCalibration.from_camera_infos(forward_camera_info(0.04))
     f = Feeder(create_strategy("klt_mono"))
     for _ in range(10):
         try:
@@ -134,9 +127,9 @@ def test_missing_calibration_keeps_init_with_a_clear_message():
     assert f.s.health_snapshot().state == INIT
     assert "calibration" in f.s.health_snapshot().message
     with pytest.raises(CalibrationError, match="distortion model"):
-        CameraCalibration.from_camera_infos(info(0.04, model="equidistant"), info(-0.04))
+        CameraCalibration.from_camera_infos(forward_camera_info(0.04, model="equidistant"), forward_camera_info(-0.04))
     with pytest.raises(CalibrationError, match="right"):
-        CameraCalibration.from_camera_infos(info(-0.04), info(0.04))   # swapped cameras
+        CameraCalibration.from_camera_infos(forward_camera_info(-0.04), forward_camera_info(0.04))   # swapped cameras
 
 
 def test_wrong_image_size_degrades_then_lost_then_recovers():
@@ -327,3 +320,15 @@ def test_reset_request_maps_to_a_warm_start_and_refuses_bad_poses():
         warm_start(VioResetRequest(pose=Pose(position=Vector3(x=float("nan")))))
     with pytest.raises(ValueError, match="unit quaternion"):
         warm_start(VioResetRequest(pose=Pose(orientation=Quaternion(w=2.0))))
+
+
+def test_the_parameters_default_to_the_algorithms_own_configuration():
+    # The contract reads its defaults from the algorithm's config classes (one home): the strategy
+    # built from the default parameters is configured exactly as VioConfig() is.
+    from aeroperception.services.runtime.config import build
+    from aeroperception.services.vio import contract
+    from aeroperception.services.vio.config import VioServiceConfig
+
+    cfg = build(VioServiceConfig, contract.PARAMS)
+    assert cfg.strategy_config() == VioConfig()
+    assert build(VioServiceConfig, contract.PARAMS, lag_s=2.5).strategy_config().backend.lag_s == 2.5

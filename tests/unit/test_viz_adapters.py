@@ -15,11 +15,12 @@ from aeroperception.schemas import (
     MissionStatus, NDArray, OccupancyGrid, Odometry, PointCloud, Pose, PoseStamped, Quaternion,
     TrackedObject, TrackedObjectArray, TrajectorySetpoint, Vector3, VehicleState, VioHealth, WaypointReached,
 )
-from aeroperception.services.runtime.params import ParamSet
+from aeroperception.services.runtime.config import build
 from aeroperception.services.viz import adapters as A
 from aeroperception.services.viz import contract
 from aeroperception.services.viz.main import FrameGate, Sampler
 from aeroperception.services.viz.rrd import entity_spans
+from aeroperception.services.viz.config import VizConfig
 from aeroperception.services.viz.viewer import Outputs, ViewerConfigError, ViewerSink
 
 
@@ -48,10 +49,8 @@ def state(x=1.0, y=2.0, z=3.0, stamp_ns=1_000_000_000, **kw) -> VehicleState:
                         velocity_mps=Vector3(x=3.0, y=4.0, z=0.0), orientation=YAW90, **kw)
 
 
-def params(**over):
-    p = ParamSet.from_declarations(contract.PARAMS)
-    p.update(over)
-    return p
+def outputs(**over) -> Outputs:
+    return build(Outputs, contract.PARAMS, **over)
 
 
 # ---------------------------------------------------------------- pose, trajectory, VIO
@@ -259,12 +258,11 @@ def test_diagnostics_loop_timing_series_and_text_on_level_change():
 
 
 def test_registry_covers_the_contract_and_names_real_rate_parameters():
-    p = params()
-    ads = A.build_adapters(p)
+    ads = A.build_adapters(build(VizConfig, contract.PARAMS))
     assert {a.key: a.schema for a in ads} == contract.INPUTS
     names = {q.name for q in contract.PARAMS}
     for a in ads:
-        assert a.rate_param is None or a.rate_param in names, a.key
+        assert a.rate_param is None or (a.rate_param in names and a.rate_param in VizConfig.__dataclass_fields__), a.key
         assert a.follows is None or a.follows in contract.INPUTS
     assert {a.key for a in ads if a.truth} == {"sim/truth/state", "sim/truth/boxes"}
 
@@ -286,14 +284,14 @@ def test_frame_gate_admits_overlays_of_shown_frames_only():
 
 def test_no_output_is_refused_at_start():
     with pytest.raises(ViewerConfigError, match="no output"):
-        Outputs(web_port=0).check()
+        outputs(web_port=0).check()
     with pytest.raises(ViewerConfigError, match="rerun\\+http"):
-        Outputs(web_port=0, viewer_url="tcp/1.2.3.4:7447").check()
+        outputs(web_port=0, viewer_url="tcp/1.2.3.4:7447").check()
 
 
 def test_sink_saves_an_rrd_that_reads_back_with_entities_over_the_stamps(tmp_path):
     path = tmp_path / "v.rrd"
-    sink = ViewerSink(Outputs(web_port=0, save_path=str(path)))
+    sink = ViewerSink(outputs(web_port=0, save_path=str(path)))
     sink.write(1, A.static_scene())
     ad = A.VehicleAdapter(trail_period_s=0.1)
     t0 = 1_800_000_000_000_000_000
@@ -314,7 +312,7 @@ def test_spawned_viewer_is_asked_for_with_the_sinks_own_recording(monkeypatch, t
     calls = []
     monkeypatch.setattr(rr, "spawn", lambda **kw: calls.append(kw))
     monkeypatch.setattr(rr, "GrpcSink", lambda url: rr.FileSink(str(tmp_path / "stand-in.rrd")))  # no viewer here
-    sink = ViewerSink(Outputs(web_port=0, spawn=True, grpc_port=free_port()))
+    sink = ViewerSink(outputs(web_port=0, spawn=True, grpc_port=free_port()))
     try:
         assert len(calls) == 1 and calls[0]["recording"] is sink.rec and calls[0]["connect"] is False
     finally:

@@ -15,6 +15,7 @@ from aeroperception.schemas import Header, PointCloud, decode, encode
 from aeroperception.services.lidar import contract
 from aeroperception.services.lidar.costmap import CostmapConfig, RollingCostmap
 from aeroperception.services.lidar.pipeline import ObstaclePipeline, PipelineConfig, sanitize
+from aeroperception.services.runtime.config import build
 from aeroperception.services.runtime.data import kitti_scans
 
 SCAN_RATE_HZ = 10.0
@@ -64,9 +65,9 @@ def _clock() -> tuple[float, float]:
 
 def _bench(name: str, points: np.ndarray, r: np.ndarray, above: float, n: int) -> list[tuple]:
     """Rows (label, wall median, wall p99, CPU median, CPU p99, CPU ratio to the baseline)."""
-    cfg = PipelineConfig()
+    cfg = build(PipelineConfig, contract.PARAMS)
     pipe = ObstaclePipeline(cfg)
-    cm = RollingCostmap(CostmapConfig())
+    cm = RollingCostmap(build(CostmapConfig, contract.PARAMS))
     cm.recenter(0.0, 0.0)
     payload = encode(PointCloud.from_numpy(points, header=Header(frame_id="lidar")))
     stages: dict[str, list[float]] = {}
@@ -88,7 +89,7 @@ def _bench(name: str, points: np.ndarray, r: np.ndarray, above: float, n: int) -
             wall.append((w2 - w0) * 1e3)
             cpu.append((c2 - c0) * 1e3)
         w3, c3 = _clock()
-        _open3d_baseline(decode(payload, PointCloud).points.to_numpy(), r, cfg, RollingCostmap(CostmapConfig()))
+        _open3d_baseline(decode(payload, PointCloud).points.to_numpy(), r, cfg, RollingCostmap(build(CostmapConfig, contract.PARAMS)))
         w4, c4 = _clock()
         if i >= 2:
             base_wall.append((w4 - w3) * 1e3)

@@ -58,9 +58,9 @@ def run(n: int = 50, scenario: str = "village", counts: tuple[int, ...] = (1, 5,
         Detection2D, Detection2DArray, Header, Image, Quaternion, Vector3, VehicleState,
     )
     from aeroperception.services.objects import contract
-    from aeroperception.services.objects.logic import ObjectsPipeline
+    from aeroperception.services.objects.logic import ObjectsConfig, ObjectsPipeline
     from aeroperception.services.objects.projection import box_disparity
-    from aeroperception.services.runtime import ParamSet
+    from aeroperception.services.runtime.config import build
 
     (left, right), infos, truth, boxes = _scene(scenario)
     if not boxes:
@@ -71,13 +71,13 @@ def run(n: int = 50, scenario: str = "village", counts: tuple[int, ...] = (1, 5,
           f"{len(boxes)} targets in view; CPU ms per detection frame")
     print(f"{'boxes':>5} | {'objects p50':>11} {'p99':>6} | {'full-frame disparity p50':>24} {'p99':>6} | {'x baseline':>10}")
     max_range = next(p.default for p in contract.PARAMS if p.name == "stereo_max_range_m")
-    cam = ObjectsPipeline(ParamSet.from_declarations(contract.PARAMS))
+    cam = ObjectsPipeline(build(ObjectsConfig, contract.PARAMS))
     cam.on_info("left", infos[0])
     cam.on_info("right", infos[1])
     max_disp = int(np.ceil(cam.camera.fx * cam.camera.baseline_m / max_range))     # as the service searches
     for count in counts:
         chosen = [boxes[i % len(boxes)] for i in range(count)]
-        pl = ObjectsPipeline(ParamSet.from_declarations(contract.PARAMS))
+        pl = ObjectsPipeline(build(ObjectsConfig, contract.PARAMS))
         pl.on_info("left", infos[0])
         pl.on_info("right", infos[1])
         ours, base = [], []

@@ -17,7 +17,7 @@ from aeroperception.schemas import SchemaError
 from aeroperception.tools.common import EXIT_BROKEN_PIPE, CliError, silence_stdout, stdout_closed
 
 COMMANDS = ["up", "router", "run", "topic", "schema", "param", "plugin", "mission", "bench",
-            "eval", "snapshot", "docs", "chaos", "certs", "viz", "record", "fc", "doctor"]
+            "eval", "snapshot", "docs", "chaos", "certs", "viz", "record", "play", "fc", "doctor"]
 
 
 def build_parser() -> argparse.ArgumentParser:

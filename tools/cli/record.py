@@ -84,8 +84,7 @@ def record(args) -> int:
     svc = RecorderService(node, argparse.Namespace(scenario=""))
     node.set_health(svc.health)
     try:
-        with node.lock:
-            svc.start()
+        svc.launch()
     except ParamError as e:
         node.close()
         raise CliError(str(e)) from None

@@ -22,7 +22,9 @@ from pathlib import Path
 
 import numpy as np
 
+from aeroperception.services.lidar import contract
 from aeroperception.services.lidar.pipeline import ObstaclePipeline, PipelineConfig, classify, level, sanitize
+from aeroperception.services.runtime.config import build
 from aeroperception.services.runtime.rotations import quat_to_rotmat
 
 GROUND, OBSTACLE, OVERHEAD = 0, 1, 2
@@ -101,7 +103,7 @@ def sim_scans(scenario: str, n: int = 20, altitude_m: float = 4.0, seed: int = 0
 
 
 def evaluate(scans: list[Scan], cfg: PipelineConfig | None = None) -> dict[str, float]:
-    cfg = cfg or PipelineConfig()
+    cfg = cfg or build(PipelineConfig, contract.PARAMS)
     pipe = ObstaclePipeline(cfg)
     c = Counts()
     for s in scans:
@@ -131,7 +133,7 @@ def compare_patchwork(scans: list[Scan], cfg: PipelineConfig | None = None) -> d
         import pypatchworkpp
     except ImportError:
         return None
-    cfg = cfg or PipelineConfig()
+    cfg = cfg or build(PipelineConfig, contract.PARAMS)
     params = pypatchworkpp.Parameters()
     params.verbose = False
     pw = pypatchworkpp.patchworkpp(params)

@@ -324,9 +324,10 @@ def replay(path: str, scenario: str | None = None, overrides: dict[str, str] | N
     """Score the objects logic on a recorded flight (module doc). `scenario`: the truth's, else the
     one the recording names; `overrides`: objects parameters (NAME -> value) instead of defaults."""
     from aeroperception.services.objects import contract
-    from aeroperception.services.objects.logic import ObjectsPipeline
+    from aeroperception.services.objects.logic import ObjectsConfig, ObjectsPipeline
     from aeroperception.services.recorder.files import RecordingError, messages
     from aeroperception.services.runtime import ParamError, ParamSet
+    from aeroperception.services.runtime.config import build
     from aeroperception.tools.common import CliError
 
     recorded, metadata = _recorded(path)
@@ -345,7 +346,7 @@ def replay(path: str, scenario: str | None = None, overrides: dict[str, str] | N
         params.update(overrides or {})
     except ParamError as e:
         raise CliError(f"--param: {e}") from None
-    run = Replay(ObjectsPipeline(params), ObjectsEval(_targets(scenario)))
+    run = Replay(ObjectsPipeline(build(ObjectsConfig, params)), ObjectsEval(_targets(scenario)))
     try:
         for ch, m in messages(path, topics):
             run.feed(ch.topic[len(prefix):], m.data)

@@ -245,7 +245,8 @@ def _live_metrics(odom: list, t_stamps: list, t_poses: list, align: str, rpe_del
         raise CliError("no state/visual_odometry in the window: is the vio service running (aero run vio) "
                        "and TRACKING (aero topic echo state/vio_health)?")
     if not t_stamps:
-        raise CliError("no sim/truth/state in the window: live evaluation needs the simulator")
+        raise CliError("no sim/truth/state in the window: live evaluation needs a truth: the simulator, "
+                       "or a recording played with its ground truth (aero play euroc DIR)")
     ts = np.array(t_stamps)
     order = np.argsort(ts)
     ts = ts[order]
@@ -280,7 +281,7 @@ def run(euroc: str | None, out_dir: str, strategy: str = "klt_stereo", align: st
         finally:
             session.close()
         m.update(source="live")
-        return _report(m, Path(out_dir), "live VIO vs sim truth")
+        return _report(m, Path(out_dir), "live VIO vs sim/truth/state")
     if not euroc:
         raise CliError("give a source: aero eval vio --euroc DIR (EuRoC/ASL folder with mav0/) or "
                        "--live (the running vio against sim/truth/state)")

@@ -8,11 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from aeroperception.services.lib.optical import R_FLU_OPTICAL_FORWARD  # noqa: F401 - the sensors' name for it
 from aeroperception.services.runtime.rotations import quat_from_rotmat, quat_to_rotmat
-
-# Optical frame axes expressed in the body (FLU) frame for a camera looking straight forward:
-# optical x (right) = -body y, optical y (down) = -body z, optical z (forward) = +body x.
-R_FLU_OPTICAL_FORWARD = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 
 
 # One home for quaternion maths: these are the runtime's, under the names the sensor code uses.

@@ -1,0 +1,136 @@
+"""The camera service as a process on real frames (the EuRoC MH_01 clip's images, calibration
+written from its real sensor.yaml in Kalibr's format): a folder played as a mono camera with its
+model published and served, a side-by-side video file split into a stereo pair with one stamp,
+the end of a recording reported, a calibration that does not fit the layout refused at start.
+CI has no camera: the device path is the same VideoCapture code (unit tests drive its stalls)."""
+from __future__ import annotations
+
+import subprocess
+
+import cv2
+import numpy as np
+import pytest
+import yaml
+
+from aerotest import aero_argv, clean_env, token_alive, wait_until, zenoh_client
+from aeroperception.schemas import CameraInfo, DiagnosticStatus, Image, decode
+from aeroperception.services.runtime import call
+from aeroperception.services.runtime.data import shared_data_dir
+from aeroperception.services.runtime.rotations import quat_to_rotmat
+
+DATA = shared_data_dir()
+MAV = DATA / "euroc" / "MH_01_clip" / "mav0" if DATA else None
+pytestmark = pytest.mark.skipif(MAV is None or not MAV.is_dir(), reason="../shared/data absent")
+
+
+def camchain(path, stereo: bool) -> np.ndarray:
+    """Kalibr's camchain of the VI-Sensor from EuRoC's sensor.yaml; returns cam0's T_BS."""
+    cams = {}
+    for cam in ("cam0", "cam1")[: 2 if stereo else 1]:
+        y = yaml.safe_load((MAV / cam / "sensor.yaml").read_text())
+        cams[cam] = (y, np.array(y["T_BS"]["data"]).reshape(4, 4))
+    chain = {name: dict(camera_model="pinhole", intrinsics=y["intrinsics"], distortion_model="radtan",
+                        distortion_coeffs=y["distortion_coefficients"], resolution=y["resolution"],
+                        T_cam_imu=np.linalg.inv(t).tolist()) for name, (y, t) in cams.items()}
+    path.write_text(yaml.safe_dump(chain))
+    return cams["cam0"][1]
+
+
+class Camera:
+    """`aero run camera` with these parameters, and what it publishes."""
+
+    def __init__(self, endpoint: str, tmp_path, **params):
+        self.watcher = zenoh_client(endpoint)
+        self.images: dict[str, list[Image]] = {"left": [], "right": []}
+        self.status: list[DiagnosticStatus] = []
+        for side in ("left", "right"):
+            self.watcher.declare_subscriber(f"sensors/camera/{side}/image",
+                                            lambda s, side=side: self.images[side].append(decode(s.payload.to_bytes(), Image)))
+        self.watcher.declare_subscriber("diagnostics/camera",
+                                        lambda s: self.status.append(decode(s.payload.to_bytes(), DiagnosticStatus)))
+        self.log = tmp_path / "camera.log"
+        argv = aero_argv() + ["run", "camera"] + [a for k, v in params.items() for a in ("--param", f"{k}={v}")]
+        with open(self.log, "wb") as f:
+            self.proc = subprocess.Popen(argv, stdout=f, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                                         env=clean_env(endpoint))
+
+    def alive(self) -> None:
+        wait_until(lambda: token_alive(self.watcher, "camera") or self.proc.poll() is not None, 30, "camera alive")
+        assert self.proc.poll() is None, self.log.read_text()
+
+    def close(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.terminate()
+            self.proc.wait(10)
+        self.watcher.close()
+
+
+def test_an_image_folder_is_a_calibrated_mono_camera_at_its_rate(zenoh_router, tmp_path):
+    t_bs = camchain(tmp_path / "camchain.yaml", stereo=False)
+    cam = Camera(zenoh_router, tmp_path, source=MAV / "cam0" / "data", calibration_path=tmp_path / "camchain.yaml",
+                 rate_hz=20.0, latency_s=0.01)
+    try:
+        cam.alive()
+        wait_until(lambda: len(cam.images["left"]) >= 30, 20, "30 frames")
+        info = call(cam.watcher, "sensors/camera/left/info", None, CameraInfo, timeout_s=5.0)
+        wait_until(lambda: any(s.level == DiagnosticStatus.OK for s in cam.status), 5, "diagnostics OK")
+    finally:
+        cam.close()
+    imgs = cam.images["left"]
+    assert not cam.images["right"]
+    first = cv2.imread(str(sorted((MAV / "cam0" / "data").iterdir())[0]), cv2.IMREAD_GRAYSCALE)
+    np.testing.assert_array_equal(imgs[0].to_numpy(), first)
+    assert imgs[0].encoding == "mono8" and imgs[0].header.frame_id == "camera_left_optical"
+    rate = (len(imgs) - 1) / ((imgs[-1].header.stamp_ns - imgs[0].header.stamp_ns) * 1e-9)
+    assert 17.0 < rate < 21.0, rate
+    t = np.eye(4)
+    t[:3, :3], t[:3, 3] = quat_to_rotmat(info.T_body_camera.orientation.to_array()), info.T_body_camera.position.to_array()
+    np.testing.assert_allclose(t, t_bs, atol=1e-9)
+    assert info.K.to_numpy()[0, 0] == pytest.approx(458.654) and info.width == 752
+
+
+def test_a_side_by_side_video_is_split_into_a_stereo_pair_and_its_end_reported(zenoh_router, tmp_path):
+    camchain(tmp_path / "camchain.yaml", stereo=True)
+    video = tmp_path / "sbs.avi"
+    names = sorted((MAV / "cam0" / "data").iterdir())[:40]
+    out = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 20.0, (1504, 480), isColor=False)
+    pairs = []
+    for n in names:
+        left = cv2.imread(str(n), cv2.IMREAD_GRAYSCALE)
+        right = cv2.imread(str(MAV / "cam1" / "data" / n.name), cv2.IMREAD_GRAYSCALE)
+        pairs.append((left, right))
+        out.write(np.hstack([left, right]))
+    out.release()
+    cam = Camera(zenoh_router, tmp_path, source=video, layout="side_by_side", rate_hz=40.0,
+                 calibration_path=tmp_path / "camchain.yaml")
+    try:
+        cam.alive()
+        wait_until(lambda: any("end of the recording" in s.message for s in cam.status), 20, "the end reported")
+        assert cam.proc.poll() is None
+    finally:
+        cam.close()
+    left, right = cam.images["left"], cam.images["right"]
+    assert len(left) == len(right) == 40
+    assert [i.header.stamp_ns for i in left] == [i.header.stamp_ns for i in right]
+    for (ref_l, ref_r), l_img, r_img in zip(pairs, left, right):       # MJPG is lossy: close, not equal
+        assert np.abs(l_img.to_numpy().astype(int) - ref_l).mean() < 3.0
+        assert np.abs(r_img.to_numpy().astype(int) - ref_r).mean() < 3.0
+    ended = [s for s in cam.status if "end of the recording" in s.message][-1]
+    assert ended.level == DiagnosticStatus.WARN and ended.values["frames"] == "40"
+
+
+@pytest.mark.parametrize("params, words", [
+    (dict(layout="stereo", source_right="MAV/cam1/data"), "a mono calibration for layout stereo"),
+    (dict(calibration_path="/nonexistent.yaml"), "calibration_path: /nonexistent.yaml: No such file"),
+    (dict(mount_pitch_deg=10.0), "mount_pitch_deg: the calibration (kalibr) already places the camera"),
+])
+def test_a_calibration_that_does_not_fit_is_refused_at_start(zenoh_router, tmp_path, params, words):
+    camchain(tmp_path / "camchain.yaml", stereo=False)
+    params = {"source": MAV / "cam0" / "data", "calibration_path": tmp_path / "camchain.yaml", **params}
+    params = {k: str(v).replace("MAV", str(MAV)) for k, v in params.items()}
+    cam = Camera(zenoh_router, tmp_path, **params)
+    try:
+        assert cam.proc.wait(30) == 1
+    finally:
+        cam.close()
+    assert words in cam.log.read_text(), cam.log.read_text()

@@ -1,0 +1,38 @@
+"""A LiDAR packet capture as the UDP datagrams the sensor sent, at their capture timing: what
+`aero play pcap FILE` sends to a lidar_driver (the sensor on the vehicle's network, without it).
+
+Each datagram keeps its captured destination port (an Ouster's lidar 7502 and IMU 7503 stay
+apart) unless one port is given for all.
+"""
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+from aeroperception.services.lib.lidar.pcap import PcapError, PcapStats, read_udp
+from aeroperception.services.recorder.replay import Recorded
+
+from .euroc import PlaybackError, Window
+
+UDP_PREFIX = "udp/"
+
+
+def datagrams(path: str | Path, window: Window = Window(), port: int | None = None,
+              stats: PcapStats | None = None) -> Iterator[Recorded]:
+    """The capture's UDP payloads in the window as Recorded("udp/<port>", "", payload, capture time)."""
+    stats = stats if stats is not None else PcapStats()
+    t0 = None
+    try:
+        for d in read_udp(path, stats):
+            if t0 is None:
+                t0 = d.stamp_ns
+            rel_s = (d.stamp_ns - t0) * 1e-9
+            if rel_s < window.start_s:
+                continue
+            if window.duration_s is not None and rel_s > window.start_s + window.duration_s:
+                break
+            yield Recorded(f"{UDP_PREFIX}{port or d.dst[1]}", "", d.payload, d.stamp_ns)
+    except (PcapError, OSError) as e:
+        raise PlaybackError(f"{path}: {e}") from None
+    if t0 is None:
+        raise PlaybackError(f"{path}: no UDP datagram in the capture ({dict(stats.skipped) or 'empty'})")
