@@ -88,8 +88,8 @@ def parse_contract(text: str, service: str, source: str = "") -> Contract:
                 target[d["key"]] = d.get("schema")
                 if d.get("rate_hz") is not None:
                     c.rates_hz[d["key"]] = float(d["rate_hz"])
-                if d.get("note"):
-                    c.notes.setdefault(d["key"], d["note"])
+                if d.get("note") and (name == "OUTPUTS" or d["key"] not in c.outputs):
+                    c.notes[d["key"]] = d["note"]     # what the service publishes says what the key is
         elif name in ("SERVICES", "CALLS"):
             target = getattr(c, name.lower())
             for d in _declarations(node, "Query", ("key", "request", "reply", "note"), consts):

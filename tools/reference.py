@@ -103,14 +103,15 @@ def key_table(cs: list[contracts.Contract] | None = None) -> str:
             continue  # a reader of diagnostics/*: listed with the runtime's rows below
         producers = [c for c in cs if key in c.outputs]
         # A reader of a wildcard (diagnostics/*) consumes every matching key but its own output.
-        consumers = [c.service for c in cs if any(contracts.key_matches(p, key) for p in c.inputs)
-                     and c not in producers]
+        # One that reads the very key it publishes (ros2bridge: either direction) is both.
+        consumers = [c.service for c in cs if key in c.inputs or
+                     (any(contracts.key_matches(p, key) for p in c.inputs) and c not in producers)]
         schema = next((c.outputs[key] for c in producers if c.outputs[key]), None) or \
             next((c.inputs[key] for c in cs if c.inputs.get(key)), None)
         rate = next((c.rate(key) for c in producers if c.rate(key)), "")
         # The producer says what the key is; a consumer's note only where nothing in the stack publishes it.
         noted = [c for c in (producers or cs) if key in c.notes]
-        note = noted[0].notes[key] if len(noted) == 1 else "; ".join(f"{c.service}: {c.notes[key]}" for c in noted)
+        note = noted[0].notes[key] if len(noted) == 1 and len(producers) <= 1 else "; ".join(f"{c.service}: {c.notes[key]}" for c in noted)
         out.append(f"| {_code(key)} | {_schema_link(schema)} | {rate} | {_cell([c.service for c in producers])} | "
                    f"{_cell(consumers)} | {md(note)} |")
     for key, schema, rate, note in RUNTIME_TOPICS:

@@ -18,6 +18,10 @@ from aeroperception.services.lib.lidar.velodyne import PacketError
 from aeroperception.services.runtime.config import param
 
 HOUR_NS = 3600 * 1_000_000_000
+# A packet at most this many rotations earlier than the one before it arrived out of order (it is
+# dropped); farther back, the sensor's clock jumped back (re-sync, reboot) and the stream restarts.
+REORDER_ROTATIONS = 2
+REORDER_FRAMES = 1
 
 
 @dataclass(frozen=True)
@@ -58,6 +62,7 @@ class _Batch:
     cells: np.ndarray              # coverage cells hit: per point its azimuth degree (Velodyne), or the columns (Ouster)
     new_scan: np.ndarray | None    # per point: belongs to the next rotation (Velodyne wrap)
     frame: int | None              # Ouster frame id
+    restarted: bool = False        # the sensor's clock jumped back before this packet (Velodyne)
 
 
 @dataclass
@@ -100,13 +105,20 @@ class ScanAssembler:
         out: list[Scan] = []
         if b.frame is not None:                        # Ouster: one frame id per rotation
             if self._frame is not None and b.frame != self._frame:
-                if (b.frame - self._frame) % 65536 > 32768:
+                back = (self._frame - b.frame) % 65536
+                if back <= REORDER_FRAMES:
                     self.counts["reordered_packets"] += 1
                     return []
-                out += self._finish("frame ended")
+                if back < 32768:                       # far back: the sensor restarted (frame ids anew)
+                    self.counts["clock_jumps"] += 1
+                    out += self._finish("sensor restarted")
+                else:
+                    out += self._finish("frame ended")
             self._frame = b.frame
             self._add(b, None)
         else:
+            if b.restarted:
+                out += self._finish("sensor clock jumped back")
             split = b.new_scan
             if split is not None and split.any():
                 self._add(b, ~split)
@@ -168,16 +180,23 @@ class ScanAssembler:
             return None
         p = self.velodyne.decode(payload)
         dev_ns = p.stamp_us * 1000
+        restarted = False
         if self._last_dev is not None:
             gap = (dev_ns - self._last_dev) % HOUR_NS
-            if gap > HOUR_NS // 2:                    # earlier than the previous packet
-                self.counts["reordered_packets"] += 1
+            if gap > HOUR_NS // 2 and HOUR_NS - gap <= REORDER_ROTATIONS * 1e9 / self.cfg.scan_rate_hz:
+                self.counts["reordered_packets"] += 1  # a little earlier than the previous packet
                 return None
-            m = self.velodyne.model_of(payload)      # a packet spans 12 blocks (6 in dual mode) of firings
-            blocks = velodyne.BLOCKS // (2 if p.return_mode == "dual" else 1)
-            period = m.firing_period_us * 1000 * (velodyne.SLOTS // m.lasers) * blocks
-            if gap > 1.5 * period:
-                self.counts["lost_packets"] += int(round(gap / period)) - 1
+            if gap > HOUR_NS // 2:
+                # far earlier: the sensor's clock jumped back (a GPS/PTP re-sync, a reboot, a replay
+                # started over): the scan in progress ends and the stream is taken from here
+                self.counts["clock_jumps"] += 1
+                restarted, self._last_az = True, None
+            else:
+                m = self.velodyne.model_of(payload)  # a packet spans 12 blocks (6 in dual mode) of firings
+                blocks = velodyne.BLOCKS // (2 if p.return_mode == "dual" else 1)
+                period = m.firing_period_us * 1000 * (velodyne.SLOTS // m.lasers) * blocks
+                if gap > 1.5 * period:
+                    self.counts["lost_packets"] += int(round(gap / period)) - 1
         self._last_dev = dev_ns
         t_off = (p.time_offset_s * 1e9).astype(np.int64)
         if self.cfg.time_source == "sensor":        # the hour from our clock, nearest to the arrival
@@ -196,7 +215,7 @@ class ScanAssembler:
                 new_scan = np.ones(az.size, bool)
             self._last_az = float(az[-1])
         return _Batch(p.xyz_m, p.reflectivity.astype(np.float32), p.ring, base + t_off,
-                      np.floor(az).astype(np.int64) % 360, new_scan, None)
+                      np.floor(az).astype(np.int64) % 360, new_scan, None, restarted)
 
     def _ouster(self, payload: bytes, rx_ns: int) -> _Batch | None:
         meta = self.meta

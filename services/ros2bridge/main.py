@@ -1,4 +1,5 @@
-"""Process shell: our keys -> rmw_zenoh publications, one ROS goal topic -> the mission's goto action.
+"""Process shell: our keys -> rmw_zenoh publications, configured ROS sensor topics -> our sensors/**,
+one ROS goal topic -> the mission's goto action.
 
 Topics and names are read at start (restart the service to change them). Every sample is
 converted and sent from the subscriber's callback (bridge.TopicBridge): a slow ROS consumer
@@ -6,7 +7,9 @@ cannot queue anything here, and `max_rate_hz` drops extra samples of a fast key 
 copying every image.
 
 Our keys are wired from the contract: the `topics` parameter selects which of its INPUTS are
-bound (bind_selection), each to its TopicBridge through one table of handlers. The ROS side is
+bound (bind_selection), each to its TopicBridge through one table of handlers; the `inputs`
+parameter selects which of its OUTPUTS are declared, each fed by one ROS topic (bridge.InputBridge),
+so only the keys a ROS driver really feeds are published. The ROS side is
 declared by hand, and must be: rmw_zenoh's data keys (`<domain>/<namespace>/<topic>/<type>/<hash>`,
 CDR payloads, built from the parameters at start) and its `@ros2_lv/**` liveliness tokens are
 not the stack's key space, so no contract Topic can name them.
@@ -23,9 +26,10 @@ from aeroperception.services.runtime import Health, Service, run
 from aeroperception.services.runtime.node import CallError
 
 from . import contract
-from .bridge import RosBridgeConfig, TopicBridge, ros_name
+from .bridge import SIDES, InputBridge, RosBridgeConfig, TopicBridge, ros_name
 from .convert import CATALOG, GOAL_TYPE, Converter, conversion
-from .rmw import RosNode, data_key, make_typestore
+from .inbound import Source
+from .rmw import QOS_SENSOR_DATA, RosNode, data_key, make_typestore
 
 CDR = zenoh.Encoding("application/cdr")
 
@@ -43,7 +47,9 @@ class RosBridgeService(Service):
         return {t.handler_name: functools.partial(self._on_input, key) for key, t in contract.INPUTS.declared.items()}
 
     def bind_selection(self) -> dict:
-        return {"inputs": self.cfg.bridged_keys()}      # an unknown key fails at start, naming what exists
+        # an unknown key, a malformed or looping input fails at start, naming what exists
+        self.sources = self.cfg.sources(list(contract.OUTPUTS))
+        return {"inputs": self.cfg.bridged_keys(), "outputs": [s.key for s in self.sources]}
 
     def start(self) -> None:
         p = self.cfg
@@ -53,6 +59,7 @@ class RosBridgeService(Service):
         self.ros = RosNode(domain_id=p.domain_id, zid=str(session.zid()), namespace=p.namespace, name=p.node_name)
         self.entities = [session.liveliness().declare_token(self.ros.token())]
         self.bridges: dict[str, TopicBridge] = {}
+        self.inputs: list[InputBridge] = []
         self.goals = Counter()
         self.last_goal = ""
         self.topics: dict[str, str] = {}
@@ -64,6 +71,10 @@ class RosBridgeService(Service):
         if goal_topic:
             entity += 1
             self._goal_input(ros_name(p.namespace, goal_topic), entity)
+        mounts = {side: p.t_body_camera(side) for side in SIDES}
+        for source in self.sources:
+            entity += 1
+            self._sensor_input(source, mounts, entity)
 
     def _bridge(self, key: str, entity_id: int) -> None:
         b = CATALOG[key]
@@ -91,6 +102,23 @@ class RosBridgeService(Service):
         self.node.subscribe_raw(key, functools.partial(self._on_goal, key))
         self.topics[topic] = GOAL_TYPE
 
+    def _sensor_input(self, source: Source, mounts: dict, entity_id: int) -> None:
+        """A ROS topic -> one of our keys: any type hash of its type on the data key (Humble's
+        rmw_zenoh has none, Jazzy's is RIHS01), announced as a best-effort subscription (what a
+        driver's SensorDataQoS publisher matches) with Jazzy's hash."""
+        type_hash = self.store.hash_rihs01(source.ros_type)
+        self.entities.append(self.node.session.liveliness().declare_token(
+            self.ros.endpoint_token("MS", entity_id, source.topic, source.ros_type, type_hash, QOS_SENSOR_DATA)))
+        bridge = InputBridge(source, self.store.deserialize_cdr, source.converter(mounts),
+                             self._publisher(source.key), self.node.report_bad_input)
+        self.inputs.append(bridge)
+        self.node.subscribe_raw(data_key(self.cfg.domain_id, source.topic, source.ros_type, "*"),
+                                lambda sample: bridge.on_sample(sample.payload.to_bytes()))
+        self.topics[source.topic] = source.ros_type
+
+    def _publisher(self, key: str):
+        return self.io[key].publish
+
     def _on_goal(self, key: str, sample: zenoh.Sample) -> None:
         """A ROS PoseStamped: decoded strictly (CDR must parse, frame ENU, values finite), then
         sent to the mission as a goto goal; the mission's reply is logged and counted."""
@@ -113,10 +141,14 @@ class RosBridgeService(Service):
 
     def health(self) -> Health:
         bridges = self.bridges.values()
-        errors = sum(b.errors for b in bridges)
+        ins = self.inputs
+        errors = sum(b.errors for b in bridges) + sum(b.errors for b in ins)
         values = {"topics": len(self.topics), "sent": sum(b.sent for b in bridges),
+                  "received": sum(b.received for b in ins), "input_errors": sum(b.errors for b in ins),
+                  **{f"convert_ms.{b.source.key}": round(b.convert_ms, 2) for b in ins},
                   "dropped_rate_limit": sum(b.dropped for b in bridges),
-                  "skipped_no_subscriber": sum(b.unheard for b in bridges), "convert_errors": errors,
+                  "skipped_no_subscriber": sum(b.unheard for b in bridges),
+                  "convert_errors": sum(b.errors for b in bridges),
                   "goals": ",".join(f"{k}={v}" for k, v in sorted(self.goals.items())) or "none",
                   "last_goal": self.last_goal}
         level = DiagnosticStatus.WARN if errors else DiagnosticStatus.OK

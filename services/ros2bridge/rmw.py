@@ -19,6 +19,9 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 ADMIN_SPACE = "@ros2_lv"
 # Reliable, volatile, keep-last 10 (rmw_zenoh's compact QoS string; empty fields = defaults).
 QOS_DEFAULT = "::,10:,:,:,,"
+# Best effort, volatile, keep-last 10: a subscription any publisher matches, reliable or
+# best effort (drivers publish with SensorDataQoS: best effort).
+QOS_SENSOR_DATA = "2::,10:,:,:,,"
 
 # vision_msgs (ROS 2 Humble/Jazzy, vision_msgs 4.x) is not in rosbags' ROS 2 store: its
 # definitions, field for field as the package ships them (comments dropped).

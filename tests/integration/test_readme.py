@@ -59,6 +59,11 @@ HOW: dict[str, tuple] = {
         SKIP, ["aero", "run", "camera", "--help"], "test_camera_service splits a side-by-side video"),
     "aero run camera --param source=../shared/data/euroc/MH_01_clip/mav0/cam0/data": (
         SKIP, ["aero", "run", "camera", "--help"], "runs until stopped: test_camera_service plays the folder"),
+    "aero up --profile vehicle --fcu-url /dev/ttyACM0,921600 --sensors-file sensors.yaml": (
+        SKIP, ["aero", "up", "--help"], "needs a flight controller and the sensors: test_vehicle_sensors brings the "
+                                        "profile up with a sensors file, test_up_sensors decodes them"),
+    "aero up --profile vehicle --sensors-file sensors.yaml --dry-run": (
+        SKIP, ["aero", "up", "--help"], "sensors.yaml is the page's example: test_up_sensors plans it"),
     "aero doctor": (SKIP, ["aero", "doctor", "--help"],
                     "exits 1 on a busy default port: test_doctor_cli runs it on free ports and on a held one"),
     "aero doctor --profile px4 --px4 DIR": (SKIP, ["aero", "doctor", "--help"],
@@ -187,6 +192,15 @@ HOW: dict[str, tuple] = {
     "aero run ros2bridge --param topics=state/vehicle,sensors/imu,perception/detections": (
         SKIP, ["aero", "run", "ros2bridge", "--help"], "test_ros2bridge runs the bridge against zenoh-ros2-sdk"),
     "ros2 topic echo /aero/odom": (SKIP, None, "needs ROS 2: test_ros2bridge plays the ROS node with zenoh-ros2-sdk"),
+    "aero run ros2bridge --param inputs=/ouster/points=sensors/lidar/points,/imu/data=sensors/imu": (
+        SKIP, ["aero", "run", "ros2bridge", "--help"],
+        "needs a ROS 2 driver: test_ros2bridge_sensors publishes real KITTI scans and EuRoC IMU rows from zenoh-ros2-sdk"),
+    "aero run ros2bridge --param inputs=/camera/color/image_raw=sensors/camera/left/image,"
+    "/camera/color/camera_info=sensors/camera/left/info --param left_mount_pitch_deg=30": (
+        SKIP, ["aero", "run", "ros2bridge", "--help"],
+        "needs a ROS 2 camera: test_ros2bridge_sensors publishes EuRoC frames and CameraInfo from zenoh-ros2-sdk"),
+    "ros2 run velodyne_driver velodyne_driver_node": (SKIP, None, "needs ROS 2 and a Velodyne: test_ros2bridge_sensors "
+                                                                  "plays a driver's PointCloud2 with zenoh-ros2-sdk"),
     "aero up --gps-denied --scenario village --sensors camera": (DRY, None, "SIM_GPS_DENIED"),
     "aero mission fly examples/missions/village_survey_gps_denied.json": (
         SKIP, ["aero", "mission", "fly", "--help"],

@@ -19,6 +19,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from ros2msgs import write_msg_files
+
 from aerotest import aero_argv, clean_env, poll_until, wait_for_message, wait_until
 from aeroperception.schemas import (
     Detection2D, Detection2DArray, DiagnosticStatus, GoalReply, GoalStatus, GoToPositionGoal, Header, Image, Imu, NDArray,
@@ -30,7 +32,6 @@ pytest.importorskip("zenoh_ros2_sdk", reason="zenoh-ros2-sdk is not installed (p
 TOPICS = "state/vehicle,state/visual_odometry,sensors/imu,sensors/camera/left/image,sensors/lidar/points,perception/detections"
 ROS_TYPES = ["nav_msgs/msg/Odometry", "sensor_msgs/msg/Imu", "sensor_msgs/msg/Image", "sensor_msgs/msg/PointCloud2",
              "vision_msgs/msg/Detection2DArray", "geometry_msgs/msg/PoseStamped"]
-SEP = "=" * 80 + "\n"
 # What `ros2 topic list` must show of the bridge: its publications and, last declared, its subscription.
 LISTED = {"/aero/odom": "nav_msgs/msg/Odometry", "/aero/camera/left/image_raw": "sensor_msgs/msg/Image",
           "/aero/lidar/points": "sensor_msgs/msg/PointCloud2", "/aero/detections": "vision_msgs/msg/Detection2DArray",
@@ -89,22 +90,6 @@ for line in sys.stdin:          # "goal" -> publish one goal; EOF -> quit
 '''
 
 
-def write_msg_files(folder: Path) -> None:
-    """<folder>/<pkg>/msg/<Type>.msg for every type (and dependency) the ROS node uses."""
-    from aeroperception.services.ros2bridge.rmw import make_typestore
-
-    store = make_typestore()
-    for typ in ROS_TYPES:
-        blocks = store.generate_msgdef(typ, ros_version=2)[0].split(SEP)
-        named = [(typ, blocks[0])] + [tuple(b.split("\n", 1)) for b in blocks[1:]]
-        for name, body in named:
-            name = name.removeprefix("MSG: ")
-            pkg, _, short = name.partition("/")
-            d = folder / pkg / "msg"
-            d.mkdir(parents=True, exist_ok=True)
-            (d / f"{short.rsplit('/', 1)[-1]}.msg").write_text(body)
-
-
 class RosNode:
     """The SDK script as a subprocess; its JSON lines collected."""
 
@@ -149,7 +134,7 @@ class RosNode:
 
 def test_ros2_node_sees_decodes_and_commands_through_the_bridge(zenoh_router, make_node, tmp_path):
     port = int(zenoh_router.rsplit(":", 1)[1])
-    write_msg_files(tmp_path / "msgs")
+    write_msg_files(tmp_path / "msgs", ROS_TYPES)
     log = open(tmp_path / "ros2bridge.log", "w")
     bridge = subprocess.Popen(aero_argv() + ["run", "ros2bridge", "--param", f"topics={TOPICS}",
                                              "--param", "max_rate_hz=50"],

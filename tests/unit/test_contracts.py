@@ -39,7 +39,9 @@ ACTION_VERBS = ("goal", "cancel", "result")
 
 # (service, key expression) the walker cannot resolve -> (why it is complete, contract table whose
 # every key it uses, or None when nothing is used through it).
-DYNAMIC: dict[tuple[str, str], tuple[str, str | None]] = {}
+DYNAMIC = {
+    ("ros2bridge", "key"): ("the OUTPUTS the `inputs` parameter names (bind_selection binds only those)", "outputs"),
+}
 # Node.subscribe_raw (full keys, any encoding) is outside the contracts' key space: the recorder's
 # presets (any key) and ros2bridge's ROS keys (rmw_zenoh's) use it.
 
@@ -106,7 +108,10 @@ class ServiceWalker:
         for path, tree in self.trees.items():
             for node in ast.walk(tree):
                 if isinstance(node, ast.Subscript) and getattr(node.value, "attr", getattr(node.value, "id", "")) == WIRING:
-                    for key in self.resolve(node.slice, depth=0) or ():
+                    keys = self.resolve(node.slice, depth=0)
+                    if keys is None:
+                        out.unresolved.append(Use("outputs", ast.unparse(node.slice), f"services/{path}:{node.lineno}"))
+                    for key in keys or ():
                         out.uses.append(Use("outputs", key, f"services/{path}:{node.lineno}", False))
                 if not isinstance(node, ast.Call):
                     continue

@@ -72,6 +72,26 @@ def test_reordered_packets_are_dropped_and_lost_ones_counted_the_scan_published_
     assert sorted(round(s.coverage, 2) for s in scans)[0] == pytest.approx(0.88, abs=0.02)
 
 
+def test_a_sensor_clock_that_jumps_back_restarts_the_stream_instead_of_dropping_it_for_ever():
+    """A replay started over, a reboot, a PTP re-sync: the packets' clock goes 0.48 s back. They
+    were 'reordered' and dropped until the clock caught up again (up to half an hour); now the scan
+    in progress ends and every rotation of the second pass comes out too."""
+    pk = [p for p in _packets("velodyne/hdl32_example.pcap") if len(p[1]) == 1206]
+    t_end = pk[-1][0]
+    again = [(t_end + 10**6 + t - pk[0][0], payload) for t, payload in pk]   # arrival keeps going forward
+    a, scans = _run(_cfg(time_source="host"), pk + again)
+    assert a.counts["clock_jumps"] == 1 and a.counts["reordered_packets"] == 0
+    assert sum(round(s.coverage, 2) == 1.0 for s in scans) == 10
+    assert np.all(np.diff([s.stamp_ns for s in scans]) > 0)
+
+
+def test_an_ouster_whose_frame_ids_restart_is_taken_from_the_restart():
+    cfg = _cfg(vendor="ouster", metadata_path=str(PCAPS / "ouster/OS-1-128_v2.3.0_1024x10.json"))
+    pk = _packets("ouster/OS-1-128_v2.3.0_1024x10_lb_n3.pcap")
+    a, scans = _run(cfg, pk + [(t + 10**9, payload) for t, payload in pk])
+    assert a.counts["clock_jumps"] == 1 and len(scans) == 6
+
+
 def test_a_scan_covering_too_little_is_dropped_with_its_reason():
     a, scans = _run(_cfg(min_coverage=0.9), _packets("velodyne/vlp16_velodyne_example.pcap"))
     assert scans == []

@@ -31,8 +31,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("file", metavar="FILE", help="classic pcap (tcpdump / Wireshark)")
     p.add_argument("--to", default="127.0.0.1", metavar="HOST",
                    help="where the lidar_driver listens (default 127.0.0.1)")
-    p.add_argument("--port", type=int, default=None,
-                   help="send every datagram to this port (default: each keeps its captured destination port)")
+    p.add_argument("--port", action="append", default=[], metavar="PORT|FROM=TO",
+                   help="where to send: PORT for every datagram, or FROM=TO for those the capture sent to FROM "
+                        "(repeatable; the others keep their captured port). Default: each its captured port")
     _timing_arguments(p)
     p.set_defaults(func=play_pcap)
 
@@ -126,11 +127,29 @@ def play_euroc(args) -> int:
     return 0
 
 
+def _port_map(items: list[str]) -> dict[int | None, int]:
+    """--port values: {captured port: port to send to}; the key None maps every port."""
+    out: dict[int | None, int] = {}
+    for item in items:
+        src, sep, dst = item.rpartition("=")
+        try:
+            key, port = (int(src) if sep else None), int(dst)
+        except ValueError:
+            raise CliError(f"--port {item!r}: expected PORT or FROM=TO (e.g. 2368=12368)") from None
+        if not 0 < port < 65536 or (key is not None and not 0 < key < 65536):
+            raise CliError(f"--port {item!r}: ports are 1-65535")
+        if key is None and len(items) > 1:
+            raise CliError(f"--port {item!r}: one port for every datagram excludes other --port values")
+        out[key] = port
+    return out
+
+
 def play_pcap(args) -> int:
     from aeroperception.services.lib.lidar.pcap import PcapStats
     from aeroperception.tools.playback.pcap import UDP_PREFIX, datagrams
 
     window = _window(args)
+    ports = _port_map(args.port)
     stats = PcapStats()
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
 
@@ -138,7 +157,7 @@ def play_pcap(args) -> int:
         sock.sendto(payload, (args.to, int(key.removeprefix(UDP_PREFIX))))
 
     try:
-        total, st = _play(lambda: datagrams(args.file, window, args.port, stats), send, args.rate, args.loop, None)
+        total, st = _play(lambda: datagrams(args.file, window, ports, stats), send, args.rate, args.loop, None)
     except OSError as e:
         raise CliError(f"sending to {args.to}: {e}") from None
     finally:

@@ -1,8 +1,8 @@
 """A LiDAR packet capture as the UDP datagrams the sensor sent, at their capture timing: what
 `aero play pcap FILE` sends to a lidar_driver (the sensor on the vehicle's network, without it).
 
-Each datagram keeps its captured destination port (an Ouster's lidar 7502 and IMU 7503 stay
-apart) unless one port is given for all.
+Each datagram keeps its captured destination port (an Ouster's lidar 7502 and IMU 7503, a
+Velodyne's data 2368 and position 8308 stay apart) unless moved: one port for all, or per port.
 """
 from __future__ import annotations
 
@@ -17,9 +17,11 @@ from .euroc import PlaybackError, Window
 UDP_PREFIX = "udp/"
 
 
-def datagrams(path: str | Path, window: Window = Window(), port: int | None = None,
+def datagrams(path: str | Path, window: Window = Window(), ports: dict[int | None, int] | None = None,
               stats: PcapStats | None = None) -> Iterator[Recorded]:
-    """The capture's UDP payloads in the window as Recorded("udp/<port>", "", payload, capture time)."""
+    """The capture's UDP payloads in the window as Recorded("udp/<port>", "", payload, capture time);
+    `ports` {captured: sent to} (key None: every datagram) moves them to other ports."""
+    ports = ports or {}
     stats = stats if stats is not None else PcapStats()
     t0 = None
     try:
@@ -31,7 +33,8 @@ def datagrams(path: str | Path, window: Window = Window(), port: int | None = No
                 continue
             if window.duration_s is not None and rel_s > window.start_s + window.duration_s:
                 break
-            yield Recorded(f"{UDP_PREFIX}{port or d.dst[1]}", "", d.payload, d.stamp_ns)
+            port = ports.get(None) or ports.get(d.dst[1]) or d.dst[1]
+            yield Recorded(f"{UDP_PREFIX}{port}", "", d.payload, d.stamp_ns)
     except (PcapError, OSError) as e:
         raise PlaybackError(f"{path}: {e}") from None
     if t0 is None:

@@ -1,7 +1,7 @@
 """`aero up`: the router plus a profile's services as supervised child processes.
 
 One room per idea, read in this order: validation.py (the arguments, refused before anything
-starts), launch.py (the launch plan: which services, each one's command line, from
+starts), sensors.py (a real vehicle's sensors file: its drivers and the perception they feed), launch.py (the launch plan: which services, each one's command line, from
 tools/profiles.yaml), supervision.py (the router and the services as children, restarted with
 back-off, stopped together) and status.py (the status table).
 
@@ -31,6 +31,7 @@ from .launch import (  # noqa: F401 - the launch plan's names, used by tools and
     fed_services, gps_denied_needs, launch_plan, load_priorities, load_profiles, option_args, plan_px4,
     print_plan, service_argv,
 )
+from .sensors import SensorPlan, plan_sensors  # noqa: F401
 from .status import MESSAGE_COL, format_table  # noqa: F401
 from .supervision import (  # noqa: F401
     STACK_DUMP_LINES, Child, RouterChild, last_error_line, shutdown, supervise, write_pids,
@@ -69,6 +70,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--sensors", default=None, choices=SENSOR_CHOICES,
                    help="sim: which scenario sensors to render (none: vehicle and truth only, least CPU)")
     p.add_argument("--fcu-url", default=None, help="fmu: MAVLink URL of the flight controller")
+    p.add_argument("--sensors-file", default=None, metavar="FILE",
+                   help="vehicle profile: the cameras and LiDAR it carries, their drivers and mounts (YAML; "
+                        "docs: A real drone); adds the drivers and the perception they feed")
     p.add_argument("--px4", default=None, metavar="DIR",
                    help=f"px4 profile: the PX4 build to run as SITL (bin/px4 + etc/, e.g. "
                         f"PX4-Autopilot/build/px4_sitl_default; default ${px4_sitl.DIR_ENV})")
@@ -90,7 +94,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args) -> int:
-    names = select_services(args)
+    sensor_plan = plan_sensors(args)
+    names = select_services(args, sensor_plan.services)
     check_installed(args.profile, names)
     if args.thin_link:  # the router would refuse them: say so before anything starts
         thin_link_downsampling(args.thin_link, THIN_LINK_HZ if args.thin_link_hz is None else args.thin_link_hz)
@@ -99,7 +104,7 @@ def run(args) -> int:
     for n, why in unfed.items():
         emit(f"aero up: not starting {n}: {why}")
     px4 = plan_px4(args, names)
-    plan = launch_plan(args, names, px4, resolve_links(args))
+    plan = launch_plan(args, names, px4, resolve_links(args), sensor_plan.args)
     if args.dry_run:
         print_plan(args, plan)
         return 0

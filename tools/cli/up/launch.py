@@ -193,12 +193,16 @@ class LaunchPlan:
         return list(self.argv)
 
 
-def launch_plan(args, names: list[str], px4: Px4Plan | None, links: str) -> LaunchPlan:
-    """Each service's command line; the profile's flags for it first (service_argv)."""
+def launch_plan(args, names: list[str], px4: Px4Plan | None, links: str,
+                sensor_args: dict[str, list[str]] | None = None) -> LaunchPlan:
+    """Each service's command line; the profile's flags for it first, then the sensors file's
+    (service_argv)."""
     endpoint = args.listen.replace("0.0.0.0", "127.0.0.1")
     profile_args = load_profiles()[args.profile]["args"]
+    sensor_args = sensor_args or {}
     services = [n for n in names if n != px4_sitl.NAME]
-    argv = {n: service_argv(n, args, endpoint, [str(a) for a in profile_args.get(n, [])], services) for n in services}
+    argv = {n: service_argv(n, args, endpoint, [str(a) for a in [*profile_args.get(n, []), *sensor_args.get(n, [])]],
+                            services) for n in services}
     return LaunchPlan(args.profile, names, px4, links, endpoint, argv)
 
 

@@ -34,12 +34,14 @@ def check_installed(profile: str, names: list[str]) -> None:
                        f" (or leave them out with --except {','.join(sorted({s for v in short.needed_by.values() for s in v}))})")
 
 
-def select_services(args) -> list[str]:
+def select_services(args, added: list[str] = ()) -> list[str]:
+    """The profile's services (and those a sensors file `added`), narrowed by --only / --except."""
     profiles = load_profiles()
     if args.profile not in profiles:
         raise CliError(f"unknown profile {args.profile!r}{_did_you_mean(args.profile, profiles)}; "
                        f"profiles: {', '.join(profiles)}")
     names = list(profiles[args.profile]["services"])
+    names += [n for n in added if n not in names]
     for flag, text in (("--only", args.only), ("--except", args.exclude)):
         for s in (s.strip() for s in text.split(",")):
             if s and s not in names:
@@ -95,7 +97,8 @@ def validate_args(args, names: list[str]) -> None:
             load_scenario(args.scenario)
         except ScenarioError as e:
             raise CliError(f"--scenario: {e}{_did_you_mean(args.scenario, available_scenarios())}") from None
-    everything = load_profiles()[args.profile]["services"]
+    profile = load_profiles()[args.profile]["services"]
+    everything = profile + [n for n in names if n not in profile]     # a sensors file's services too
     if getattr(args, "gps_denied", False):
         # A profile without them (px4, vehicle) gets its vision from elsewhere (another host's VIO)
         missing = [n for n in gps_denied_needs() if n in everything and n not in names]
