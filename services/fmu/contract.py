@@ -4,14 +4,14 @@ from aeroperception.schemas import (
     GpsPosition, HomePosition, Image, Imu, LocalPosition, Odometry, SetModeReply, SetModeRequest, TrajectorySetpoint,
     TrajectoryStatus, VehicleState, VehicleStatus,
 )
-from aeroperception.services.runtime import Param, Queries, Query, Topic, Topics
+from aeroperception.services.runtime import SMALL, Param, Queries, Query, Topic, Topics
 
 NAME = "fmu"
 # The FC's HEARTBEAT comes at 1 Hz; the status is republished from the latest telemetry at this
 # rate (while the link is fresh) so a landed-state change or a late subscriber waits <= 0.2 s.
 STATUS_RATE_HZ = 5.0
 INPUTS = Topics(
-    Topic("fmu/in/trajectory_setpoint", TrajectorySetpoint, note="from planner, ENU"),
+    Topic("fmu/in/trajectory_setpoint", TrajectorySetpoint, note="from planner, ENU", strict=True),
     Topic("state/visual_odometry", Odometry, note="from vio, injected as ODOMETRY (VISION)"),
     Topic("planner/status", TrajectoryStatus, note="ERROR -> stop following the planner, hold"),
     Topic("sensors/camera/left/image", Image, note="only with publish_imu: camera / IMU stamp alignment"),
@@ -30,13 +30,19 @@ OUTPUTS = Topics(
     Topic("fmu/out/vehicle_ground_truth", VehicleState, note="a simulated FC's ground truth (HIL_STATE_QUATERNION at "
           "ground_truth_rate_hz) about its local origin, on sensors/imu's clock: the simulator's follow mode renders from it"),
     Topic("sensors/imu", Imu, note="only with publish_imu (real hardware): HIGHRES_IMU as received"),
-    Topic("state/vehicle", VehicleState, 50.0, note="pose (ENU), velocity, mode, armed, landed, battery, FC link"),
+    # SMALL (DATA_HIGH, express): on a slow link to a ground host, state must not wait behind images
+    # and scans or bulk telemetry: the ground mission calls 0.5 s without it an fmu outage.
+    Topic("state/vehicle", VehicleState, 50.0, qos=SMALL,
+          note="pose (ENU), velocity, mode, armed, landed, battery, FC link"),
 )
-SERVICES = Queries(
-    Query("fmu/srv/arm", ArmRequest, ArmReply),
-    Query("fmu/srv/set_mode", SetModeRequest, SetModeReply),
-    Query("fmu/srv/emergency_stop", EmergencyStopRequest, EmergencyStopReply),
+SERVICES = Queries(    # locked=False: each waits for the FC's ACK and heartbeat
+    Query("fmu/srv/arm", ArmRequest, ArmReply, locked=False),
+    Query("fmu/srv/set_mode", SetModeRequest, SetModeReply, locked=False),
+    Query("fmu/srv/emergency_stop", EmergencyStopRequest, EmergencyStopReply, locked=False),
 )
+# Keys only some runs bind (FmuService.bind_selection): with publish_imu, the FC's IMU republished
+# and the camera stamps it is checked against.
+PUBLISH_IMU_ONLY = ("sensors/imu", "sensors/camera/left/image")
 DEFAULT_FCU_URL = "udpin:127.0.0.1:14540"   # PX4 SITL / the built-in sim send here
 PARAMS = [
     Param("offboard_rate_hz", 50.0, "Hz", 20.0, 100.0, description="SET_POSITION_TARGET_LOCAL_NED stream rate"),

@@ -4,39 +4,29 @@ from __future__ import annotations
 import math
 import threading
 import time
-from collections import deque
 from typing import Any, Callable
 
 import numpy as np
-import zenoh
 from pymavlink.dialects.v20 import common as mavlink
 
 from aeroperception.schemas import (
-    ArmReply, ArmRequest, DiagnosticStatus, EmergencyStopReply, EmergencyStopRequest, Image, Odometry, SetModeReply, SetModeRequest, TrajectorySetpoint, TrajectoryStatus, VehicleState,
+    ArmReply, ArmRequest, DiagnosticStatus, EmergencyStopReply, EmergencyStopRequest, Image, Odometry, SetModeReply,
+    SetModeRequest, TrajectorySetpoint, TrajectoryStatus,
 )
 from aeroperception.services.runtime import Health, Service, run
 
 from . import contract
+from .config import FmuConfig
 from .fc_commands import FcCommands
-from .link import RebootWatch, open_fcu_link
-from .logic import (
-    Telemetry, highres_imu_to_imu, odometry_fields, parse_global_origin, setpoint_target,
-)
+from .link import open_fcu_link
+from .logic import Telemetry, highres_imu_to_imu, odometry_fields, setpoint_target
 from .navigation import estimator_status_from_mavlink, gps_from_mavlink
-from .offboard import BRAKE, FOLLOW, Envelope, OffboardArbiter, StreamWarmth
+from .offboard import BRAKE, FOLLOW, OffboardArbiter, StreamWarmth
+from .setup import Command, LinkSetup, Setup
+from .timing import StreamTiming
 from .truth import FcClock, ground_truth_from_mavlink, origin_from_mavlink
 
 FORCE_MAGIC = 21196  # COMPONENT_ARM_DISARM param2: force (PX4 and ArduPilot)
-STREAMS_HZ = {  # what we ask the FC for (SET_MESSAGE_INTERVAL); PX4 onboard links honour it
-    mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 50,
-    mavlink.MAVLINK_MSG_ID_ATTITUDE_QUATERNION: 50,
-    mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 5,
-    mavlink.MAVLINK_MSG_ID_SYS_STATUS: 1,
-    mavlink.MAVLINK_MSG_ID_BATTERY_STATUS: 1,
-    mavlink.MAVLINK_MSG_ID_HIGHRES_IMU: 100,
-    mavlink.MAVLINK_MSG_ID_GPS_RAW_INT: 1,
-    mavlink.MAVLINK_MSG_ID_ESTIMATOR_STATUS: 1,
-}
 
 
 class FmuService(Service):
@@ -44,6 +34,8 @@ class FmuService(Service):
 
     NAME = contract.NAME
     PARAMS = contract.PARAMS
+    CONTRACT = contract
+    CONFIG = FmuConfig
 
     @classmethod
     def add_arguments(cls, parser) -> None:
@@ -51,64 +43,50 @@ class FmuService(Service):
                             help="pymavlink URL of the flight controller: udpin:127.0.0.1:14540 (PX4 SITL, "
                                  "the built-in sim), udpin:0.0.0.0:14540, serial /dev/ttyACM0,921600, tcp:HOST:5760")
 
+    def bind_selection(self) -> dict[str, Any]:
+        """Without publish_imu (real hardware) no sensors/imu, nor the camera stamps checked against it."""
+        if self.cfg.publish_imu:
+            return {}
+        return dict(inputs=[k for k in contract.INPUTS if k not in contract.PUBLISH_IMU_ONLY],
+                    outputs=[k for k in contract.OUTPUTS if k not in contract.PUBLISH_IMU_ONLY])
+
     def start(self) -> None:
-        p = self.params
+        c = self.cfg
         self.tm = Telemetry()
         self.counters = {"rx": 0, "bad_packets": 0, "setpoints_sent": 0, "holds_sent": 0, "brakes_sent": 0,
-                         "vio_injected": 0, "vio_stale_dropped": 0, "reboots_detected": 0, "link_setups": 0,
+                         "vio_injected": 0, "vio_stale_dropped": 0,
                          "commands_retried": 0, "global_origin_sent": 0, "ground_truth": 0, "ground_truth_no_origin": 0, "ground_truth_bad": 0}
         self.commands = FcCommands(self._send_command, self.link_fresh, self.args.fcu_url, self.counters)
         self.send_lock = threading.Lock()
-        self.arbiter = OffboardArbiter(
-            Envelope(p.max_velocity_mps, p.max_acceleration_mps2, p.max_distance_m, p.max_altitude_m,
-                     p.min_altitude_m, p.max_yaw_rate_radps),
-            timeout_s=p.setpoint_timeout_s, resume_count=p.resume_setpoints, max_age_s=p.setpoint_max_age_s,
-            brake_speed_mps=p.brake_speed_mps, brake_timeout_s=p.brake_timeout_s)
-        self.params.on_change(self._on_param)
+        self.arbiter = OffboardArbiter(c.offboard)
         self.last_target_sent_s = 0.0
         self.stream_warmth = StreamWarmth()
         self.state_published_s = -math.inf  # last state/vehicle from FC data (new session after a gap)
-        self.reboots = RebootWatch(p.reboot_gap_s)
-        self.last_setup_s = -math.inf
-        self.streams_requested = False
-        self.home_requested_s = -math.inf    # last MAV_CMD_REQUEST_MESSAGE(HOME_POSITION)
+        self.setup = LinkSetup(c.reboot_gap_s, c.ground_truth_rate_hz, c.home_request_period_s)
         self.fc_clock = FcClock()            # HIGHRES_IMU and ground-truth stamps
         self.origin: tuple[float, float, float] | None = None   # the FC's local origin (GPS_GLOBAL_ORIGIN)
-        self.origin_requested_s = -math.inf
-        self.global_origin = parse_global_origin(p.global_origin)   # a bad value fails start naming it
+        self.timing = StreamTiming()
         # udpin: bound exclusively and locked to the FC (a taken port fails start-up in one line)
-        self.conn = open_fcu_link(self.args.fcu_url, p.source_system, p.source_component, p.fcu_peer, p.fcu_relock_s)
-        node = self.node
-        pub = node.publisher
-        self.pubs = {k: pub(k, cls) for k, cls in contract.OUTPUTS.items()
-                     if k != "sensors/imu" or p.publish_imu}
-        # DATA_HIGH: on a slow link to a ground host, state must not wait behind images and scans
-        # (DATA_LOW) or bulk telemetry: the ground mission calls 0.5 s without it an fmu outage.
-        self.pubs["state/vehicle"] = pub("state/vehicle", VehicleState, express=True, priority=zenoh.Priority.DATA_HIGH)
-        node.subscribe("fmu/in/trajectory_setpoint", TrajectorySetpoint, self._on_setpoint, strict=True)
-        # Stop following the planner at once when it goes away or says it is in ERROR, rather
-        # than after setpoint_timeout_s of silence (or never, if it kept sending stale motion).
-        node.on_liveliness("planner", lambda _name, alive: self._planner_health(alive, "planner not alive"))
-        node.subscribe("planner/status", TrajectoryStatus,
-                       lambda st: self._planner_health(st.status != TrajectoryStatus.STATUS_ERROR, "planner reports ERROR"))
-        node.subscribe("state/visual_odometry", Odometry, self._on_vio)
-        self.imu_stamps_ns: deque[int] = deque(maxlen=400)      # recent sensors/imu stamps (2 s)
-        self.vio_age_ms: deque[float] = deque(maxlen=100)       # exposure -> ODOMETRY sent: the pipeline's latency
-        self.camera_imu_dt_ms: deque[float] = deque(maxlen=50)  # image stamp - newest IMU stamp before it
-        if p.publish_imu:  # requirement SIM-1: verify camera / IMU time alignment
-            node.subscribe("sensors/camera/left/image", Image, self._on_image_stamp)
-        node.serve("fmu/srv/arm", ArmRequest, ArmReply, self._srv_arm, locked=False)
-        node.serve("fmu/srv/set_mode", SetModeRequest, SetModeReply, self._srv_set_mode, locked=False)
-        node.serve("fmu/srv/emergency_stop", EmergencyStopRequest, EmergencyStopReply, self._srv_estop, locked=False)
+        self.conn = open_fcu_link(self.args.fcu_url, c.source_system, c.source_component, c.fcu_peer, c.fcu_relock_s)
+        # Stop following the planner at once when it goes away (or says it is in ERROR: on_planner_status),
+        # rather than after setpoint_timeout_s of silence (or never, if it kept sending stale motion).
+        self.node.on_liveliness("planner", lambda _name, alive: self._planner_health(alive, "planner not alive"))
         self.stale_published_s = 0.0       # last connected=False on state/vehicle (link stale)
-        self.stream_loop = node.every(1.0 / p.offboard_rate_hz, self._offboard_tick, name="offboard")
-        node.every(1.0, self._heartbeat_tick, name="heartbeat")
-        node.every(1.0 / contract.STATUS_RATE_HZ, self._status_tick, name="status")
-        node.every(1.0, self._home_tick, name="home")
+        self.stream_loop = self.node.every(1.0 / c.offboard_rate_hz, self._offboard_tick, name="offboard")
+        self.node.every(1.0, self._heartbeat_tick, name="heartbeat")
+        self.node.every(1.0 / contract.STATUS_RATE_HZ, self._status_tick, name="status")
+        self.node.every(1.0, self._home_tick, name="home")
         self.handlers = self._mavlink_handlers()
         self.reader = threading.Thread(target=self._read_loop, name="fmu-mavlink", daemon=True)
         self.reader.start()
         self.log.info("fcu_link", url=self.args.fcu_url)
+
+    def on_config(self, cfg: FmuConfig) -> None:
+        self.arbiter.cfg = cfg.offboard
+        self.setup.reboots.gap_s = cfg.reboot_gap_s
+        self.setup.home_request_period_s = cfg.home_request_period_s
+        if cfg.offboard_rate_hz != self.cfg.offboard_rate_hz:
+            self.stream_loop.set_rate(cfg.offboard_rate_hz)
 
     def stop(self) -> None:
         self.node.stop_event.set()
@@ -152,19 +130,19 @@ class FmuService(Service):
     def _mavlink_handlers(self) -> dict[str, Callable[[Any, int], None]]:
         """{MAVLink message type: handler(msg, receive stamp ns)}: what fmu reads from the FC.
         Adding a message = one entry here and its handler."""
-        tm, pubs = self.tm, self.pubs
+        tm, io = self.tm, self.io
         return {
             "HEARTBEAT": self._on_heartbeat,
             "LOCAL_POSITION_NED": self._on_local_position,
             "ATTITUDE_QUATERNION": self._on_attitude,
             "EXTENDED_SYS_STATE": lambda m, _s: tm.on_extended_sys_state(m),
             "SYS_STATUS": lambda m, _s: tm.on_sys_status(m),
-            "BATTERY_STATUS": lambda m, s: pubs["fmu/out/battery_status"].publish(tm.on_battery_status(m, s)),
+            "BATTERY_STATUS": lambda m, s: io["fmu/out/battery_status"].publish(tm.on_battery_status(m, s)),
             "HIGHRES_IMU": self._on_highres_imu,
             "HIL_STATE_QUATERNION": self._on_ground_truth,
             "GPS_GLOBAL_ORIGIN": lambda m, _s: self._on_origin(m),
-            "GPS_RAW_INT": lambda m, s: pubs["fmu/out/vehicle_gps_position"].publish(gps_from_mavlink(m, s)),
-            "ESTIMATOR_STATUS": lambda m, s: pubs["fmu/out/estimator_status"].publish(
+            "GPS_RAW_INT": lambda m, s: io["fmu/out/vehicle_gps_position"].publish(gps_from_mavlink(m, s)),
+            "ESTIMATOR_STATUS": lambda m, s: io["fmu/out/estimator_status"].publish(
                 estimator_status_from_mavlink(m, s)),
             "HOME_POSITION": self._on_home_position,   # our request's answer; PX4 also sends it when home changes
             "COMMAND_ACK": lambda m, _s: self.commands.on_ack(m),
@@ -178,35 +156,31 @@ class FmuService(Service):
         self.tm.system_id = m.get_srcSystem()
         self.tm.on_heartbeat(m)
         self._publish_status(stamp, periodic=False)
-        why = self.reboots.on_heartbeat(time.monotonic())
-        if not self.streams_requested:
-            self._request_streams()
-        elif why:
-            self._fc_rebooted(why)
+        self._set_up(self.setup.on_heartbeat(time.monotonic(), self.tm.home is not None))
 
     def _on_local_position(self, m, stamp: int) -> None:
         local = self.tm.on_local_position(m, stamp)
         # connected once the FC has identified itself (heartbeat: mode, armed); hot path first
-        self.pubs["state/vehicle"].publish(self.tm.vehicle_state(stamp, connected=self.tm.last_heartbeat_s > 0))
+        self.io["state/vehicle"].publish(self.tm.vehicle_state(stamp, connected=self.tm.last_heartbeat_s > 0))
         now = time.monotonic()
-        new_session = now - self.state_published_s > self.params.link_timeout_s
+        new_session = now - self.state_published_s > self.cfg.link_timeout_s
         self.state_published_s = now
         self.arbiter.on_state(stamp, new_session=new_session)
         if new_session:
             self.log.info("state_session", stamp_ns=stamp, following=False)
-        self.pubs["fmu/out/vehicle_local_position"].publish(local)
+        self.io["fmu/out/vehicle_local_position"].publish(local)
         self._check_boot_time(m.time_boot_ms)
 
     def _on_attitude(self, m, stamp: int) -> None:
-        self.pubs["fmu/out/vehicle_attitude"].publish(self.tm.on_attitude_quaternion(m, stamp))
+        self.io["fmu/out/vehicle_attitude"].publish(self.tm.on_attitude_quaternion(m, stamp))
         self._check_boot_time(m.time_boot_ms)
 
     def _on_highres_imu(self, m, stamp: int) -> None:
         imu = highres_imu_to_imu(m, self.fc_clock.stamp(m.time_usec, stamp))
-        self.pubs["fmu/out/sensor_combined"].publish(imu)
-        if "sensors/imu" in self.pubs:
-            self.pubs["sensors/imu"].publish(imu)
-            self.imu_stamps_ns.append(imu.header.stamp_ns)
+        self.io["fmu/out/sensor_combined"].publish(imu)
+        if "sensors/imu" in self.io:
+            self.io["sensors/imu"].publish(imu)
+            self.timing.on_imu(imu.header.stamp_ns)
 
     def _on_statustext(self, m, _stamp: int) -> None:
         """The FC says why it refused a command (PX4: "Arming denied: ...")."""
@@ -226,11 +200,10 @@ class FmuService(Service):
                                           flight_mode=self.tm.flight_mode, landed_state=self.tm.landed_state)
         if truth is None:
             self.counters["ground_truth_no_origin" if self.origin is None else "ground_truth_bad"] += 1
-            if self.origin is None and time.monotonic() - self.origin_requested_s > 1.0:
-                self.origin_requested_s = time.monotonic()
-                self._command_nowait(mavlink.MAV_CMD_REQUEST_MESSAGE, mavlink.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN)
+            if self.origin is None:
+                self._send_commands(self.setup.origin_missing(time.monotonic()))
             return
-        self.pubs["fmu/out/vehicle_ground_truth"].publish(truth)
+        self.io["fmu/out/vehicle_ground_truth"].publish(truth)
         self.counters["ground_truth"] += 1
 
     def _on_origin(self, m) -> None:
@@ -241,36 +214,13 @@ class FmuService(Service):
             self.origin = origin
 
     def _check_boot_time(self, time_boot_ms: int) -> None:
-        why = self.reboots.on_boot_time(time_boot_ms)
-        if why and self.streams_requested:
-            self._fc_rebooted(why)
+        self._set_up(self.setup.on_boot_time(time_boot_ms, time.monotonic(), self.tm.home is not None))
 
-    def _fc_rebooted(self, why: str) -> None:
-        """The FC restarted (or vanished for reboot_gap_s): it is back at its default stream
-        rates and may have a new home, so redo the link set-up. Once per second at most (a
-        reboot shows as a heartbeat gap and as time_boot_ms going back)."""
-        if time.monotonic() - self.last_setup_s < 1.0:
-            return
-        self.counters["reboots_detected"] += 1
-        self.log.warn("fc_reboot_detected", reason=why, action="re-requesting stream rates and home")
-        self._request_streams()
-        self._request_home()
-
-    def _request_streams(self) -> None:
-        self.streams_requested = True
-        self.last_setup_s = time.monotonic()
-        self.counters["link_setups"] += 1
-        streams = dict(STREAMS_HZ)
-        if self.params.ground_truth_rate_hz > 0:
-            streams[mavlink.MAVLINK_MSG_ID_HIL_STATE_QUATERNION] = self.params.ground_truth_rate_hz
-        for msg_id, hz in streams.items():
-            self._command_nowait(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, msg_id, 1e6 / hz)
-        if self.tm.home is None:
-            self._request_home()
-
-    def _request_home(self) -> None:
-        self.home_requested_s = time.monotonic()
-        self._command_nowait(mavlink.MAV_CMD_REQUEST_MESSAGE, mavlink.MAVLINK_MSG_ID_HOME_POSITION)
+    def _set_up(self, setup: Setup) -> None:
+        """Send what the link set-up asks (setup.py): stream rates and home, again after a reboot."""
+        if setup.rebooted:
+            self.log.warn("fc_reboot_detected", reason=setup.rebooted, action="re-requesting stream rates and home")
+        self._send_commands(setup.commands)
 
     def _on_home_position(self, m, stamp: int) -> None:
         old = self.tm.home
@@ -284,24 +234,23 @@ class FmuService(Service):
                           altitude_amsl_m=home.altitude_amsl_m,
                           position_m=[round(v, 3) for v in home.position_m.to_array().tolist()],
                           first=old is None)
-        self.pubs["fmu/out/home_position"].publish(home)
+        self.io["fmu/out/home_position"].publish(home)
 
     def _home_tick(self) -> None:
         """Latched home: republish at 1 Hz; until the FC sent one, ask again every home_request_period_s."""
         if self.tm.home is not None:
-            self.pubs["fmu/out/home_position"].publish(self.tm.home)
-        elif self.streams_requested and self.link_fresh():
+            self.io["fmu/out/home_position"].publish(self.tm.home)
+        elif self.setup.streams_requested and self.link_fresh():
             if self.state_published_s > 0:     # PX4 sends LOCAL_POSITION_NED once it has a local position
                 self._send_global_origin()
-            if time.monotonic() - self.home_requested_s >= self.params.home_request_period_s:
-                self._request_home()
+            self._send_commands(self.setup.home_due(time.monotonic()))
 
     def _send_global_origin(self) -> None:
         """GPS-denied: the FC's local origin as a global position, once the FC has a local position
         (its EKF2 resets position when it takes one) and until it reports a home (it then has a
         global position)."""
-        if self.global_origin is not None:
-            lat, lon, alt = self.global_origin
+        if self.cfg.global_origin is not None:
+            lat, lon, alt = self.cfg.global_origin
             self._send(lambda mav: mav.set_gps_global_origin_send(self.tm.system_id, round(lat * 1e7), round(lon * 1e7),
                                                                   round(alt * 1e3), self.node.now_ns() // 1000))
             self.counters["global_origin_sent"] += 1
@@ -315,30 +264,15 @@ class FmuService(Service):
             except OSError as e:
                 self.log.throttled("warn", "send", "mavlink_send_error", error=str(e))
 
-    def _command_nowait(self, command: int, *params: float) -> None:
-        self._send_command(command, list(params) + [0.0] * (7 - len(params)))
+    def _send_commands(self, commands: list[Command]) -> None:
+        for c in commands:
+            self._send_command(c.command, c.params7())
 
     def _send_command(self, command: int, params7: list[float]) -> None:
         self._send(lambda mav: mav.command_long_send(self.tm.system_id, 1, command, 0, *params7))
 
     def link_fresh(self) -> bool:
-        return time.monotonic() - self.tm.last_rx_s < self.params.link_timeout_s
-
-    def _on_param(self, name: str, value) -> None:
-        a = self.arbiter
-        if name in ("max_velocity_mps", "max_acceleration_mps2", "max_distance_m", "max_altitude_m",
-                    "min_altitude_m", "max_yaw_rate_radps"):
-            setattr(a.envelope, name, value)
-        elif name in ("brake_speed_mps", "brake_timeout_s"):
-            setattr(a, name, value)
-        elif name == "setpoint_timeout_s":
-            a.timeout_s = value
-        elif name == "resume_setpoints":
-            a.resume_count = value
-        elif name == "setpoint_max_age_s":
-            a.max_age_s = value
-        elif name == "reboot_gap_s":
-            self.reboots.gap_s = value
+        return time.monotonic() - self.tm.last_rx_s < self.cfg.link_timeout_s
 
     def _planner_health(self, ok: bool, why: str) -> None:
         if self.arbiter.on_planner_health(ok, why):
@@ -347,7 +281,12 @@ class FmuService(Service):
             else:
                 self.log.warn("planner_lost_holding", reason=why)
 
-    def _on_setpoint(self, sp: TrajectorySetpoint) -> None:
+    # ------------------------------------------------------------ inputs (contract.INPUTS)
+
+    def on_planner_status(self, st: TrajectoryStatus) -> None:
+        self._planner_health(st.status != TrajectoryStatus.STATUS_ERROR, "planner reports ERROR")
+
+    def on_fmu_in_trajectory_setpoint(self, sp: TrajectorySetpoint) -> None:
         a = self.arbiter
         was = a.phase
         rejected, stale = a.counters["setpoints_rejected"], a.counters["setpoints_stale"]
@@ -361,7 +300,7 @@ class FmuService(Service):
         if out is None:
             return
         if was != FOLLOW:
-            self.log.info("planner_following", after=a.resume_count)
+            self.log.info("planner_following", after=a.cfg.resume_count)
         self._send_target(setpoint_target(out))  # forward at once: the hot path
         self.counters["setpoints_sent"] += 1
 
@@ -382,7 +321,7 @@ class FmuService(Service):
             # second) rather than going quiet — consumers detect the loss in <= 0.5 s.
             if now - self.stale_published_s >= 1.0:
                 self.stale_published_s = now
-                self.pubs["state/vehicle"].publish(self.tm.vehicle_state(self.node.now_ns(), connected=False))
+                self.io["state/vehicle"].publish(self.tm.vehicle_state(self.node.now_ns(), connected=False))
             return
         self.stale_published_s = 0.0
         if not self.tm.have_position:
@@ -411,43 +350,39 @@ class FmuService(Service):
     def _publish_status(self, stamp_ns: int, periodic: bool) -> None:
         st = self.tm.status_to_publish(stamp_ns, periodic)
         if st is not None:
-            self.pubs["fmu/out/vehicle_status"].publish(st)
+            self.io["fmu/out/vehicle_status"].publish(st)
 
     def _heartbeat_tick(self) -> None:
         self._send(lambda mav: mav.heartbeat_send(mavlink.MAV_TYPE_ONBOARD_CONTROLLER, mavlink.MAV_AUTOPILOT_INVALID, 0, 0,
                                                   mavlink.MAV_STATE_ACTIVE))
 
-    def _on_vio(self, odom: Odometry) -> None:
+    def on_state_visual_odometry(self, odom: Odometry) -> None:
         age_s = (self.node.now_ns() - odom.header.stamp_ns) / 1e9
-        if age_s > self.params.vio_timeout_s:
+        if age_s > self.cfg.vio_timeout_s:
             self.counters["vio_stale_dropped"] += 1
             self.log.throttled("warn", "vio", "vio_stale_not_injected", age_s=round(age_s, 3))
             return
         f = odometry_fields(odom, odom.header.stamp_ns // 1000)
         self._send(lambda mav: mav.odometry_send(**f))
-        self.vio_age_ms.append(age_s * 1000.0)
+        self.timing.on_vio_sent(age_s)
         self.counters["vio_injected"] += 1
 
-    def _on_image_stamp(self, img: Image) -> None:
-        """Camera frames should fall inside the IMU stream: log how far each is from the last IMU
-        sample at or before it (large or negative values mean clock or driver trouble)."""
-        before = [t for t in self.imu_stamps_ns if t <= img.header.stamp_ns]
-        dt_ms = (img.header.stamp_ns - (before[-1] if before else self.imu_stamps_ns[0])) / 1e6 \
-            if self.imu_stamps_ns else float("nan")
-        self.camera_imu_dt_ms.append(dt_ms)
+    def on_sensors_camera_left_image(self, img: Image) -> None:
+        """Only with publish_imu: camera frames should fall inside the IMU stream (timing.py)."""
+        dt_ms = self.timing.on_image(img.header.stamp_ns)
         self.log.throttled("info", "cam_imu", "camera_imu_alignment", period_s=5.0, dt_ms=round(dt_ms, 3),
-                           imu_samples=len(self.imu_stamps_ns))
+                           imu_samples=len(self.timing.imu_stamps_ns))
 
     # ------------------------------------------------------------ queryables
 
-    def _srv_arm(self, req: ArmRequest) -> ArmReply:
+    def on_fmu_arm(self, req: ArmRequest) -> ArmReply:
         ok, msg = self.commands.run(mavlink.MAV_CMD_COMPONENT_ARM_DISARM,
                                 [1.0 if req.arm else 0.0, FORCE_MAGIC if req.force else 0.0],
-                                lambda: self.tm.armed == req.arm, self.params.command_timeout_s)
+                                lambda: self.tm.armed == req.arm, self.cfg.command_timeout_s)
         self.log.info("arm", arm=req.arm, force=req.force, success=ok, message=msg)
         return ArmReply(success=ok, message=msg, armed=self.tm.armed)
 
-    def _srv_set_mode(self, req: SetModeRequest) -> SetModeReply:
+    def on_fmu_set_mode(self, req: SetModeRequest) -> SetModeReply:
         mode = req.mode.upper()
         try:
             base, main_mode, sub_mode = self.tm.autopilot.set_mode_params(mode)
@@ -455,10 +390,10 @@ class FmuService(Service):
             return SetModeReply(success=False, current_mode=self.tm.flight_mode,
                                 message=f"unknown mode {req.mode!r} for {self.tm.autopilot.name}; "
                                         f"known: {', '.join(self.tm.autopilot.mode_names())}")
-        timeout_s = self.params.command_timeout_s
+        timeout_s = self.cfg.command_timeout_s
         offboard = mode == "OFFBOARD"
         if offboard:  # the FC refuses OFFBOARD until our stream has run a while (StreamWarmth)
-            timeout_s -= self._wait_stream_warm(min(self.params.offboard_warmup_s, timeout_s / 2))
+            timeout_s -= self._wait_stream_warm(min(self.cfg.offboard_warmup_s, timeout_s / 2))
         # Always ask the FC: the mode we last heard (1 Hz heartbeat) may be stale, e.g. right after
         # a failsafe switched OFFBOARD to HOLD; the FC acks a request for its current mode at once.
         ok, msg = self.commands.run(mavlink.MAV_CMD_DO_SET_MODE, [base, main_mode, sub_mode],
@@ -476,26 +411,18 @@ class FmuService(Service):
             self.log.info("offboard_waited_for_stream", waited_s=round(waited, 2))
         return waited
 
-    def _srv_estop(self, req: EmergencyStopRequest) -> EmergencyStopReply:
+    def on_fmu_emergency_stop(self, req: EmergencyStopRequest) -> EmergencyStopReply:
         if not req.confirm:
             return EmergencyStopReply(success=False, message="refused: set confirm=true to terminate the flight")
         self.log.error("emergency_stop", reason=req.reason)
         ok, msg = self.commands.run(mavlink.MAV_CMD_DO_FLIGHTTERMINATION, [1.0], lambda: not self.tm.armed,
-                                self.params.command_timeout_s)
+                                self.cfg.command_timeout_s)
         return EmergencyStopReply(success=ok, message=msg)
 
     # ------------------------------------------------------------ health
 
     def health(self) -> Health:
-        if self.camera_imu_dt_ms:
-            dts = np.array(self.camera_imu_dt_ms)
-            self.counters["camera_imu_dt_p50_ms"] = round(float(np.nanmedian(dts)), 3)
-            self.counters["camera_imu_dt_max_ms"] = round(float(np.nanmax(np.abs(dts))), 3)
-        if self.vio_age_ms:   # what EKF2_EV_DELAY would have to be without PX4's time sync
-            ages = np.array(self.vio_age_ms)
-            self.counters["vio_age_p50_ms"] = round(float(np.median(ages)), 1)
-            self.counters["vio_age_max_ms"] = round(float(ages.max()), 1)
-        values = dict(self.counters, mode=self.tm.flight_mode, armed=self.tm.armed, autopilot=self.tm.autopilot.name,
+        values = dict(self.counters, **self.setup.counters, **self.timing.values(), mode=self.tm.flight_mode, armed=self.tm.armed, autopilot=self.tm.autopilot.name,
                       **self.arbiter.counters, planner=self.arbiter.label(), offboard=self.arbiter.phase,
                       hold_reason=self.arbiter.reason,
                       **getattr(self.conn, "counters", {}),

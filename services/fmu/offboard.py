@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from aeroperception.schemas import TrajectorySetpoint, Vector3
+from aeroperception.services.runtime.config import param, section
 
 FOLLOW, BRAKE, HOLD = "follow", "brake", "hold"
 
@@ -67,16 +68,17 @@ class StreamWarmth:
         return now_s - self.since_s
 
 
-@dataclass
+@dataclass(frozen=True)
 class Envelope:
-    """Limits of a setpoint fmu forwards (the vehicle's envelope, ENU about the local origin)."""
+    """Limits of a setpoint fmu forwards (the vehicle's envelope, ENU about the local origin):
+    contract.PARAMS of the same names."""
 
-    max_velocity_mps: float = 15.0
-    max_acceleration_mps2: float = 10.0
-    max_distance_m: float = 1000.0     # horizontal distance of a position setpoint from the origin
-    max_altitude_m: float = 500.0      # position setpoint z (up) limits
-    min_altitude_m: float = -10.0
-    max_yaw_rate_radps: float = 6.0
+    max_velocity_mps: float = param("max_velocity_mps")
+    max_acceleration_mps2: float = param("max_acceleration_mps2")
+    max_distance_m: float = param("max_distance_m")     # horizontal distance of a position setpoint from the origin
+    max_altitude_m: float = param("max_altitude_m")     # position setpoint z (up) limits
+    min_altitude_m: float = param("min_altitude_m")
+    max_yaw_rate_radps: float = param("max_yaw_rate_radps")
 
     def problem(self, sp: TrajectorySetpoint) -> str:
         """Why `sp` must not be forwarded ('' if it may). Only the parts marked valid are
@@ -93,7 +95,7 @@ class Envelope:
                 return f"position {math.hypot(p[0], p[1]):.0f} m from the origin > max_distance_m {self.max_distance_m:g}"
             if not self.min_altitude_m <= p[2] <= self.max_altitude_m:
                 return f"position z {p[2]:.1f} m outside [{self.min_altitude_m:g}, {self.max_altitude_m:g}] m"
-        for valid, vec, what, unit, limit, param in (
+        for valid, vec, what, unit, limit, name in (
                 (sp.velocity_valid, sp.velocity_mps, "velocity", "m/s", self.max_velocity_mps, "max_velocity_mps"),
                 (sp.acceleration_valid, sp.acceleration_mps2, "acceleration", "m/s^2", self.max_acceleration_mps2,
                  "max_acceleration_mps2")):
@@ -101,7 +103,7 @@ class Envelope:
             if valid and not np.all(np.isfinite(v)):
                 return f"non-finite {what}"
             if valid and np.linalg.norm(v) > limit:
-                return f"{what} {np.linalg.norm(v):.1f} {unit} > {param} {limit:g}"
+                return f"{what} {np.linalg.norm(v):.1f} {unit} > {name} {limit:g}"
         if sp.yaw_valid and not math.isfinite(sp.yaw_rad):
             return "non-finite yaw"
         if sp.yaw_rate_valid and not (math.isfinite(sp.yaw_rate_radps) and abs(sp.yaw_rate_radps) <= self.max_yaw_rate_radps):
@@ -117,17 +119,24 @@ def brake_setpoint(yaw_rad: float) -> TrajectorySetpoint:
 hold_setpoint = TrajectorySetpoint.hold   # one home: the schema's hold constructor
 
 
-class OffboardArbiter:
-    """Decides follow / brake / hold. Times are monotonic seconds; stamps are the node clock's ns."""
+@dataclass(frozen=True)
+class ArbiterConfig:
+    """What the arbiter decides by (contract.PARAMS; runtime/config.py builds it)."""
 
-    def __init__(self, envelope: Envelope | None = None, timeout_s: float = 0.3, resume_count: int = 5,
-                 max_age_s: float = 0.5, brake_speed_mps: float = 0.15, brake_timeout_s: float = 5.0):
-        self.envelope = envelope or Envelope()
-        self.timeout_s = timeout_s
-        self.resume_count = resume_count
-        self.max_age_s = max_age_s
-        self.brake_speed_mps = brake_speed_mps
-        self.brake_timeout_s = brake_timeout_s
+    envelope: Envelope = section(Envelope)
+    timeout_s: float = param("setpoint_timeout_s")
+    resume_count: int = param("resume_setpoints")
+    max_age_s: float = param("setpoint_max_age_s")
+    brake_speed_mps: float = param("brake_speed_mps")
+    brake_timeout_s: float = param("brake_timeout_s")
+
+
+class OffboardArbiter:
+    """Decides follow / brake / hold. Times are monotonic seconds; stamps are the node clock's ns.
+    `cfg` may be replaced at any time (a live parameter change)."""
+
+    def __init__(self, cfg: ArbiterConfig):
+        self.cfg = cfg
         self.phase = HOLD                       # FOLLOW / BRAKE / HOLD
         self.reason = WAIT_FRESH                # why not following ('' while following)
         self.planner_ok, self.planner_why = True, ""
@@ -170,7 +179,7 @@ class OffboardArbiter:
             return "no state published yet"
         if stamp < self.state_epoch_ns:
             return "computed before this fmu session's first state"
-        if stamp < self.newest_state_ns - self.max_age_s * 1e9:
+        if stamp < self.newest_state_ns - self.cfg.max_age_s * 1e9:
             return f"{(self.newest_state_ns - stamp) / 1e9:.2f} s older than the newest state"
         return ""
 
@@ -179,7 +188,7 @@ class OffboardArbiter:
         if not self.planner_ok:
             self.counters["setpoints_ignored"] += 1
             return None
-        problem = self.envelope.problem(sp)
+        problem = self.cfg.envelope.problem(sp)
         if problem:
             self.counters["setpoints_rejected"] += 1
             self.last_rejection = problem
@@ -197,9 +206,9 @@ class OffboardArbiter:
         if self.phase == FOLLOW:
             self.setpoint, self.last_rx_s = sp, now_s
             return sp
-        self.streak = self.streak + 1 if now_s - self.last_rx_s <= self.timeout_s else 1
+        self.streak = self.streak + 1 if now_s - self.last_rx_s <= self.cfg.timeout_s else 1
         self.last_rx_s = now_s
-        if self.streak < self.resume_count:
+        if self.streak < self.cfg.resume_count:
             return None
         self.phase, self.reason, self.hold_at, self.setpoint = FOLLOW, "", None, sp
         self.counters["follow_resumed"] += 1
@@ -218,15 +227,15 @@ class OffboardArbiter:
     def tick(self, now_s: float, position_m: np.ndarray, velocity_mps: np.ndarray,
              yaw_rad: float) -> tuple[str, TrajectorySetpoint]:
         """(phase, setpoint to stream now). In FOLLOW the setpoint is the planner's last one."""
-        if self.phase == FOLLOW and now_s - self.last_rx_s > self.timeout_s:
+        if self.phase == FOLLOW and now_s - self.last_rx_s > self.cfg.timeout_s:
             self.stop(PLANNER_SILENT)
         if self.phase == FOLLOW:
             return FOLLOW, self.setpoint
         if self.phase == BRAKE:
             if self.brake_since_s == -math.inf:
                 self.brake_since_s, self._brake_yaw = now_s, yaw_rad
-            slow = float(np.linalg.norm(velocity_mps)) < self.brake_speed_mps
-            if not slow and now_s - self.brake_since_s < self.brake_timeout_s:
+            slow = float(np.linalg.norm(velocity_mps)) < self.cfg.brake_speed_mps
+            if not slow and now_s - self.brake_since_s < self.cfg.brake_timeout_s:
                 return BRAKE, brake_setpoint(self._brake_yaw)
             self.phase, self.hold_at = HOLD, (np.array(position_m, dtype=float), self._brake_yaw)
         if self.hold_at is None:  # holding from the start (no motion followed yet): brake first

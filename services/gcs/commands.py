@@ -99,7 +99,18 @@ class CommandHandler:
         self.results[name] = self.results.get(name, 0) + 1
         self.send(M.MAVLink_command_ack_message(command, result, progress, 0, peer[0], peer[1]))
 
-    # ------------------------------------------------------------ entry point
+    # ------------------------------------------------------------ entry points
+
+    def on_set_mode(self, msg, now_s: float) -> None:
+        """SET_MODE (the legacy message): its COMMAND_ACK once the stack has answered; DENIED at once
+        for a mode we do not know."""
+        peer = (msg.get_srcSystem(), msg.get_srcComponent())
+        mode = mode_from_custom_mode(msg.base_mode, msg.custom_mode)
+        if mode is None:
+            self.ack(M.MAVLINK_MSG_ID_SET_MODE, M.MAV_RESULT_DENIED, peer)
+            return
+        self.ops.set_mode(mode, lambda outcome: self.ack(
+            M.MAVLINK_MSG_ID_SET_MODE, M.MAV_RESULT_ACCEPTED if outcome.ok else M.MAV_RESULT_DENIED, peer))
 
     def handle(self, msg, now_s: float) -> None:
         c = Command.from_msg(msg)

@@ -19,7 +19,8 @@ INPUTS = Topics(
     Topic("mission/status", MissionStatus, note="MISSION_CURRENT"),
     Topic("mission/waypoint_reached", WaypointReached, note="MISSION_ITEM_REACHED"),
     Topic("safety/status", SafetyStatus, note="SYS_STATUS geofence bits; warnings/errors -> STATUSTEXT"),
-    Topic("fmu/out/vehicle_status", VehicleStatus, note="identity=companion: the flight controller's system id"),
+    Topic("fmu/out/vehicle_status", VehicleStatus,
+          note="only with identity=companion (GcsService.bind_selection): the flight controller's system id"),
     Topic("perception/objects/events", ObjectEvent, note="new / lost object -> STATUSTEXT"),
     Topic("perception/objects", TrackedObjectArray, note="confirmed objects -> ADSB_VEHICLE at 1 Hz (map labels)"),
 )

@@ -131,3 +131,10 @@ class HomeTracker:
         if self.pending is None or self.busy():
             return False
         return self.offer(self.pending)
+
+
+def mission_needs_upload_again(old: Home, new: Home) -> bool:
+    """A home that moved (horizontally or in the altitude of its local origin) by more than 0.5 m:
+    a mission loaded about the old one was converted about the wrong place."""
+    return (origin_shift_m(old, new) > 0.5
+            or abs(new.alt_m - new.local_m[2] - old.alt_m + old.local_m[2]) > 0.5)

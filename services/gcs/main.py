@@ -30,17 +30,19 @@ from aeroperception.services.mavlink import ftp
 from aeroperception.services.runtime import Health, Service, run
 
 from . import contract
-from .commands import CommandHandler, mode_from_custom_mode
-from .home import SOURCE_PARAM, Home, HomeTracker, home_from_msg, origin_shift_m
+from .commands import CommandHandler
+from .config import GcsConfig
+from .home import SOURCE_PARAM, Home, HomeTracker, home_from_msg, mission_needs_upload_again, origin_shift_m
 from .link import UdpLink, load_signing_key, parse_signing_key
 from .messages import statustext
 from .mission_progress import Progress
 from .mission_sync import MissionSync
 from .objects_relay import ObjectsRelay, event_text
-from .ops import Outcome, StackOps
+from .ops import StackOps
 from .param_protocol import ParamProtocol
 from .params import ParamTable
 from .presence import GroundStationFilter, ListeningClock, Presence
+from .routing import ignored_because
 from .safety_relay import SafetyRelay
 from .telemetry import Scheduler, TelemetryState
 
@@ -52,6 +54,9 @@ class GcsService(Service):
 
     NAME = contract.NAME
     PARAMS = contract.PARAMS
+    CONTRACT = contract
+    CONFIG = GcsConfig
+    CLI_PARAMS = ("local_port", "remote_port", "gcs_ip", "bind_ip", "signing_key_file", "signing_link_id")
 
     @classmethod
     def add_arguments(cls, parser) -> None:
@@ -65,9 +70,26 @@ class GcsService(Service):
                             f"key as 64 hex digits or raw bytes (or set {contract.SIGNING_KEY_ENV}=<hex>)")
         g.add_argument("--signing-link-id", type=int, default=None, help="MAVLink 2 signing link id (default 0)")
 
+    def wire(self) -> None:
+        """The command-line flags are the parameters of the same names, set before the config is built."""
+        for name in self.CLI_PARAMS:
+            v = getattr(self.args, name, None)
+            if v is not None:
+                self.params.set(name, v)
+        super().wire()
+
+    def bind_selection(self) -> dict[str, Any]:
+        """The flight controller's system id is taken only as its onboard computer (identity=companion)."""
+        if self.cfg.identity == contract.IDENTITY_COMPANION:
+            return {}
+        return dict(inputs=[k for k in contract.INPUTS if k != "fmu/out/vehicle_status"])
+
+    def on_config(self, cfg: GcsConfig) -> None:
+        self.ops.timeout_s = cfg.call_timeout_s     # the only live parameter (contract.PARAMS)
+
     def _signing_key(self) -> tuple[bytes | None, str]:
         """The signing key and where it came from (never the key itself in any message)."""
-        path = self.params.signing_key_file
+        path = self.cfg.signing_key_file
         if path:
             key, shared = load_signing_key(path)
             if shared:
@@ -83,12 +105,7 @@ class GcsService(Service):
         return None, ""
 
     def start(self) -> None:
-        p = self.params
-        for name in ("local_port", "remote_port", "gcs_ip", "bind_ip", "signing_key_file", "signing_link_id"):
-            v = getattr(self.args, name, None)
-            if v is not None:
-                p.set(name, v)
-        node = self.node
+        p, node = self.cfg, self.node
         self.notices = 0                      # STATUSTEXTs sent (chunk ids)
         self.ignored: dict[str, int] = {}     # MAVLink inputs dropped, by kind (diagnostics)
         # Until fmu reports the flight controller's home, the parameters' (home = local origin).
@@ -111,7 +128,7 @@ class GcsService(Service):
             self.sched.periods = {M.MAVLINK_MSG_ID_HEARTBEAT: 1.0}
         self.safety = SafetyRelay()
         self.objects = ObjectsRelay()
-        self.table = ParamTable(p.param_services.split(","))
+        self.table = ParamTable(p.param_services)
         progress = self.tel.progress = Progress()   # MISSION_ITEM_REACHED / MISSION_CURRENT for our mission
         self.ops = StackOps(node.call_async, p.call_timeout_s, self.table, self.tel, progress, self.log)
         self.mission = MissionSync(self.ops, progress, self.tel, self.table, lambda: self.home, self.link.send,
@@ -133,25 +150,11 @@ class GcsService(Service):
             "PARAM_REQUEST_LIST": self.param_proto.on_request_list,
             "PARAM_REQUEST_READ": self.param_proto.on_request_read,
             "PARAM_SET": self.param_proto.on_set,
-            "SET_MODE": self._on_set_mode,
+            "SET_MODE": self.cmds.on_set_mode,
             "MANUAL_CONTROL": self._on_manual_control,
             "FILE_TRANSFER_PROTOCOL": self._on_ftp,
             "TIMESYNC": self._on_timesync,
         }
-        self.pub_link = node.publisher("gcs/link", GcsLink)
-        self.pub_joy = node.publisher("gcs/joystick", Joystick)
-        node.subscribe("state/vehicle", VehicleState, lambda m: setattr(self.tel, "vehicle", m))
-        node.subscribe("fmu/out/battery_status", BatteryState, lambda m: setattr(self.tel, "battery", m))
-        node.subscribe("fmu/out/home_position", HomePosition, self._on_home_position)
-        node.subscribe("fmu/out/vehicle_gps_position", GpsPosition, self._on_gps)
-        node.subscribe("fmu/out/estimator_status", EstimatorStatus, self._on_estimator_status)
-        node.subscribe("mission/status", MissionStatus, self.mission.on_status)
-        node.subscribe("mission/waypoint_reached", WaypointReached, self.mission.on_reached)
-        node.subscribe("safety/status", SafetyStatus, self._on_safety)
-        node.subscribe("perception/objects/events", ObjectEvent, self._on_object_event)
-        node.subscribe("perception/objects", TrackedObjectArray, self._on_objects)
-        if self.companion:
-            node.subscribe("fmu/out/vehicle_status", VehicleStatus, self._on_vehicle_status)
         self.param_proto.refresh()
         node.every(0.05, self._tick, name="link")
         node.every(p.param_refresh_s, self.param_proto.refresh, name="params")
@@ -173,18 +176,11 @@ class GcsService(Service):
 
     def _on_mav(self, msg) -> None:
         t = msg.get_type()
-        target_sys = getattr(msg, "target_system", None)
-        if target_sys not in (None, 0, self.link.system_id) and t != "FILE_TRANSFER_PROTOCOL":
-            self._ignore("other_target")
+        why = ignored_because(t, getattr(msg, "target_system", None), getattr(msg, "target_component", None),
+                              self.link.system_id, self.link.component_id, self.companion)
+        if why:
+            self._ignore(why)
             return
-        if self.companion and t != "HEARTBEAT":
-            # Only what is addressed to our component; the flight controller answers the rest
-            # (parameters asked of every component are ours to answer too).
-            comp = getattr(msg, "target_component", None)
-            if comp is not None and comp != self.link.component_id and not (
-                    comp == 0 and t in ("PARAM_REQUEST_LIST", "PARAM_REQUEST_READ")):
-                self._ignore("other_component")
-                return
         handler = self.handlers.get(t)
         if handler is None:
             self._ignore(t)
@@ -207,19 +203,8 @@ class GcsService(Service):
         if self.mission.set_current(msg.seq):
             self.link.send(self.tel.mission_current())
 
-    def _on_set_mode(self, msg, now_s: float) -> None:
-        peer = (msg.get_srcSystem(), msg.get_srcComponent())
-        mode = mode_from_custom_mode(msg.base_mode, msg.custom_mode)
-        if mode is None:
-            self.cmds.ack(M.MAVLINK_MSG_ID_SET_MODE, M.MAV_RESULT_DENIED, peer)
-            return
-
-        def done(outcome: Outcome) -> None:
-            self.cmds.ack(M.MAVLINK_MSG_ID_SET_MODE, M.MAV_RESULT_ACCEPTED if outcome.ok else M.MAV_RESULT_DENIED, peer)
-        self.ops.set_mode(mode, done)
-
     def _on_manual_control(self, msg, now_s: float) -> None:
-        self.pub_joy.publish(Joystick(header=self.node.header(), x=msg.x / 1000.0, y=msg.y / 1000.0,
+        self.io["gcs/joystick"].publish(Joystick(header=self.node.header(), x=msg.x / 1000.0, y=msg.y / 1000.0,
                                       z=msg.z / 1000.0, r=msg.r / 1000.0, buttons=msg.buttons,
                                       source_system=msg.get_srcSystem()))
 
@@ -247,29 +232,41 @@ class GcsService(Service):
             else:
                 self.link.send(m, peer=peer)
 
-    # ------------------------------------------------------------ stack inputs
+    # ------------------------------------------------------------ stack inputs (contract.INPUTS)
 
-    def _on_gps(self, msg: GpsPosition) -> None:
+    def on_state_vehicle(self, msg: VehicleState) -> None:
+        self.tel.vehicle = msg
+
+    def on_fmu_out_battery_status(self, msg: BatteryState) -> None:
+        self.tel.battery = msg
+
+    def on_fmu_out_vehicle_gps_position(self, msg: GpsPosition) -> None:
         self.tel.gps, self.tel.gps_rx_s = msg, time.monotonic()
 
-    def _on_estimator_status(self, msg: EstimatorStatus) -> None:
+    def on_fmu_out_estimator_status(self, msg: EstimatorStatus) -> None:
         self.tel.estimator, self.tel.estimator_rx_s = msg, time.monotonic()
 
-    def _on_safety(self, msg: SafetyStatus) -> None:
+    def on_mission_status(self, msg: MissionStatus) -> None:
+        self.mission.on_status(msg)
+
+    def on_mission_waypoint_reached(self, msg: WaypointReached) -> None:
+        self.mission.on_reached(msg)
+
+    def on_safety_status(self, msg: SafetyStatus) -> None:
         self.tel.safety, self.tel.safety_rx_s = msg, time.monotonic()
         for severity, text in self.safety.update(msg):
             self._notify(text, None, severity)
 
-    def _on_object_event(self, msg: ObjectEvent) -> None:
+    def on_perception_objects_events(self, msg: ObjectEvent) -> None:
         said = event_text(msg)
         if said is not None:
             self._notify(said[1], None, said[0])
 
-    def _on_objects(self, msg: TrackedObjectArray) -> None:
+    def on_perception_objects(self, msg: TrackedObjectArray) -> None:
         for m in self.objects.contacts(msg, time.monotonic()):
             self.link.send(m, broadcast=True)
 
-    def _on_vehicle_status(self, msg: VehicleStatus) -> None:
+    def on_fmu_out_vehicle_status(self, msg: VehicleStatus) -> None:
         """identity=companion: take the flight controller's system id (we are a component of it)."""
         sysid = int(msg.system_id)
         if 1 <= sysid <= 255 and sysid != self.link.system_id:
@@ -277,7 +274,7 @@ class GcsService(Service):
                           component_id=contract.COMPANION_COMPONENT_ID)
             self.link.set_system_id(sysid)
 
-    def _on_home_position(self, msg: HomePosition) -> None:
+    def on_fmu_out_home_position(self, msg: HomePosition) -> None:
         home = home_from_msg(msg)
         if home is None:
             self.node.report_bad_input("fmu/out/home_position", "non-finite or out-of-range home")
@@ -296,8 +293,7 @@ class GcsService(Service):
         self.log.info("home_changed", source=source, latitude_deg=new.lat_deg, longitude_deg=new.lon_deg,
                       altitude_amsl_m=new.alt_m, local_m=[round(v, 3) for v in new.local_m],
                       previous=[old.lat_deg, old.lon_deg, old.alt_m], shift_m=round(shift, 3))
-        if self.mission.protocol.items and (
-                shift > 0.5 or abs(new.alt_m - new.local_m[2] - old.alt_m + old.local_m[2]) > 0.5):
+        if self.mission.protocol.items and mission_needs_upload_again(old, new):
             self.log.warn("mission_converted_about_previous_home", shift_m=round(shift, 3),
                           hint="the loaded mission's local positions were converted about the previous home; "
                                "upload it again")
@@ -319,7 +315,7 @@ class GcsService(Service):
             self.link.send(msg)
         self.mission.protocol.tick(now)
         self.homes.poll()                # a home held back during an upload, once it is over
-        self.cmds.tick(now, timeout_s=self.params.call_timeout_s + 2.0)
+        self.cmds.tick(now, timeout_s=self.cfg.call_timeout_s + 2.0)
         self.mission.sync_plan()
         if self.presence.update(self.clock()):   # gcs/link at once on a change (presence.py)
             self._publish_link()
@@ -330,7 +326,7 @@ class GcsService(Service):
             return   # no verdict yet (presence.py)
         age = self.clock() - pr.last_heartbeat_s if pr.last_heartbeat_s is not None else None
         addr = f"{self.link.remote[0]}:{self.link.remote[1]}" if self.link.learnt else ""
-        self.pub_link.publish(GcsLink(header=self.node.header(), connected=pr.connected, address=addr,
+        self.io["gcs/link"].publish(GcsLink(header=self.node.header(), connected=pr.connected, address=addr,
                                       system_id=pr.system_id, last_heartbeat_age_s=age,
                                       packets_received=self.link.parser.received,
                                       packets_invalid=self.link.parser.invalid_total))
@@ -345,7 +341,7 @@ class GcsService(Service):
             "gcs_address": f"{self.link.remote[0]}:{self.link.remote[1]}",
             "ground_stations": len(self.presence.alive), "ground_station_addresses": self.presence.addresses(),
             "signing": self.link.signing, "signing_rejected": self.link.parser.signing_rejected,
-            "identity": f"{self.params.identity} {self.link.system_id}:{self.link.component_id}",
+            "identity": f"{self.cfg.identity} {self.link.system_id}:{self.link.component_id}",
             "geofence_reported": bool(self.tel.fence_bits()[0]),
             "bind": f"{self.link.local_address[0]}:{self.link.local_address[1]}",
             "mavlink_rx": self.link.parser.received, "mavlink_tx": self.link.sent,

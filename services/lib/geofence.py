@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from typing import Any, Iterable, Mapping
 
 from aeroperception.services.runtime import Param
+from aeroperception.services.runtime.config import build, param
 
 GEOFENCE_PARAMS = [
     Param("geofence_radius_m", 500.0, "m", 1.0, 100_000.0,
@@ -30,24 +31,20 @@ class GeofenceError(ValueError):
     """A geofence setting that does not parse (e.g. a polygon with fewer than 3 vertices)."""
 
 
-_DEFAULT = {p.name: p.default for p in GEOFENCE_PARAMS}
-
-
 @dataclass(frozen=True)
 class Geofence:
-    """The GEOFENCE_PARAMS of the same names (defaults declared once, above)."""
+    """The GEOFENCE_PARAMS (a config section: runtime/config.py builds it, defaults declared once,
+    above; a polygon that does not parse raises GeofenceError, refusing the value)."""
 
-    radius_m: float = _DEFAULT["geofence_radius_m"]
-    max_altitude_m: float = _DEFAULT["geofence_max_altitude_m"]
-    min_altitude_m: float = _DEFAULT["geofence_min_altitude_m"]
-    polygon: tuple[tuple[float, float], ...] = ()
+    radius_m: float = param("geofence_radius_m")
+    max_altitude_m: float = param("geofence_max_altitude_m")
+    min_altitude_m: float = param("geofence_min_altitude_m")
+    polygon: tuple[tuple[float, float], ...] = param("geofence_polygon", lambda text: parse_polygon(text))
 
     @classmethod
-    def from_params(cls, params: Mapping[str, Any]) -> "Geofence":
-        return cls(radius_m=float(params["geofence_radius_m"]),
-                   max_altitude_m=float(params["geofence_max_altitude_m"]),
-                   min_altitude_m=float(params["geofence_min_altitude_m"]),
-                   polygon=parse_polygon(params["geofence_polygon"]))
+    def from_params(cls, params: Mapping[str, Any] | Iterable[Param] = GEOFENCE_PARAMS, **overrides: Any) -> "Geofence":
+        """The fence from parameter values (default: the declared defaults); `overrides` by field name."""
+        return build(cls, params, **overrides)
 
     def distance_to_boundary_m(self, x: float, y: float, z: float) -> float:
         """Signed distance to the nearest boundary: > 0 inside, < 0 outside (ceiling and

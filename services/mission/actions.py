@@ -12,6 +12,7 @@ only forwards each Step to the action's goal handle.
 - trajectory: flown as a goto to the trajectory's end (the planner follows the trajectory on the
   way): feedback is the planner's TrajectoryStatus; ends like a goto.
 A cancel asks HOLD while the vehicle moves (TAKEOFF, EXECUTING, LAND) and ends as canceled.
+`forward` hands each running action's Step to its goal handle (feedback, or how it ended).
 """
 from __future__ import annotations
 
@@ -109,3 +110,21 @@ class ActionRun:
 
 def _position(mgr: MissionManager) -> Vector3:
     return mgr.vehicle.position_m if mgr.vehicle else Vector3()
+
+
+def forward(actions: list[tuple[ActionRun, Any]], mgr: MissionManager) -> None:
+    """Each running action's Step to its goal handle (runtime/actions.GoalHandle: active,
+    cancel_requested, feedback / succeed / abort / canceled); an ended one leaves `actions`."""
+    for act, h in list(actions):
+        step = None if not h.active else act.cancel(mgr) if h.cancel_requested else act.step(mgr)
+        if step is None:
+            if not h.active:
+                actions.remove((act, h))
+        elif step.result is None:
+            h.feedback(step.feedback)
+        elif h.cancel_requested:
+            h.canceled(step.result)
+        elif step.succeeded:
+            h.succeed(step.result)
+        else:
+            h.abort(step.result)

@@ -11,7 +11,7 @@ NAME = "mission"
 INPUTS = Topics(
     Topic("state/vehicle", VehicleState),
     Topic("perception/health", PerceptionHealth),
-    Topic("mission/command", MissionCommand, note="fire-and-forget operator command"),
+    Topic("mission/command", MissionCommand, note="fire-and-forget operator command", strict=True),
     Topic("safety/status", SafetyStatus, note="a rising recommended_action HOLD/RTH/LAND acts once"),
     Topic("planner/status", TrajectoryStatus, note="obstacle_state blocked/unreachable -> blocked_action; its trajectory "
                                                    "ABORTED (refused) -> hold; the planner's parts for UAVStatus"),
@@ -31,7 +31,8 @@ OUTPUTS = Topics(
 )
 SERVICES = Queries(
     Query("mission/srv/load", LoadMissionRequest, LoadMissionReply),
-    Query("mission/srv/command", MissionCommand, Reply),
+    # the reply waits for fmu's answer (ARM, DISARM, TAKEOFF's arming): locked=False, it locks itself
+    Query("mission/srv/command", MissionCommand, Reply, handler="on_command_request", locked=False),
     Query("mission/srv/get", Empty, GetMissionReply, note="the loaded mission (gcs serves it to downloads)"),
 )
 STATE_FILE = "mission.json"   # in state_dir: the loaded mission and its progress, for a restart

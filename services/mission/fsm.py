@@ -27,14 +27,16 @@ has answered); what a running takeoff/land/goto action reports is actions.py's.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
-from typing import Any, Callable, Mapping
+from dataclasses import dataclass
+from typing import Any, Callable, Iterable, Mapping
 
 import numpy as np
 
 from aeroperception.schemas import LandedState, Mission, MissionStatus, SafetyStatus, VehicleState
 
 from aeroperception.services.lib.safety_names import ACTION_NAMES
+from aeroperception.services.runtime import Param
+from aeroperception.services.runtime.config import build, param
 
 from . import contract
 from .blocked_goal import BLOCKED_ACTIONS, BLOCKED_STATES, BlockedGoal  # noqa: F401 - re-exported
@@ -111,32 +113,29 @@ SAFETY_REACTIONS: dict[int, Event] = {
 }
 
 
-_DEFAULT = {p.name: p.default for p in contract.PARAMS}
-
-
-@dataclass
+@dataclass(frozen=True)
 class Config:
     """The FSM's settings: each is the mission parameter of the same name (its default, unit and
-    range are declared once, in contract.PARAMS)."""
+    range are declared once, in contract.PARAMS; runtime/config.py builds it)."""
 
-    takeoff_altitude_m: float = _DEFAULT["takeoff_altitude_m"]
-    altitude_tolerance_m: float = _DEFAULT["altitude_tolerance_m"]
-    require_perception: bool = _DEFAULT["require_perception"]
-    perception_timeout_s: float = _DEFAULT["perception_timeout_s"]     # no perception/health this long = unhealthy
-    perception_recovery_s: float = _DEFAULT["perception_recovery_s"]   # recover within this or RTL
-    land_on_complete: bool = _DEFAULT["land_on_complete"]
-    disarm_after_landing_s: float = _DEFAULT["disarm_after_landing_s"]
-    vehicle_timeout_s: float = _DEFAULT["vehicle_timeout_s"]           # state/vehicle older than this = fmu outage
-    resume_after_outage: bool = _DEFAULT["resume_after_outage"]
-    restore_timeout_s: float = _DEFAULT["restore_timeout_s"]
-    blocked_timeout_s: float = _DEFAULT["blocked_timeout_s"]
-    blocked_action: str = _DEFAULT["blocked_action"]                   # hold | skip | rtl
-    land_handoff_altitude_m: float = _DEFAULT["land_handoff_altitude_m"]
+    takeoff_altitude_m: float = param("takeoff_altitude_m")
+    altitude_tolerance_m: float = param("altitude_tolerance_m")
+    require_perception: bool = param("require_perception")
+    perception_timeout_s: float = param("perception_timeout_s")     # no perception/health this long = unhealthy
+    perception_recovery_s: float = param("perception_recovery_s")   # recover within this or RTL
+    land_on_complete: bool = param("land_on_complete")
+    disarm_after_landing_s: float = param("disarm_after_landing_s")
+    vehicle_timeout_s: float = param("vehicle_timeout_s")           # state/vehicle older than this = fmu outage
+    resume_after_outage: bool = param("resume_after_outage")
+    restore_timeout_s: float = param("restore_timeout_s")
+    blocked_timeout_s: float = param("blocked_timeout_s")
+    blocked_action: str = param("blocked_action")                   # hold | skip | rtl
+    land_handoff_altitude_m: float = param("land_handoff_altitude_m")
 
     @classmethod
-    def from_params(cls, params: Mapping[str, Any]) -> "Config":
-        return cls(**{f.name: params[f.name] for f in fields(cls)})
-
+    def from_params(cls, params: Mapping[str, Any] | Iterable[Param] = contract.PARAMS, **overrides: Any) -> "Config":
+        """From parameter values (default: the declared defaults); `overrides` by field name."""
+        return build(cls, params, **overrides)
 
 
 class MissionManager(OperatorCommands, FcAuthority, OutageWatch, Restart, PerceptionGate, BlockedGoal, Landing):
@@ -148,8 +147,8 @@ class MissionManager(OperatorCommands, FcAuthority, OutageWatch, Restart, Percep
                  limits: Limits | None = None):
         self.bridge = bridge
         self.publish_goal = publish_goal
-        self.cfg = config or Config()
-        self.limits = limits or Limits()
+        self.cfg = config or Config.from_params()
+        self.limits = limits or Limits.from_params()
         self.log = log or (lambda *a, **k: None)
         self.state = State.IDLE
         self.mission: Mission | None = None

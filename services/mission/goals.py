@@ -1,11 +1,14 @@
-"""What the mission asks the planner to fly: a goal (GoalOut), and a landing the planner flies
-before the flight controller's LAND (LandPlan, in explicit phases). Plain data, ENU frame."""
+"""What the mission asks the planner to fly: a goal (GoalOut, as a MissionGoal message), and a
+landing the planner flies before the flight controller's LAND (LandPlan, in explicit phases).
+Plain data, ENU frame."""
 from __future__ import annotations
 
 from dataclasses import dataclass
 from enum import Enum
 
 import numpy as np
+
+from aeroperception.schemas import Header, MissionGoal, Pose, Quaternion, Vector3
 
 
 @dataclass
@@ -17,6 +20,19 @@ class GoalOut:
     acceptance_radius_m: float | None = None  # goto goals carry their own; None: the mission's
     max_speed_mps: float = 0.0                # the planner's caps for this goal (0: its own)
     max_vertical_speed_mps: float = 0.0
+
+
+def goal_message(goal: GoalOut, vehicle_yaw_rad: float | None, header: Header) -> MissionGoal:
+    """mission/active_goal for `goal` (header's frame_id set here): hold, or the position with
+    the goal's yaw (else the vehicle's, else 0)."""
+    if goal.position_m is None:
+        header.frame_id = MissionGoal.HOLD_FRAME
+        return MissionGoal(header=header)
+    header.frame_id = "map"
+    yaw = goal.yaw_rad if goal.yaw_rad is not None else (vehicle_yaw_rad if vehicle_yaw_rad is not None else 0.0)
+    return MissionGoal(header=header, pose=Pose(position=Vector3.from_array(goal.position_m),
+                                                orientation=Quaternion.from_yaw(yaw)),
+                       max_speed_mps=goal.max_speed_mps, max_vertical_speed_mps=goal.max_vertical_speed_mps)
 
 
 class LandPhase(str, Enum):

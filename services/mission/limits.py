@@ -9,33 +9,31 @@ local and rolling: what it does not show yet is the planner's verdict in flight,
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
-from typing import Any, Mapping
+from dataclasses import dataclass
+from typing import Any, Iterable, Mapping
 
 from aeroperception.schemas import Mission, OccupancyGrid
 from aeroperception.services.lib.costmap import BLOCKED
 from aeroperception.services.lib.geofence import Geofence
+from aeroperception.services.runtime import Param
+from aeroperception.services.runtime.config import build, param, section
 
 from . import contract
 
-_DEFAULT = {p.name: p.default for p in contract.PARAMS}
-
-
 @dataclass(frozen=True)
 class Limits:
-    """The mission parameters of the same names (defaults declared once, in contract.PARAMS)."""
+    """The mission parameters of the same names (defaults declared once, in contract.PARAMS;
+    runtime/config.py builds it, the geofence a section of it)."""
 
-    geofence: Geofence = field(default_factory=Geofence)
-    max_takeoff_altitude_m: float = _DEFAULT["max_takeoff_altitude_m"]
-    min_acceptance_radius_m: float = _DEFAULT["min_acceptance_radius_m"]
-    max_acceptance_radius_m: float = _DEFAULT["max_acceptance_radius_m"]
+    geofence: Geofence = section(Geofence)
+    max_takeoff_altitude_m: float = param("max_takeoff_altitude_m")
+    min_acceptance_radius_m: float = param("min_acceptance_radius_m")
+    max_acceptance_radius_m: float = param("max_acceptance_radius_m")
 
     @classmethod
-    def from_params(cls, params: Mapping[str, Any]) -> "Limits":
-        return cls(geofence=Geofence.from_params(params),
-                   max_takeoff_altitude_m=float(params["max_takeoff_altitude_m"]),
-                   min_acceptance_radius_m=float(params["min_acceptance_radius_m"]),
-                   max_acceptance_radius_m=float(params["max_acceptance_radius_m"]))
+    def from_params(cls, params: Mapping[str, Any] | Iterable[Param] = contract.PARAMS, **overrides: Any) -> "Limits":
+        """From parameter values (default: the declared defaults); `overrides` by field name."""
+        return build(cls, params, **overrides)
 
     def check_takeoff(self, altitude_m: float, x: float = 0.0, y: float = 0.0) -> str | None:
         """Why a takeoff to `altitude_m` (ENU z) from (x, y) is refused, or None."""
@@ -89,3 +87,8 @@ def waypoints_in_obstacles(mission: Mission, costmap: OccupancyGrid | None) -> l
         if 0 <= row < costmap.height and 0 <= col < costmap.width and cells[row, col] >= BLOCKED:
             out.append(f"waypoint {i + 1} ({wp.x:g}, {wp.y:g}, {wp.z:g})")
     return out
+
+
+def obstacle_warning(inside: list[str]) -> str:
+    """What a load's reply adds for the waypoints_in_obstacles found ('' for none)."""
+    return f"; warning: the costmap shows {', '.join(inside)} inside an obstacle: unreachable" if inside else ""

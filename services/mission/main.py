@@ -9,22 +9,22 @@ import numpy as np
 from aeroperception.schemas import (
     ArmReply, ArmRequest, DiagnosticStatus, Empty, GcsLink, GetMissionReply, GoToPositionGoal,
     GoToPositionResult, LandGoal, LandResult, LoadMissionReply, LoadMissionRequest, MissionCommand, MissionGoal,
-    OccupancyGrid, ParamList, PerceptionHealth, Pose, Quaternion, Reply, SafetyStatus, SchemaError, SetModeReply,
-    SetModeRequest, SetTrajectoryGoal, SetTrajectoryResult, TakeoffGoal, TakeoffResult, Trajectory,
-    TrajectoryStatus, UAVStatus, Vector3, VehicleState, WaypointReached, load_mission_file, parse_mission,
+    OccupancyGrid, ParamList, PerceptionHealth, Reply, SafetyStatus, SchemaError, SetModeReply,
+    SetModeRequest, SetTrajectoryGoal, SetTrajectoryResult, TakeoffGoal, TakeoffResult,
+    TrajectoryStatus, Vector3, VehicleState, WaypointReached, load_mission_file, parse_mission,
 )
 from aeroperception.services.runtime import ActionServer, CallError, GoalHandle, Health, ParamError, Service, run
 from aeroperception.services.runtime.state_store import StateStore, default_state_dir
 
-from aeroperception.services.lib.geofence import GeofenceError
-
 from . import contract
-from .actions import MOVING, ActionRun
-from .fsm import Config, GoalOut, MissionManager, State
+from .actions import MOVING, ActionRun, forward
+from .config import MissionConfig
+from .fsm import GoalOut, MissionManager, State
+from .goals import goal_message
+from .limits import obstacle_warning, waypoints_in_obstacles
 from .requests import Outcome
-from .limits import Limits, waypoints_in_obstacles
-from .trajectory import NONE, TRAJECTORY_END_RADIUS_M, TrajectoryHandover, check_given
-from .uav_status import UavStatusBuilder
+from .trajectory import TRAJECTORY_END_RADIUS_M, TrajectoryHandover, check_given
+from .uav_status import GcsLinkWatch, UavStatusBuilder, mission_progress_pct
 
 PLANNER_STATUS_FRESH_S = 1.0   # planner/status comes at 10 Hz: older = the planner's parts unknown
 PLANNER_PARAMS_PERIOD_S = 3.0  # how often UAVStatus asks the planner for its live hover speed
@@ -42,7 +42,7 @@ class ZenohBridge:
                 answer(False, str(res))
             else:
                 answer(res.success, res.message)
-        self.svc.node.call_async(key, req, reply_cls, cb, timeout_s=self.svc.params.bridge_timeout_s)
+        self.svc.node.call_async(key, req, reply_cls, cb, timeout_s=self.svc.cfg.bridge_timeout_s)
 
     def arm(self, arm, answer) -> None:
         self._call("fmu/srv/arm", ArmRequest(arm=arm), ArmReply, answer)
@@ -56,69 +56,26 @@ class MissionService(Service):
 
     NAME = contract.NAME
     PARAMS = contract.PARAMS
+    CONTRACT = contract
+    CONFIG = MissionConfig      # geofence values that do not make a fence fail at start, are refused live
 
     def start(self) -> None:
-        p = self.params
-        cfg = Config.from_params(p)
-        self.mgr = MissionManager(ZenohBridge(self), self._publish_goal, cfg, log=self.log.info,
-                                  limits=Limits.from_params(p))
-        self.params.on_change(self._on_param)
+        c, node = self.cfg, self.node
+        self.mgr = MissionManager(ZenohBridge(self), self._publish_goal, c.fsm, log=self.log.info, limits=c.limits)
         self.mgr.on_waypoint_reached = self._on_reached
-        node = self.node
-        # Restart: the persisted mission/progress now, the vehicle's state decides on its first sample.
-        self.store = StateStore(p.state_dir or default_state_dir(node.vehicle), contract.STATE_FILE)
-        try:
-            snapshot = self.store.load()
-        except ValueError as e:
-            self.log.warn("persisted_mission_ignored", error=str(e))
-            snapshot = None
-        self.mgr.restore(snapshot, time.monotonic())
-        self.log.info("restored", path=str(self.store.path), state=(snapshot or {}).get("state"),
-                      mission=bool((snapshot or {}).get("mission_json")))
-        self.mgr.on_persist = self._persist
-        self.file_error = ""
-        if p.mission_file and self.mgr.mission is not None:
-            self.log.warn("mission_file_skipped", path=p.mission_file, reason=f"restored mission "
-                          f"{self.mgr.mission.mission_id or '(unnamed)'} in progress")
-        elif p.mission_file:
-            self.file_error = self._load_file(p.mission_file)
-            if self.file_error:
-                self.mgr.message = self.file_error
-        self.pub_status = node.publisher("mission/status", contract.OUTPUTS["mission/status"])
-        self.pub_goal = node.publisher("mission/active_goal", MissionGoal)
-        self.pub_reached = node.publisher("mission/waypoint_reached", WaypointReached)
         self.handover = TrajectoryHandover()
-        self.pub_trajectory = node.publisher("mission/active_trajectory", Trajectory)
-        node.subscribe("state/vehicle", VehicleState, self._on_vehicle)
-        node.subscribe("perception/health", PerceptionHealth,
-                       lambda m: self.mgr.on_perception(m.overall_healthy, time.monotonic()))
-        node.subscribe("mission/command", MissionCommand, self._on_command, strict=True)
-        node.subscribe("safety/status", SafetyStatus, self._on_safety)
         self.costmap: OccupancyGrid | None = None   # the latest, for the load-time obstacle check
-        node.subscribe("perception/costmap", OccupancyGrid, lambda m: setattr(self, "costmap", m))
         self.planner_status: TrajectoryStatus | None = None
         self.planner_status_rx_s = 0.0
-        node.subscribe("planner/status", TrajectoryStatus, self._on_planner_status)
         self.safety: SafetyStatus | None = None
         self.uav = UavStatusBuilder(node.vehicle or "default")
-        self.pub_uav = node.publisher("mission/uav_status", UAVStatus)
-        node.every(PLANNER_PARAMS_PERIOD_S, self._ask_planner_params, name="planner-params")
+        self.gcs = GcsLinkWatch()
+        self.last_goal: MissionGoal | None = None
+        self.actions: list[tuple[ActionRun, GoalHandle]] = []
+        self._restore()
         node.on_liveliness("fmu", lambda name, alive: self.mgr.on_fmu_alive(alive, time.monotonic()))
         node.on_liveliness("planner", lambda name, alive: self.mgr.on_planner_alive(alive, time.monotonic()))
-        self.gcs_up: bool | None = None
-
-        def on_gcs_link(m: GcsLink) -> None:
-            # gcs/link repeats at 1 Hz; only a change of a link once seen is an event (a stack
-            # flying without any ground station is not "link lost").
-            was, self.gcs_up = self.gcs_up, m.connected
-            if was is not None and was != m.connected:
-                self.mgr.on_link(m.connected)
-
-        node.subscribe("gcs/link", GcsLink, on_gcs_link)
-        node.serve("mission/srv/command", MissionCommand, Reply, self._srv_command, locked=False)
-        node.serve("mission/srv/load", LoadMissionRequest, LoadMissionReply, self._on_load)
-        node.serve("mission/srv/get", Empty, GetMissionReply, self._on_get)
-        self.actions: list[tuple[ActionRun, GoalHandle]] = []
+        # Actions (ARCHITECTURE §3) are still declared here: a contract's ACTIONS names only their keys.
         self.servers = {
             "takeoff": ActionServer(node, "mission/action/takeoff", TakeoffGoal, TakeoffResult,
                                     self._takeoff_goal, self._cancel_to_hold),
@@ -129,9 +86,32 @@ class MissionService(Service):
             "set_trajectory": ActionServer(node, "mission/action/set_trajectory", SetTrajectoryGoal,
                                            SetTrajectoryResult, self._trajectory_goal, self._cancel_to_hold),
         }
-        self.last_goal: MissionGoal | None = None
-        self.status_loop = node.every(1.0 / p.status_rate_hz, self._tick, name="status")
+        node.every(PLANNER_PARAMS_PERIOD_S, self._ask_planner_params, name="planner-params")
+        self.status_loop = node.every(1.0 / c.status_rate_hz, self._tick, name="status")
         node.every(0.1, lambda: self.mgr.tick(time.monotonic()), name="watchdog")  # outage within ~0.1 s
+
+    def _restore(self) -> None:
+        """Restart: the persisted mission/progress now, the vehicle's state decides on its first
+        sample; else mission_file (a bad one reported in the diagnostics: no mission)."""
+        c = self.cfg
+        self.store = StateStore(c.state_dir or default_state_dir(self.node.vehicle), contract.STATE_FILE)
+        try:
+            snapshot = self.store.load()
+        except ValueError as e:
+            self.log.warn("persisted_mission_ignored", error=str(e))
+            snapshot = None
+        self.mgr.restore(snapshot, time.monotonic())
+        self.log.info("restored", path=str(self.store.path), state=(snapshot or {}).get("state"),
+                      mission=bool((snapshot or {}).get("mission_json")))
+        self.mgr.on_persist = self._persist
+        self.file_error = ""
+        if c.mission_file and self.mgr.mission is not None:
+            self.log.warn("mission_file_skipped", path=c.mission_file, reason=f"restored mission "
+                          f"{self.mgr.mission.mission_id or '(unnamed)'} in progress")
+        elif c.mission_file:
+            self.file_error = self._load_file(c.mission_file)
+            if self.file_error:
+                self.mgr.message = self.file_error
 
     def _load_file(self, path: str) -> str:
         """Load mission_file `path` (at start-up unless a restart restored a mission in progress:
@@ -146,24 +126,17 @@ class MissionService(Service):
         self.log.error("mission_file_refused", path=path, error=message)
         return f"mission_file {path}: {message}"
 
-    def _on_param(self, name, value) -> None:
+    def on_config(self, cfg: MissionConfig) -> None:
         """A live set that cannot be honoured is refused (ParamError: the old value stays): a mission
-        file that does not load, geofence values that do not make a fence. At start-up a bad file
-        is reported in the diagnostics instead (the service runs without a mission)."""
-        try:
-            limits = Limits.from_params(self.params)
-        except GeofenceError as e:
-            raise ParamError(str(e)) from None
-        if name == "mission_file" and value:
-            why = self._load_file(value)
+        file that does not load (geofence values that do not make a fence are refused building cfg)."""
+        if cfg.mission_file != self.cfg.mission_file and cfg.mission_file:
+            why = self._load_file(cfg.mission_file)
             if why:
                 raise ParamError(why)
             self.file_error = ""
-        if name == "status_rate_hz":
-            self.status_loop.set_rate(value)
-        if hasattr(self.mgr.cfg, name):
-            setattr(self.mgr.cfg, name, value)
-        self.mgr.limits = limits
+        if cfg.status_rate_hz != self.cfg.status_rate_hz:
+            self.status_loop.set_rate(cfg.status_rate_hz)
+        self.mgr.cfg, self.mgr.limits = cfg.fsm, cfg.limits
 
     def _persist(self, snapshot: dict) -> None:
         try:
@@ -171,37 +144,60 @@ class MissionService(Service):
         except OSError as e:
             self.log.throttled("error", "persist", "persist_failed", path=str(self.store.path), error=str(e))
 
-    def _on_safety(self, msg: SafetyStatus) -> None:
+    # ------------------------------------------------------------ inputs (contract.INPUTS)
+
+    def on_state_vehicle(self, m: VehicleState) -> None:
+        self.uav.heard_vehicle((self.node.now_ns() - m.header.stamp_ns) * 1e-9)
+        self.mgr.on_vehicle(m, time.monotonic())
+
+    def on_perception_health(self, m: PerceptionHealth) -> None:
+        self.mgr.on_perception(m.overall_healthy, time.monotonic())
+
+    def on_perception_costmap(self, m: OccupancyGrid) -> None:
+        self.costmap = m
+
+    def on_safety_status(self, msg: SafetyStatus) -> None:
         self.safety = msg
         reason = "; ".join(msg.active_errors or msg.active_warnings)
         self.mgr.on_safety(msg.recommended_action, reason)
 
-    # ------------------------------------------------------------ inputs
+    def on_planner_status(self, m: TrajectoryStatus) -> None:
+        self.planner_status, self.planner_status_rx_s = m, time.monotonic()
+        self.mgr.on_planner(m.obstacle_state, m.message, time.monotonic())
+        if self.handover.refused(m):
+            self.mgr.on_trajectory_refused(m.message)
 
-    def _on_command(self, msg: MissionCommand) -> Reply:
+    def on_gcs_link(self, m: GcsLink) -> None:
+        changed = self.gcs.heard(m.connected)
+        if changed is not None:
+            self.mgr.on_link(changed)
+
+    def on_mission_command(self, msg: MissionCommand) -> Reply:
         if msg.command == MissionCommand.LOAD:
-            r = self._on_load(LoadMissionRequest(mission_json=msg.mission_json))
+            r = self.on_mission_load(LoadMissionRequest(mission_json=msg.mission_json))
             return Reply(success=r.success, message=r.message)
         ok, message = self.mgr.command(msg.command, waypoint_index=msg.waypoint_index)
         self.log.info("command", command=msg.command, accepted=ok, message=message)
         return Reply(success=ok, message=message)
 
-    def _srv_command(self, msg: MissionCommand) -> Reply:
+    # ------------------------------------------------------------ queryables (contract.SERVICES)
+
+    def on_command_request(self, msg: MissionCommand) -> Reply:
         """mission/srv/command: like mission/command, but the reply is the outcome. Commands that
         need the flight controller (ARM, DISARM, TAKEOFF's arming) are answered when fmu has
         answered, so a refused arm is a refused TAKEOFF, not "taking off"."""
         if msg.command == MissionCommand.LOAD:
             with self.node.lock:
-                return self._on_command(msg)
+                return self.on_mission_command(msg)
         outcome = Outcome()
         with self.node.lock:
             ok, message = self.mgr.command(msg.command, outcome, msg.waypoint_index)
             self.log.info("command", command=msg.command, accepted=ok, message=message)
-        if ok and outcome.wait(self.params.bridge_timeout_s + 1.0):
+        if ok and outcome.wait(self.cfg.bridge_timeout_s + 1.0):
             ok, message = outcome.result
         return Reply(success=ok, message=message)
 
-    def _on_load(self, req: LoadMissionRequest) -> LoadMissionReply:
+    def on_mission_load(self, req: LoadMissionRequest) -> LoadMissionReply:
         try:
             mission = parse_mission(req.mission_json)
         except SchemaError as e:
@@ -212,11 +208,11 @@ class MissionService(Service):
             self.file_error = ""
             inside = waypoints_in_obstacles(mission, self.costmap)
             if inside:
-                message += f"; warning: the costmap shows {', '.join(inside)} inside an obstacle: unreachable"
+                message += obstacle_warning(inside)
                 self.log.warn("waypoints_in_obstacles", waypoints=inside)
         return LoadMissionReply(success=ok, message=message, num_waypoints=len(mission.waypoints) if ok else 0)
 
-    def _on_get(self, _req: Empty) -> GetMissionReply:
+    def on_mission_get(self, _req: Empty) -> GetMissionReply:
         m = self.mgr.mission
         if m is None:
             return GetMissionReply(success=False, message="no mission loaded")
@@ -226,16 +222,9 @@ class MissionService(Service):
     # ------------------------------------------------------------ outputs
 
     def _publish_goal(self, goal: GoalOut) -> None:
-        if goal.position_m is None:
-            msg = MissionGoal(header=self.node.header(MissionGoal.HOLD_FRAME))
-        else:
-            yaw = goal.yaw_rad if goal.yaw_rad is not None else (self.mgr.vehicle.yaw_rad if self.mgr.vehicle else 0.0)
-            msg = MissionGoal(header=self.node.header("map"),
-                              pose=Pose(position=Vector3.from_array(goal.position_m),
-                                        orientation=Quaternion.from_yaw(yaw)),
-                              max_speed_mps=goal.max_speed_mps, max_vertical_speed_mps=goal.max_vertical_speed_mps)
-        self.last_goal = msg
-        self.pub_goal.publish(msg)
+        v = self.mgr.vehicle
+        self.last_goal = goal_message(goal, v.yaw_rad if v else None, self.node.header())
+        self.io["mission/active_goal"].publish(self.last_goal)
         self._publish_trajectory()
 
     def _publish_trajectory(self) -> None:
@@ -244,29 +233,25 @@ class MissionService(Service):
         mgr = self.mgr
         executing = mgr.state == State.EXECUTING
         goto_m = mgr.goto_target.position_m if executing and mgr.goto_target is not None else None
-        self.pub_trajectory.publish(self.handover.message(executing and goto_m is None, mgr.mission, mgr.wp_index,
-                                                          goto_m))
+        self.io["mission/active_trajectory"].publish(
+            self.handover.message(executing and goto_m is None, mgr.mission, mgr.wp_index, goto_m))
 
     def _on_reached(self, index: int, pos: np.ndarray) -> None:
-        self.pub_reached.publish(WaypointReached(header=self.node.header("map"), index=index,
-                                                 mission_id=self.mgr.mission.mission_id,
-                                                 position_m=Vector3.from_array(pos)))
+        self.io["mission/waypoint_reached"].publish(WaypointReached(
+            header=self.node.header("map"), index=index, mission_id=self.mgr.mission.mission_id,
+            position_m=Vector3.from_array(pos)))
 
     def _tick(self) -> None:
         now = time.monotonic()
         self.mgr.tick(now)
         st = self.mgr.status()
         st.header = self.node.header()
-        self.pub_status.publish(st)
+        self.io["mission/status"].publish(st)
         self._publish_uav_status()
         if self.last_goal is not None:  # latch for late joiners (planner restart)
-            self.pub_goal.publish(self.last_goal)
+            self.io["mission/active_goal"].publish(self.last_goal)
             self._publish_trajectory()
-        self._update_actions()
-
-    def _on_vehicle(self, m: VehicleState) -> None:
-        self.uav.heard_vehicle((self.node.now_ns() - m.header.stamp_ns) * 1e-9)
-        self.mgr.on_vehicle(m, time.monotonic())
+        forward(self.actions, self.mgr)
 
     def _ask_planner_params(self) -> None:
         """UAVMode's hover speed is the planner's live one (a planner not answering: the last heard)."""
@@ -278,13 +263,11 @@ class MissionService(Service):
     def _publish_uav_status(self) -> None:
         fresh = time.monotonic() - self.planner_status_rx_s < PLANNER_STATUS_FRESH_S
         m = self.mgr.mission
-        done = 0.0
-        if m is not None and self.mgr.state != State.IDLE:
-            done = 100.0 * min(1.0, max(0, self.mgr.wp_index) / len(m.waypoints))
         msg = self.uav.build(self.mgr.state, self.mgr.vehicle, self.safety, self.planner_status if fresh else None,
-                             bool(self.gcs_up), m.mission_id if m is not None else "", done)
+                             bool(self.gcs.up), m.mission_id if m is not None else "",
+                             mission_progress_pct(self.mgr.state, m, self.mgr.wp_index))
         msg.header = self.node.header()
-        self.pub_uav.publish(msg)
+        self.io["mission/uav_status"].publish(msg)
 
     # ------------------------------------------------------------ actions
 
@@ -304,13 +287,6 @@ class MissionService(Service):
         yaw = g.yaw_rad if g.yaw_rad is not None and math.isfinite(g.yaw_rad) else None
         ok, message = self.mgr.goto(g.position_m.to_array(), yaw, g.acceptance_radius_m, g.velocity_mps)
         return self._accepted(h, ActionRun("goto", g), ok, message)
-
-    def _on_planner_status(self, m: TrajectoryStatus) -> None:
-        self.planner_status, self.planner_status_rx_s = m, time.monotonic()
-        self.mgr.on_planner(m.obstacle_state, m.message, time.monotonic())
-        current = self.handover.current
-        if m.status == TrajectoryStatus.STATUS_ABORTED and current is not NONE and m.trajectory_id == current.trajectory_id:
-            self.mgr.on_trajectory_refused(m.message)
 
     def _trajectory_goal(self, h: GoalHandle) -> str | None:
         """Fly a given trajectory: checked here as the planner will make it (from where the vehicle
@@ -337,22 +313,6 @@ class MissionService(Service):
 
     def _cancel_to_hold(self, h: GoalHandle) -> bool:
         return self.mgr.state in MOVING
-
-    def _update_actions(self) -> None:
-        """Forward each running action's step (actions.py decides) to its goal handle."""
-        for act, h in list(self.actions):
-            step = None if not h.active else act.cancel(self.mgr) if h.cancel_requested else act.step(self.mgr)
-            if step is None:
-                if not h.active:
-                    self.actions.remove((act, h))
-            elif step.result is None:
-                h.feedback(step.feedback)
-            elif h.cancel_requested:
-                h.canceled(step.result)
-            elif step.succeeded:
-                h.succeed(step.result)
-            else:
-                h.abort(step.result)
 
     def health(self) -> Health:
         v = self.mgr.vehicle

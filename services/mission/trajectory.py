@@ -19,7 +19,7 @@ import math
 import numpy as np
 
 from aeroperception.schemas import (
-    Header, Pose, PoseStamped, Quaternion, SetTrajectoryGoal, Trajectory, TrajectoryLimits, Vector3,
+    Header, Pose, PoseStamped, Quaternion, SetTrajectoryGoal, Trajectory, TrajectoryLimits, TrajectoryStatus, Vector3,
 )
 from aeroperception.services.lib.trajectory import KinematicLimits, TrajectoryRefused
 from aeroperception.services.lib.trajectory.generators import path_for
@@ -47,6 +47,11 @@ class TrajectoryHandover:
     def give(self, msg: Trajectory, end_m: np.ndarray) -> None:
         """The SetTrajectory action's trajectory, flown while the mission's goto goes to `end_m`."""
         self.given = (msg, np.asarray(end_m, float).copy())
+
+    def refused(self, status) -> bool:
+        """Whether the planner's TrajectoryStatus says it refused (ABORTED) the trajectory handed over now."""
+        return (status.status == TrajectoryStatus.STATUS_ABORTED and self.current is not NONE
+                and status.trajectory_id == self.current.trajectory_id)
 
     def message(self, flying_waypoints: bool, mission, wp_index: int, goto_m: np.ndarray | None = None) -> Trajectory:
         """`flying_waypoints`: EXECUTING the mission's waypoints (not a goto, not holding);

@@ -129,3 +129,23 @@ class UavStatusBuilder:
             px4_connected=bool(vehicle and vehicle.connected), gcs_connected=gcs_connected,
             px4_latency_s=statistics.median(self.fc_ages_s) if self.fc_ages_s else None,
             current_mission_id=mission_id, mission_progress_percent=progress_percent)
+
+
+def mission_progress_pct(state: State, mission, wp_index: int) -> float:
+    """How far through its waypoints the mission is (0 with none loaded, or IDLE)."""
+    if mission is None or state == State.IDLE or not mission.waypoints:
+        return 0.0
+    return 100.0 * min(1.0, max(0, wp_index) / len(mission.waypoints))
+
+
+class GcsLinkWatch:
+    """gcs/link repeats at 1 Hz; only a change of a link once seen is an event (a stack flying
+    without any ground station is not "link lost")."""
+
+    def __init__(self) -> None:
+        self.up: bool | None = None      # None: never heard
+
+    def heard(self, connected: bool) -> bool | None:
+        """The new state when this is a change of a link once seen, else None."""
+        was, self.up = self.up, connected
+        return connected if was is not None and was != connected else None

@@ -340,6 +340,9 @@ class Node:
                         query.reply(k, encode(_failure(reply_cls, f"invalid request: {e}")),
                                     encoding=encoding_for(reply_cls))
                         return
+                if not locked:
+                    with self.lock:   # declared from the contract before start(), which holds the lock
+                        pass          # while it runs: an unlocked handler too waits until it is done
                 reply = self._invoke(k, handler, req, locked=locked)
                 if reply is None:
                     reply = _failure(reply_cls, "internal error handling the request (see service log)")

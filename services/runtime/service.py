@@ -93,9 +93,13 @@ class Service:
 
     def _reconfigure(self, _name: str, _value: Any) -> None:
         """A parameter changed: the whole config anew, one on_config (after start; during start()
-        the config is only rebuilt). A ParamError from on_config refuses the change."""
+        the config is only rebuilt). A ParamError from on_config, or a ValueError from a field's
+        conversion, refuses the change."""
         assert self.CONFIG is not None   # registered only when there is a config
-        cfg: Any = build(self.CONFIG, self.params)
+        try:
+            cfg: Any = build(self.CONFIG, self.params)
+        except ValueError as e:     # a field's conversion refused the value (a polygon that does not parse)
+            raise ParamError(str(e)) from None
         if cfg == self.cfg:
             return
         if self._configured:

@@ -20,7 +20,8 @@ OUTPUTS = Topics(
 )
 LIVELINESS = ("*",)     # the required services (required_services) must be alive
 SERVICES = Queries(
-    Query("safety/srv/emergency_stop", EmergencyStopRequest, EmergencyStopReply),
+    # locked=False: the handler waits for the FC's outcome (fmu/srv/emergency_stop) and locks itself
+    Query("safety/srv/emergency_stop", EmergencyStopRequest, EmergencyStopReply, locked=False),
 )
 CALLS = Queries(
     Query("fmu/srv/emergency_stop", EmergencyStopRequest, EmergencyStopReply, note="FC flight termination"),

@@ -7,12 +7,11 @@ from aeroperception.schemas import (
     BatteryState, DiagnosticStatus, EmergencyStopReply, EmergencyStopRequest, GcsLink, PerceptionHealth,
     SafetyStatus, VehicleState, VehicleStatus,
 )
-from aeroperception.services.lib.geofence import GeofenceError
 from aeroperception.services.lib.safety_names import ACTION_NAMES, LEVEL_NAMES
-from aeroperception.services.runtime import CallError, Health, ParamError, Service, run
+from aeroperception.services.runtime import CallError, Health, Service, run
 
 from . import contract
-from .monitor import Config, SafetyMonitor
+from .monitor import SafetyConfig, SafetyMonitor
 
 
 class SafetyService(Service):
@@ -20,46 +19,52 @@ class SafetyService(Service):
 
     NAME = contract.NAME
     PARAMS = contract.PARAMS
+    CONTRACT = contract
+    CONFIG = SafetyConfig     # a bad polygon fails at start, and is refused live
 
     def start(self) -> None:
-        node = self.node
-        self.monitor = SafetyMonitor(Config.from_params(self.params))  # a bad polygon fails at start
-        self.params.on_change(self._on_param)
-        self.pub = node.publisher("safety/status", SafetyStatus)
+        self.monitor = SafetyMonitor(self.cfg.monitor)
+        self.pub = self.io["safety/status"]
         self.last: SafetyStatus | None = None
         self.last_signature: tuple | None = None
         self.last_pub_s = 0.0
         self.counters = {"published": 0, "changes": 0, "estop_requests": 0, "estop_refused": 0}
-        now = time.monotonic
-        node.on_liveliness("*", lambda name, alive: self._input(self.monitor.on_liveliness, name, alive, now()))
-        node.subscribe("diagnostics/*", DiagnosticStatus, lambda m: self._input(self.monitor.on_diagnostics, m, now()))
-        node.subscribe("state/vehicle", VehicleState, lambda m: self.monitor.on_vehicle_state(m, now()))
-        node.subscribe("fmu/out/battery_status", BatteryState, lambda m: self._input(self.monitor.on_battery, m, now()))
-        node.subscribe("fmu/out/vehicle_status", VehicleStatus, lambda m: self.monitor.on_vehicle_status(m, now()))
-        node.subscribe("gcs/link", GcsLink, lambda m: self._input(self.monitor.on_gcs_link, m, now()))
-        node.subscribe("perception/health", PerceptionHealth,
-                       lambda m: self._input(self.monitor.on_perception, m, now()))
-        node.serve("safety/srv/emergency_stop", EmergencyStopRequest, EmergencyStopReply, self._srv_estop,
-                   locked=False)
+        self.node.on_liveliness("*", lambda name, alive: self._judge(self.monitor.on_liveliness, name, alive,
+                                                                     time.monotonic()))
         # state/vehicle (50 Hz) is only stored; the check loop judges it (a geofence crossing or a
         # stale link is seen within 1/check_rate_hz). Discrete events are judged at once.
-        self.loop = node.every(1.0 / self.params.check_rate_hz, self._check, name="check")
+        self.loop = self.node.every(1.0 / self.cfg.check_rate_hz, self._check, name="check")
 
-    def _input(self, handler, *args) -> None:
+    def on_config(self, cfg: SafetyConfig) -> None:
+        if cfg.check_rate_hz != self.cfg.check_rate_hz:
+            self.loop.set_rate(cfg.check_rate_hz)
+        if cfg.monitor != self.cfg.monitor:
+            self.monitor.cfg = cfg.monitor
+            self._check()
+
+    # ------------------------------------------------------------ inputs (contract.INPUTS)
+
+    def on_state_vehicle(self, m: VehicleState) -> None:
+        self.monitor.on_vehicle_state(m, time.monotonic())
+
+    def on_fmu_out_vehicle_status(self, m: VehicleStatus) -> None:
+        self.monitor.on_vehicle_status(m, time.monotonic())
+
+    def on_fmu_out_battery_status(self, m: BatteryState) -> None:
+        self._judge(self.monitor.on_battery, m, time.monotonic())
+
+    def on_gcs_link(self, m: GcsLink) -> None:
+        self._judge(self.monitor.on_gcs_link, m, time.monotonic())
+
+    def on_perception_health(self, m: PerceptionHealth) -> None:
+        self._judge(self.monitor.on_perception, m, time.monotonic())
+
+    def on_diagnostics(self, m: DiagnosticStatus) -> None:
+        self._judge(self.monitor.on_diagnostics, m, time.monotonic())
+
+    def _judge(self, handler, *args) -> None:
+        """A discrete event: taken, then judged at once."""
         handler(*args)
-        self._check()
-
-    def _on_param(self, name: str, value) -> None:
-        if name == "check_rate_hz":
-            self.loop.set_rate(value)
-            return
-        if name == "status_rate_hz":
-            return
-        try:
-            cfg = Config.from_params(self.params)
-        except GeofenceError as e:  # e.g. a polygon that does not parse: refused (the old value is kept)
-            raise ParamError(str(e)) from None
-        self.monitor.cfg = cfg
         self._check()
 
     def _check(self) -> None:
@@ -70,7 +75,7 @@ class SafetyService(Service):
         signature = (status.safety_level, status.recommended_action, self.monitor.verdict.rules,
                      tuple(status.dead_heartbeats), status.geofence_status, status.battery_status)
         changed = signature != self.last_signature
-        if changed or now - self.last_pub_s >= 1.0 / self.params.status_rate_hz:
+        if changed or now - self.last_pub_s >= 1.0 / self.cfg.status_rate_hz:
             if changed and self.last_signature is not None:
                 self.counters["changes"] += 1
                 self.log.info("safety_changed", safety_level=LEVEL_NAMES[status.safety_level],
@@ -82,7 +87,7 @@ class SafetyService(Service):
             self.last_pub_s = now
         self.last, self.last_signature = status, signature
 
-    def _srv_estop(self, req: EmergencyStopRequest) -> EmergencyStopReply:
+    def on_safety_emergency_stop(self, req: EmergencyStopRequest) -> EmergencyStopReply:
         """Operator's emergency stop: confirm + reason required; the FC's real outcome is the reply."""
         reason = req.reason.strip()
         with self.node.lock:
@@ -95,7 +100,7 @@ class SafetyService(Service):
             self.log.error("emergency_stop", reason=reason)
         try:
             reply = self.node.call("fmu/srv/emergency_stop", EmergencyStopRequest(confirm=True, reason=reason),
-                                   EmergencyStopReply, timeout_s=self.params.estop_timeout_s)
+                                   EmergencyStopReply, timeout_s=self.cfg.estop_timeout_s)
             executed, message = reply.success, reply.message
         except CallError as e:
             executed, message = False, str(e)

@@ -8,44 +8,45 @@ frame, the same one mission checks waypoints in).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 from aeroperception.schemas import (
     BatteryState, DiagnosticStatus, GcsLink, Header, LandedState, PerceptionHealth, SafetyStatus, VehicleState,
     VehicleStatus,
 )
 from aeroperception.services.lib.geofence import Geofence
+from aeroperception.services.runtime.config import param, section
 
 from .rules import Battery, Facts, GeofenceAction, Verdict, evaluate
 
 
-@dataclass
+@dataclass(frozen=True)
 class Config:
-    required_services: tuple[str, ...] = ("fmu", "planner", "mission")
-    battery_warn_fraction: float = 0.30
-    battery_critical_fraction: float = 0.15
-    battery_emergency_fraction: float = 0.07
-    geofence: Geofence = field(default_factory=Geofence)
-    geofence_warning_margin_m: float = 5.0
-    geofence_action: GeofenceAction = GeofenceAction.HOLD
-    state_timeout_s: float = 0.5
-    battery_timeout_s: float = 5.0
-    gcs_timeout_s: float = 3.5
-    perception_timeout_s: float = 3.0
-    diagnostics_timeout_s: float = 3.0
+    """What the monitor judges by: contract.PARAMS of the same names (runtime/config.py builds it;
+    defaults, units and ranges only there)."""
 
-    @classmethod
-    def from_params(cls, p) -> "Config":
-        return cls(required_services=parse_services(p["required_services"]),
-                   battery_warn_fraction=p["battery_warn_fraction"],
-                   battery_critical_fraction=p["battery_critical_fraction"],
-                   battery_emergency_fraction=p["battery_emergency_fraction"],
-                   geofence=Geofence.from_params(p),
-                   geofence_warning_margin_m=p["geofence_warning_margin_m"],
-                   geofence_action=GeofenceAction(p["geofence_action"]),
-                   state_timeout_s=p["state_timeout_s"], battery_timeout_s=p["battery_timeout_s"],
-                   gcs_timeout_s=p["gcs_timeout_s"], perception_timeout_s=p["perception_timeout_s"],
-                   diagnostics_timeout_s=p["diagnostics_timeout_s"])
+    required_services: tuple[str, ...] = param("required_services", lambda text: parse_services(text))
+    battery_warn_fraction: float = param("battery_warn_fraction")
+    battery_critical_fraction: float = param("battery_critical_fraction")
+    battery_emergency_fraction: float = param("battery_emergency_fraction")
+    geofence: Geofence = section(Geofence)
+    geofence_warning_margin_m: float = param("geofence_warning_margin_m")
+    geofence_action: GeofenceAction = param("geofence_action", GeofenceAction)
+    state_timeout_s: float = param("state_timeout_s")
+    battery_timeout_s: float = param("battery_timeout_s")
+    gcs_timeout_s: float = param("gcs_timeout_s")
+    perception_timeout_s: float = param("perception_timeout_s")
+    diagnostics_timeout_s: float = param("diagnostics_timeout_s")
+
+
+@dataclass(frozen=True)
+class SafetyConfig:
+    """The service's config: the monitor's, and the shell's timing (Service.CONFIG)."""
+
+    monitor: Config = section(Config)
+    estop_timeout_s: float = param("estop_timeout_s")
+    check_rate_hz: float = param("check_rate_hz")
+    status_rate_hz: float = param("status_rate_hz")
 
 
 def parse_services(text: str) -> tuple[str, ...]:
@@ -86,8 +87,8 @@ class _Service:
 class SafetyMonitor:
     """Latest inputs, judged at `now_s`; `status(now_s)` is the SafetyStatus to publish."""
 
-    def __init__(self, config: Config | None = None):
-        self.cfg = config or Config()
+    def __init__(self, config: Config):
+        self.cfg = config
         self.services: dict[str, _Service] = {}
         self.state: VehicleState | None = None
         self.state_rx_s: float | None = None

@@ -18,11 +18,11 @@ def hovering(speed_mps: float, z: float = 5.0) -> list[tuple[float, VehicleState
 
 def test_a_px4_hold_wandering_with_its_gnss_estimate_is_still_where_the_sims_would_be_moving():
     # PX4 SIH's OFFBOARD hold measured up to 0.52 m/s (truth); the sim holds within ~0.1 m
-    px4_ok, px4_why = judge_safety(hovering(0.5), [], Geofence(), "HOLDING", still_mps("px4"))
-    sim_ok, sim_why = judge_safety(hovering(0.5), [], Geofence(), "HOLDING", still_mps("sim"))
+    px4_ok, px4_why = judge_safety(hovering(0.5), [], Geofence.from_params(), "HOLDING", still_mps("px4"))
+    sim_ok, sim_why = judge_safety(hovering(0.5), [], Geofence.from_params(), "HOLDING", still_mps("sim"))
     assert px4_ok and px4_why.startswith("holding"), px4_why
     assert not sim_ok and "ends moving at 0.5 m/s" in sim_why
-    assert not judge_safety(hovering(1.5), [], Geofence(), "HOLDING", still_mps("px4"))[0]   # flying on
+    assert not judge_safety(hovering(1.5), [], Geofence.from_params(), "HOLDING", still_mps("px4"))[0]   # flying on
 
 
 def test_the_offboard_loss_failsafe_may_be_seen_one_heartbeat_later_on_px4():
@@ -50,7 +50,7 @@ def test_a_hold_where_the_fc_says_it_is_moves_nothing_even_with_its_estimate_wan
     mask = 0b0000_1100_0000_0000 | 0b0001_1100_0000   # position + velocity; no acceleration, yaw, yaw rate
     sp = mavlink.MAVLink_set_position_target_local_ned_message(0, 1, 1, mavlink.MAV_FRAME_LOCAL_NED, mask,
                                                                 -54.8, 18.6, 2.0, 0, 0, 0, 0, 0, 0, 0, 0)
-    fence = Geofence()
+    fence = Geofence.from_params()
     assert "outside the fence" in setpoint_problem(sp, fence, -2.0 + 0.5)
     assert setpoint_problem(sp, fence, -2.0 + 0.5, here_enu_m=[18.5, -54.6, -2.1]) is None
     assert "outside the fence" in setpoint_problem(sp, fence, -2.0 + 0.5, here_enu_m=[10.0, 0.0, 5.0])

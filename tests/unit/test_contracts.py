@@ -40,7 +40,6 @@ ACTION_VERBS = ("goal", "cancel", "result")
 # (service, key expression) the walker cannot resolve -> (why it is complete, contract table whose
 # every key it uses, or None when nothing is used through it).
 DYNAMIC = {
-    ("fmu", "k"): ("a loop over contract.OUTPUTS", "outputs"),
     ("ros2bridge", "key"): ("the OUTPUTS the `inputs` parameter names (bind_selection binds only those)", "outputs"),
 }
 # Node.subscribe_raw (full keys, any encoding) is outside the contracts' key space: the recorder's

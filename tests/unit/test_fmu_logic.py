@@ -518,8 +518,19 @@ from aeroperception.schemas import Header  # noqa: E402
 from aeroperception.services.fmu.link import RebootWatch, is_autopilot_heartbeat  # noqa: E402
 from aeroperception.services.fmu.offboard import (  # noqa: E402
     StreamWarmth,
-    BRAKE, FOLLOW, HOLD, JERK_REFUSED, PLANNER_SILENT, Envelope, OffboardArbiter,
+    BRAKE, FOLLOW, HOLD, JERK_REFUSED, PLANNER_SILENT, ArbiterConfig, Envelope, OffboardArbiter,
 )
+from aeroperception.services.fmu import contract as fmu_contract  # noqa: E402
+from aeroperception.services.runtime.config import build  # noqa: E402
+
+
+def arbiter(**cfg) -> OffboardArbiter:
+    """An arbiter with the contract's defaults but for `cfg` (ArbiterConfig's field names)."""
+    return OffboardArbiter(build(ArbiterConfig, fmu_contract.PARAMS, **cfg))
+
+
+def envelope() -> Envelope:
+    return build(Envelope, fmu_contract.PARAMS)
 
 STILL = np.zeros(3)
 
@@ -531,7 +542,7 @@ def planner_sp(stamp_ns: int, vx: float = 2.0) -> TrajectorySetpoint:
 
 def following(resume: int = 3) -> tuple[OffboardArbiter, float]:
     """An arbiter that has just started following (state epoch 1 s), and the time."""
-    a = OffboardArbiter(timeout_s=0.3, resume_count=resume)
+    a = arbiter(timeout_s=0.3, resume_count=resume)
     a.on_state(1_000_000_000, new_session=True)
     t = 0.0
     for i in range(resume):
@@ -556,7 +567,7 @@ def following(resume: int = 3) -> tuple[OffboardArbiter, float]:
     (TrajectorySetpoint(velocity_valid=True, jerk_valid=True, jerk_mps3=Vector3(x=1.0)), "jerk_valid"),
 ])
 def test_envelope_refuses_non_finite_and_out_of_envelope_setpoints(sp, why):
-    assert why in Envelope().problem(sp)
+    assert why in envelope().problem(sp)
 
 
 def test_a_setpoint_with_jerk_marked_valid_is_refused_counted_and_held_with_the_reason():
@@ -571,20 +582,20 @@ def test_a_setpoint_with_jerk_marked_valid_is_refused_counted_and_held_with_the_
 
 def test_envelope_checks_acceleration_feed_forward_only_when_valid():
     ok = TrajectorySetpoint(velocity_valid=True, acceleration_valid=True, acceleration_mps2=Vector3(x=3.0))
-    assert Envelope().problem(ok) == ""
-    assert Envelope().problem(TrajectorySetpoint(velocity_valid=True, acceleration_mps2=Vector3(x=math.nan))) == ""
+    assert envelope().problem(ok) == ""
+    assert envelope().problem(TrajectorySetpoint(velocity_valid=True, acceleration_mps2=Vector3(x=math.nan))) == ""
 
 
 def test_envelope_ignores_unused_fields_and_accepts_the_planners_setpoints():
     sp = TrajectorySetpoint(velocity_valid=True, yaw_valid=True, velocity_mps=Vector3(x=2.0),
                             position_m=Vector3(x=math.nan, y=1e9), yaw_rad=1.0)  # position unused
-    assert Envelope().problem(sp) == ""
-    assert Envelope().problem(TrajectorySetpoint(position_valid=True, velocity_valid=True,
+    assert envelope().problem(sp) == ""
+    assert envelope().problem(TrajectorySetpoint(position_valid=True, velocity_valid=True,
                                                  position_m=Vector3(x=900.0, z=400.0))) == ""
 
 
 def test_starts_holding_and_follows_only_after_n_fresh_setpoints():
-    a = OffboardArbiter(resume_count=5)
+    a = arbiter(resume_count=5)
     phase, sp = a.tick(0.0, STILL, STILL, 0.3)
     assert phase == HOLD and sp.position_valid and a.reason.startswith("waiting")
     a.on_state(1_000, new_session=True)
@@ -647,7 +658,7 @@ def test_brake_until_slow_then_hold_where_the_vehicle_stopped():
 
 
 def test_brake_gives_up_after_the_timeout_and_holds_anyway():
-    a = OffboardArbiter(brake_timeout_s=1.0)
+    a = arbiter(brake_timeout_s=1.0)
     assert a.tick(0.0, STILL, np.array([5.0, 0, 0]), 0.0)[0] == BRAKE
     assert a.tick(0.9, STILL, np.array([5.0, 0, 0]), 0.0)[0] == BRAKE
     assert a.tick(1.01, np.ones(3), np.array([5.0, 0, 0]), 0.0)[0] == HOLD
@@ -655,7 +666,7 @@ def test_brake_gives_up_after_the_timeout_and_holds_anyway():
 
 def test_setpoints_older_than_this_sessions_first_state_are_stale_never_forwarded():
     """A restarted fmu (or a planner resumed from SIGSTOP) never replays motion planned before."""
-    a = OffboardArbiter(resume_count=2)
+    a = arbiter(resume_count=2)
     a.on_state(10_000_000_000, new_session=True)       # fmu's first state after (re)start
     for i in range(20):
         assert a.on_setpoint(planner_sp(9_000_000_000 + i), 0.02 * i) is None

@@ -10,6 +10,7 @@ from pymavlink.dialects.v20 import common as M
 
 from aeroperception.services.gcs.commands import CommandHandler, mode_from_set_mode
 from aeroperception.services.gcs.ops import Outcome
+from aeroperception.services.mavlink import px4
 
 
 def handler():
@@ -118,3 +119,17 @@ def test_command_table():
     h.handle(cmd_long(M.MAV_CMD_DO_FLIGHTTERMINATION, 1), 0.0)
     assert sent[-1].result == M.MAV_RESULT_UNSUPPORTED
     assert mode_from_set_mode(base, 6, 0) == "OFFBOARD"
+
+
+def test_set_mode_message_is_acked_with_the_stacks_answer_and_an_unknown_mode_denied_at_once():
+    h, sent, ops = handler()
+    hold = from_gcs(M.MAVLink_set_mode_message(1, M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, px4.encode("HOLD")))
+    h.on_set_mode(hold, 0.0)
+    assert ops.calls == [("set_mode", "HOLD")] and sent == []
+    ops.dones[0](Outcome(False, "refused"))
+    assert [(m.command, m.result) for m in sent] == [(M.MAVLINK_MSG_ID_SET_MODE, M.MAV_RESULT_DENIED)]
+    h.on_set_mode(hold, 0.1)
+    ops.dones[1](Outcome(True, "ok"))
+    assert sent[-1].result == M.MAV_RESULT_ACCEPTED and sent[-1].target_system == 255
+    h.on_set_mode(from_gcs(M.MAVLink_set_mode_message(1, M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 99 << 16)), 0.2)
+    assert len(ops.calls) == 2 and sent[-1].result == M.MAV_RESULT_DENIED

@@ -11,7 +11,7 @@ from pymavlink.dialects.v20 import common as M
 
 from aeroperception.schemas import HomePosition, Vector3, VehicleState
 from aeroperception.services.gcs.commands import CommandHandler
-from aeroperception.services.gcs.home import Home, HomeTracker, home_from_msg, origin_shift_m
+from aeroperception.services.gcs.home import Home, HomeTracker, home_from_msg, mission_needs_upload_again, origin_shift_m
 from aeroperception.services.gcs.mission_items import Item, convert_items, mission_to_items
 from aeroperception.services.gcs.telemetry import TelemetryState
 from aeroperception.services.lib.geo import MapProjection
@@ -147,3 +147,13 @@ def test_home_change_waits_for_an_asynchronous_load():
     assert p.loading and not t.offer(fc_home()) and t.home == HOME
     loader.pending(True, "ok", 0)
     assert t.poll() and t.home == fc_home()
+
+
+def test_a_mission_needs_uploading_again_only_when_home_moved_more_than_half_a_metre():
+    home = Home(*ZURICH)
+    north_0_3m = MapProjection(*ZURICH[:2]).reproject(north_m=0.3, east_m=0.0)
+    north_2m = MapProjection(*ZURICH[:2]).reproject(north_m=2.0, east_m=0.0)
+    assert not mission_needs_upload_again(home, Home(*north_0_3m, ZURICH[2]))
+    assert mission_needs_upload_again(home, Home(*north_2m, ZURICH[2]))
+    assert mission_needs_upload_again(home, Home(ZURICH[0], ZURICH[1], ZURICH[2] + 1.0))     # origin 1 m higher
+    assert not mission_needs_upload_again(home, Home(ZURICH[0], ZURICH[1], ZURICH[2] + 1.0, (0.0, 0.0, 1.0)))

@@ -7,14 +7,14 @@ from aeroperception.services.lib.geofence import GEOFENCE_PARAMS, Geofence, Geof
 
 
 def test_cylinder_and_ceiling_distances():
-    g = Geofence(radius_m=100.0, max_altitude_m=50.0)
+    g = Geofence.from_params(radius_m=100.0, max_altitude_m=50.0)
     assert g.distance_to_boundary_m(0, 0, 10) == pytest.approx(40.0)       # ceiling is nearer
     assert g.distance_to_boundary_m(60, 80, 10) == pytest.approx(0.0)      # on the wall (r = 100)
     assert g.distance_to_boundary_m(90, 0, 55) == pytest.approx(-5.0)      # above the ceiling
 
 
 def test_polygon_inside_positive_outside_negative():
-    g = Geofence(polygon=parse_polygon("0,0;10,0;10,10;0,10"))
+    g = Geofence.from_params(polygon=parse_polygon("0,0;10,0;10,10;0,10"))
     assert g.distance_to_boundary_m(5, 5, 3) == pytest.approx(5.0)
     assert g.distance_to_boundary_m(2, 5, 3) == pytest.approx(2.0)
     assert g.distance_to_boundary_m(13, 5, 3) == pytest.approx(-3.0)
@@ -28,7 +28,7 @@ def test_polygon_inside_positive_outside_negative():
     ((math.nan, 0, 5), "not finite"),
 ])
 def test_unsafe_waypoints_refused_with_reason(wp, why):
-    assert why in Geofence().check_waypoint(*wp)
+    assert why in Geofence.from_params().check_waypoint(*wp)
 
 
 def test_reasonable_waypoint_accepted_and_params_build_the_fence():

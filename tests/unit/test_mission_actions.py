@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 
 from aeroperception.schemas import (
-    GoToPositionFeedback, LandedState, LandFeedback, LandGoal, SafetyStatus, TakeoffFeedback, TakeoffGoal,
+    GoToPositionFeedback, LandedState, LandFeedback, LandGoal, SafetyStatus, TakeoffFeedback,
+    TakeoffGoal,
 )
-from aeroperception.services.mission.actions import ActionRun
+from aeroperception.services.mission.actions import ActionRun, forward
 from aeroperception.services.mission.fsm import State
 from mission_rig import FakeBridge, Rig, flying, vehicle
 
@@ -87,3 +88,59 @@ def test_a_cancel_holds_a_moving_vehicle_and_ends_as_cancelled():
     step = ActionRun("goto", None).cancel(rig.mgr)
     assert rig.mgr.state == State.HOLDING
     assert not step.result.success and step.result.message == "cancelled; now HOLDING"
+
+
+class Handle:
+    """What forward() drives: a GoalHandle's surface, recording what it was told."""
+
+    def __init__(self, cancel_requested=False):
+        self.active, self.cancel_requested, self.told = True, cancel_requested, []
+
+    def feedback(self, fb):
+        self.told.append(("feedback", fb))
+
+    def _end(self, how, result):
+        self.told.append((how, result))
+        self.active = False
+
+    def succeed(self, r):
+        self._end("succeeded", r)
+
+    def abort(self, r):
+        self._end("aborted", r)
+
+    def canceled(self, r):
+        self._end("canceled", r)
+
+
+def test_forward_hands_feedback_then_the_end_to_the_goal_handle_and_drops_it_next_tick():
+    rig = Rig()
+    rig.to_executing()
+    assert rig.mgr.land(None)[0]
+    h = Handle()
+    actions = [(ActionRun("land", LandGoal()), h)]
+    rig.feed(flying(z=3.0))
+    forward(actions, rig.mgr)
+    assert [how for how, _ in h.told] == ["feedback"] and isinstance(h.told[0][1], LandFeedback)
+    rig.feed(vehicle(armed=False))
+    forward(actions, rig.mgr)
+    assert h.told[-1][0] == "succeeded" and h.told[-1][1].message == "landed" and actions
+    forward(actions, rig.mgr)                           # ended: no longer stepped
+    assert actions == []
+
+
+def test_forward_ends_a_cancelled_goal_as_canceled_and_a_failed_one_as_aborted():
+    rig = Rig()
+    rig.to_holding()
+    assert rig.mgr.goto(np.array([6.0, 0.0, 5.0]), None)[0]
+    cancelled = Handle(cancel_requested=True)
+    forward([(ActionRun("goto", None), cancelled)], rig.mgr)      # a cancel asks HOLD
+    assert rig.mgr.state == State.HOLDING and cancelled.told[-1][0] == "canceled"
+    assert cancelled.told[-1][1].message == "cancelled; now HOLDING"
+    rig = Rig()
+    rig.to_holding()
+    assert rig.mgr.goto(np.array([6.0, 0.0, 5.0]), None)[0]
+    rig.mgr.on_safety(SafetyStatus.ACTION_HOLD, "geofence")
+    failed = Handle()
+    forward([(ActionRun("goto", None), failed)], rig.mgr)
+    assert failed.told[-1][0] == "aborted" and "safety: HOLD (geofence)" in failed.told[-1][1].message

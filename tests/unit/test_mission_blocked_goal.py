@@ -8,7 +8,7 @@ from mission_rig import SURVEY_WPS, Rig, assert_goal, assert_hold, flying
 
 
 def blocked_rig(action: str) -> Rig:
-    rig = Rig(Config(blocked_timeout_s=5.0, blocked_action=action))
+    rig = Rig(Config.from_params(blocked_timeout_s=5.0, blocked_action=action))
     rig.to_executing()
     rig.feed(flying(*SURVEY_WPS[0]))                  # flying to waypoint index 1 (10, 0, 5)
     return rig

@@ -84,7 +84,7 @@ def test_mission_can_be_flown_again_after_it_completed():
 
 
 def test_completed_mission_holds_when_land_on_complete_is_off_and_start_restarts_it():
-    rig = Rig(Config(land_on_complete=False))
+    rig = Rig(Config.from_params(land_on_complete=False))
     rig.to_executing()
     for wp in SURVEY_WPS:
         rig.feed(flying(*wp))
@@ -165,7 +165,7 @@ def test_takeoff_climb_rate_and_goto_speed_reach_the_planner_as_caps():
 
 
 def test_land_at_a_target_flies_there_descends_at_the_rate_then_the_fc_lands():
-    rig = Rig(Config(land_handoff_altitude_m=1.0))
+    rig = Rig(Config.from_params(land_handoff_altitude_m=1.0))
     rig.to_holding()                                  # at (0, 0, 5)
     ok, msg = rig.mgr.land(np.array([6.0, 2.0, 0.0]), descent_rate_mps=0.5)
     assert ok and msg == "operator LAND at (6.0, 2.0), descending at 0.5 m/s", msg

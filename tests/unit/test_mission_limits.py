@@ -9,7 +9,10 @@ import pytest
 
 from aeroperception.schemas import Mission
 from aeroperception.services.mission.fsm import State
-from aeroperception.services.mission.limits import Limits
+from aeroperception.services.mission import contract
+from aeroperception.services.mission.config import MissionConfig
+from aeroperception.services.mission.limits import Limits, obstacle_warning
+from aeroperception.services.runtime.config import check_covers
 from aeroperception.services.lib.geofence import Geofence
 from mission_rig import Rig, survey, vehicle
 
@@ -39,7 +42,7 @@ def test_unsafe_missions_are_refused_naming_the_reason(changes, words):
 
 
 def test_takeoff_altitude_above_the_limits_is_refused():
-    rig = Rig(limits=Limits(max_takeoff_altitude_m=30.0))
+    rig = Rig(limits=Limits.from_params(max_takeoff_altitude_m=30.0))
     rig.to_idle()
     ok, msg = rig.mgr.takeoff(1e12, rig.outcome())
     assert not ok and "takeoff" in msg and rig.bridge.calls == []
@@ -49,7 +52,7 @@ def test_takeoff_altitude_above_the_limits_is_refused():
 
 
 def test_goto_outside_the_geofence_or_with_a_silly_radius_is_refused():
-    rig = Rig(limits=Limits(geofence=Geofence(radius_m=100.0)))
+    rig = Rig(limits=Limits.from_params(geofence=Geofence.from_params(radius_m=100.0)))
     rig.to_holding()
     rig.clear()
     ok, msg = rig.mgr.goto(np.array([500.0, 0.0, 5.0]), None)
@@ -69,3 +72,10 @@ def test_limits_take_the_geofence_from_the_shared_parameters():
     assert limits.geofence.radius_m == 50.0
     assert "waypoint 1" in limits.check_mission(mission_with(waypoints=[{"x": 0, "y": 0, "z": 5},
                                                                          {"x": 60, "y": 0, "z": 5}]))
+
+
+def test_the_service_config_references_every_parameter_and_the_load_warning_names_the_waypoints():
+    check_covers(MissionConfig, contract.PARAMS, "mission")
+    assert obstacle_warning([]) == ""
+    assert obstacle_warning(["waypoint 2 (1, 2, 3)"]) == \
+        "; warning: the costmap shows waypoint 2 (1, 2, 3) inside an obstacle: unreachable"

@@ -10,7 +10,7 @@ from mission_rig import SURVEY_WPS, Rig, assert_hold, fc, flying, survey, vehicl
 
 
 def test_stale_vehicle_state_holds_and_waits_for_start_after_it_is_back():
-    rig = Rig(Config(vehicle_timeout_s=0.5))
+    rig = Rig(Config.from_params(vehicle_timeout_s=0.5))
     rig.to_executing()
     rig.feed(flying(*SURVEY_WPS[0]))
     rig.clear()
@@ -31,7 +31,7 @@ def test_stale_vehicle_state_holds_and_waits_for_start_after_it_is_back():
 
 
 def test_resume_after_outage_policy_resumes_by_itself():
-    rig = Rig(Config(resume_after_outage=True))
+    rig = Rig(Config.from_params(resume_after_outage=True))
     rig.to_executing()
     rig.silence(1.0)
     assert rig.mgr.state == State.HOLDING
@@ -42,7 +42,7 @@ def test_resume_after_outage_policy_resumes_by_itself():
 
 
 def test_resume_after_outage_does_not_resume_an_operator_hold():
-    rig = Rig(Config(resume_after_outage=True))
+    rig = Rig(Config.from_params(resume_after_outage=True))
     rig.to_executing()
     rig.mgr.command("HOLD")
     rig.silence(1.0)
@@ -72,7 +72,7 @@ def test_planner_liveliness_gone_holds_until_commanded_or_policy():
     assert rig.mgr.outage                              # still gone: the outage goes on
     rig.mgr.on_planner_alive(True, rig.t)
     assert not rig.mgr.outage and rig.mgr.state == State.HOLDING   # back, but holds until START
-    rig2 = Rig(Config(resume_after_outage=True))
+    rig2 = Rig(Config.from_params(resume_after_outage=True))
     rig2.to_executing()
     rig2.mgr.on_planner_alive(False, rig2.t)
     rig2.feed(flying())
@@ -117,7 +117,7 @@ def test_perception_recovery_does_not_resume_during_an_outage():
 
 
 def test_resume_after_outage_never_takes_the_vehicle_out_of_a_failsafe_rtl():
-    rig = Rig(Config(resume_after_outage=True))
+    rig = Rig(Config.from_params(resume_after_outage=True))
     rig.to_executing()
     rig.silence(1.0)
     rig.feed(fc(mode="RTL"))                          # the FC's offboard-loss failsafe is flying home
@@ -125,7 +125,7 @@ def test_resume_after_outage_never_takes_the_vehicle_out_of_a_failsafe_rtl():
 
 
 def test_a_stalled_mission_process_is_not_an_fmu_outage():
-    rig = Rig(Config(vehicle_timeout_s=0.5))
+    rig = Rig(Config.from_params(vehicle_timeout_s=0.5))
     rig.to_executing()
     rig.tick(0.1)
     rig.tick(2.0, fresh_state=False)                  # our own tick was 2 s late: we stalled, not fmu
@@ -140,7 +140,7 @@ def test_a_stall_whose_backlog_arrives_a_few_ticks_late_never_holds():
     """A loaded host: the mission stopped 0.7 s, then both its timers ran before the subscriber
     thread delivered the queued states (0.3 s later): no hold, so the planner never brakes to a
     stop mid-path (the figure-8 at 3 m/s stopped dead from 2.8-3.0 m/s this way)."""
-    rig = Rig(Config(vehicle_timeout_s=0.5))
+    rig = Rig(Config.from_params(vehicle_timeout_s=0.5))
     rig.to_executing()
     rig.tick(0.1)
     before = len(rig.mgr.transitions)
@@ -161,7 +161,7 @@ def stamped(st: VehicleState, t_s: float) -> VehicleState:
 def test_state_late_but_not_missing_resumes_by_itself():
     """fmu stamped every sample on time; they reached us 0.6 s late in a burst (a stall between):
     the hold ends by itself once the next stamp in sequence arrives."""
-    rig = Rig(Config(vehicle_timeout_s=0.5))
+    rig = Rig(Config.from_params(vehicle_timeout_s=0.5))
     rig.to_executing()
     rig.feed(stamped(flying(*SURVEY_WPS[0]), 100.00))
     rig.tick(0.3, fresh_state=False)
@@ -174,7 +174,7 @@ def test_state_late_but_not_missing_resumes_by_itself():
 
 
 def test_state_with_a_gap_in_its_stamps_is_an_outage_and_holds():
-    rig = Rig(Config(vehicle_timeout_s=0.5))
+    rig = Rig(Config.from_params(vehicle_timeout_s=0.5))
     rig.to_executing()
     rig.feed(stamped(flying(*SURVEY_WPS[0]), 100.00))
     rig.silence(1.0)
@@ -183,14 +183,14 @@ def test_state_with_a_gap_in_its_stamps_is_an_outage_and_holds():
 
 
 def test_late_state_never_resumes_out_of_an_operator_hold_or_a_failsafe():
-    rig = Rig(Config(vehicle_timeout_s=0.5))
+    rig = Rig(Config.from_params(vehicle_timeout_s=0.5))
     rig.to_executing()
     rig.mgr.command("HOLD")
     rig.feed(stamped(flying(), 100.00))
     rig.silence(1.0)
     rig.feed(stamped(flying(), 100.02))
     assert rig.mgr.state == State.HOLDING
-    rig = Rig(Config(vehicle_timeout_s=0.5))
+    rig = Rig(Config.from_params(vehicle_timeout_s=0.5))
     rig.to_executing()
     rig.feed(stamped(fc(), 100.00))
     rig.silence(1.0)

@@ -75,7 +75,7 @@ def test_unhealthy_perception_is_ignored_when_not_required():
 
 
 def test_config_require_perception_applies_when_the_mission_does_not_say():
-    rig = Rig(Config(require_perception=True))
+    rig = Rig(Config.from_params(require_perception=True))
     rig.to_executing(survey())
     rig.tick(healthy=False)
     assert rig.mgr.state == State.HOLDING

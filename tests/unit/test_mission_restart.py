@@ -69,7 +69,7 @@ def test_restart_without_a_snapshot_over_a_flying_vehicle_still_holds_and_lands(
 
 
 def test_restart_commands_wait_for_vehicle_state_for_a_bounded_time():
-    rig = restarted(snapshot_mid_survey(), Config(restore_timeout_s=5.0))
+    rig = restarted(snapshot_mid_survey(), Config.from_params(restore_timeout_s=5.0))
     ok, msg = rig.mgr.command("LAND")
     assert not ok and "restarting" in msg
     rig.tick(6.0)                                     # no vehicle state within restore_timeout_s

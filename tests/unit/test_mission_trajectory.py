@@ -9,7 +9,7 @@ import pytest
 
 from aeroperception.schemas import (
     Header, MissionTrajectory, PoseStamped, SchemaError, SetTrajectoryGoal, Trajectory, TrajectoryLimits, Waypoint,
-    load_mission_file, parse_mission,
+    TrajectoryStatus, load_mission_file, parse_mission,
 )
 from aeroperception.services.mission.trajectory import NONE, TrajectoryHandover, check_given, waypoint_pose
 
@@ -85,3 +85,13 @@ def test_a_given_trajectory_is_checked_from_where_the_vehicle_is_and_handed_over
     assert h.message(False, SURVEY, 0, goto_m=end) == line()          # the goto to its end: handed over
     assert h.message(True, SURVEY, 0).trajectory_id == "survey_01@0"  # the goto ended: back to the mission's
     assert h.given is None
+
+
+def test_only_an_abort_of_the_trajectory_handed_over_now_is_a_refusal():
+    h = TrajectoryHandover()
+    aborted = lambda tid: TrajectoryStatus(status=TrajectoryStatus.STATUS_ABORTED, trajectory_id=tid)  # noqa: E731
+    assert not h.refused(aborted(""))                        # nothing handed over
+    msg = h.message(True, SURVEY, 1)
+    assert h.refused(aborted(msg.trajectory_id))
+    assert not h.refused(aborted("other@0"))
+    assert not h.refused(TrajectoryStatus(status=TrajectoryStatus.STATUS_EXECUTING, trajectory_id=msg.trajectory_id))

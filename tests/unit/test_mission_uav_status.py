@@ -2,10 +2,11 @@
 from __future__ import annotations
 
 import pytest
+from types import SimpleNamespace
 
 from aeroperception.schemas import LandedState, SafetyStatus, TrajectoryStatus, UAVMode, Vector3, VehicleState
 from aeroperception.services.mission.fsm import State
-from aeroperception.services.mission.uav_status import UavStatusBuilder, uav_mode
+from aeroperception.services.mission.uav_status import GcsLinkWatch, UavStatusBuilder, mission_progress_pct, uav_mode
 
 
 def vehicle(speed=0.0, armed=True, landed=LandedState.IN_AIR, mode="OFFBOARD") -> VehicleState:
@@ -84,3 +85,17 @@ def test_hovering_is_judged_by_the_planners_live_hover_speed_and_the_fc_latency_
     for age in (0.004, 0.006, 0.5, 0.005, -0.001):                   # a late one does not make the figure
         b.heard_vehicle(age)
     assert b.build(State.IDLE, slow, None, None, False, "", 0.0).px4_latency_s == pytest.approx(0.005)
+
+
+def test_progress_counts_waypoints_passed_and_is_zero_idle_or_without_a_mission():
+    m = SimpleNamespace(waypoints=[1, 2, 3, 4])
+    assert mission_progress_pct(State.EXECUTING, m, 1) == 25.0
+    assert mission_progress_pct(State.EXECUTING, m, -1) == 0.0 and mission_progress_pct(State.LAND, m, 9) == 100.0
+    assert mission_progress_pct(State.IDLE, m, 2) == 0.0 and mission_progress_pct(State.EXECUTING, None, 2) == 0.0
+
+
+def test_only_a_change_of_a_ground_link_once_seen_is_an_event():
+    w = GcsLinkWatch()
+    assert w.up is None and w.heard(False) is None         # never up: flying without a ground station
+    assert w.heard(True) is True and w.heard(True) is None  # repeats at 1 Hz: no event
+    assert w.heard(False) is False and w.up is False

@@ -258,3 +258,28 @@ def test_on_config_refusing_keeps_the_old_value_and_config():
     with pytest.raises(ParamError, match="only up to 3"):
         svc.params.apply("mode", "b")
     assert svc.params.mode == "a" and svc.cfg.mode == "a"
+
+
+def _positive_name(text: str) -> str:
+    if not text.strip():
+        raise ValueError("name: must not be empty")
+    return text.strip()
+
+
+@dataclass(frozen=True)
+class Named:
+    name: str = param("name", _positive_name)
+
+
+class NamedService(Service):
+    NAME, PARAMS, CONFIG = "demo", [Param("name", "x")], Named
+
+
+def test_a_value_a_field_conversion_refuses_is_refused_as_a_parameter_error():
+    node = types.SimpleNamespace(params=ParamSet.from_declarations(NamedService.PARAMS), log=None)
+    svc = NamedService(node, None)
+    svc.wire()
+    svc._configured = True
+    with pytest.raises(ParamError, match="must not be empty"):
+        svc.params.apply("name", "  ")
+    assert svc.params.name == "x" and svc.cfg == Named("x")

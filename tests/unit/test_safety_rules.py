@@ -9,9 +9,10 @@ from aeroperception.schemas import (
     VehicleStatus,
 )
 from aeroperception.services.runtime import ParamSet
+from aeroperception.services.runtime.config import build, check_covers
 from aeroperception.services.safety import contract
-from aeroperception.services.lib.geofence import Geofence
-from aeroperception.services.safety.monitor import Config, SafetyMonitor, classify_battery, parse_services
+from aeroperception.services.lib.geofence import Geofence, GeofenceError
+from aeroperception.services.safety.monitor import Config, SafetyConfig, SafetyMonitor, classify_battery, parse_services
 from aeroperception.services.safety.rules import (
     RULE_NAMES, RULES, Battery, Facts, GeofenceAction, evaluate,
 )
@@ -120,7 +121,7 @@ def refresh_diagnostics(m: SafetyMonitor, now: float) -> None:
 
 
 def healthy_monitor(now=0.0, **cfg) -> SafetyMonitor:
-    m = SafetyMonitor(Config(**cfg))
+    m = SafetyMonitor(build(Config, contract.PARAMS, **cfg))
     for name in m.cfg.required_services:
         m.on_liveliness(name, True, now)
         m.on_diagnostics(DiagnosticStatus(name=name, level=DiagnosticStatus.OK), now)
@@ -188,11 +189,11 @@ def test_fc_link_lost_when_state_is_stale_or_not_connected():
     (0.31, Battery.OK), (0.29, Battery.LOW), (0.14, Battery.CRITICAL), (0.06, Battery.EMERGENCY),
     (None, Battery.UNKNOWN), (float("nan"), Battery.UNKNOWN)])
 def test_battery_thresholds(remaining, expected):
-    assert classify_battery(remaining, BatteryState.WARNING_NONE, Config()) == expected
+    assert classify_battery(remaining, BatteryState.WARNING_NONE, build(Config, contract.PARAMS)) == expected
 
 
 def test_battery_class_is_the_worse_of_ours_and_the_flight_controllers_warning():
-    cfg = Config()
+    cfg = build(Config, contract.PARAMS)
     assert classify_battery(0.9, BatteryState.WARNING_CRITICAL, cfg) == Battery.CRITICAL
     assert classify_battery(0.05, BatteryState.WARNING_LOW, cfg) == Battery.EMERGENCY
     assert classify_battery(None, BatteryState.WARNING_EMERGENCY, cfg) == Battery.EMERGENCY
@@ -211,7 +212,7 @@ def test_battery_from_battery_status_then_state_vehicle_when_it_goes_stale():
 
 
 def test_geofence_distance_and_status_follow_the_position():
-    m = healthy_monitor(geofence=Geofence(radius_m=20.0, max_altitude_m=30.0), geofence_warning_margin_m=5.0)
+    m = healthy_monitor(geofence=Geofence.from_params(radius_m=20.0, max_altitude_m=30.0), geofence_warning_margin_m=5.0)
     for xyz, status, dist in (((0, 0, 5), S.GEOFENCE_OK, 20.0), ((17, 0, 5), S.GEOFENCE_WARNING, 3.0),
                               ((0, 22, 5), S.GEOFENCE_VIOLATION, -2.0), ((0, 0, 31), S.GEOFENCE_VIOLATION, -1.0)):
         m.on_vehicle_state(state(xyz=xyz, battery=0.9), 0.1)
@@ -265,9 +266,17 @@ def test_emergency_stop_latches_until_the_vehicle_is_armed_again():
 def test_required_services_parsing_and_params_build_a_config():
     assert parse_services(" fmu, planner,,mission ,fmu") == ("fmu", "planner", "mission")
     ps = ParamSet.from_declarations(contract.PARAMS)
-    cfg = Config.from_params(ps)
+    cfg = build(Config, ps)
     assert cfg.required_services == ("fmu", "planner", "mission")
     assert (cfg.battery_warn_fraction, cfg.battery_critical_fraction, cfg.battery_emergency_fraction) == (0.30, 0.15, 0.07)
     assert cfg.geofence_action == GeofenceAction.HOLD and cfg.geofence.radius_m == 500.0
     with pytest.raises(Exception, match="not one of"):
         ps.set("geofence_action", 4)   # terminate is not offered
+
+
+def test_the_service_config_references_every_parameter_and_a_bad_polygon_is_refused():
+    check_covers(SafetyConfig, contract.PARAMS, "safety")
+    ps = ParamSet.from_declarations(contract.PARAMS)
+    ps.set("geofence_polygon", "0,0;10,0")
+    with pytest.raises(GeofenceError, match="at least 3"):
+        build(SafetyConfig, ps)

@@ -43,7 +43,7 @@ def same_config_without_targets(tmp_path: Path) -> Path:
 def test_a_wrong_call_into_the_library_is_found(tmp_path):
     wrong = ("from aeroperception.services.lib.geofence import Geofence\n"
              "def f():\n"                                 # unannotated: its body is checked all the same
-             "    Geofence().check_waypoint(1.0, 2.0)\n")
+             "    Geofence.from_params().check_waypoint(1.0, 2.0)\n")
     r = mypy(tmp_path, "--config-file", str(same_config_without_targets(tmp_path)), "-c", wrong)
     assert r.returncode == 1, r.stdout + r.stderr
     assert 'Missing positional argument "z"' in r.stdout, r.stdout

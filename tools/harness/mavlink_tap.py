@@ -84,7 +84,7 @@ class MavlinkTap:
         self.to_fmu = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.to_fmu.bind(("127.0.0.1", 0))
         self.fmu = ("127.0.0.1", fmu_port)
-        self.fence = fence or Geofence()
+        self.fence = fence or Geofence.from_params()
         self.floor_m = -1.0          # a setpoint below this (ENU up, the FC's local frame) is unsafe
         self.sim_addr: tuple[str, int] | None = None
         self.cut = threading.Event()          # both ways (FC link loss)

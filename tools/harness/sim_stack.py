@@ -27,7 +27,7 @@ class FlightStack(Stack):
 
     def __init__(self, log_dir: str | Path | None, services: list[str], profile: str, extra_args=(),
                  startup_timeout_s: float = 45.0):
-        self.fence = Geofence()
+        self.fence = Geofence.from_params()
         self.tap: MavlinkTap | None = None
         super().__init__(log_dir or tempfile.mkdtemp(prefix=f"aero-{profile}-"), services, extra_args, profile,
                          startup_timeout_s)
