@@ -4,7 +4,7 @@
 README command 1's promise; the install it needs is tests/unit/test_profile_installs.py's) every
 service alive with its diagnostics OK,
 the VIO TRACKING from what the forward camera sees on the ground, perception HEALTHY and safety
-NOMINAL. With a subset of the sensors, the services that would only wait for a sensor that is not
+NOMINAL. With a subset of the sensors (`--sensors camera` is extended), the services that would only wait for a sensor that is not
 rendered are not started (aero up says so), and perception reports those sources NOT_CONFIGURED:
 never DEGRADED or UNKNOWN for a sensor that is simply not there.
 
@@ -65,7 +65,10 @@ def _not_ok(diags: dict, names: list[str]) -> dict[str, str]:
     return out
 
 
-@pytest.mark.parametrize("sensors", ["all", "camera", "lidar", "none"])
+# "camera" is extended (~13 s): its cameras and VIO come up healthy in "all", a source the stack does not run
+# reported NOT_CONFIGURED beside healthy ones is "lidar" here and, for the LiDAR itself,
+# tests/unit/test_perception_coordinator.py::test_a_source_the_stack_does_not_run_is_not_configured_not_broken
+@pytest.mark.parametrize("sensors", ["all", pytest.param("camera", marks=pytest.mark.extended), "lidar", "none"])
 def test_the_stack_comes_up_all_ok(stack, tmp_path, sensors):
     names, left_out = fed_services(profile_services("sim"), sensors)
     assert set(ABSENT[sensors]) | ({"perception"} if sensors == "none" else set()) <= set(left_out), left_out

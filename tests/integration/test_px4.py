@@ -6,8 +6,9 @@ What happened is judged by PX4: its position estimate (state/vehicle, what fmu r
 LOCAL_POSITION_NED) and SIH's ground truth (HIL_STATE_QUATERNION on its display link, UDP
 19410+N), never by the mission's own account.
 
-- survey_01 by `aero mission fly`: every waypoint reached (reports and PX4's track), landed and
-  disarmed, landing error vs the take-off point.
+- extended: survey_01 by `aero mission fly`: every waypoint reached (reports and PX4's track), landed
+  and disarmed, landing error vs the take-off point (by default the hops of test_px4_gps_denied.py
+  and test_px4_sensors.py fly PX4 to a waypoint and a landing, judged by SIH truth).
 - a pilot switches PX4 to HOLD mid-mission (`px4-commander mode auto:loiter`): mission HOLDING
   with the reason, the vehicle stays put; START resumes the survey to its landing.
 - fmu kill -9 mid-mission: the vehicle stays in the air near where it was (PX4's offboard-loss
@@ -152,6 +153,10 @@ def test_px4_is_supervised_like_a_service_restarted_stopped_and_gone_with_aero_u
 # ---------------------------------------------------------------- (a) survey_01
 
 
+@pytest.mark.extended   # ~47 s: by default PX4 flies missions by `aero mission fly` to their landing, the waypoint
+#   and the landing judged by SIH truth, in test_px4_gps_denied.py's hop (on vision) and test_px4_sensors.py's
+#   VIO hop; survey_01 itself is judged end to end in the sim by test_recorder.py; PX4's disarm into OFFBOARD
+#   read as a landing: tests/unit/test_mission_fc_authority.py
 def test_px4_flies_survey_01_to_landing_reaching_every_waypoint(px4):
     st = px4
     st.ensure_landed()
@@ -194,7 +199,7 @@ def test_px4_flies_survey_01_to_landing_reaching_every_waypoint(px4):
     assert error_est < 2.5 and error_truth < 2.5, (error_est, error_truth)
 
 
-@pytest.mark.extended   # one more survey (~45 s on PX4): the default survey above covers the flight itself
+@pytest.mark.extended   # one more survey (~45 s on PX4): the flight itself is covered as the survey above says
 def test_px4_flies_survey_01_smooth_on_its_reference_and_its_legs(px4):
     """The smooth trajectory on PX4 with the px4 profile's feed-forward (drag_per_s, ff_lead_s,
     fc_xy_vel_d), speed governor (fc_xy_gain_per_s) and EKF2's IMU noise matched to SIH's (px4_sitl):
