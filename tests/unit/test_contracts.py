@@ -308,6 +308,11 @@ def test_a_bound_service_declares_no_contract_key_by_hand(service):
     assert not hand, "declared by hand, not from the contract (Node.bind):\n" + "\n".join(hand)
 
 
+def test_every_service_is_wired_from_its_contract():
+    # Issue 33: no service declares its subscribers, publishers and queryables by hand any more.
+    assert BOUND == sorted(CONTRACTS), sorted(set(CONTRACTS) - set(BOUND))
+
+
 def test_every_service_folder_has_a_contract():
     folders = {p.name for p in ROOT.iterdir() if p.is_dir() and (p / "main.py").is_file()}
     assert folders <= set(CONTRACTS)
