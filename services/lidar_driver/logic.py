@@ -83,7 +83,7 @@ class ScanAssembler:
             self.velodyne = velodyne.VelodyneDecoder(None if self.cfg.model == "auto" else self.cfg.model)
             self.cells_per_rotation = 360
         self._parts: list[_Batch] = []
-        self._cells: set[int] = set()
+        self._cover = np.zeros(self.cells_per_rotation, bool)   # which cells of the rotation arrived
         self._frame: int | None = None
         self._last_az: float | None = None
         self._last_dev: int | None = None      # the previous packet's sensor time (ns)
@@ -92,9 +92,28 @@ class ScanAssembler:
     # ------------------------------------------------------------ packets in
 
     def feed(self, payload: bytes, rx_ns: int) -> list[Scan]:
+        return self.feed_many([(payload, rx_ns)])
+
+    def feed_many(self, packets: list[tuple[bytes, int]]) -> list[Scan]:
+        """(payload, arrival ns) in arrival order -> the scans they complete. A burst read from the
+        socket at once is decoded in one batch (VelodyneDecoder.decode_many): the same result as
+        feeding the packets one by one, at a fraction of the CPU."""
+        decoded: list = [None] * len(packets)
+        if self.velodyne is not None:
+            data = [i for i, (pk, _) in enumerate(packets) if len(pk) != 512]
+            for i, res in zip(data, self.velodyne.decode_many([packets[i][0] for i in data])):
+                decoded[i] = res
+        out: list[Scan] = []
+        for (payload, rx_ns), pre in zip(packets, decoded):
+            out += self._feed_one(payload, rx_ns, pre)
+        return out
+
+    def _feed_one(self, payload: bytes, rx_ns: int, pre) -> list[Scan]:
         self.counts["packets"] += 1
         try:
-            b = self._decode(payload, rx_ns)
+            if isinstance(pre, PacketError):
+                raise pre
+            b = self._ouster(payload, rx_ns) if self.meta is not None else self._velodyne(payload, rx_ns, pre)
         except PacketError as e:
             self.counts[f"bad: {e}".split(",")[0][:60]] += 1
             self.counts["bad_packets"] += 1
@@ -140,11 +159,12 @@ class ScanAssembler:
             b = _Batch(b.xyz[keep], b.intensity[keep], b.ring[keep], b.t_ns[keep],
                        b.cells[keep] if b.frame is None else b.cells, None, b.frame)
         self._parts.append(b)
-        self._cells.update(np.unique(b.cells).tolist())
+        self._cover[b.cells] = True
 
     def _finish(self, why: str) -> list[Scan]:
-        parts, cells = self._parts, len(self._cells)
-        self._parts, self._cells = [], set()
+        parts, cells = self._parts, int(self._cover.sum())
+        self._parts = []
+        self._cover[:] = False
         if not parts:
             return []
         coverage = cells / self.cells_per_rotation
@@ -168,17 +188,12 @@ class ScanAssembler:
 
     # ------------------------------------------------------------ vendors
 
-    def _decode(self, payload: bytes, rx_ns: int) -> _Batch | None:
-        if self.meta is not None:
-            return self._ouster(payload, rx_ns)
-        return self._velodyne(payload, rx_ns)
-
-    def _velodyne(self, payload: bytes, rx_ns: int) -> _Batch | None:
+    def _velodyne(self, payload: bytes, rx_ns: int, p: velodyne.VelodynePoints | None) -> _Batch | None:
         assert self.velodyne is not None
         if len(payload) == 512:          # position (GPS/NMEA) packets share the stream on some setups
             self.counts["position_packets"] += 1
             return None
-        p = self.velodyne.decode(payload)
+        assert p is not None
         dev_ns = p.stamp_us * 1000
         restarted = False
         if self._last_dev is not None:

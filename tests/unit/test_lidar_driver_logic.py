@@ -92,6 +92,21 @@ def test_an_ouster_whose_frame_ids_restart_is_taken_from_the_restart():
     assert a.counts["clock_jumps"] == 1 and len(scans) == 6
 
 
+def test_a_burst_fed_at_once_gives_what_feeding_packets_one_by_one_gives():
+    pk = _packets("velodyne/hdl32_example.pcap")
+    bad = [(pk[0][0], b"garbage"), (pk[0][0], b"\xff" * 1206)]
+    pk = pk[:300] + bad + pk[300:]
+    one, scans_one = _run(_cfg(), pk)
+    many, scans_many = ScanAssembler(_cfg()), []
+    for i in range(0, len(pk), 37):                            # bursts as a socket drain gives them
+        scans_many += many.feed_many([(payload, t) for t, payload in pk[i:i + 37]])
+    scans_many += many.flush(pk[-1][0] + 10**9)
+    assert many.counts == one.counts and len(scans_many) == len(scans_one) == 5
+    for a, b in zip(scans_one, scans_many):
+        assert a.stamp_ns == b.stamp_ns and np.array_equal(a.xyz_m, b.xyz_m) and np.array_equal(a.ring, b.ring)
+        assert np.array_equal(a.time_offset_s, b.time_offset_s) and a.coverage == b.coverage
+
+
 def test_a_scan_covering_too_little_is_dropped_with_its_reason():
     a, scans = _run(_cfg(min_coverage=0.9), _packets("velodyne/vlp16_velodyne_example.pcap"))
     assert scans == []
