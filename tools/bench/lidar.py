@@ -1,6 +1,7 @@
 """`aero bench lidar`: a 150k-point scan -> obstacles -> costmap, per stage, against the
 as-specified Open3D pipeline (voxel_down_sample, segment_plane, height filter, grid) measured in
-the same run as the baseline; and the same on a real KITTI scan when ../shared/data is there.
+the same run as the baseline; and the same on a real KITTI scan and on one rotation of each real
+Velodyne / Ouster packet capture when ../shared/data is there.
 Each scan starts from the encoded message, as the service receives it. Wall time per stage;
 CPU time (this process) per scan, which is the figure the service's CPU budget is about.
 """
@@ -35,6 +36,32 @@ def _dense_sim_scan(scenario: str) -> tuple[np.ndarray, np.ndarray, float]:
     scan = lidar.scan(truth)
     r_wb = quat_to_rotmat(truth.q_enu_flu)
     return scan.points_m, r_wb @ lidar.r_body_lidar, float((r_wb @ lidar.t_body_lidar_m)[2])
+
+
+def _capture_scans() -> list[tuple[str, np.ndarray]]:
+    """One whole rotation of each real packet capture in ../shared/data (HDL-32E, Ouster OS-1-128),
+    as the lidar_driver assembles it: real sensors' point layouts through the same pipeline."""
+    from aeroperception.services.lib.lidar.pcap import read_udp
+    from aeroperception.services.lidar_driver import contract as driver
+    from aeroperception.services.lidar_driver.logic import DriverConfig, ScanAssembler
+    from aeroperception.services.runtime.config import build
+    from aeroperception.services.runtime.data import shared_data_dir
+
+    root = shared_data_dir()
+    out: list[tuple[str, np.ndarray]] = []
+    captures = [("HDL-32E", "velodyne/hdl32_example.pcap", {}),
+                ("OS-1-128", "ouster/OS-1-128_v2.3.0_1024x10_lb_n3.pcap",
+                 {"vendor": "ouster", "metadata_path": "ouster/OS-1-128_v2.3.0_1024x10.json"})]
+    for name, pcap, kw in captures:
+        path = root / "lidar_pcap" / pcap if root else None
+        if path is None or not path.is_file():
+            continue
+        kw = {k: str(root / "lidar_pcap" / v) if k == "metadata_path" else v for k, v in kw.items()}
+        asm = ScanAssembler(build(DriverConfig, driver.PARAMS, time_source="sensor", **kw))
+        scans = asm.feed_many([(d.payload, d.stamp_ns) for d in read_udp(path)])
+        if scans:
+            out.append((f"{name} capture", scans[0].xyz_m.astype(np.float32)))
+    return out
 
 
 def _open3d_baseline(points: np.ndarray, r: np.ndarray, cfg: PipelineConfig, cm: RollingCostmap) -> None:
@@ -110,6 +137,8 @@ def run(n: int = 20, scenario: str = "village") -> int:
     if kitti:
         raw = np.fromfile(kitti[0], np.float32).reshape(-1, 4)[:, :3].copy()
         rows += _bench(f"KITTI {kitti[0].stem}", raw, np.eye(3), 0.0, n)
+    for name, points in _capture_scans():
+        rows += _bench(name, points, np.eye(3), 0.0, n)
     print(f"{'stage':<58} {'wall ms':>8} {'p99':>7} {'CPU ms':>8} {'p99':>7} {'x baseline':>11}")
     for name, w50, w99, c50, c99, ratio in rows:
         cpu = "" if c50 is None else f"{c50:>8.2f} {c99:>7.2f}"
