@@ -5,15 +5,17 @@ Frames: points in the sensor's own frame (`frame_id`; x forward, y left, z up, a
 defines it); where the sensor sits on the body is the consumer's mount (the lidar service's
 mount_* parameters), never assumed here.
 """
-from aeroperception.schemas import PointCloud
+from aeroperception.schemas import Imu, PointCloud
 from aeroperception.services.lib.lidar.velodyne import MODELS
-from aeroperception.services.runtime import BULK, Param, Topic, Topics
+from aeroperception.services.runtime import BULK, SMALL, Param, Topic, Topics
 
 NAME = "lidar_driver"
 CPU_BUDGET_PCT = 15.0    # % of one core: a VLP-16 at 10 Hz (754 packets/s)
 OUTPUTS = Topics(
     Topic("sensors/lidar/points", PointCloud, 10.0, note="sensor frame; whole rotations with ring and time_offset_s",
           qos=BULK),
+    Topic("sensors/lidar/imu", Imu, 100.0, note="Ouster with imu_port: the sensor's own IMU, in the sensor frame "
+                                                "(not sensors/imu: that is the vehicle's)", qos=SMALL),
 )
 PARAMS = [
     Param("vendor", "velodyne", choices=("velodyne", "ouster"), start_only=True, description="packet format"),
@@ -24,6 +26,8 @@ PARAMS = [
           description="accept packets only from this address ('' = any; Velodyne's factory default)"),
     Param("bind_address", "0.0.0.0", start_only=True, description="local address the UDP socket binds"),
     Param("port", 2368, "", 1, 65535, start_only=True, description="UDP data port (Velodyne 2368, Ouster 7502)"),
+    Param("imu_port", 0, "", 0, 65535, start_only=True,
+          description="Ouster: the IMU packets' UDP port (7503), published on sensors/lidar/imu; 0 = not read"),
     Param("frame_id", "lidar", description="header.frame_id of the published scans"),
     Param("scan_rate_hz", 10.0, "Hz", 5.0, 20.0,
           description="the sensor's rotation rate: no packet for 2 periods ends the scan in progress"),

@@ -21,6 +21,7 @@ HOUR_NS = 3600 * 1_000_000_000
 # A packet at most this many rotations earlier than the one before it arrived out of order (it is
 # dropped); farther back, the sensor's clock jumped back (re-sync, reboot) and the stream restarts.
 REORDER_ROTATIONS = 2
+G_MPS2 = 9.80665                 # the g an Ouster IMU reports accelerations in
 REORDER_FRAMES = 1
 
 
@@ -32,6 +33,7 @@ class DriverConfig:
     device_ip: str = param("device_ip")
     bind_address: str = param("bind_address")
     port: int = param("port")
+    imu_port: int = param("imu_port")
     frame_id: str = param("frame_id")
     scan_rate_hz: float = param("scan_rate_hz")
     min_range_m: float = param("min_range_m")
@@ -39,6 +41,14 @@ class DriverConfig:
     expected_points: int = param("expected_points")
     min_coverage: float = param("min_coverage")
     time_source: str = param("time_source")
+
+
+@dataclass
+class ImuSample:
+    """One Ouster IMU packet in the sensor frame, SI units."""
+    stamp_ns: int
+    gyro_radps: np.ndarray
+    accel_mps2: np.ndarray
 
 
 @dataclass
@@ -72,6 +82,9 @@ class ScanAssembler:
     last_scan: Scan | None = None
 
     def __post_init__(self) -> None:
+        if self.cfg.imu_port and self.cfg.vendor != "ouster":
+            raise ValueError(f"imu_port {self.cfg.imu_port}: only an Ouster sends IMU packets (vendor is "
+                             f"{self.cfg.vendor}): it would never be read")
         if self.cfg.vendor == "ouster":
             if not self.cfg.metadata_path:
                 raise ValueError("vendor ouster needs metadata_path (the sensor's metadata JSON)")
@@ -186,6 +199,24 @@ class ScanAssembler:
         self.last_scan = scan
         return [scan]
 
+    def imu(self, payload: bytes, rx_ns: int) -> ImuSample | None:
+        """An Ouster IMU packet (imu_port) in the sensor frame: accelerations g -> m/s^2, rates
+        deg/s -> rad/s, rotated by the metadata's imu_to_sensor_transform; stamped like the scans
+        (the accelerometer's sensor time, or the arrival). None, counted, when it does not decode."""
+        self.counts["imu_packets"] += 1
+        if self.meta is None:
+            self.counts["bad_imu_packets"] += 1
+            return None
+        try:
+            m = ouster.decode_imu(payload)
+        except PacketError as e:
+            self.counts[f"bad imu: {e}"[:60]] += 1
+            self.counts["bad_imu_packets"] += 1
+            return None
+        r = self.meta.imu_to_sensor[:3, :3]
+        stamp = m.accel_stamp_ns if self.cfg.time_source == "sensor" else rx_ns
+        return ImuSample(stamp, r @ np.radians(m.gyro_dps), r @ (m.accel_g * G_MPS2))
+
     # ------------------------------------------------------------ vendors
 
     def _velodyne(self, payload: bytes, rx_ns: int, p: velodyne.VelodynePoints | None) -> _Batch | None:
@@ -235,8 +266,8 @@ class ScanAssembler:
     def _ouster(self, payload: bytes, rx_ns: int) -> _Batch | None:
         meta = self.meta
         assert meta is not None
-        if len(payload) == ouster.IMU_PACKET_BYTES:
-            self.counts["imu_packets"] += 1
+        if len(payload) == ouster.IMU_PACKET_BYTES:    # sent to the lidar port too: read on imu_port
+            self.counts["imu_packets_on_lidar_port"] += 1
             return None
         c = ouster.decode_lidar(meta, payload)
         self.counts["invalid_columns"] += int((~c.valid).sum())

@@ -1,11 +1,12 @@
 """Process shell: a UDP socket's packets into the ScanAssembler, its scans onto Zenoh."""
 from __future__ import annotations
 
+import select
 import socket
 import threading
 import time
 
-from aeroperception.schemas import DiagnosticStatus, Header, NDArray, PointCloud
+from aeroperception.schemas import DiagnosticStatus, Header, Imu, NDArray, PointCloud, Vector3
 from aeroperception.services.runtime import Health, Service, run
 
 from . import contract
@@ -25,6 +26,10 @@ class LidarDriverService(Service):
     CONTRACT = contract
     CONFIG = DriverConfig
 
+    def bind_selection(self) -> dict:
+        """sensors/lidar/imu only when the IMU packets are read (an Ouster with imu_port)."""
+        return dict(outputs=["sensors/lidar/points"] + (["sensors/lidar/imu"] if self.cfg.imu_port else []))
+
     def start(self) -> None:
         p = self.cfg
         self.assembler = ScanAssembler(self.cfg)
@@ -33,7 +38,12 @@ class LidarDriverService(Service):
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4 << 20)
         self.sock.bind((p.bind_address, p.port))
-        self.sock.settimeout(0.1)
+        self.sock.setblocking(False)
+        self.imu_sock: socket.socket | None = None
+        if p.imu_port:
+            self.imu_sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            self.imu_sock.bind((p.bind_address, p.imu_port))
+            self.imu_sock.setblocking(False)
         self.wrong_source = 0
         self.reader = threading.Thread(target=self._read_loop, name="lidar-udp", daemon=True)
         self.reader.start()
@@ -49,37 +59,54 @@ class LidarDriverService(Service):
             self.reader.join(1.0)
         if hasattr(self, "sock"):
             self.sock.close()
+        if getattr(self, "imu_sock", None) is not None:
+            self.imu_sock.close()
 
     def _read_loop(self) -> None:
+        socks = [self.sock] + ([self.imu_sock] if self.imu_sock is not None else [])
         while not self.node.stop_event.is_set():
             try:
-                payload, (ip, _port) = self.sock.recvfrom(65535)
-            except TimeoutError:
-                self.node.run_callback("lidar-udp", self._flush)
-                continue
-            except OSError as e:
+                ready, _, _ = select.select(socks, [], [], 0.1)
+            except (OSError, ValueError) as e:         # a socket closed under us: stopping
                 self.log.throttled("warn", "udp", "udp_read_error", error=str(e))
                 time.sleep(0.05)
                 continue
-            burst = [(payload, ip, time.time_ns())]
-            # what else is already queued (a burst behind a slow decode): decoded as one batch
-            while len(burst) < MAX_BURST:
-                try:
-                    payload, (ip, _port) = self.sock.recvfrom(65535, socket.MSG_DONTWAIT)
-                except (BlockingIOError, InterruptedError):
-                    break
-                except OSError:
-                    break
-                burst.append((payload, ip, time.time_ns()))
-            packets = []
-            for payload, ip, rx_ns in burst:
-                if self.device_ip and ip != self.device_ip:
-                    self.wrong_source += 1
-                    self.node.report_bad_input("udp", f"packet from {ip}, expected device_ip {self.device_ip}")
-                else:
-                    packets.append((payload, rx_ns))
-            if packets:
-                self.node.run_callback("lidar-udp", self._on_packets, packets)
+            if not ready:
+                self.node.run_callback("lidar-udp", self._flush)
+                continue
+            if self.imu_sock is not None and self.imu_sock in ready:
+                for payload, rx_ns in self._drain(self.imu_sock):
+                    self.node.run_callback("lidar-imu", self._on_imu_packet, payload, rx_ns)
+            if self.sock in ready:
+                packets = self._drain(self.sock)
+                if packets:
+                    self.node.run_callback("lidar-udp", self._on_packets, packets)
+
+    def _drain(self, sock: socket.socket) -> list[tuple[bytes, int]]:
+        """Everything the socket holds now (up to MAX_BURST), from the expected device only."""
+        out: list[tuple[bytes, int]] = []
+        while len(out) < MAX_BURST:
+            try:
+                payload, (ip, _port) = sock.recvfrom(65535, socket.MSG_DONTWAIT)
+            except (BlockingIOError, InterruptedError):
+                break
+            except OSError as e:
+                self.log.throttled("warn", "udp", "udp_read_error", error=str(e))
+                break
+            if self.device_ip and ip != self.device_ip:
+                self.wrong_source += 1
+                self.node.report_bad_input("udp", f"packet from {ip}, expected device_ip {self.device_ip}")
+                continue
+            out.append((payload, time.time_ns()))
+        return out
+
+    def _on_imu_packet(self, payload: bytes, rx_ns: int) -> None:
+        s = self.assembler.imu(payload, rx_ns)
+        if s is not None:
+            self.io["sensors/lidar/imu"].publish(Imu(
+                header=Header(stamp_ns=s.stamp_ns, frame_id=self.cfg.frame_id),
+                angular_velocity_radps=Vector3.from_array(s.gyro_radps),
+                linear_acceleration_mps2=Vector3.from_array(s.accel_mps2)))
 
     def _on_packets(self, packets: list[tuple[bytes, int]]) -> None:
         for scan in self.assembler.feed_many(packets):

@@ -12,7 +12,7 @@ import msgpack
 import numpy as np
 import pytest
 
-from aerotest import aero_argv, clean_env, free_port, token_alive, wait_until, zenoh_client
+from aerotest import aero_argv, clean_env, free_port, poll_until, wait_until, zenoh_client
 from aeroperception.schemas import DiagnosticStatus, PointCloud, decode
 from aeroperception.services.lib.lidar.pcap import read_udp
 from aeroperception.services.runtime.data import shared_data_dir
@@ -55,10 +55,17 @@ def test_replayed_vlp16_capture_comes_out_as_the_reference_points(zenoh_router, 
         proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=f, stdin=subprocess.DEVNULL,
                                 env=clean_env(zenoh_router))
     try:
-        wait_until(lambda: token_alive(watcher, "lidar_driver") or proc.poll() is not None, 30, "lidar_driver alive")
+        wait_until(lambda: '"listening"' in log.read_text() or proc.poll() is not None, 30,
+                   "lidar_driver listening (its token comes before its socket is bound)")
         assert proc.poll() is None, log.read_text()
-        sent = _replay(port, {10: b"\x00" * 1206, 20: b"garbage", 30: msgpack.packb({"not": "a packet"})})
-        wait_until(lambda: scans, 5, "a published scan")
+        # A ~0.5 MB scan on a BULK stream (congestion control DROP) can be dropped on a loaded
+        # host by design: the capture is replayed again (at most 3 times) until one arrives.
+        for _ in range(3):
+            sent = _replay(port, {10: b"\x00" * 1206, 20: b"garbage", 30: msgpack.packb({"not": "a packet"})})
+            if poll_until(lambda: scans, 3):
+                break
+        else:
+            raise AssertionError(f"no published scan; diagnostics: {status[-1].values if status else None}")
         wait_until(lambda: any(int(st.values.get("bad_packets", 0)) >= 3 for st in status),
                    5, "the three bad datagrams counted in diagnostics")
         assert proc.poll() is None, log.read_text()
@@ -69,7 +76,6 @@ def test_replayed_vlp16_capture_comes_out_as_the_reference_points(zenoh_router, 
         watcher.close()
     assert sent == 84
     # the capture starts 35 % into a rotation (dropped, with its reason); the next 58 packets are 77 %
-    assert len(scans) == 1
     scan = scans[0]
     xyz, ring, t = scan.points.to_numpy(), scan.ring.to_numpy(), scan.time_offset_s.to_numpy()
     assert scan.header.frame_id == "lidar" and len(xyz) == 21735

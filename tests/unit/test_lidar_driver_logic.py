@@ -48,7 +48,7 @@ def test_ouster_capture_gives_one_scan_per_frame():
     cfg = _cfg(vendor="ouster", metadata_path=str(PCAPS / "ouster/OS-1-128_v2.3.0_1024x10.json"))
     a, scans = _run(cfg, _packets("ouster/OS-1-128_v2.3.0_1024x10_lb_n3.pcap"))
     assert [len(s.xyz_m) for s in scans] == [107646, 107350, 107529]     # ouster-sdk's returns, minus < 0.1 m
-    assert a.counts["imu_packets"] == 30 and a.counts["lost_columns"] == 0
+    assert a.counts["imu_packets_on_lidar_port"] == 30 and a.counts["lost_columns"] == 0
     top = scans[0].ring == 127
     assert scans[0].xyz_m[top, 2].mean() > scans[0].xyz_m[~top, 2].mean()    # ring 127 is the highest beam
 
@@ -105,6 +105,29 @@ def test_a_burst_fed_at_once_gives_what_feeding_packets_one_by_one_gives():
     for a, b in zip(scans_one, scans_many):
         assert a.stamp_ns == b.stamp_ns and np.array_equal(a.xyz_m, b.xyz_m) and np.array_equal(a.ring, b.ring)
         assert np.array_equal(a.time_offset_s, b.time_offset_s) and a.coverage == b.coverage
+
+
+def test_ouster_imu_packets_in_the_sensor_frame_in_si_units():
+    from aeroperception.services.lib.lidar import ouster
+
+    cfg = _cfg(vendor="ouster", metadata_path=str(PCAPS / "ouster/OS-1-128_v2.3.0_1024x10.json"), imu_port=7503)
+    a = ScanAssembler(cfg)
+    raw = [d for d in read_udp(PCAPS / "ouster/OS-1-128_v2.3.0_1024x10_lb_n3.pcap") if d.dst[1] == 7503]
+    imu = [a.imu(d.payload, d.stamp_ns) for d in raw]
+    assert len(imu) == 30 and a.counts["imu_packets"] == 30
+    ref = ouster.decode_imu(raw[0].payload)
+    r = a.meta.imu_to_sensor[:3, :3]
+    np.testing.assert_allclose(imu[0].accel_mps2, r @ ref.accel_g * 9.80665)
+    np.testing.assert_allclose(imu[0].gyro_radps, r @ np.radians(ref.gyro_dps))
+    assert imu[0].stamp_ns == ref.accel_stamp_ns                 # time_source sensor
+    acc = np.array([s.accel_mps2 for s in imu])
+    assert 9.3 < acc[:, 2].mean() < 10.3                         # upright: the specific force points up
+    assert a.imu(b"short", 0) is None and a.counts["bad_imu_packets"] == 1
+
+
+def test_imu_port_on_a_velodyne_is_refused():
+    with pytest.raises(ValueError, match="only an Ouster sends IMU packets"):
+        ScanAssembler(_cfg(imu_port=7503))
 
 
 def test_a_scan_covering_too_little_is_dropped_with_its_reason():

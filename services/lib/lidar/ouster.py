@@ -18,7 +18,7 @@ then lidar_to_sensor_transform (mm). A packet that cannot be decoded raises Pack
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -50,6 +50,7 @@ class OusterMetadata:
     lidar_port: int
     imu_port: int
     ring: np.ndarray                        # (H,) uint16 per row: 0 = the lowest beam
+    imu_to_sensor: np.ndarray = field(default_factory=lambda: np.eye(4))   # 4x4, metres: sensor <- IMU
 
     @classmethod
     def load(cls, path: str | Path) -> "OusterMetadata":
@@ -78,7 +79,8 @@ class OusterMetadata:
         return cls(w, int(fmt["columns_per_packet"]), h, np.asarray(fmt["pixel_shift_by_row"], int), profile,
                    d @ t[:3, :3].T, o @ t[:3, :3].T + t[:3, 3] * 1e-3,
                    int(m.get("udp_port_lidar", 7502)), int(m.get("udp_port_imu", 7503)),
-                   np.argsort(np.argsort(alt[:, 0], kind="stable"), kind="stable").astype(np.uint16))
+                   np.argsort(np.argsort(alt[:, 0], kind="stable"), kind="stable").astype(np.uint16),
+                   _mm_to_m(m.get("imu_to_sensor_transform")))
 
     @property
     def legacy(self) -> bool:
@@ -151,6 +153,13 @@ class OusterImu:
     gyro_stamp_ns: int
     accel_g: np.ndarray           # (3,) in g, the IMU frame
     gyro_dps: np.ndarray          # (3,) deg/s
+
+
+def _mm_to_m(t: Any) -> np.ndarray:
+    """A metadata 4x4 transform (row-major, translation in mm) with its translation in metres."""
+    out = np.asarray(t if t is not None else np.eye(4).ravel(), float).reshape(4, 4).copy()
+    out[:3, 3] *= 1e-3
+    return out
 
 
 def decode_imu(packet: bytes) -> OusterImu:
