@@ -29,6 +29,12 @@ class BackendConfig:
     init_velocity_sigma_mps: float = 0.1
     init_accel_bias_sigma_mps2: float = 0.1
     init_gyro_bias_sigma_radps: float = 0.01
+    # Started in motion (a hand-carried rig, a restart in flight): the specific force averaged for
+    # gravity holds the motion's acceleration too (MH_01's start: 0.75 m/s^2 off g, a 4.2 deg tilt
+    # error) and the mean gyro is the turn rate, not the bias. The roll / pitch prior and the gyro
+    # bias prior widen to these (yaw stays init_rotation_sigma_rad: it is the odom frame's gauge).
+    moving_init_tilt_sigma_rad: float = 0.1
+    moving_init_gyro_bias_sigma_radps: float = 0.1
     compute_covariance: bool = True
     # The window marginal (0.9-1.5 ms CPU a frame: ISAM2 recomputes the marginals up the Bayes tree
     # after every update) is recomputed every this many frames while the visual fixes go on, and at
@@ -94,25 +100,39 @@ class Backend:
         return (t_ns - self.t0_ns) * 1e-9
 
     def initialize(self, t_ns: int, world_T_body: np.ndarray, velocity_world_mps: np.ndarray,
-                   bias: ImuBias, velocity_sigma_mps: float | None = None) -> BackendEstimate:
-        """Priors at the first state; velocity_sigma_mps overrides the config (unknown motion)."""
+                   bias: ImuBias, velocity_sigma_mps: float | None = None,
+                   moving: bool = False) -> BackendEstimate:
+        """Priors at the first state; velocity_sigma_mps overrides the config (unknown motion);
+        moving: attitude (roll, pitch) and gyro bias are uncertain too (see BackendConfig)."""
         c = self.cfg
         self.reset()
         self.t0_ns, self.i = t_ns, 0
         g = gtsam.NonlinearFactorGraph()
         pose = gtsam.Pose3(world_T_body)
-        g.add(gtsam.PriorFactorPose3(X(0), pose, gtsam.noiseModel.Diagonal.Sigmas(
-            np.r_[[c.init_rotation_sigma_rad] * 3, [c.init_position_sigma_m] * 3])))
+        g.add(gtsam.PriorFactorPose3(X(0), pose, gtsam.noiseModel.Gaussian.Covariance(
+            self._pose_prior_cov(np.asarray(world_T_body, float)[:3, :3], moving))))
         g.add(gtsam.PriorFactorVector(V(0), np.asarray(velocity_world_mps, float),
                                       gtsam.noiseModel.Isotropic.Sigma(3, velocity_sigma_mps or c.init_velocity_sigma_mps)))
+        gyro_sigma = c.moving_init_gyro_bias_sigma_radps if moving else c.init_gyro_bias_sigma_radps
         g.add(gtsam.PriorFactorConstantBias(B(0), to_gtsam_bias(bias), gtsam.noiseModel.Diagonal.Sigmas(
-            np.r_[[c.init_accel_bias_sigma_mps2] * 3, [c.init_gyro_bias_sigma_radps] * 3])))
+            np.r_[[c.init_accel_bias_sigma_mps2] * 3, [gyro_sigma] * 3])))
         v = gtsam.Values()
         v.insert(X(0), pose)
         v.insert(V(0), np.asarray(velocity_world_mps, float))
         v.insert(B(0), to_gtsam_bias(bias))
         self._update(g, v, t_ns)
         return self._estimate(t_ns)
+
+    def _pose_prior_cov(self, R_world_body: np.ndarray, moving: bool) -> np.ndarray:
+        """6x6 prior covariance in the Pose3 tangent (body rotation, body translation): roll and
+        pitch about the world's horizontal axes, yaw about its vertical one, rotated into the body."""
+        c = self.cfg
+        tilt = c.moving_init_tilt_sigma_rad if moving else c.init_rotation_sigma_rad
+        rot_world = np.diag([tilt ** 2, tilt ** 2, c.init_rotation_sigma_rad ** 2])
+        cov = np.zeros((6, 6))
+        cov[:3, :3] = R_world_body.T @ rot_world @ R_world_body
+        cov[3:, 3:] = c.init_position_sigma_m ** 2 * np.eye(3)
+        return cov
 
     def add_frame(self, t_ns: int, samples: list[ImuSample],
                   visual: tuple[int, np.ndarray, np.ndarray] | None = None) -> BackendEstimate:

@@ -40,7 +40,12 @@ class VioConfig:
     imu: ImuNoise = field(default_factory=ImuNoise)
     drift: DriftConfig = field(default_factory=DriftConfig)
     init_imu_s: float = 0.2            # IMU averaged for gravity alignment
-    still_accel_std_mps2: float = 0.5  # below: vehicle still, mean gyro = gyro bias
+    # Still (mean gyro = gyro bias, velocity zero) only if all three hold over init_imu_s; MH_01's
+    # hand-carried start passes the first alone (accel std 0.43) while turning at 0.46 rad/s
+    # with |a| 0.75 m/s^2 below g: taken as still, that turn became a 0.45 rad/s "bias".
+    still_accel_std_mps2: float = 0.5  # accel standard deviation below this
+    still_accel_norm_tol_mps2: float = 0.3   # | |mean accel| - g | below this
+    still_gyro_max_radps: float = 0.2  # |mean gyro| below this (a larger gyro bias is a fault)
     moving_init_velocity_sigma_mps: float = 3.0   # velocity prior when starting in motion
     lost_after_frames: int = 10
     imu_gap_warn_s: float = 0.05
@@ -179,7 +184,7 @@ class KltVio(VioStrategy):
         if len(self.frontend.kf_px) < self.cfg.frontend.good_inliers:
             raise VioInitializingError(f"too few features to start ({len(self.frontend.kf_px)} of "
                                        f"{self.cfg.frontend.good_inliers})")
-        vel_sigma = None
+        vel_sigma, moving = None, False
         if self.warm is not None:
             w, self.warm = self.warm, None
             T, vel, bias = np.asarray(w.world_T_body, float), np.asarray(w.velocity_world_mps, float), w.bias
@@ -191,13 +196,14 @@ class KltVio(VioStrategy):
             gyr = np.array([s.gyro_radps for s in win])
             T = np.eye(4)
             T[:3, :3] = gravity_aligned_rotation(acc.mean(axis=0))
-            still = float(np.max(acc.std(axis=0))) < self.cfg.still_accel_std_mps2
+            still = self._still(acc, gyr)
+            moving = not still
             bias = ImuBias(np.zeros(3), gyr.mean(axis=0) if still else np.zeros(3))
             vel = np.zeros(3)
             # Started in flight (a restart): velocity unknown; stereo + IMU find it within frames.
             vel_sigma = None if still else self.cfg.moving_init_velocity_sigma_mps
         try:
-            est = self.backend.initialize(t, T, vel, bias, vel_sigma)
+            est = self.backend.initialize(t, T, vel, bias, vel_sigma, moving)
         except BackendError as e:
             raise VioInitializingError(str(e)) from None
         self.kf_world_T_body = est.world_T_body
@@ -209,6 +215,13 @@ class KltVio(VioStrategy):
         self.last_t_ns = t
         self.initialisations += 1
         return self._output(frame, est, res.quality, True, res.timings_ms, inliers=len(self.frontend.kf_px))
+
+    def _still(self, acc: np.ndarray, gyr: np.ndarray) -> bool:
+        """Is the vehicle at rest over these IMU samples (N, 3)? See VioConfig."""
+        c = self.cfg
+        return (float(np.max(acc.std(axis=0))) < c.still_accel_std_mps2
+                and abs(float(np.linalg.norm(acc.mean(axis=0))) - self.cfg.imu.gravity_mps2) < c.still_accel_norm_tol_mps2
+                and float(np.linalg.norm(gyr.mean(axis=0))) < c.still_gyro_max_radps)
 
     def _carried_over(self, T: np.ndarray, vel: np.ndarray, t_ns: int) -> np.ndarray:
         """The pose a continuing restart starts from: the last estimate moved on to `t_ns` at its

@@ -60,11 +60,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-n", type=int, default=20, help="scans per pipeline")
     p.add_argument("--scenario", default="village")
     p.set_defaults(func=_bench("lidar", lambda m, a: m.run(a.n, a.scenario)))
-    p = bsub.add_parser("vio", help="VIO front end / back end / total per 640x480 stereo frame vs bare OpenCV KLT")
-    p.add_argument("-n", type=int, default=200, help="frames (rendered by the sim's camera; not timed)")
+    p = bsub.add_parser("vio", help="VIO front end / back end / total / CPU per stereo frame vs bare OpenCV KLT, "
+                                    "on rendered or (--euroc) real frames")
+    p.add_argument("-n", type=int, default=200, help="frames (rendered by the sim's camera, or the recording's first N; "
+                                                      "not timed)")
     p.add_argument("--scenario", default="village")
     p.add_argument("--strategy", default="klt_stereo")
-    p.set_defaults(func=_bench("vio", lambda m, a: m.run(a.n, a.scenario, a.strategy)))
+    p.add_argument("--euroc", metavar="DIR", help="real frames + IMU from an EuRoC/ASL folder (e.g. "
+                                                  "../shared/data/euroc/MH_01_clip) instead of rendered ones")
+    p.set_defaults(func=_bench("vio", lambda m, a: m.run(a.n, a.scenario, a.strategy, a.euroc)))
     p = bsub.add_parser("detector", help="detector pre / infer / post per frame: bundled model and a YOLOv8n-sized "
                                          "graph, 640/320, 1/2 threads, fp32/int8, vs bare session.run")
     p.add_argument("-n", type=int, default=30, help="frames per configuration")
