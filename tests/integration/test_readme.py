@@ -64,6 +64,10 @@ HOW: dict[str, tuple] = {
                                         "profile up with a sensors file, test_up_sensors decodes them"),
     "aero up --profile vehicle --sensors-file sensors.yaml --dry-run": (
         SKIP, ["aero", "up", "--help"], "sensors.yaml is the page's example: test_up_sensors plans it"),
+    "aero eval vio --euroc ../shared/data/euroc/MH_01_clip": (
+        SKIP, ["aero", "eval", "vio", "--help"], "~15 s of VIO: test_vio_euroc_motion scores the MH_01 clip offline"),
+    "aero bench vio --euroc ../shared/data/euroc/MH_01_clip -n 240": (
+        SKIP, ["aero", "bench", "vio", "--help"], "a benchmark (figures, not a test): test_vio_euroc_motion runs the frames"),
     "aero doctor": (SKIP, ["aero", "doctor", "--help"],
                     "exits 1 on a busy default port: test_doctor_cli runs it on free ports and on a held one"),
     "aero doctor --profile px4 --px4 DIR": (SKIP, ["aero", "doctor", "--help"],
