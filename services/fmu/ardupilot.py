@@ -22,6 +22,10 @@ tests/unit/test_fmu_ardupilot.py pins each difference.
    been renewed within GUID_TIMEOUT (3 s); a position set-point is held without limit. fmu's stream
    (offboard_rate_hz, and its brake-and-hold when the planner goes quiet) keeps it renewed; nothing to
    send differently.
+5. Console text. ArduPilot prints its boot console ("Init ArduCopter ...", "Init Gyro***") on SERIAL0
+   before and between its first MAVLink packets, at every start: printable text where MAVLink is
+   expected. fmu counts it (`fc_console_bytes`) instead of reporting bad input (which would leave fmu's
+   health WARN for the whole run); any other bad data still is.
 """
 from __future__ import annotations
 
@@ -61,6 +65,15 @@ def adapt_target(f: dict) -> dict:
 def prearm_ok(m) -> bool:
     """SYS_STATUS: ArduPilot's pre-arm checks pass (difference 3)."""
     return bool(m.onboard_control_sensors_present & PREARM_BIT and m.onboard_control_sensors_health & PREARM_BIT)
+
+
+def console_text(data: bytes, is_px4: bool, heard_heartbeat: bool) -> bool:
+    """Difference 5: undecodable bytes that are ArduPilot's console text (printable ASCII and
+    whitespace), from an ArduPilot or from an FC not yet identified by its heartbeat."""
+    return (not is_px4 or not heard_heartbeat) and bool(data) and all(b in _TEXT for b in data)
+
+
+_TEXT = frozenset(range(0x20, 0x7F)) | {0x09, 0x0A, 0x0D}
 
 
 def ekf_uses_gps(statustext: str) -> bool:

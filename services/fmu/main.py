@@ -53,7 +53,7 @@ class FmuService(Service):
     def start(self) -> None:
         c = self.cfg
         self.tm = Telemetry()
-        self.counters = {"rx": 0, "bad_packets": 0, "setpoints_sent": 0, "holds_sent": 0, "brakes_sent": 0,
+        self.counters = {"rx": 0, "bad_packets": 0, "fc_console_bytes": 0, "setpoints_sent": 0, "holds_sent": 0, "brakes_sent": 0,
                          "vio_injected": 0, "vio_stale_dropped": 0,
                          "commands_retried": 0, "global_origin_sent": 0, "ground_truth": 0, "ground_truth_no_origin": 0, "ground_truth_bad": 0}
         self.commands = FcCommands(self._send_command, self.link_fresh, self.args.fcu_url, self.counters)
@@ -118,6 +118,10 @@ class FmuService(Service):
 
     def _on_mavlink(self, m) -> None:
         t = m.get_type()
+        if t == "BAD_DATA" and ardupilot.console_text(bytes(m.data), self.tm.autopilot.is_px4,
+                                                      self.tm.last_heartbeat_s > 0):
+            self.counters["fc_console_bytes"] += len(m.data)
+            return
         if t == "BAD_DATA":
             self.counters["bad_packets"] += 1
             self.node.report_bad_input("mavlink", f"bad MAVLink data ({len(m.data)} bytes)")

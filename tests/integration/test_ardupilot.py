@@ -132,3 +132,5 @@ def test_takeoff_goto_land_on_arducopter_by_its_own_truth(ardupilot, tmp_path):
     assert abs(top - TAKEOFF_M) < 1.0, f"climbed to {top:.2f} m, asked {TAKEOFF_M} m"
     assert abs(u_end) < 0.3, f"not on the ground by truth: {u_end:.2f} m"
     assert math.dist((e_end, n_end), TARGET_EN_M) < 1.0, "landed away from the waypoint"
+    fmu = st.latest_diag("fmu", 3.0)     # ArduPilot's boot console text on SERIAL0 is not bad input
+    assert "dropped invalid input" not in fmu.message and int(fmu.values.get("fc_console_bytes", 0)) > 0, fmu

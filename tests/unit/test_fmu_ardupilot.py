@@ -123,3 +123,12 @@ def test_ready_to_arm_needs_the_prearm_bit_and_ekf3_on_gps():
     assert ardupilot.ready_to_arm(False, True, True) is True
     assert ardupilot.ready_to_arm(False, True, False) is False    # pre-arm bit on at 24 s, GPS fused at 41 s
     assert ardupilot.ready_to_arm(True, False, False) is None     # PX4: not this way
+
+
+def test_arducopter_boot_console_text_is_not_bad_input_but_other_bad_data_is():
+    for text in (b"\n\nInit ArduCopte", b"Init Gyro", b"*", b"\n", b"AP_Logger_File: "):   # measured on SERIAL0
+        assert ardupilot.console_text(text, is_px4=False, heard_heartbeat=True)
+        assert ardupilot.console_text(text, is_px4=True, heard_heartbeat=False)   # before its first heartbeat
+    assert not ardupilot.console_text(b"Init", is_px4=True, heard_heartbeat=True)    # PX4 prints none
+    assert not ardupilot.console_text(b"\xfd\x09\x00", is_px4=False, heard_heartbeat=True)
+    assert not ardupilot.console_text(b"", is_px4=False, heard_heartbeat=True)
