@@ -127,19 +127,38 @@ def px4_build(tmp_path_factory) -> Path:
     """A PX4 SITL build (bin/px4 + etc/): $AERO_PX4_DIR, else the bundle ../shared/px4 beside the
     repository, extracted once per session. Neither: skip saying what to point AERO_PX4_DIR at; but
     under CI=true (the bundle must be there) fail."""
-    own = os.environ.get("AERO_PX4_DIR")
+    return _sitl_bundle(tmp_path_factory, "AERO_PX4_DIR", PX4_BUNDLE, "px4-build", ".", (
+        f"no PX4 build: set AERO_PX4_DIR to one (the directory holding bin/px4 and etc/, e.g. "
+        f"PX4-Autopilot/build/px4_sitl_default) or put px4-sitl-sih.tar.gz at {PX4_BUNDLE}"))
+
+
+def _sitl_bundle(tmp_path_factory, env: str, bundle: Path, name: str, inside: str, why: str) -> Path:
+    """$env, else `bundle` extracted into a session temp dir (its `inside` folder); neither: skip with
+    `why`, but fail under CI=true (the bundle must be there)."""
+    own = os.environ.get(env)
     if own:
         return Path(own)
-    if not PX4_BUNDLE.is_file():
-        why = (f"no PX4 build: set AERO_PX4_DIR to one (the directory holding bin/px4 and etc/, e.g. "
-               f"PX4-Autopilot/build/px4_sitl_default) or put px4-sitl-sih.tar.gz at {PX4_BUNDLE}")
+    if not bundle.is_file():
         if os.environ.get("CI", "").lower() == "true":
             pytest.fail(why)
         pytest.skip(why)
-    out = tmp_path_factory.mktemp("px4-build")
-    with tarfile.open(PX4_BUNDLE) as tar:
+    out = tmp_path_factory.mktemp(name)
+    with tarfile.open(bundle) as tar:
         tar.extractall(out, filter="tar")
-    return out
+    return out / inside
+
+
+ARDUPILOT_BUNDLE = Path(__file__).resolve().parents[1].parent / "shared" / "ardupilot" / "ardupilot-sitl-copter.tar.gz"
+
+
+@pytest.fixture(scope="session")
+def ardupilot_dir(tmp_path_factory) -> Path:
+    """ArduCopter SITL (bin/arducopter + default_params/): $AERO_ARDUPILOT_DIR, else the bundle
+    ../shared/ardupilot beside the repository, extracted once per session. Neither: skip saying what to
+    point AERO_ARDUPILOT_DIR at; but under CI=true (the bundle must be there) fail."""
+    return _sitl_bundle(tmp_path_factory, "AERO_ARDUPILOT_DIR", ARDUPILOT_BUNDLE, "ardupilot", "ardupilot-sitl-copter", (
+        f"no ArduCopter SITL: set AERO_ARDUPILOT_DIR to one (ardupilot-sitl-copter/ or its .tar.gz, or an "
+        f"ArduPilot checkout after ./waf copter) or put ardupilot-sitl-copter.tar.gz at {ARDUPILOT_BUNDLE}"))
 
 
 # ---------------------------------------------------------------- aero up

@@ -15,11 +15,11 @@ from aeroperception.schemas import (
 )
 from aeroperception.services.runtime import Health, Service, run
 
-from . import contract
+from . import ardupilot, contract
 from .config import FmuConfig
 from .fc_commands import FcCommands
 from .link import open_fcu_link
-from .logic import Telemetry, highres_imu_to_imu, odometry_fields, setpoint_target
+from .logic import IGNORE_POS, IGNORE_VEL, Telemetry, highres_imu_to_imu, odometry_fields, setpoint_target
 from .navigation import estimator_status_from_mavlink, gps_from_mavlink
 from .offboard import BRAKE, FOLLOW, OffboardArbiter, StreamWarmth
 from .setup import Command, LinkSetup, Setup
@@ -53,7 +53,7 @@ class FmuService(Service):
     def start(self) -> None:
         c = self.cfg
         self.tm = Telemetry()
-        self.counters = {"rx": 0, "bad_packets": 0, "setpoints_sent": 0, "holds_sent": 0, "brakes_sent": 0,
+        self.counters = {"rx": 0, "bad_packets": 0, "fc_console_bytes": 0, "setpoints_sent": 0, "holds_sent": 0, "brakes_sent": 0,
                          "vio_injected": 0, "vio_stale_dropped": 0,
                          "commands_retried": 0, "global_origin_sent": 0, "ground_truth": 0, "ground_truth_no_origin": 0, "ground_truth_bad": 0}
         self.commands = FcCommands(self._send_command, self.link_fresh, self.args.fcu_url, self.counters)
@@ -61,6 +61,9 @@ class FmuService(Service):
         self.arbiter = OffboardArbiter(c.offboard)
         self.last_target_sent_s = 0.0
         self.stream_warmth = StreamWarmth()
+        self.guided_takeoff = ardupilot.GuidedTakeoff()   # ArduPilot: NAV_TAKEOFF before set-points
+        self.prearm_ok = False      # SYS_STATUS: the FC's pre-arm checks pass (ArduPilot reports it)
+        self.ekf_uses_gps = False   # ArduPilot said "EKF3 IMU0 is using GPS" (since fmu started)
         self.state_published_s = -math.inf  # last state/vehicle from FC data (new session after a gap)
         self.setup = LinkSetup(c.reboot_gap_s, c.ground_truth_rate_hz, c.home_request_period_s)
         self.fc_clock = FcClock()            # HIGHRES_IMU and ground-truth stamps
@@ -115,6 +118,10 @@ class FmuService(Service):
 
     def _on_mavlink(self, m) -> None:
         t = m.get_type()
+        if t == "BAD_DATA" and ardupilot.console_text(bytes(m.data), self.tm.autopilot.is_px4,
+                                                      self.tm.last_heartbeat_s > 0):
+            self.counters["fc_console_bytes"] += len(m.data)
+            return
         if t == "BAD_DATA":
             self.counters["bad_packets"] += 1
             self.node.report_bad_input("mavlink", f"bad MAVLink data ({len(m.data)} bytes)")
@@ -136,7 +143,7 @@ class FmuService(Service):
             "LOCAL_POSITION_NED": self._on_local_position,
             "ATTITUDE_QUATERNION": self._on_attitude,
             "EXTENDED_SYS_STATE": lambda m, _s: tm.on_extended_sys_state(m),
-            "SYS_STATUS": lambda m, _s: tm.on_sys_status(m),
+            "SYS_STATUS": self._on_sys_status,
             "BATTERY_STATUS": lambda m, s: io["fmu/out/battery_status"].publish(tm.on_battery_status(m, s)),
             "HIGHRES_IMU": self._on_highres_imu,
             "HIL_STATE_QUATERNION": self._on_ground_truth,
@@ -149,6 +156,13 @@ class FmuService(Service):
             "STATUSTEXT": self._on_statustext,
             "TIMESYNC": self._on_timesync,
         }
+
+    def _on_sys_status(self, m, _stamp: int) -> None:
+        self.tm.on_sys_status(m)
+        ok = ardupilot.prearm_ok(m)
+        if ok != self.prearm_ok:
+            self.log.info("fc_prearm", ok=ok)
+        self.prearm_ok = ok
 
     def _on_heartbeat(self, m, stamp: int) -> None:
         if m.type == mavlink.MAV_TYPE_GCS:
@@ -186,6 +200,7 @@ class FmuService(Service):
         """The FC says why it refused a command (PX4: "Arming denied: ...")."""
         self.commands.on_statustext(m.severity, str(m.text))
         self.log.info("fc_statustext", severity=m.severity, text=str(m.text))
+        self.ekf_uses_gps = self.ekf_uses_gps or ardupilot.ekf_uses_gps(str(m.text))
 
     def _on_timesync(self, m, _stamp: int) -> None:
         """PX4 asks the companion (tc1 == 0): answered in the clock ODOMETRY is stamped in (the
@@ -305,12 +320,29 @@ class FmuService(Service):
         self.counters["setpoints_sent"] += 1
 
     def _send_target(self, f: dict) -> None:
+        if not self.tm.autopilot.is_px4 and not self._ardupilot_target(f):
+            return
+        if not self.tm.autopilot.is_px4:
+            f = ardupilot.adapt_target(f)
         boot_ms = int(time.monotonic() * 1e3) & 0xFFFFFFFF
         self._send(lambda mav: mav.set_position_target_local_ned_send(
             boot_ms, self.tm.system_id, 1, f["coordinate_frame"], f["type_mask"], f["x"], f["y"], f["z"],
             f["vx"], f["vy"], f["vz"], f["afx"], f["afy"], f["afz"], f["yaw"], f["yaw_rate"]))
         self.last_target_sent_s = time.monotonic()
         self.stream_warmth.sent(self.last_target_sent_s)
+
+    def _ardupilot_target(self, f: dict) -> bool:
+        """ArduPilot only (services/fmu/ardupilot.py): False when NAV_TAKEOFF goes instead of `f`."""
+        sp_up = None if f["type_mask"] & IGNORE_POS else -f["z"]
+        sp_up_mps = None if f["type_mask"] & IGNORE_VEL else -f["vz"]
+        forward, takeoff = self.guided_takeoff.command(time.monotonic(), self.tm.armed, self.tm.flight_mode,
+                                                       self.tm.landed_state, float(self.tm.position_m[2]), sp_up,
+                                                       sp_up_mps)
+        if takeoff is not None:
+            self.log.info("ardupilot_guided_takeoff", altitude_m=takeoff[6], setpoint_up_m=sp_up,
+                          setpoint_up_mps=sp_up_mps)
+            self._send_commands([Command(mavlink.MAV_CMD_NAV_TAKEOFF, takeoff)])
+        return forward
 
     def _offboard_tick(self) -> None:
         """Keep the stream at offboard_rate_hz: the planner's setpoint while it is fresh, else
@@ -423,6 +455,8 @@ class FmuService(Service):
 
     def health(self) -> Health:
         values = dict(self.counters, **self.setup.counters, **self.timing.values(), mode=self.tm.flight_mode, armed=self.tm.armed, autopilot=self.tm.autopilot.name,
+                      prearm_ok=self.prearm_ok, ardupilot_takeoffs_sent=self.guided_takeoff.sent,
+                      ready_to_arm=ardupilot.ready_to_arm(self.tm.autopilot.is_px4, self.prearm_ok, self.ekf_uses_gps),
                       **self.arbiter.counters, planner=self.arbiter.label(), offboard=self.arbiter.phase,
                       hold_reason=self.arbiter.reason,
                       **getattr(self.conn, "counters", {}),

@@ -122,6 +122,12 @@ HOW: dict[str, tuple] = {
         SKIP, ["aero", "up", "--help"], "needs a PX4 build: test_px4_sensors runs this profile on the bundle, village"),
     "aero up --profile px4 --px4 DIR --scenario village --sensors lidar": (
         SKIP, ["aero", "up", "--help"], "test_px4_sitl: --sensors narrows the px4 profile as the sim profile"),
+    "aero up --profile ardupilot --ardupilot ../shared/ardupilot/ardupilot-sitl-copter.tar.gz": (
+        SKIP, ["aero", "up", "--help"], "needs ArduCopter SITL: test_ardupilot flies the bundle through this profile"),
+    "AERO_ARDUPILOT_DIR=~/ardupilot aero up --profile ardupilot --ardupilot-instance 1": (
+        SKIP, ["aero", "up", "--help"], "test_ardupilot runs it as a free instance >= 1; test_ardupilot_sitl the checks"),
+    "pytest -m ardupilot tests/integration/test_ardupilot.py": (
+        SKIP, None, "the test itself (marker ardupilot)"),
     "DIR/bin/px4-commander --instance 0 mode auto:loiter": (
         SKIP, None, "test_px4 switches its PX4 to HOLD this way mid-mission"),
     "aero up --profile vehicle": (DRY, None, "--param publish_imu=true"),

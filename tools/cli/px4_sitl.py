@@ -138,7 +138,7 @@ def lock_holder(instance: int) -> int | None:
 _FLOCK = "hhqqi4x"              # struct flock on 64-bit Linux: type, whence, start, len, pid
 
 
-def _udp_free(host: str, port: int) -> bool:
+def udp_free(host: str, port: int) -> bool:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         try:
             s.bind((host, port))
@@ -150,8 +150,8 @@ def _udp_free(host: str, port: int) -> bool:
 def busy_ports(instance: int) -> list[int]:
     """Ports instance N needs that something else holds (PX4 binds 0.0.0.0; fmu 127.0.0.1)."""
     p = Ports(instance)
-    return [port for port in p.bound_by_px4 if not _udp_free("0.0.0.0", port)] + \
-        ([p.fmu] if not _udp_free("127.0.0.1", p.fmu) else [])
+    return [port for port in p.bound_by_px4 if not udp_free("0.0.0.0", port)] + \
+        ([p.fmu] if not udp_free("127.0.0.1", p.fmu) else [])
 
 
 def instance_free(instance: int) -> bool:
@@ -162,7 +162,7 @@ def free_instance(start: int = 0) -> int | None:
     """The first instance from `start` whose lock and ports are free, nobody listening to its SIH
     display link either (a test about to start it: None when all of 0..9 are taken)."""
     return next((n for n in range(start, MAX_INSTANCE + 1)
-                 if instance_free(n) and _udp_free("127.0.0.1", Ports(n).sih_display)), None)
+                 if instance_free(n) and udp_free("127.0.0.1", Ports(n).sih_display)), None)
 
 
 def check_instance(instance: int) -> None:

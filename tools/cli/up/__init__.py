@@ -24,11 +24,11 @@ from aeroperception.services.runtime.session import LINKS
 from aeroperception.services.sim.contract import SENSOR_CHOICES
 from aeroperception.tools.common import emit
 
-from .. import px4_sitl
+from .. import ardupilot_sitl, px4_sitl
 from ..router import THIN_LINK_HZ, thin_link_downsampling
 from .launch import (  # noqa: F401 - the launch plan's names, used by tools and tests as cmd_up.X
-    PRIORITIES_ENV, SENSOR_NAMES, SENSOR_SERVICES, SENSORS_RENDERED, LaunchPlan, Priority, Px4Plan,
-    fed_services, gps_denied_needs, launch_plan, load_priorities, load_profiles, option_args, plan_px4,
+    PRIORITIES_ENV, SENSOR_NAMES, SENSOR_SERVICES, SENSORS_RENDERED, ArduPilotPlan, LaunchPlan, Priority, Px4Plan,
+    fed_services, gps_denied_needs, launch_plan, load_priorities, load_profiles, option_args, plan_ardupilot, plan_fc, plan_px4,
     print_plan, service_argv,
 )
 from .sensors import SensorPlan, plan_sensors  # noqa: F401
@@ -78,6 +78,12 @@ def register(sub: argparse._SubParsersAction) -> None:
                         f"PX4-Autopilot/build/px4_sitl_default; default ${px4_sitl.DIR_ENV})")
     p.add_argument("--px4-instance", type=int, default=None, metavar="N",
                    help="px4 profile: PX4 instance N (ports 14540+N / 14580+N, /tmp/px4_lock-N; default 0)")
+    p.add_argument("--ardupilot", default=None, metavar="DIR",
+                   help=f"ardupilot profile: ArduCopter SITL to run (the ardupilot-sitl-copter folder or its "
+                        f".tar.gz, or an ArduPilot checkout after ./waf copter; default ${ardupilot_sitl.DIR_ENV})")
+    p.add_argument("--ardupilot-instance", type=int, default=None, metavar="N",
+                   help="ardupilot profile: ArduPilot instance N (-I N: TCP 5760+10N..5763+10N; fmu on UDP "
+                        "14540+N; default 0)")
     p.add_argument("--gps-denied", action="store_true",
                    help="sim: the flight controller has no GPS-like position, only the VIO (fused with its "
                         "IMU); px4: PX4 boots for vision-only navigation (SIH GPS without satellites, EKF2 on "
@@ -103,8 +109,8 @@ def run(args) -> int:
     names, unfed = fed_services(names, args.sensors)
     for n, why in unfed.items():
         emit(f"aero up: not starting {n}: {why}")
-    px4 = plan_px4(args, names)
-    plan = launch_plan(args, names, px4, resolve_links(args), sensor_plan.args)
+    fc = plan_fc(args, names)
+    plan = launch_plan(args, names, fc, resolve_links(args), sensor_plan.args)
     if args.dry_run:
         print_plan(args, plan)
         return 0

@@ -20,7 +20,7 @@ import yaml
 from aeroperception.services.runtime.supervision import Priority
 from aeroperception.tools.common import CliError, emit
 
-from .. import px4_sitl
+from .. import ardupilot_sitl, px4_sitl
 from .supervision import Child
 
 
@@ -114,6 +114,7 @@ class Px4Plan:
     build: Path
     instance: int
     gps_denied: bool = False    # boot for vision-only navigation (fc_params' gps-denied-sih set)
+    name = px4_sitl.NAME
 
     def env(self) -> dict[str, str]:
         return px4_sitl.boot_env(gps_denied=self.gps_denied)
@@ -126,19 +127,78 @@ class Px4Plan:
         c.health = {"level": 0, "message": px4_sitl.describe(self.instance, workdir)}
         return c
 
+    def dry_run(self) -> str:
+        env = " ".join(f"{k}={v}" for k, v in self.env().items())
+        return f"{env} " + " ".join(px4_sitl.argv(self.build, self.instance, "<log-dir>/px4-XXXX"))
+
+
+@dataclass(frozen=True)
+class ArduPilotPlan:
+    """The ArduCopter SITL an ardupilot profile starts: checked binary and parameters, a free instance."""
+
+    binary: Path
+    params: Path
+    instance: int
+    name = ardupilot_sitl.NAME
+
+    def argv(self) -> list[str]:
+        return ardupilot_sitl.argv(self.binary, self.params, self.instance)
+
+    def child(self, log_dir: Path, priority: Priority) -> Child:
+        workdir = ardupilot_sitl.work_dir(log_dir)
+        c = Child(ardupilot_sitl.NAME, self.argv(), log_dir / f"{ardupilot_sitl.NAME}.log", priority=priority,
+                  cwd=workdir, booted=ardupilot_sitl.BOOTED)
+        c.health = {"level": 0, "message": ardupilot_sitl.describe(self.instance, workdir)}
+        return c
+
+    def dry_run(self) -> str:
+        return "(in <log-dir>/ardupilot-XXXX) " + " ".join(self.argv())
+
+
+def plan_ardupilot(args, names: list[str]) -> ArduPilotPlan | None:
+    """With ardupilot in the selection: its SITL and instance checked before anything starts, and fmu
+    pointed at it. Without: --ardupilot / --ardupilot-instance are refused, not ignored."""
+    given, instance = getattr(args, "ardupilot", None), getattr(args, "ardupilot_instance", None)
+    if not _fc_selected(args, names, ardupilot_sitl.NAME, "ArduPilot", given, instance,
+                        ardupilot_sitl.fcu_url(instance or 0)):
+        return None
+    if getattr(args, "gps_denied", False):
+        raise CliError("--gps-denied: not yet for --profile ardupilot (EKF3 external navigation is issue 37's "
+                       "next step); fly it with GPS")
+    binary, params = ardupilot_sitl.sitl(given)
+    plan = ArduPilotPlan(binary, params, 0 if instance is None else instance)
+    ardupilot_sitl.check_instance(plan.instance)
+    args.fcu_url = ardupilot_sitl.fcu_url(plan.instance)
+    return plan
+
+
+def plan_fc(args, names: list[str]) -> Px4Plan | ArduPilotPlan | None:
+    """The SITL flight controller the profile starts (PX4 or ArduPilot), None for none."""
+    px4 = plan_px4(args, names)
+    ardu = plan_ardupilot(args, names)
+    return px4 or ardu
+
+
+def _fc_selected(args, names: list[str], name: str, label: str, given, instance, fcu_url: str) -> bool:
+    """Whether SITL `name` (px4 / ardupilot) starts; its --NAME / --NAME-instance refused without it,
+    and --fcu-url refused with it (fmu talks to that SITL)."""
+    if name not in names:
+        if given is not None or instance is not None:
+            flag = f"--{name}" if given is not None else f"--{name}-instance"
+            raise CliError(f"{flag}: profile {args.profile} starts no {label} (use --profile {name})")
+        return False
+    if args.fcu_url is not None:
+        raise CliError(f"--fcu-url: fmu talks to the {label} this profile starts ({fcu_url}); "
+                       "drop --fcu-url, or use --profile vehicle for a flight controller of your own")
+    return True
+
 
 def plan_px4(args, names: list[str]) -> Px4Plan | None:
     """With px4 in the selection: its build and instance checked before anything starts, and fmu
     pointed at it. Without: --px4 / --px4-instance are refused, not ignored."""
     px4_dir, instance = getattr(args, "px4", None), getattr(args, "px4_instance", None)
-    if px4_sitl.NAME not in names:
-        if px4_dir is not None or instance is not None:
-            flag = "--px4" if px4_dir is not None else "--px4-instance"
-            raise CliError(f"{flag}: profile {args.profile} starts no PX4 (use --profile px4)")
+    if not _fc_selected(args, names, px4_sitl.NAME, "PX4", px4_dir, instance, px4_sitl.fcu_url(instance or 0)):
         return None
-    if args.fcu_url is not None:
-        raise CliError(f"--fcu-url: fmu talks to the PX4 this profile starts ({px4_sitl.fcu_url(instance or 0)}); "
-                       "drop --fcu-url, or use --profile vehicle for a flight controller of your own")
     plan = Px4Plan(px4_sitl.build_dir(px4_dir), 0 if instance is None else instance, getattr(args, "gps_denied", False))
     px4_sitl.check_instance(plan.instance)
     args.fcu_url = px4_sitl.fcu_url(plan.instance)
@@ -161,7 +221,7 @@ def service_argv(name: str, args, endpoint: str, profile_args: list[str] = (), r
     # sim/clock even at x1, where a sim that fell behind real time re-anchors and lags the wall clock.
     # Without the sim (vehicle), or with PX4's (the sim follows it: no sim/clock), wall time.
     profile = load_profiles()[args.profile]
-    follows_px4 = px4_sitl.NAME in profile["services"]
+    follows_px4 = px4_sitl.NAME in profile["services"] or ardupilot_sitl.NAME in profile["services"]
     sim_clock = "sim" in running and not follows_px4
     if (args.speed is not None and args.speed != 1.0) or (getattr(args, "gps_denied", False) and sim_clock):
         argv.append("--sim-time")
@@ -179,11 +239,12 @@ def service_argv(name: str, args, endpoint: str, profile_args: list[str] = (), r
 
 @dataclass
 class LaunchPlan:
-    """What `aero up` starts: the PX4 SITL (px4 profile) and each service's command line."""
+    """What `aero up` starts: the SITL flight controller (px4 / ardupilot profile) and each service's
+    command line."""
 
     profile: str
-    names: list[str]                # every process, px4 included
-    px4: Px4Plan | None
+    names: list[str]                # every process, the SITL included
+    fc: Px4Plan | ArduPilotPlan | None
     links: str                      # direct | router
     endpoint: str                   # where the children connect (the router, on this host)
     argv: dict[str, list[str]]      # {service: command line}, in start order
@@ -193,26 +254,24 @@ class LaunchPlan:
         return list(self.argv)
 
 
-def launch_plan(args, names: list[str], px4: Px4Plan | None, links: str,
+def launch_plan(args, names: list[str], fc: Px4Plan | ArduPilotPlan | None, links: str,
                 sensor_args: dict[str, list[str]] | None = None) -> LaunchPlan:
     """Each service's command line; the profile's flags for it first, then the sensors file's
     (service_argv)."""
     endpoint = args.listen.replace("0.0.0.0", "127.0.0.1")
     profile_args = load_profiles()[args.profile]["args"]
     sensor_args = sensor_args or {}
-    services = [n for n in names if n != px4_sitl.NAME]
+    services = [n for n in names if n not in (px4_sitl.NAME, ardupilot_sitl.NAME)]
     argv = {n: service_argv(n, args, endpoint, [str(a) for a in [*profile_args.get(n, []), *sensor_args.get(n, [])]],
                             services) for n in services}
-    return LaunchPlan(args.profile, names, px4, links, endpoint, argv)
+    return LaunchPlan(args.profile, names, fc, links, endpoint, argv)
 
 
 def print_plan(args, plan: LaunchPlan) -> None:
     """`aero up --dry-run`: what would start, one command line per process."""
     joins = f", joining {', '.join(args.connect)}" if args.connect else ""
     emit(f"aero up: profile {args.profile}, router on {args.listen}{joins}, {plan.links} links; would start:")
-    if plan.px4:
-        env = " ".join(f"{k}={v}" for k, v in plan.px4.env().items())
-        emit(f"  {px4_sitl.NAME:<12} {env} " + " ".join(px4_sitl.argv(plan.px4.build, plan.px4.instance,
-                                                                      "<log-dir>/px4-XXXX")))
+    if plan.fc:
+        emit(f"  {plan.fc.name:<12} {plan.fc.dry_run()}")
     for n, argv in plan.argv.items():
         emit(f"  {n:<12} " + " ".join(argv))

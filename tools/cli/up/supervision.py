@@ -32,7 +32,6 @@ from aeroperception.services.runtime.supervision import (
 )
 from aeroperception.tools.common import CliError, emit
 
-from .. import px4_sitl
 from ..topic import decode_sample
 from .status import format_table
 
@@ -58,12 +57,13 @@ class Child:
     token: bool = False         # aero/alive/<vehicle>/<name> exists (ours or another instance's)
     waiting_since: float | None = None  # refused as a duplicate; waiting for the other to stop
     last_error: str = ""
-    # A process that is not one of our services (PX4 SITL): its own environment and clean-stop
+    # A process that is not one of our services (PX4 or ArduPilot SITL): its own environment and clean-stop
     # signal; it has no liveliness token of its own, so aero up holds one for it while it runs and
     # its log has shown `booted`.
     extra_env: dict[str, str] = field(default_factory=dict)
     stop_signal: int = signal.SIGTERM
     booted: str = ""
+    cwd: Path | None = None     # its working directory (ArduPilot writes eeprom.bin, logs/ there)
     proxy_token: zenoh.LivelinessToken | None = None
     log_offset: int = 0
 
@@ -71,7 +71,7 @@ class Child:
         self.log_offset = self.log_path.stat().st_size if self.log_path.exists() else 0
         log = open(self.log_path, "ab")
         self.proc = subprocess.Popen(self.argv, stdout=log, stderr=subprocess.STDOUT, env={**env, **self.extra_env},
-                                     start_new_session=True)
+                                     start_new_session=True, cwd=self.cwd)
         log.close()
         self.started_at = time.monotonic()
         # Right after exec, before the interpreter starts any thread: later threads inherit it.
@@ -196,15 +196,15 @@ def supervise(args, plan: "LaunchPlan", priorities: dict[str, Priority]) -> int:
     Ctrl-C / SIGTERM, then stop them all, the router last."""
     log_dir = Path(args.log_dir or Path.home() / ".aero" / "logs" / time.strftime("%Y%m%d-%H%M%S"))
     log_dir.mkdir(parents=True, exist_ok=True)
-    endpoint, links, names, px4 = plan.endpoint, plan.links, plan.names, plan.px4
+    endpoint, links, names, fc = plan.endpoint, plan.links, plan.names, plan.fc
     # AERO_SUPERVISOR_PID: every child exits when this process dies (runtime/supervision.py).
     env = dict(os.environ, AERO_CONNECT=endpoint, PYTHONUNBUFFERED="1",
                **{SUPERVISOR_ENV: str(os.getpid()), LINKS_ENV: links})
     vehicle = os.environ.get("AERO_VEHICLE") or "default"
     children = {n: Child(n, argv, log_dir / f"{n}.log", priority=priorities.get(n, Priority()))
                 for n, argv in plan.argv.items()}
-    if px4:   # the flight controller first: fmu finds it booting rather than absent
-        children = {px4_sitl.NAME: px4.child(log_dir, priorities.get(px4_sitl.NAME, Priority())), **children}
+    if fc:   # the flight controller first: fmu finds it booting rather than absent
+        children = {fc.name: fc.child(log_dir, priorities.get(fc.name, Priority())), **children}
     lock = threading.Lock()
 
     stop = ShutdownFlag().install().event
@@ -246,8 +246,8 @@ def supervise(args, plan: "LaunchPlan", priorities: dict[str, Priority]) -> int:
     pids_path = log_dir / "pids.json"
     for c in children.values():
         c.start(env)
-    if px4:
-        emit(f"aero up: {children[px4_sitl.NAME].health['message']}; log {children[px4_sitl.NAME].log_path}")
+    if fc:
+        emit(f"aero up: {children[fc.name].health['message']}; log {children[fc.name].log_path}")
     write_pids(pids_path, children.values())
     emit("aero up: scheduling: " + ", ".join(f"{c.name} {c.sched}" for c in [router.child, *children.values()]))
 
