@@ -97,3 +97,21 @@ def test_mh01_moving_start_finds_gravity_and_the_gyro_bias_within_a_second(mh01)
     gyro_bias = run.estimates[-1].imu_bias.gyro_radps
     assert np.allclose(gyro_bias, [-0.003, 0.021, 0.079], atol=0.01), gyro_bias   # MH_01's published ADIS bias
     assert isinstance(run.estimates[0].imu_bias, ImuBias)
+
+
+def test_live_truth_is_interpolated_at_the_estimate_stamp_not_the_nearest_sample():
+    """A truth stream that lost samples (DROP under load) must not charge the estimate with the
+    motion between its stamp and the nearest surviving truth sample."""
+    from aeroperception.tools.eval.vio import _truth_at
+
+    ts = np.array([0, 5_000_000, 25_000_000, 200_000_000])      # 10, 15, 20 ms lost
+    poses = []
+    for t in ts:
+        T = np.eye(4)
+        T[0, 3] = t * 1e-9 * 1.0                                   # 1 m/s along x
+        poses.append(T)
+    at = _truth_at(ts, poses, 15_000_000)
+    assert at is not None and abs(at[0, 3] - 0.015) < 1e-12       # nearest would say 0.025 or 0.005
+    assert _truth_at(ts, poses, 5_000_000) is poses[1]
+    assert _truth_at(ts, poses, 100_000_000) is None               # a 175 ms gap: no truth there
+    assert _truth_at(ts, poses, -1) is None and _truth_at(ts, poses, 300_000_000) is None
