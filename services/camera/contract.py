@@ -7,6 +7,7 @@ camera and the stereo calibration for the right one. Never assumed.
 """
 from aeroperception.schemas import CameraInfo, Image
 from aeroperception.services.runtime import BULK, Param, Queries, Query, Topic, Topics
+from aeroperception.services.runtime.params import start_only_but
 
 from .calibration import FORMATS
 
@@ -22,7 +23,7 @@ SERVICES = Queries(
     Query("sensors/camera/left/info", None, CameraInfo, note="the camera model, for a late subscriber"),
     Query("sensors/camera/right/info", None, CameraInfo),
 )
-PARAMS = [
+_DECLARED = [
     Param("source", "/dev/video0", start_only=True,
           description="a V4L2 device (/dev/videoN or its index), gst:<GStreamer pipeline ending in appsink>, "
                       "a video file or a folder of images"),
@@ -51,4 +52,7 @@ PARAMS = [
     Param("mount_pitch_deg", 0.0, "deg", -90.0, 90.0, description="+90: looking straight down"),
     Param("mount_yaw_deg", 0.0, "deg", -180.0, 180.0),
 ]
+# The source, its layout, calibration and mount are taken at start (the camera models are built
+# once); what the capture loop reads on every frame can change live.
+PARAMS = start_only_but(_DECLARED, live=("encoding", "latency_s", "stall_timeout_s", "reopen_period_s", "loop"))
 MOUNT_PARAMS = [p.name for p in PARAMS if p.name.startswith("mount_")]
