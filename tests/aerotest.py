@@ -131,3 +131,23 @@ def assert_chaos_row(st: Any, row: Any, mission_json: str) -> None:
           f"safe: {res.safe_why}; detect/react {res.detect_s}")
     assert res.safe, f"{row.name}: vehicle not safe by the truth: {res.safe_why} (observed: {res.observed})"
     assert res.passed, f"{row.name}: expected {row.expected!r}; observed {res.observed!r}"
+
+
+def euroc_camchain(mav: Path, path: Path, stereo: bool = True) -> Any:
+    """A Kalibr camchain of EuRoC's VI-Sensor written from its real sensor.yaml files (intrinsics,
+    radtan distortion, T_cam_imu = inverse of T_BS: the IMU is the body) to `path`; returns cam0's
+    T_BS (4x4), where the camera driver must place the left camera."""
+    import numpy as np
+    import yaml
+
+    chain, t_bs0 = {}, None
+    for cam in ("cam0", "cam1")[: 2 if stereo else 1]:
+        text = (mav / cam / "sensor.yaml").read_text()
+        y = yaml.safe_load(text.split("\n", 1)[1] if text.startswith("%YAML") else text)   # OpenCV's header
+        t_bs = np.array(y["T_BS"]["data"], float).reshape(4, 4)
+        t_bs0 = t_bs if t_bs0 is None else t_bs0
+        chain[cam] = dict(camera_model="pinhole", intrinsics=y["intrinsics"], distortion_model="radtan",
+                          distortion_coeffs=y["distortion_coefficients"], resolution=y["resolution"],
+                          T_cam_imu=np.linalg.inv(t_bs).tolist())
+    path.write_text(yaml.safe_dump(chain))
+    return t_bs0

@@ -10,9 +10,8 @@ import subprocess
 import cv2
 import numpy as np
 import pytest
-import yaml
 
-from aerotest import aero_argv, clean_env, token_alive, wait_until, zenoh_client
+from aerotest import aero_argv, clean_env, euroc_camchain, token_alive, wait_until, zenoh_client
 from aeroperception.schemas import CameraInfo, DiagnosticStatus, Image, decode
 from aeroperception.services.runtime import call
 from aeroperception.services.runtime.data import shared_data_dir
@@ -24,16 +23,7 @@ pytestmark = pytest.mark.skipif(MAV is None or not MAV.is_dir(), reason="../shar
 
 
 def camchain(path, stereo: bool) -> np.ndarray:
-    """Kalibr's camchain of the VI-Sensor from EuRoC's sensor.yaml; returns cam0's T_BS."""
-    cams = {}
-    for cam in ("cam0", "cam1")[: 2 if stereo else 1]:
-        y = yaml.safe_load((MAV / cam / "sensor.yaml").read_text())
-        cams[cam] = (y, np.array(y["T_BS"]["data"]).reshape(4, 4))
-    chain = {name: dict(camera_model="pinhole", intrinsics=y["intrinsics"], distortion_model="radtan",
-                        distortion_coeffs=y["distortion_coefficients"], resolution=y["resolution"],
-                        T_cam_imu=np.linalg.inv(t).tolist()) for name, (y, t) in cams.items()}
-    path.write_text(yaml.safe_dump(chain))
-    return cams["cam0"][1]
+    return euroc_camchain(MAV, path, stereo)
 
 
 class Camera:
@@ -78,8 +68,14 @@ def test_an_image_folder_is_a_calibrated_mono_camera_at_its_rate(zenoh_router, t
         cam.close()
     imgs = cam.images["left"]
     assert not cam.images["right"]
-    first = cv2.imread(str(sorted((MAV / "cam0" / "data").iterdir())[0]), cv2.IMREAD_GRAYSCALE)
-    np.testing.assert_array_equal(imgs[0].to_numpy(), first)
+    # the first frames can go out before the subscription has reached the driver's session: the first
+    # image received is one of the folder's first files, pixel for pixel, and the next one a file after it
+    files = sorted((MAV / "cam0" / "data").iterdir())
+    got = imgs[0].to_numpy()
+    k = next((k for k in range(20) if np.array_equal(got, cv2.imread(str(files[k]), cv2.IMREAD_GRAYSCALE))), None)
+    assert k is not None, "the first image received is none of the folder's first 20 files"
+    assert any(np.array_equal(imgs[1].to_numpy(), cv2.imread(str(files[k + j]), cv2.IMREAD_GRAYSCALE))
+               for j in (1, 2, 3)), "the second image received is not among the three files after the first"
     assert imgs[0].encoding == "mono8" and imgs[0].header.frame_id == "camera_left_optical"
     rate = (len(imgs) - 1) / ((imgs[-1].header.stamp_ns - imgs[0].header.stamp_ns) * 1e-9)
     assert 17.0 < rate < 21.0, rate
@@ -109,12 +105,18 @@ def test_a_side_by_side_video_is_split_into_a_stereo_pair_and_its_end_reported(z
         assert cam.proc.poll() is None
     finally:
         cam.close()
-    left, right = cam.images["left"], cam.images["right"]
-    assert len(left) == len(right) == 40
-    assert [i.header.stamp_ns for i in left] == [i.header.stamp_ns for i in right]
-    for (ref_l, ref_r), l_img, r_img in zip(pairs, left, right):       # MJPG is lossy: close, not equal
-        assert np.abs(l_img.to_numpy().astype(int) - ref_l).mean() < 3.0
-        assert np.abs(r_img.to_numpy().astype(int) - ref_r).mean() < 3.0
+    # Images are a BULK stream (congestion DROP): on a loaded host one can be lost in transit (39 right
+    # of 40 once in a full run). Each frame is one stamp shared by its two halves; the driver's own
+    # count (below) says all 40 were published.
+    left = {i.header.stamp_ns: i for i in cam.images["left"]}
+    right = {i.header.stamp_ns: i for i in cam.images["right"]}
+    stamps = sorted(set(left) | set(right))
+    assert len(stamps) == 40 and len(set(left) & set(right)) >= 38, (len(left), len(right), len(stamps))
+    for (ref_l, ref_r), t in zip(pairs, stamps):                       # MJPG is lossy: close, not equal
+        if t in left:
+            assert np.abs(left[t].to_numpy().astype(int) - ref_l).mean() < 3.0
+        if t in right:
+            assert np.abs(right[t].to_numpy().astype(int) - ref_r).mean() < 3.0
     ended = [s for s in cam.status if "end of the recording" in s.message][-1]
     assert ended.level == DiagnosticStatus.WARN and ended.values["frames"] == "40"
 

@@ -19,7 +19,7 @@ from aeroperception.services.lib.lidar.velodyne import VelodyneDecoder
 from aeroperception.services.runtime.data import shared_data_dir
 from aeroperception.services.runtime.rotations import quat_to_rotmat
 from aeroperception.tools.harness.stack import Stack
-from aerotest import aero_argv, clean_env, free_port, poll_until, standalone_fc, wait_for_message
+from aerotest import aero_argv, clean_env, euroc_camchain, free_port, poll_until, standalone_fc, wait_for_message
 
 DATA = shared_data_dir()
 MAV = DATA / "euroc" / "V1_01_easy_start" / "mav0" if DATA else None
@@ -31,15 +31,7 @@ LIDAR_Z_M = 0.3
 
 
 def sensors_file(folder, lidar_port: int):
-    cams = {}
-    for cam in ("cam0", "cam1"):
-        text = (MAV / cam / "sensor.yaml").read_text()
-        y = yaml.safe_load(text.split("\n", 1)[1] if text.startswith("%YAML") else text)
-        t_bs = np.array(y["T_BS"]["data"]).reshape(4, 4)
-        cams[cam] = dict(camera_model="pinhole", intrinsics=y["intrinsics"], distortion_model="radtan",
-                         distortion_coeffs=y["distortion_coefficients"], resolution=y["resolution"],
-                         T_cam_imu=np.linalg.inv(t_bs).tolist())
-    (folder / "camchain.yaml").write_text(yaml.safe_dump(cams))
+    euroc_camchain(MAV, folder / "camchain.yaml")
     path = folder / "sensors.yaml"
     path.write_text(yaml.safe_dump({
         "camera": {"driver": "camera", "params": {

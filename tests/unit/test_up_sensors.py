@@ -5,30 +5,21 @@ from __future__ import annotations
 
 import argparse
 
-import numpy as np
 import pytest
 import yaml
 
 from aeroperception.services.runtime.data import shared_data_dir
 from aeroperception.tools.cli.up import sensors
 from aeroperception.tools.common import CliError
+from aerotest import euroc_camchain
 
 DATA = shared_data_dir()
 MAV = DATA / "euroc" / "V1_01_easy_start" / "mav0" if DATA else None
 pytestmark = pytest.mark.skipif(MAV is None or not MAV.is_dir(), reason="../shared/data absent")
 
 
-def camchain(folder, stereo=True, imu=True) -> str:
-    cams = {}
-    for cam in ("cam0", "cam1")[: 2 if stereo else 1]:
-        text = (MAV / cam / "sensor.yaml").read_text()
-        y = yaml.safe_load(text.split("\n", 1)[1] if text.startswith("%YAML") else text)
-        t_bs = np.array(y["T_BS"]["data"]).reshape(4, 4)
-        cams[cam] = dict(camera_model="pinhole", intrinsics=y["intrinsics"], distortion_coeffs=y["distortion_coefficients"],
-                         resolution=y["resolution"], **({"T_cam_imu": np.linalg.inv(t_bs).tolist()} if imu else {}))
-        if cam == "cam1" and not imu:
-            cams[cam]["T_cn_cnm1"] = np.eye(4).tolist()
-    (folder / "camchain.yaml").write_text(yaml.safe_dump(cams))
+def camchain(folder, stereo=True) -> str:
+    euroc_camchain(MAV, folder / "camchain.yaml", stereo)
     return "camchain.yaml"
 
 
